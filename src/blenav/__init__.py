@@ -1,0 +1,3 @@
+"""blenav: indoor localization from BLE beacons, inertial sensors and floor plans."""
+
+__version__ = "0.1.0"

@@ -1,0 +1,31 @@
+"""``blenav-import KIND SRC OUT``: convert a public recording to dataset format v1."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def main(argv: list[str] | None = None) -> int:
+    from blenav.importers import KINDS
+
+    p = argparse.ArgumentParser(prog="blenav-import", description=__doc__.splitlines()[0])
+    p.add_argument("kind", choices=KINDS, help="which public data set SRC holds")
+    p.add_argument("src", help="folder of the raw data set (e.g. ../shared/data/raw/uji_ble)")
+    p.add_argument("out", help="output dataset folder (created)")
+    args = p.parse_args(argv)
+
+    from blenav.data import DatasetError
+    from blenav.importers import ImportError_, run_import
+
+    try:
+        report = run_import(args.kind, args.src, args.out)
+    except (ImportError_, DatasetError) as exc:
+        print(f"blenav-import: error: {exc}", file=sys.stderr)
+        return 1
+    print(report)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,11 @@
+"""Dataset format v1: typed readers, the validator and writers (see docs/dataset-format.md)."""
+
+from .building import FREE, OCCUPIED, UNKNOWN, Building, Floor, Region
+from .dataset import Dataset
+from .issues import DatasetError, Issue
+from .schema import FORMAT, STREAMS
+from .session import Session
+from .validate import validate
+
+__all__ = ["FORMAT", "STREAMS", "Building", "Dataset", "DatasetError", "Floor", "FREE", "Issue", "OCCUPIED",
+           "Region", "Session", "UNKNOWN", "validate"]

@@ -1,0 +1,352 @@
+"""Buildings: floors as occupancy grids, radio anchors, rooms and navigation graph.
+
+Frames and units (docs/dataset-format.md): world frame x east, y north, z up, metres, one origin per
+building. A floor image follows ROS map_server: ``resolution`` m/pixel, ``origin`` the world (x, y) of
+the lower-left corner of the lower-left pixel. Image row 0 is the *top* row (largest y).
+
+Occupancy values (:attr:`Floor.occupancy`, int8, shape (H, W), image row order):
+``FREE = 0``, ``OCCUPIED = 1``, ``UNKNOWN = -1``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+from PIL import Image
+from shapely.geometry import LineString, MultiLineString, MultiPolygon, Polygon, shape
+
+from .issues import Issue, error, raise_or_log, warning
+from .schema import (
+    ANCHOR_COLUMNS,
+    ANCHOR_KINDS,
+    DEFAULT_FREE_THRESH,
+    DEFAULT_OCCUPIED_THRESH,
+    FLOOR_KEYS,
+)
+from .tables import read_table
+
+FREE, OCCUPIED, UNKNOWN = 0, 1, -1
+
+
+def load_yaml(path: Path) -> tuple[dict | None, list[Issue]]:
+    """Parse a YAML mapping; syntax errors name the line."""
+    if not path.is_file():
+        return None, [error(path, "missing-file", "file does not exist")]
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        return None, [error(path, "yaml-syntax", str(getattr(exc, "problem", exc)), line=line)]
+    if not isinstance(doc, dict):
+        return None, [error(path, "yaml-not-mapping", "top level must be a mapping of keys to values")]
+    return doc, []
+
+
+@dataclass
+class Floor:
+    """One floor: an occupancy grid with world<->pixel transforms.
+
+    ``origin`` is (x, y) in metres of the lower-left image corner; ``z`` the floor height in metres.
+    """
+
+    id: int | str
+    image_path: Path
+    resolution: float
+    origin: tuple[float, float]
+    z: float = 0.0
+    occupied_thresh: float = DEFAULT_OCCUPIED_THRESH
+    free_thresh: float = DEFAULT_FREE_THRESH
+    negate: bool = False
+
+    @cached_property
+    def image(self) -> np.ndarray:
+        """8-bit grayscale pixels, shape (H, W), row 0 at the top."""
+        with Image.open(self.image_path) as im:
+            if im.mode != "L":
+                im = im.convert("L")
+            return np.asarray(im, dtype=np.uint8)
+
+    @cached_property
+    def occupancy(self) -> np.ndarray:
+        """int8 (H, W): FREE 0, OCCUPIED 1, UNKNOWN -1 by ROS map_server thresholds."""
+        v = self.image.astype(np.float32) / 255.0
+        dark = v if self.negate else 1.0 - v
+        occ = np.full(dark.shape, UNKNOWN, dtype=np.int8)
+        occ[dark > self.occupied_thresh] = OCCUPIED
+        occ[dark < self.free_thresh] = FREE
+        return occ
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.occupancy.shape
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(xmin, xmax, ymin, ymax) of the image in world metres."""
+        h, w = self.shape
+        x0, y0 = self.origin
+        return x0, x0 + w * self.resolution, y0, y0 + h * self.resolution
+
+    @property
+    def free_mask(self) -> np.ndarray:
+        return self.occupancy == FREE
+
+    def world_to_pixel(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World (..., 2) metres -> integer (row, col) of the containing pixel (may be out of range)."""
+        xy = np.asarray(xy, dtype=float)
+        h, _ = self.shape
+        col = np.floor((xy[..., 0] - self.origin[0]) / self.resolution).astype(np.int64)
+        row = (h - 1) - np.floor((xy[..., 1] - self.origin[1]) / self.resolution).astype(np.int64)
+        return row, col
+
+    def pixel_to_world(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+        """Pixel centres -> world (..., 2) metres."""
+        h, _ = self.shape
+        x = self.origin[0] + (np.asarray(col, dtype=float) + 0.5) * self.resolution
+        y = self.origin[1] + (h - 1 - np.asarray(row, dtype=float) + 0.5) * self.resolution
+        return np.stack([x, y], axis=-1)
+
+    def lookup(self, xy: np.ndarray, outside: int = UNKNOWN) -> np.ndarray:
+        """Occupancy value at world points (...,2); ``outside`` for points off the image."""
+        row, col = self.world_to_pixel(xy)
+        h, w = self.shape
+        inside = (row >= 0) & (row < h) & (col >= 0) & (col < w)
+        out = np.full(row.shape, outside, dtype=np.int8)
+        out[inside] = self.occupancy[row[inside], col[inside]]
+        return out
+
+    def is_free(self, xy: np.ndarray) -> np.ndarray:
+        """Boolean (...) whether each world point lies in a free pixel."""
+        return self.lookup(xy) == FREE
+
+    def free_points(self) -> np.ndarray:
+        """World coordinates (N, 2) of the centres of all free pixels."""
+        r, c = np.nonzero(self.free_mask)
+        return self.pixel_to_world(r, c)
+
+
+@dataclass
+class Region:
+    """A room polygon or a navigation route, with its ``id`` and ``floor`` (GeoJSON properties)."""
+
+    id: str
+    floor: int | str
+    geometry: Polygon | MultiPolygon | LineString | MultiLineString
+    properties: dict = field(default_factory=dict)
+
+
+@dataclass
+class Building:
+    """A building folder: ``building.yaml``, floor images, anchors, rooms, navigation graph.
+
+    ``anchors`` columns: anchor_id (str), kind ('ble'|'wifi_rtt'), x, y, z (m, prior map), floor,
+    tx_power_dbm (dBm RSSI at 1 m, NaN when unknown), channel_model, plus any extra columns (a simulator
+    writes ``x_true, y_true, z_true``).
+    """
+
+    id: str
+    root: Path
+    name: str
+    floors: dict
+    anchors: pd.DataFrame
+    rooms: list[Region]
+    navgraph: list[Region]
+    meta: dict = field(default_factory=dict)
+
+    def floor(self, floor_id) -> Floor:
+        key = _floor_key(floor_id, self.floors)
+        if key is None:
+            raise KeyError(f"building '{self.id}' has no floor {floor_id!r}; floors are {list(self.floors)}")
+        return self.floors[key]
+
+    def anchors_of(self, kind: str | None = None, floor=None) -> pd.DataFrame:
+        a = self.anchors
+        if kind is not None:
+            a = a[a["kind"] == kind]
+        if floor is not None:
+            a = a[a["floor"].astype(str) == str(floor)]
+        return a
+
+    def rooms_on(self, floor) -> list[Region]:
+        return [r for r in self.rooms if str(r.floor) == str(floor)]
+
+    def routes_on(self, floor) -> list[Region]:
+        return [r for r in self.navgraph if str(r.floor) == str(floor)]
+
+    @classmethod
+    def load(cls, root: Path) -> "Building":
+        """Read and check a building folder; raises :class:`DatasetError` on any violation."""
+        b, issues = load_building(Path(root))
+        raise_or_log(issues)
+        return b
+
+
+def _floor_key(floor_id, floors: dict):
+    for k in floors:
+        if str(k) == str(floor_id):
+            return k
+    return None
+
+
+def load_building(root: Path, check_images: bool = True) -> tuple[Building | None, list[Issue]]:
+    """Parse and check everything in a building folder, collecting every issue."""
+    ypath = root / "building.yaml"
+    doc, issues = load_yaml(ypath)
+    if doc is None:
+        return None, issues
+    floors: dict = {}
+    raw_floors = doc.get("floors")
+    if not isinstance(raw_floors, list) or not raw_floors:
+        issues.append(error(ypath, "floors", "'floors' must be a non-empty list of floors"))
+        return None, issues
+    for i, f in enumerate(raw_floors):
+        fl, fi = _parse_floor(root, ypath, i, f, check_images)
+        issues += fi
+        if fl is not None:
+            if _floor_key(fl.id, floors) is not None:
+                issues.append(error(ypath, "floor-duplicate", f"floor id {fl.id!r} appears twice", where=f"floors[{i}]"))
+            floors[fl.id] = fl
+
+    anchors, ai = _load_anchors(root / "anchors.csv", floors)
+    issues += ai
+    rooms, ri = _load_geojson(root / "rooms.geojson", floors, ("Polygon", "MultiPolygon"))
+    issues += ri
+    routes, ni = _load_geojson(root / "navgraph.geojson", floors, ("LineString", "MultiLineString"))
+    issues += ni
+    b = Building(id=root.name, root=root, name=str(doc.get("name", root.name)), floors=floors,
+                 anchors=anchors, rooms=rooms, navgraph=routes, meta=doc)
+    return b, issues
+
+
+def _parse_floor(root: Path, ypath: Path, i: int, f, check_images: bool) -> tuple[Floor | None, list[Issue]]:
+    where = f"floors[{i}]"
+    if not isinstance(f, dict):
+        return None, [error(ypath, "floor", "each floor must be a mapping", where=where)]
+    missing = [k for k in FLOOR_KEYS if k not in f]
+    if missing:
+        return None, [error(ypath, "floor-keys", f"floor lacks key(s) {', '.join(missing)}", where=where)]
+    issues: list[Issue] = []
+    try:
+        res = float(f["resolution"])
+        origin = [float(v) for v in f["origin"]]
+        occ = float(f.get("occupied_thresh", DEFAULT_OCCUPIED_THRESH))
+        free = float(f.get("free_thresh", DEFAULT_FREE_THRESH))
+        z = float(f.get("z", 0.0) or 0.0)
+    except (TypeError, ValueError) as exc:
+        return None, [error(ypath, "floor-value", f"resolution, origin, z and thresholds must be numbers ({exc})",
+                            where=where)]
+    if not np.isfinite(res) or res <= 0:
+        issues.append(error(ypath, "floor-resolution", f"resolution must be > 0 m/pixel, got {res}", where=where))
+    if len(origin) < 2 or not np.all(np.isfinite(origin)):
+        issues.append(error(ypath, "floor-origin", "origin must be [x, y] or [x, y, yaw] in metres", where=where))
+    elif len(origin) > 2 and origin[2] != 0:
+        issues.append(warning(ypath, "floor-origin-yaw", f"origin yaw {origin[2]} is ignored (as most ROS tools do)",
+                              where=where))
+    if not (0 <= free < occ <= 1):
+        issues.append(error(ypath, "floor-thresholds",
+                            f"need 0 <= free_thresh ({free}) < occupied_thresh ({occ}) <= 1", where=where))
+    img = root / str(f["image"])
+    if not img.is_file():
+        issues.append(error(img, "missing-file", f"floor image named in {ypath.name} {where} does not exist"))
+    elif check_images:
+        issues += _check_image(img)
+    if any(i.is_error for i in issues):
+        return None, issues
+    fl = Floor(id=f["id"], image_path=img, resolution=res, origin=(origin[0], origin[1]), z=z,
+               occupied_thresh=occ, free_thresh=free, negate=bool(f.get("negate", False)))
+    return fl, issues
+
+
+def _check_image(img: Path) -> list[Issue]:
+    try:
+        with Image.open(img) as im:
+            mode = im.mode
+            im.verify()
+    except Exception as exc:  # PIL raises many types for broken files
+        return [error(img, "image-unreadable", f"not a readable PNG/PGM image ({exc})")]
+    if mode == "L":
+        return []
+    if mode in ("1", "P", "RGB", "RGBA", "LA"):
+        return [warning(img, "image-not-grayscale", f"image mode {mode} is converted to 8-bit grayscale")]
+    return [error(img, "image-mode", f"image mode {mode} is not 8-bit grayscale")]
+
+
+def _load_anchors(path: Path, floors: dict) -> tuple[pd.DataFrame, list[Issue]]:
+    empty = pd.DataFrame({c: pd.Series(dtype=float if c in ("x", "y", "z", "tx_power_dbm") else str)
+                          for c in ANCHOR_COLUMNS})
+    if not path.is_file():
+        return empty, []
+    df, issues = read_table(path, ("anchor_id", "kind", "x", "y", "z", "floor"), ("tx_power_dbm", "channel_model"),
+                            string=("anchor_id", "kind", "floor", "channel_model"), time_column=None)
+    if df is None:
+        return empty, issues
+    df["anchor_id"] = df["anchor_id"].astype(str).str.strip()
+    kinds = df["kind"].astype(str).str.strip()
+    for r in np.flatnonzero(~kinds.isin(ANCHOR_KINDS).to_numpy())[:20]:
+        issues.append(error(path, "anchor-kind", f"kind {df['kind'].iloc[r]!r} is not one of {ANCHOR_KINDS}",
+                            line=int(r) + 2))
+    df["kind"] = kinds
+    dup = df["anchor_id"].duplicated(keep="first").to_numpy()
+    for r in np.flatnonzero(dup)[:20]:
+        issues.append(error(path, "anchor-unique", f"anchor_id {df['anchor_id'].iloc[r]!r} appears twice",
+                            line=int(r) + 2))
+    if floors:
+        known = {str(k) for k in floors}
+        fl = df["floor"].astype(str).str.strip()
+        # floors written as 0.0 by float formatting still name floor 0
+        fl = fl.str.replace(r"^(-?\d+)\.0$", r"\1", regex=True)
+        df["floor"] = fl
+        for r in np.flatnonzero(~fl.isin(known).to_numpy())[:20]:
+            issues.append(error(path, "anchor-floor", f"floor {fl.iloc[r]!r} is not a floor of building.yaml "
+                                f"({sorted(known)})", line=int(r) + 2))
+    return df.reset_index(drop=True), issues
+
+
+def _load_geojson(path: Path, floors: dict, kinds: tuple[str, ...]) -> tuple[list[Region], list[Issue]]:
+    if not path.is_file():
+        return [], []
+    text = path.read_text(encoding="utf-8")
+    if not text.strip():
+        return [], []
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        return [], [error(path, "json-syntax", exc.msg, line=exc.lineno)]
+    if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection":
+        return [], [error(path, "geojson-type", "top level must be a GeoJSON FeatureCollection")]
+    out: list[Region] = []
+    issues: list[Issue] = []
+    known = {str(k) for k in floors}
+    for i, feat in enumerate(doc.get("features") or []):
+        where = f"features[{i}]"
+        props = (feat or {}).get("properties") or {}
+        geom = (feat or {}).get("geometry") or {}
+        if "id" not in props or "floor" not in props:
+            issues.append(error(path, "geojson-properties", "feature needs properties.id and properties.floor",
+                                where=where))
+            continue
+        if geom.get("type") not in kinds:
+            issues.append(error(path, "geojson-geometry", f"geometry type {geom.get('type')!r} is not one of {kinds}",
+                                where=where))
+            continue
+        try:
+            g = shape(geom)
+        except Exception as exc:  # shapely raises several types for malformed coordinates
+            issues.append(error(path, "geojson-coordinates", f"malformed coordinates ({exc})", where=where))
+            continue
+        if g.is_empty:
+            issues.append(error(path, "geojson-coordinates", "empty geometry", where=where))
+            continue
+        if known and str(props["floor"]) not in known:
+            issues.append(error(path, "geojson-floor", f"floor {props['floor']!r} is not a floor of building.yaml",
+                                where=where))
+            continue
+        out.append(Region(id=str(props["id"]), floor=props["floor"], geometry=g, properties=props))
+    return out, issues

@@ -1,0 +1,196 @@
+"""Sessions: one recording (or simulation) of one device in one building, with lazy stream access.
+
+Streams are pandas frames with the columns of :data:`blenav.data.schema.STREAMS`; time ``t`` is
+seconds since session start (float64), positions metres in the world frame, IMU in the device frame
+(accelerometer m/s^2 incl. gravity, gyroscope rad/s), magnetometer microtesla, RSSI dBm.
+An absent optional stream reads as an empty frame with the right columns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .building import Building, Floor, _floor_key, load_yaml
+from .issues import Issue, error, raise_or_log, warning
+from .schema import (
+    ANCHORED_STREAMS,
+    CARRIERS,
+    QUAT_MIN_NORM,
+    RSSI_MAX_DBM,
+    RSSI_MIN_DBM,
+    SESSION_KEYS,
+    STREAMS,
+)
+from .tables import _rows_issue, read_stream
+
+
+def check_session_meta(path: Path, doc: dict, buildings: dict) -> list[Issue]:
+    """Rules of session.yaml: keys present, carrier known, building and floor exist."""
+    issues = []
+    missing = [k for k in SESSION_KEYS if k not in doc]
+    if missing:
+        issues.append(error(path, "session-keys", f"session.yaml lacks key(s) {', '.join(missing)}"))
+    if "carrier" in doc and doc["carrier"] not in CARRIERS:
+        issues.append(error(path, "session-carrier", f"carrier {doc['carrier']!r} is not one of {CARRIERS}"))
+    if "labelled" in doc and not isinstance(doc["labelled"], bool):
+        issues.append(error(path, "session-labelled", f"labelled must be true or false, got {doc['labelled']!r}"))
+    b = doc.get("building")
+    if b is not None:
+        if str(b) not in buildings:
+            issues.append(error(path, "session-building", f"building {b!r} is not a folder under buildings/"))
+        elif buildings[str(b)] is not None and "floor" in doc:
+            if _floor_key(doc["floor"], buildings[str(b)].floors) is None:
+                issues.append(error(path, "session-floor", f"floor {doc['floor']!r} is not a floor of building {b!r}"))
+    return issues
+
+
+def load_stream(root: Path, name: str, building: Building | None, labelled: bool) -> tuple[pd.DataFrame, list[Issue]]:
+    """Read and check one stream of a session folder; applies every per-stream rule of the spec.
+
+    Rows for unknown anchors are dropped and reported as one warning (count and first ids).
+    """
+    spec = STREAMS[name]
+    path = root / spec.filename
+    empty = pd.DataFrame({c: pd.Series(dtype=str if c in spec.string else float) for c in spec.columns})
+    if not path.is_file():
+        if name == "groundtruth" and labelled:
+            return empty, [error(path, "groundtruth-missing", "labelled: true but groundtruth.csv is absent")]
+        return empty, []
+    df, issues = read_stream(path, spec)
+    if df is None:
+        return empty, issues
+    if len(df) == 0:
+        if name == "imu":
+            issues.append(error(path, "empty-required", "imu.csv is present but has no rows"))
+        if name == "groundtruth" and labelled:
+            issues.append(error(path, "empty-required", "labelled: true but groundtruth.csv has no rows"))
+        return empty, issues
+    if name == "groundtruth" and not labelled:
+        issues.append(warning(path, "groundtruth-unlabelled",
+                              f"labelled: false but groundtruth.csv has {len(df)} rows; they are ignored"))
+        return empty, issues
+    if name in ANCHORED_STREAMS:
+        df, more = _check_anchored(path, df, building, name)
+        issues += more
+    if name == "rssi" and len(df):
+        v = df["rssi"].to_numpy(float)
+        bad = np.flatnonzero((v <= RSSI_MIN_DBM) | (v >= RSSI_MAX_DBM))
+        if len(bad):
+            issues += _rows_issue(path, "rssi-range", bad,
+                                  f"rssi outside ({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm: a sentinel or corrupt "
+                                  "value (a beacon not heard has no row)")
+    if name == "groundtruth":
+        df, more = _check_quaternions(path, df)
+        issues += more
+    return df, issues
+
+
+def _check_anchored(path: Path, df: pd.DataFrame, building: Building | None, name: str):
+    if building is None or len(building.anchors) == 0:
+        return df, [error(path, "anchors-missing", f"{name}.csv has rows but the building has no anchors.csv "
+                          "(or it is empty)")]
+    df["anchor_id"] = df["anchor_id"].astype(str).str.strip()
+    known = df["anchor_id"].isin(set(building.anchors["anchor_id"]))
+    if known.all():
+        return df, []
+    unknown = df.loc[~known, "anchor_id"]
+    first = ", ".join(unknown.drop_duplicates().head(5))
+    issue = warning(path, "unknown-anchor", f"{int((~known).sum())} rows name anchors not in anchors.csv "
+                    f"({unknown.nunique()} ids, first: {first}); these rows are dropped")
+    return df[known.to_numpy()].reset_index(drop=True), [issue]
+
+
+def _check_quaternions(path: Path, df: pd.DataFrame):
+    q = df[["qw", "qx", "qy", "qz"]].to_numpy(float)
+    isnan = np.isnan(q)
+    if isnan.all():
+        return df, []
+    partial = np.flatnonzero(isnan.any(axis=1))
+    issues: list[Issue] = []
+    if len(partial):
+        issues += _rows_issue(path, "quaternion-partial", partial,
+                              "orientation is empty on this row but not on others (empty on every row, or none)")
+        return df, issues
+    norm = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(norm < QUAT_MIN_NORM)
+    if len(bad):
+        issues += _rows_issue(path, "quaternion-norm", bad, f"quaternion norm below {QUAT_MIN_NORM}")
+        return df, issues
+    df[["qw", "qx", "qy", "qz"]] = q / norm[:, None]
+    return df, issues
+
+
+@dataclass
+class Session:
+    """A session folder. Streams are read, checked and cached on first access.
+
+    Reading a stream that breaks a rule raises :class:`blenav.data.DatasetError`; warnings (e.g.
+    dropped unknown-anchor rows) are logged and kept in :attr:`issues`.
+    """
+
+    id: str
+    root: Path
+    meta: dict
+    building: Building
+    issues: list[Issue] = field(default_factory=list)
+
+    @property
+    def device_model(self) -> str:
+        return str(self.meta.get("device_model", ""))
+
+    @property
+    def carrier(self) -> str:
+        return str(self.meta.get("carrier", ""))
+
+    @property
+    def labelled(self) -> bool:
+        return bool(self.meta.get("labelled", False))
+
+    @property
+    def floor(self) -> Floor:
+        return self.building.floor(self.meta.get("floor"))
+
+    def has(self, name: str) -> bool:
+        """Whether the stream has at least one (valid) row."""
+        return len(self.stream(name)) > 0
+
+    def stream(self, name: str) -> pd.DataFrame:
+        if name not in STREAMS:
+            raise KeyError(f"unknown stream {name!r}; streams are {list(STREAMS)}")
+        cache = self.__dict__.setdefault("_streams", {})
+        if name not in cache:
+            df, issues = load_stream(self.root, name, self.building, self.labelled)
+            raise_or_log(issues)
+            self.issues += issues
+            cache[name] = df
+        return cache[name]
+
+    imu = property(lambda self: self.stream("imu"), doc="t, ax, ay, az (m/s^2), gx, gy, gz (rad/s)")
+    mag = property(lambda self: self.stream("mag"), doc="t, mx, my, mz (uT)")
+    rssi = property(lambda self: self.stream("rssi"), doc="t, anchor_id, rssi (dBm), known anchors only")
+    rtt = property(lambda self: self.stream("rtt"), doc="t, anchor_id, range_m, range_std_m (m)")
+    visual = property(lambda self: self.stream("visual"), doc="t, x, y, z (m), yaw (rad CCW from +x)")
+    odometry = property(lambda self: self.stream("odometry"), doc="t, x, y (m, arbitrary frame)")
+    fixes = property(lambda self: self.stream("fixes"), doc="t, x, y, std (m), source")
+    groundtruth = property(lambda self: self.stream("groundtruth"),
+                           doc="t, x, y, z (m, world), qw, qx, qy, qz (device->world, NaN when absent)")
+
+    @cached_property
+    def duration_s(self) -> float:
+        """Largest time stamp over the streams present (s)."""
+        ends = [self.stream(n)["t"].max() for n in STREAMS if (self.root / STREAMS[n].filename).is_file()]
+        ends = [e for e in ends if np.isfinite(e)]
+        return float(max(ends)) if ends else 0.0
+
+    def positions_at(self, t: np.ndarray) -> np.ndarray:
+        """Ground-truth (x, y) interpolated linearly at times ``t`` (s); shape (len(t), 2)."""
+        gt = self.groundtruth
+        if len(gt) == 0:
+            raise ValueError(f"session {self.id} has no ground truth")
+        tt = gt["t"].to_numpy()
+        return np.stack([np.interp(t, tt, gt["x"].to_numpy()), np.interp(t, tt, gt["y"].to_numpy())], axis=-1)

@@ -1,0 +1,55 @@
+"""Small synthetic datasets for tests, built with the project's writer (no simulator needed)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from shapely.geometry import LineString, box
+
+from blenav.data import FREE, OCCUPIED
+from blenav.data.writer import write_building, write_dataset_meta, write_session
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+RAW = SHARED / "data" / "raw"
+
+
+def tiny_grid(w_m: float = 10.0, h_m: float = 8.0, res: float = 0.1) -> np.ndarray:
+    """Occupancy (H, W) with outer walls and one inner wall with a door (row 0 on top)."""
+    h, w = int(round(h_m / res)), int(round(w_m / res))
+    occ = np.full((h, w), FREE, dtype=np.int8)
+    occ[:2, :] = occ[-2:, :] = occ[:, :2] = occ[:, -2:] = OCCUPIED
+    occ[:, w // 2 : w // 2 + 2] = OCCUPIED
+    occ[h // 2 - 5 : h // 2 + 5, w // 2 : w // 2 + 2] = FREE  # door
+    return occ
+
+
+def make_tiny_dataset(root: Path, seed: int = 0, duration_s: float = 20.0) -> Path:
+    """A 10 m x 8 m two-room building, 4 BLE beacons, 1 RTT AP, one labelled walking session."""
+    rng = np.random.default_rng(seed)
+    root = Path(root)
+    write_dataset_meta(root, "tiny", "unit-test dataset", "CC0", "tests/helpers.py")
+    anchors = pd.DataFrame({
+        "anchor_id": ["b1", "b2", "b3", "b4", "ap1"], "kind": ["ble"] * 4 + ["wifi_rtt"],
+        "x": [1.0, 9.0, 1.0, 9.0, 5.0], "y": [1.0, 1.0, 7.0, 7.0, 4.0], "z": [2.5] * 5, "floor": [0] * 5,
+        "tx_power_dbm": [-59.0, -59.0, np.nan, -59.0, np.nan], "channel_model": ["test"] * 5})
+    rooms = [{"id": "west", "floor": 0, "geometry": box(0.2, 0.2, 4.9, 7.8)},
+             {"id": "east", "floor": 0, "geometry": box(5.1, 0.2, 9.8, 7.8)}]
+    nav = [{"id": "e0", "floor": 0, "geometry": LineString([(2.5, 4.0), (7.5, 4.0)])}]
+    write_building(root, "house", "tiny house", [{"id": 0, "occupancy": tiny_grid(), "resolution": 0.1,
+                                                   "origin": (0.0, 0.0)}], anchors, rooms, nav)
+    t_gt = np.arange(0, duration_s, 0.1)
+    x = 2.5 + 5.0 * t_gt / duration_s
+    y = np.full_like(x, 4.0)
+    gt = pd.DataFrame({"t": t_gt, "x": x, "y": y, "z": 1.2, "qw": 1.0, "qx": 0.0, "qy": 0.0, "qz": 0.0})
+    t_imu = np.arange(0, duration_s, 0.01)
+    imu = pd.DataFrame({"t": t_imu, "ax": rng.normal(0, 0.1, t_imu.size), "ay": rng.normal(0, 0.1, t_imu.size),
+                        "az": 9.81 + rng.normal(0, 0.1, t_imu.size), "gx": 0.0, "gy": 0.0, "gz": 0.0})
+    t_b = np.repeat(np.arange(0, duration_s, 0.2), 4)
+    ids = np.tile(["b1", "b2", "b3", "b4"], t_b.size // 4)
+    rssi = pd.DataFrame({"t": t_b, "anchor_id": ids, "rssi": np.round(rng.normal(-75, 4, t_b.size))})
+    write_session(root, "walk0", {"building": "house", "floor": 0, "device_model": "test-phone",
+                                  "carrier": "pedestrian", "labelled": True},
+                  {"imu": imu, "rssi": rssi, "groundtruth": gt})
+    return root
