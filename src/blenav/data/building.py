@@ -214,11 +214,14 @@ def load_building(root: Path, check_images: bool = True) -> tuple[Building | Non
                 issues.append(error(ypath, "floor-duplicate", f"floor id {fl.id!r} appears twice", where=f"floors[{i}]"))
             floors[fl.id] = fl
 
-    anchors, ai = _load_anchors(root / "anchors.csv", floors)
+    # anchors and features are checked against every floor *declared* in building.yaml, so that one broken
+    # floor (e.g. an unreadable image) is reported once, not again for every anchor and room on it
+    declared = {**{f["id"]: None for f in raw_floors if isinstance(f, dict) and "id" in f}, **floors}
+    anchors, ai = _load_anchors(root / "anchors.csv", declared)
     issues += ai
-    rooms, ri = _load_geojson(root / "rooms.geojson", floors, ("Polygon", "MultiPolygon"))
+    rooms, ri = _load_geojson(root / "rooms.geojson", declared, ("Polygon", "MultiPolygon"))
     issues += ri
-    routes, ni = _load_geojson(root / "navgraph.geojson", floors, ("LineString", "MultiLineString"))
+    routes, ni = _load_geojson(root / "navgraph.geojson", declared, ("LineString", "MultiLineString"))
     issues += ni
     b = Building(id=root.name, root=root, name=str(doc.get("name", root.name)), floors=floors,
                  anchors=anchors, rooms=rooms, navgraph=routes, meta=doc)
@@ -268,7 +271,7 @@ def _check_image(img: Path) -> list[Issue]:
     try:
         with Image.open(img) as im:
             mode = im.mode
-            im.verify()
+            im.load()  # decode fully: verify() does not detect a truncated PGM
     except Exception as exc:  # PIL raises many types for broken files
         return [error(img, "image-unreadable", f"not a readable PNG/PGM image ({exc})")]
     if mode == "L":
@@ -324,16 +327,23 @@ def _load_geojson(path: Path, floors: dict, kinds: tuple[str, ...]) -> tuple[lis
     out: list[Region] = []
     issues: list[Issue] = []
     known = {str(k) for k in floors}
-    for i, feat in enumerate(doc.get("features") or []):
+    feats = doc.get("features") or []
+    if not isinstance(feats, list):
+        return [], [error(path, "geojson-type", "'features' must be a list of GeoJSON Features")]
+    for i, feat in enumerate(feats):
         where = f"features[{i}]"
-        props = (feat or {}).get("properties") or {}
-        geom = (feat or {}).get("geometry") or {}
-        if "id" not in props or "floor" not in props:
+        if not isinstance(feat, dict):
+            issues.append(error(path, "geojson-type", "feature must be a GeoJSON Feature object", where=where))
+            continue
+        props = feat.get("properties") or {}
+        geom = feat.get("geometry") or {}
+        if not isinstance(props, dict) or "id" not in props or "floor" not in props:
             issues.append(error(path, "geojson-properties", "feature needs properties.id and properties.floor",
                                 where=where))
             continue
-        if geom.get("type") not in kinds:
-            issues.append(error(path, "geojson-geometry", f"geometry type {geom.get('type')!r} is not one of {kinds}",
+        if not isinstance(geom, dict) or geom.get("type") not in kinds:
+            gtype = geom.get("type") if isinstance(geom, dict) else geom
+            issues.append(error(path, "geojson-geometry", f"geometry type {gtype!r} is not one of {kinds}",
                                 where=where))
             continue
         try:

@@ -40,11 +40,15 @@ def check_session_meta(path: Path, doc: dict, buildings: dict) -> list[Issue]:
     if "labelled" in doc and not isinstance(doc["labelled"], bool):
         issues.append(error(path, "session-labelled", f"labelled must be true or false, got {doc['labelled']!r}"))
     b = doc.get("building")
-    if b is not None:
-        if str(b) not in buildings:
+    if b is not None or "building" in doc:
+        bld = buildings.get(str(b)) if b is not None else None
+        # floors declared in building.yaml count even when one failed to load (reported there, once)
+        declared = [] if bld is None else list(bld.floors) + [
+            f.get("id") for f in (bld.meta.get("floors") or []) if isinstance(f, dict)]
+        if b is None or str(b) not in buildings:
             issues.append(error(path, "session-building", f"building {b!r} is not a folder under buildings/"))
-        elif buildings[str(b)] is not None and "floor" in doc:
-            if _floor_key(doc["floor"], buildings[str(b)].floors) is None:
+        elif bld is not None and "floor" in doc:
+            if _floor_key(doc["floor"], declared) is None:
                 issues.append(error(path, "session-floor", f"floor {doc['floor']!r} is not a floor of building {b!r}"))
     return issues
 
@@ -74,54 +78,77 @@ def load_stream(root: Path, name: str, building: Building | None, labelled: bool
         issues.append(warning(path, "groundtruth-unlabelled",
                               f"labelled: false but groundtruth.csv has {len(df)} rows; they are ignored"))
         return empty, issues
-    if name in ANCHORED_STREAMS:
-        df, more = _check_anchored(path, df, building, name)
-        issues += more
-    if name == "rssi" and len(df):
+    # Row checks run before unknown-anchor rows are dropped (row index = line - 2) and skip rows whose
+    # cells were already reported, so one bad cell is one violation.
+    reported = _reported_rows(df, spec, issues)
+    if name == "rssi":
         v = df["rssi"].to_numpy(float)
-        bad = np.flatnonzero((v <= RSSI_MIN_DBM) | (v >= RSSI_MAX_DBM))
+        bad = np.flatnonzero(~reported & ((v <= RSSI_MIN_DBM) | (v >= RSSI_MAX_DBM)))
         if len(bad):
             issues += _rows_issue(path, "rssi-range", bad,
                                   f"rssi outside ({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm: a sentinel or corrupt "
                                   "value (a beacon not heard has no row)")
     if name == "groundtruth":
-        df, more = _check_quaternions(path, df)
+        df, more = _check_quaternions(path, df, reported)
+        issues += more
+    if name in ANCHORED_STREAMS:
+        df, more = _check_anchored(path, df, building, name)
         issues += more
     return df, issues
 
 
+def _reported_rows(df: pd.DataFrame, spec, issues: list[Issue]) -> np.ndarray:
+    """Rows (bool mask) with a cell error already reported by the table checks."""
+    out = np.zeros(len(df), dtype=bool)
+    for c in spec.columns:
+        if c in spec.string:
+            continue
+        v = df[c].to_numpy(dtype=float)
+        out |= ~np.isfinite(v) if c in spec.required else np.isinf(v)
+    for i in issues:  # e.g. not-a-number in a nullable column (read as NaN, like an empty cell)
+        if i.is_error and i.line is not None and 2 <= i.line < len(df) + 2:
+            out[i.line - 2] = True
+    return out
+
+
 def _check_anchored(path: Path, df: pd.DataFrame, building: Building | None, name: str):
-    if building is None or len(building.anchors) == 0:
+    if building is None:  # unknown or unreadable building: already reported where it is named or defined
+        return df, []
+    if len(building.anchors) == 0:
         return df, [error(path, "anchors-missing", f"{name}.csv has rows but the building has no anchors.csv "
                           "(or it is empty)")]
-    df["anchor_id"] = df["anchor_id"].astype(str).str.strip()
-    known = df["anchor_id"].isin(set(building.anchors["anchor_id"]))
-    if known.all():
+    df["anchor_id"] = df["anchor_id"].fillna("").astype(str).str.strip()
+    # an empty id is already an error ('empty-value'), not an unknown anchor
+    drop = (~df["anchor_id"].isin(set(building.anchors["anchor_id"])) & (df["anchor_id"] != "")).to_numpy()
+    if not drop.any():
         return df, []
-    unknown = df.loc[~known, "anchor_id"]
+    unknown = df.loc[drop, "anchor_id"]
     first = ", ".join(unknown.drop_duplicates().head(5))
-    issue = warning(path, "unknown-anchor", f"{int((~known).sum())} rows name anchors not in anchors.csv "
+    issue = warning(path, "unknown-anchor", f"{int(drop.sum())} rows name anchors not in anchors.csv "
                     f"({unknown.nunique()} ids, first: {first}); these rows are dropped")
-    return df[known.to_numpy()].reset_index(drop=True), [issue]
+    return df[~drop].reset_index(drop=True), [issue]
 
 
-def _check_quaternions(path: Path, df: pd.DataFrame):
+def _check_quaternions(path: Path, df: pd.DataFrame, skip: np.ndarray | None = None):
+    """Normalise quaternions; rows in ``skip`` (already reported) are not checked again."""
     q = df[["qw", "qx", "qy", "qz"]].to_numpy(float)
+    ok = np.ones(len(q), dtype=bool) if skip is None else ~skip
     isnan = np.isnan(q)
-    if isnan.all():
+    if isnan[ok].all():
         return df, []
-    partial = np.flatnonzero(isnan.any(axis=1))
+    partial = np.flatnonzero(isnan.any(axis=1) & ok)
     issues: list[Issue] = []
     if len(partial):
         issues += _rows_issue(path, "quaternion-partial", partial,
                               "orientation is empty on this row but not on others (empty on every row, or none)")
         return df, issues
     norm = np.linalg.norm(q, axis=1)
-    bad = np.flatnonzero(norm < QUAT_MIN_NORM)
+    bad = np.flatnonzero((norm < QUAT_MIN_NORM) & ok)
     if len(bad):
         issues += _rows_issue(path, "quaternion-norm", bad, f"quaternion norm below {QUAT_MIN_NORM}")
         return df, issues
-    df[["qw", "qx", "qy", "qz"]] = q / norm[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):  # skipped rows are errors: the frame is not used
+        df[["qw", "qx", "qy", "qz"]] = q / norm[:, None]
     return df, issues
 
 

@@ -6,6 +6,7 @@ file re-read as text to find the offending lines, so clean files cost one ``read
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,8 @@ def _rows_issue(path: Path, rule: str, rows: np.ndarray, what: str) -> list[Issu
 
 
 def read_header(path: Path) -> list[str]:
-    with open(path, encoding="utf-8", errors="replace") as f:
+    # utf-8-sig: a byte-order mark (spreadsheet "CSV UTF-8" exports) is not part of the first column name
+    with open(path, encoding="utf-8-sig", errors="replace") as f:
         first = f.readline()
     return [c.strip() for c in first.rstrip("\r\n").split(",")] if first.strip() else []
 
@@ -61,10 +63,11 @@ def read_table(
 
     numeric = [c for c in columns if c not in string]
     dtypes = {c: float for c in numeric} | {c: str for c in string}
+    unparsed: dict[str, np.ndarray] = {}  # cells already reported as not-a-number (not reported twice)
     try:
         df = pd.read_csv(path, dtype=dtypes, skip_blank_lines=False, skipinitialspace=True)
     except (ValueError, pd.errors.ParserError) as exc:
-        df, parse_issues = _slow_parse(path, numeric, string, exc)
+        df, parse_issues, unparsed = _slow_parse(path, numeric, string, exc)
         issues += parse_issues
         if df is None:
             return None, issues
@@ -77,7 +80,7 @@ def read_table(
                 issues += _rows_issue(path, "empty-value", bad, f"column '{c}' is empty")
             continue
         v = df[c].to_numpy(dtype=float)
-        bad = np.flatnonzero(~np.isfinite(v))
+        bad = np.flatnonzero(~np.isfinite(v) & ~unparsed.get(c, np.zeros(len(v), bool)))
         if len(bad):
             kinds = "NaN/empty" if np.isnan(v[bad]).all() else "NaN, empty or infinite"
             issues += _rows_issue(path, "non-finite", bad, f"column '{c}' is {kinds}")
@@ -99,13 +102,18 @@ def read_table(
 
 
 def _slow_parse(path: Path, numeric: list[str], string: tuple[str, ...], exc: Exception):
-    """Re-read as text and name every cell that is not a number."""
+    """Re-read as text and name every cell that is not a number.
+
+    Returns ``(frame, issues, unparsed)``; ``unparsed`` maps a column to the mask of its non-numeric cells.
+    """
     issues: list[Issue] = []
+    unparsed: dict[str, np.ndarray] = {}
     try:
         raw = pd.read_csv(path, dtype=str, keep_default_na=False, skip_blank_lines=False, skipinitialspace=True)
-    except pd.errors.ParserError as e:  # ragged rows: pandas names the line
-        issues.append(error(path, "malformed-csv", str(e).strip()))
-        return None, issues
+    except pd.errors.ParserError as e:  # ragged rows: pandas names the (1-based, header = 1) line
+        m = re.search(r"in line (\d+)", str(e))
+        issues.append(error(path, "malformed-csv", str(e).strip(), line=int(m.group(1)) if m else None))
+        return None, issues, unparsed
     raw.columns = [c.strip() for c in raw.columns]
     out = pd.DataFrame(index=raw.index)
     for c in raw.columns:
@@ -118,7 +126,9 @@ def _slow_parse(path: Path, numeric: list[str], string: tuple[str, ...], exc: Ex
         s = raw[c].str.strip()
         num = pd.to_numeric(s, errors="coerce")
         empty = s.isin(["", "nan", "NaN", "NA", "null"])
-        bad = np.flatnonzero(num.isna().to_numpy() & ~empty.to_numpy())
+        notnum = num.isna().to_numpy() & ~empty.to_numpy()
+        unparsed[c] = notnum
+        bad = np.flatnonzero(notnum)
         for r in bad[:MAX_ROWS_PER_RULE]:
             issues.append(error(path, "not-a-number", f"column '{c}' value {raw[c].iloc[r]!r} is not a number",
                                 line=int(r) + 2))
@@ -127,7 +137,7 @@ def _slow_parse(path: Path, numeric: list[str], string: tuple[str, ...], exc: Ex
         out[c] = num.astype(float)
     if not issues:  # the fast parser failed for a reason we did not find: say what pandas said
         issues.append(error(path, "malformed-csv", str(exc)))
-    return out, issues
+    return out, issues, unparsed
 
 
 def read_stream(path: Path, spec: StreamSpec) -> tuple[pd.DataFrame | None, list[Issue]]:

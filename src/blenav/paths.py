@@ -1,0 +1,19 @@
+"""Where the project's Hydra configs live (``conf/`` at the repository root)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def conf_dir() -> Path:
+    """The ``conf/`` folder: $BLENAV_CONF if set, else the repository's (editable install)."""
+    env = os.environ.get("BLENAV_CONF")
+    candidates = [Path(env)] if env else []
+    candidates.append(Path(__file__).resolve().parents[2] / "conf")
+    for c in candidates:
+        if (c / "sim.yaml").is_file():
+            return c
+    raise FileNotFoundError(
+        "cannot find blenav's conf/ folder; install the package editable from a clone (`make install`) "
+        "or set BLENAV_CONF to the path of conf/")

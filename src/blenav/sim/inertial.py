@@ -1,0 +1,122 @@
+"""Inertial and magnetic sensors, and an inertial-odometry stream, from a :class:`Trajectory`.
+
+Accelerometer (device frame, m/s^2, incl. gravity): f = R^T (a_world + [0, 0, g]) + b_a + n_a, with
+a_world the second derivative of the true position (so gait bounce and sway are consistent with the
+ground truth) and b_a a bias random walk. Gyroscope (device frame, rad/s): the body rate from
+consecutive orientations, omega = log(R_{k-1}^T R_{k+1}) / (2 dt), + b_g + n_g.
+Magnetometer (device frame, uT, at ``mag_rate_hz``): m = R^T (B_earth + D(p)) + h + n, with D a
+smooth indoor disturbance field (per component Gaussian random field) and h the device's hard-iron
+offset. Odometry (arbitrary frame, m, at ``odo_rate_hz``): the true velocity scaled by (1 + s),
+rotated by a heading error that drifts linearly plus a random walk, integrated, in a frame rotated and
+shifted at random.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .motion import Trajectory
+from .radio import gaussian_field
+
+GRAVITY = 9.80665
+
+
+@dataclass
+class ImuConfig:
+    acc_noise: float = 0.05  # m/s^2 per sample
+    gyro_noise: float = 0.004  # rad/s per sample
+    acc_bias_std: float = 0.05  # m/s^2 initial
+    gyro_bias_std: float = 0.01  # rad/s initial
+    acc_bias_rw: float = 0.001  # m/s^2 / sqrt(s)
+    gyro_bias_rw: float = 0.0002  # rad/s / sqrt(s)
+    hand_tremor: float = 0.15  # m/s^2, carried in hand (pedestrian only)
+
+
+@dataclass
+class MagConfig:
+    rate_hz: float = 50.0
+    earth_ut: tuple[float, float, float] = (0.0, 22.0, -42.0)  # x east, y north, z up
+    disturbance_ut: float = 8.0
+    disturbance_corr_m: float = 1.5
+    hard_iron_std_ut: float = 15.0
+    noise_ut: float = 0.6
+
+
+@dataclass
+class OdometryConfig:
+    rate_hz: float = 5.0
+    scale_std: float = 0.05
+    drift_deg_per_min_std: float = 1.5
+    heading_rw_deg: float = 0.3  # deg / sqrt(s)
+    noise_m: float = 0.02
+
+
+def _random_walk(rng, n: int, dt: float, std0: float, rw: float, dims: int = 3) -> np.ndarray:
+    return std0 * rng.standard_normal(dims) + np.cumsum(rng.standard_normal((n, dims)) * rw * np.sqrt(dt), axis=0)
+
+
+def simulate_imu(rng: np.random.Generator, cfg: ImuConfig, traj: Trajectory, hand: bool) -> np.ndarray:
+    """(T, 6) accelerometer (m/s^2) and gyroscope (rad/s) at the trajectory's times."""
+    dt = float(traj.t[1] - traj.t[0])
+    acc_w = np.gradient(np.gradient(traj.xyz, dt, axis=0), dt, axis=0)
+    acc_w[:, 2] += GRAVITY
+    inv = traj.rot.inv()
+    f = inv.apply(acc_w)
+    q = traj.rot
+    prev = np.concatenate([[0], np.arange(len(q) - 1)])
+    nxt = np.concatenate([np.arange(1, len(q)), [len(q) - 1]])
+    span = (nxt - prev) * dt
+    omega = (q[prev].inv() * q[nxt]).as_rotvec() / span[:, None]
+    n = len(traj.t)
+    f += _random_walk(rng, n, dt, cfg.acc_bias_std, cfg.acc_bias_rw) + cfg.acc_noise * rng.standard_normal((n, 3))
+    if hand:
+        f += cfg.hand_tremor * rng.standard_normal((n, 3))
+    omega += _random_walk(rng, n, dt, cfg.gyro_bias_std, cfg.gyro_bias_rw) + cfg.gyro_noise * rng.standard_normal((n, 3))
+    return np.hstack([f, omega])
+
+
+class DisturbanceField:
+    """Indoor magnetic disturbance D(x, y) (uT), three smooth Gaussian random fields on a 0.25 m grid."""
+
+    def __init__(self, rng, cfg: MagConfig, width_m: float, height_m: float, grid_m: float = 0.25):
+        self.g = grid_m
+        self.f = cfg.disturbance_ut * gaussian_field(
+            rng, (3, int(height_m / grid_m) + 2, int(width_m / grid_m) + 2), cfg.disturbance_corr_m / grid_m)
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        from scipy.ndimage import map_coordinates
+
+        fi, fj = xy[:, 1] / self.g, xy[:, 0] / self.g
+        return np.stack([map_coordinates(self.f[k], [fi, fj], order=1, mode="nearest") for k in range(3)], axis=1)
+
+
+def simulate_mag(rng, cfg: MagConfig, traj: Trajectory, field: DisturbanceField) -> tuple[np.ndarray, np.ndarray]:
+    """(t, (N, 3) uT) magnetometer samples at cfg.rate_hz."""
+    step = max(1, int(round((1.0 / cfg.rate_hz) / (traj.t[1] - traj.t[0]))))
+    idx = np.arange(0, len(traj.t), step)
+    b_w = np.asarray(cfg.earth_ut)[None, :] + field(traj.xyz[idx, :2])
+    hard = cfg.hard_iron_std_ut * rng.standard_normal(3)
+    m = traj.rot[idx].inv().apply(b_w) + hard + cfg.noise_ut * rng.standard_normal((len(idx), 3))
+    return traj.t[idx], m
+
+
+def simulate_odometry(rng, cfg: OdometryConfig, traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """(t, (N, 2) m) inertial-odometry positions in an arbitrary frame fixed at session start."""
+    step = max(1, int(round((1.0 / cfg.rate_hz) / (traj.t[1] - traj.t[0]))))
+    idx = np.arange(0, len(traj.t), step)
+    t = traj.t[idx]
+    xy = traj.xyz[idx, :2]
+    v = np.diff(xy, axis=0)
+    dt = np.diff(t)
+    scale = 1.0 + cfg.scale_std * rng.standard_normal()
+    drift = np.radians(cfg.drift_deg_per_min_std * rng.standard_normal()) / 60.0
+    err = drift * t[1:] + np.cumsum(np.radians(cfg.heading_rw_deg) * np.sqrt(dt) * rng.standard_normal(len(dt)))
+    c, s = np.cos(err), np.sin(err)
+    vo = scale * np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], axis=1)
+    vo += cfg.noise_m * rng.standard_normal(vo.shape) * (np.linalg.norm(v, axis=1, keepdims=True) > 1e-4)
+    pos = np.vstack([[0.0, 0.0], np.cumsum(vo, axis=0)])
+    frame = Rotation.from_euler("z", rng.uniform(-np.pi, np.pi)).as_matrix()[:2, :2]
+    return t, pos @ frame.T
