@@ -8,6 +8,9 @@ import hydra
 from omegaconf import DictConfig
 
 from blenav.paths import conf_dir
+from blenav.sim.config import register_configs
+
+register_configs()
 
 
 def run(cfg: DictConfig):

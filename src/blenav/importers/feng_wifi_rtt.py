@@ -25,7 +25,7 @@ What is written
 * ``rtt.csv``: one row per (scan, AP) with an RTT reading: ``range_m`` = RTT column (mm) / 1000,
   ``range_std_m`` empty (not reported). 100000 mm means "not received": no row. Ranges are kept as
   the phone reported them, including negative ones (Android reports a negative distance when the
-  measured round trip is shorter than its calibration offset; 455 readings, down to -10.6 m in
+  measured round trip is shorter than its calibration offset; 567 readings, down to -10.6 m in
   office_test) and NLOS ranges longer than the floor's diagonal (corridor, up to 41.7 m).
 * ``rssi.csv``: **WiFi RSS** (dBm) of the same APs, same ``anchor_id``; it is not BLE. -200 dBm means
   "not heard": no row. Other values must lie in (-150, 0) dBm. (The anchors' ``channel_model`` says so.)
@@ -91,7 +91,7 @@ from blenav.data.writer import write_building, write_dataset_meta, write_session
 from . import ImportError_, ImportReport
 from .uji_ble import (
     RESOLUTION_M,
-    _validate_or_raise,
+    validate_or_raise,
     check_out,
     occupancy_grid,
     parse_numbers,
@@ -136,7 +136,10 @@ def _read_ap_positions(path: Path) -> dict[str, tuple[np.ndarray, int]]:
     """env -> (positions (n, 2) in grid units, line of its 'AP X' line)."""
     if not path.is_file():
         raise ImportError_(path, None, "file does not exist")
-    lines = path.read_text(encoding="utf-8-sig", errors="strict").splitlines()
+    try:
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
+    except UnicodeDecodeError as exc:
+        raise ImportError_(path, None, f"not UTF-8 text ({exc.reason})") from None
     out: dict[str, tuple[np.ndarray, int]] = {}
     env, xy, start = None, {}, 0
 
@@ -145,9 +148,9 @@ def _read_ap_positions(path: Path) -> dict[str, tuple[np.ndarray, int]]:
             return
         if set(xy) != {"X", "Y"}:
             raise ImportError_(path, line_no, f"environment {env!r} lacks an 'AP X:' or 'AP Y:' line")
-        (x, lx), (y, _) = xy["X"], xy["Y"]
+        (x, lx), (y, ly) = xy["X"], xy["Y"]
         if len(x) != len(y):
-            raise ImportError_(path, lx, f"{env}: {len(x)} AP X values but {len(y)} AP Y values")
+            raise ImportError_(path, max(lx, ly), f"{env}: {len(x)} AP X values but {len(y)} AP Y values")
         want = len(ENVIRONMENTS[env][2])
         if len(x) != want:
             raise ImportError_(path, lx, f"{env}: {len(x)} AP positions, expected {want}")
@@ -196,11 +199,11 @@ def _read_split(path: Path) -> _Split:
     bad_los = (los != "") & ~pd.Series(los, dtype=object).str.match(_LOS_RE).to_numpy(dtype=bool)
     raise_at(path, bad_los, first, lambda r, c: f"column 'LOS APs': {los[r]!r} is not a space-separated list of "
                                                 "AP numbers")
-    nums = pd.Series(los, dtype=object).str.split().explode().dropna()
-    nums = pd.to_numeric(nums).to_numpy() if len(nums) else np.empty(0)
-    rows = pd.Series(los, dtype=object).str.split().explode().dropna().index.to_numpy()
+    tokens = pd.Series(los, dtype=object).str.split().explode().dropna()  # AP numbers, index = row
     out_of_range = np.zeros(len(los), dtype=bool)
-    out_of_range[rows[(nums < 1) | (nums > N_AP_COLUMNS)]] = True
+    if len(tokens):
+        nums = pd.to_numeric(tokens).to_numpy()
+        out_of_range[tokens.index.to_numpy()[(nums < 1) | (nums > N_AP_COLUMNS)]] = True
     raise_at(path, out_of_range, first, lambda r, c: f"column 'LOS APs': {los[r]!r} names an AP outside "
                                                      f"1..{N_AP_COLUMNS}")
     return _Split(path, v[:, :2], rtt, rss, los)
@@ -218,7 +221,8 @@ def import_feng_wifi_rtt(src: Path, out: Path) -> ImportReport:
     write_dataset_meta(
         out, "feng_wifi_rtt", "WiFi RTT + RSS static fingerprints in a lecture theatre, an office and a corridor "
         "(Feng et al. 2024); rssi.csv holds WiFi RSS", "MIT", "Feng, Nguyen, Luo, Zenodo 10.5281/zenodo.11558792; "
-        "copy: Fx386483710/WiFi_RSS_RTT_Dataset_for_Model_Selection@48e41763", importer="blenav.importers.feng_wifi_rtt",
+        "copy: Fx386483710/WiFi_RSS_RTT_Dataset_for_Model_Selection@48e41763",
+        importer="blenav.importers.feng_wifi_rtt",
         assumptions=[f"grid index * {GRID_M} m for points and AP positions", f"phone and AP height {PHONE_HEIGHT_M} m",
                      f"synthetic clock: one scan per {SCAN_PERIOD_S:g} s in file order",
                      "floor plan: free space only, no walls in the raw data"])
@@ -248,17 +252,18 @@ def import_feng_wifi_rtt(src: Path, out: Path) -> ImportReport:
             rtt, rss = d.rtt[:, cols], d.rss[:, cols]
             # readings in AP columns that have no position (none in the published data)
             other = np.setdiff1d(np.arange(N_AP_COLUMNS), cols)
-            report.drop(f"RTT/RSS readings of an AP column without a position ({env})",
-                        int((d.rtt[:, other] != RTT_NOT_RECEIVED_MM).sum() + (d.rss[:, other] != RSS_NOT_RECEIVED_DBM).sum()))
+            n_orphan = (d.rtt[:, other] != RTT_NOT_RECEIVED_MM).sum() + (d.rss[:, other] != RSS_NOT_RECEIVED_DBM).sum()
+            report.drop(f"RTT/RSS readings of an AP column without a position ({env})", int(n_orphan))
             r, c = np.nonzero(rtt != RTT_NOT_RECEIVED_MM)
             rtt_df = pd.DataFrame({"t": t[r], "anchor_id": ap_ids[c], "range_m": rtt[r, c] / 1000.0,
                                    "range_std_m": np.nan})
             r2, c2 = np.nonzero(rss != RSS_NOT_RECEIVED_DBM)
             rssi_df = pd.DataFrame({"t": t[r2], "anchor_id": ap_ids[c2], "rssi": rss[r2, c2]})
             los = pd.Series(d.los, dtype=object).replace("", np.nan)
+            grid = d.grid.astype(np.int64) if np.all(d.grid == np.round(d.grid)) else d.grid
             gt = pd.DataFrame({"t": t, "x": d.grid[:, 0] * GRID_M, "y": d.grid[:, 1] * GRID_M, "z": PHONE_HEIGHT_M,
                                "qw": np.nan, "qx": np.nan, "qy": np.nan, "qz": np.nan,
-                               "grid_x": d.grid[:, 0], "grid_y": d.grid[:, 1], "los_aps": los,
+                               "grid_x": grid[:, 0], "grid_y": grid[:, 1], "los_aps": los,
                                "raw_line": np.arange(n) + 2})
             sid = f"{env}_{sp}"
             meta = {"building": env, "floor": 0, "device_model": "unknown", "carrier": "static", "labelled": True,
@@ -269,11 +274,11 @@ def import_feng_wifi_rtt(src: Path, out: Path) -> ImportReport:
             write_session(out, sid, meta, {"rtt": rtt_df, "rssi": rssi_df, "groundtruth": gt})
             report.sessions += 1
             report.drop(f"RTT cells = 100000 mm (not received; no row written) in {env}",
-                        int((d.rtt[:, cols] == RTT_NOT_RECEIVED_MM).sum()))
+                        int((d.rtt == RTT_NOT_RECEIVED_MM).sum()))
             report.drop(f"RSS cells = -200 dBm (not received; no row written) in {env}",
-                        int((d.rss[:, cols] == RSS_NOT_RECEIVED_DBM).sum()))
+                        int((d.rss == RSS_NOT_RECEIVED_DBM).sum()))
             n_neg += int((rtt_df["range_m"] < 0).sum())
     if n_neg:
         report.notes.append(f"{n_neg} RTT ranges are negative as reported by the phone (kept unchanged)")
-    _validate_or_raise(out, report)
+    validate_or_raise(out, report)
     return report

@@ -412,11 +412,11 @@ def import_uji_ble(src: Path, out: Path) -> ImportReport:
                 report.notes.append(f"{sid}: {int(interp.sum())} of {len(idx)} fingerprints detected no beacon; "
                                     "their time is interpolated (t_interpolated = 1), no rssi rows")
     report.notes.append(f"{sum(len(z.rss) for z in zones.values())} fingerprints, {total_cells} RSS cells read")
-    _validate_or_raise(out, report)
+    validate_or_raise(out, report)
     return report
 
 
-def _validate_or_raise(out: Path, report: ImportReport) -> None:
+def validate_or_raise(out: Path, report: ImportReport) -> None:
     """Run the format-v1 validator on the written dataset; errors raise, warnings become notes."""
     issues = validate(out)
     errors = [i for i in issues if i.is_error]

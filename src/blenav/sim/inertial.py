@@ -61,15 +61,19 @@ def _random_walk(rng, n: int, dt: float, std0: float, rw: float, dims: int = 3) 
 def simulate_imu(rng: np.random.Generator, cfg: ImuConfig, traj: Trajectory, hand: bool) -> np.ndarray:
     """(T, 6) accelerometer (m/s^2) and gyroscope (rad/s) at the trajectory's times."""
     dt = float(traj.t[1] - traj.t[0])
-    acc_w = np.gradient(np.gradient(traj.xyz, dt, axis=0), dt, axis=0)
+    acc_w = np.zeros_like(traj.xyz)
+    omega = np.zeros_like(traj.xyz)
+    for seg in traj.segments():  # derivatives never straddle a jump of the trajectory
+        if seg.stop - seg.start < 3:
+            continue
+        acc_w[seg] = np.gradient(np.gradient(traj.xyz[seg], dt, axis=0), dt, axis=0)
+        q = traj.rot[seg]
+        m = seg.stop - seg.start
+        prev = np.concatenate([[0], np.arange(m - 1)])
+        nxt = np.concatenate([np.arange(1, m), [m - 1]])
+        omega[seg] = (q[prev].inv() * q[nxt]).as_rotvec() / ((nxt - prev) * dt)[:, None]
     acc_w[:, 2] += GRAVITY
-    inv = traj.rot.inv()
-    f = inv.apply(acc_w)
-    q = traj.rot
-    prev = np.concatenate([[0], np.arange(len(q) - 1)])
-    nxt = np.concatenate([np.arange(1, len(q)), [len(q) - 1]])
-    span = (nxt - prev) * dt
-    omega = (q[prev].inv() * q[nxt]).as_rotvec() / span[:, None]
+    f = traj.rot.inv().apply(acc_w)
     n = len(traj.t)
     f += _random_walk(rng, n, dt, cfg.acc_bias_std, cfg.acc_bias_rw) + cfg.acc_noise * rng.standard_normal((n, 3))
     if hand:

@@ -18,7 +18,7 @@ runs continuously.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, uniform_filter1d
@@ -58,6 +58,12 @@ class Trajectory:
     heading: np.ndarray  # (T,) rad, body facing direction
     rot: Rotation  # (T,) device -> world
     moving: np.ndarray  # (T,) bool
+    breaks: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # first samples of new segments
+
+    def segments(self) -> list[slice]:
+        """Continuous pieces of the trajectory (a survey jumps between points off the clock)."""
+        edges = [0, *self.breaks.tolist(), len(self.t)]
+        return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
     @property
     def duration(self) -> float:
@@ -199,4 +205,4 @@ def survey(layout: Layout, rng: np.random.Generator, cfg: MotionConfig, duration
     facing = rng.uniform(-np.pi, np.pi, len(pts))[k] + (np.arange(len(pts)) % 3 * 2 * np.pi / 3)[k]
     xyz = np.column_stack([pts[k], np.full(len(t), cfg.device_height)])
     rot = Rotation.from_euler("z", (facing - np.pi / 2)[:, None])
-    return Trajectory(t, xyz, facing, rot, np.zeros(len(t), bool))
+    return Trajectory(t, xyz, facing, rot, np.zeros(len(t), bool), np.flatnonzero(np.diff(k)) + 1)

@@ -90,31 +90,36 @@ class ReceiverProfile:
         return lerp(self.offset_db), lerp(self.std_db), lerp(self.dropout)
 
 
-def _split(M: float, V: float, c: float, extra_var: float) -> tuple[float, float, float]:
+def _split(M: float, V: float, c: float, fading_mean: float, extra_var: float) -> tuple[float, float, float]:
     q = c * V / (V + M * M)
     mu = M / (1.0 - q)
     var = (V - q * M * M / (1.0 - q)) / (1.0 - q)
     std = float(np.sqrt(max(var - extra_var, 0.05)))
-    return mu - (TABLE_REF_1M_DBM + THESIS_OFFSET_DB), std, q
+    return mu - (TABLE_REF_1M_DBM + THESIS_OFFSET_DB) - fading_mean, std, q
 
 
-def make_profile(name: str, fading_var_1m: float = 0.0) -> ReceiverProfile:
-    """Build the profile of phone ``name`` from Table 3.2 (see module docstring for the split)."""
+def make_profile(name: str, fading_1m: tuple[float, float] = (0.0, 0.0)) -> ReceiverProfile:
+    """Build the profile of phone ``name`` from Table 3.2 (see module docstring for the split).
+
+    ``fading_1m``: (mean dB, variance dB^2) of the channel's fading at 1 m in line of sight, which the
+    table's numbers already contain, so the receiver's own offset and noise exclude it.
+    """
     if name not in TABLE_3_2:
         raise KeyError(f"unknown receiver profile {name!r}; profiles are {sorted(TABLE_3_2)}")
     brand = BRAND[name]
     m0, v0, m1, v1 = TABLE_3_2[name]
     quant = QUANT_DB.get(name, 1.0)
-    extra = fading_var_1m + quant**2 / 12.0
-    c0, c1 = DROPOUT_SHARE[brand]
-    o0, s0, q0 = _split(m0, v0, c0, extra)
-    o1, s1, q1 = _split(m1, v1, c1, extra)
     sens, gain = BRAND_RF[brand]
+    f_mean, f_var = fading_1m
+    extra = gain**2 * f_var + quant**2 / 12.0
+    c0, c1 = DROPOUT_SHARE[brand]
+    o0, s0, q0 = _split(m0, v0, c0, gain * f_mean, extra)
+    o1, s1, q1 = _split(m1, v1, c1, gain * f_mean, extra)
     return ReceiverProfile(name, brand, (o0, o1), (s0, s1), (q0, q1), gain, sens, quant)
 
 
-def all_profiles(fading_var_1m: float = 0.0) -> dict[str, ReceiverProfile]:
-    return {n: make_profile(n, fading_var_1m) for n in TABLE_3_2}
+def all_profiles(fading_1m: tuple[float, float] = (0.0, 0.0)) -> dict[str, ReceiverProfile]:
+    return {n: make_profile(n, fading_1m) for n in TABLE_3_2}
 
 
 def table_stats(u: np.ndarray) -> tuple[float, float]:

@@ -24,7 +24,7 @@ from .inertial import DisturbanceField, simulate_imu, simulate_mag, simulate_odo
 from .layout import Layout, LayoutConfig, generate_layout
 from .motion import Trajectory, survey, walk
 from .radio import AnchorMaps, simulate_ble, simulate_rtt
-from .receivers import make_profile
+from .calibration import profile_for
 
 log = logging.getLogger("blenav.sim")
 
@@ -144,7 +144,7 @@ def visual_fixes(rng, cfg: SimConfig, w: World, t: np.ndarray, xyz: np.ndarray, 
 def simulate_session(cfg: SimConfig, w: World, i: int, duration_s: float, ss: np.random.SeedSequence):
     """Meta and streams of session ``i`` in world ``w``."""
     rng = np.random.default_rng(ss)
-    profile = make_profile(cfg.receivers[i % len(cfg.receivers)])
+    profile = profile_for(cfg.receivers[i % len(cfg.receivers)], cfg.ble)
     carrier = cfg.carriers[i % len(cfg.carriers)]
     labelled = not (cfg.unlabelled_every and (i + 1) % cfg.unlabelled_every == 0)
     if carrier == "static":

@@ -1,0 +1,43 @@
+# blenav: `make demo` runs the main job on the built-in default, `make test` runs the test suite.
+# Both create .venv when it is missing. torch is pinned to the CPU wheel before the package installs,
+# so pip never pulls a CUDA build (pyproject only asks torch>=2.13).
+PYTHON ?= python3
+VENV   ?= .venv
+BIN     = $(VENV)/bin
+STAMP   = $(VENV)/.blenav-installed
+DEMO   ?= data/demo
+
+.PHONY: install demo test test-slow test-all bench realism clean-demo
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q torch==2.13.0
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/blenav-sim sim=office_45x55 seed=0 out=$(DEMO) duration_s=300 sessions=3
+	$(BIN)/blenav-validate $(DEMO)
+	$(BIN)/blenav-plot $(DEMO) --out $(DEMO)/report
+	@echo "demo report: $(DEMO)/report"
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -q -m slow
+
+test-all: $(STAMP)
+	$(BIN)/python -m pytest -q -m ""
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/sim_speed.py
+
+realism: $(STAMP)
+	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md
+
+clean-demo:
+	rm -rf $(DEMO)
