@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/blenav-sim sim=office_45x55 seed=0 out=$(DEMO) duration_s=300 sessions=3
+	$(BIN)/blenav-sim sim=office_45x55 seed=0 out=$(DEMO) duration_s=300 sessions=3 overwrite=true
 	$(BIN)/blenav-validate $(DEMO)
 	$(BIN)/blenav-plot $(DEMO) --out $(DEMO)/report
 	@echo "demo report: $(DEMO)/report"

@@ -47,6 +47,20 @@ def test_same_seed_same_bytes(tmp_path):
     assert tree_digest(a) != tree_digest(c)
 
 
+def test_existing_output_is_not_clobbered(tmp_path):
+    out = tmp_path / "x"
+    run(compose_sim("sim=small", f"out={out}", "duration_s=3", "sessions=2", "progress=false"))
+    with pytest.raises(ValueError, match="overwrite=true"):
+        run(compose_sim("sim=small", f"out={out}", "duration_s=3", "sessions=1", "progress=false"))
+    run(compose_sim("sim=small", f"out={out}", "duration_s=3", "sessions=1", "progress=false", "overwrite=true"))
+    assert len(Dataset.open(out).session_ids) == 1
+    (tmp_path / "y").mkdir()
+    (tmp_path / "y" / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="holds no dataset"):
+        run(compose_sim("sim=small", f"out={tmp_path / 'y'}", "duration_s=3", "sessions=1", "progress=false",
+                        "overwrite=true"))
+
+
 def test_more_sessions_keep_earlier_ones(tmp_path):
     for k in (1, 2):
         run(compose_sim("sim=small", "seed=5", f"out={tmp_path / str(k)}", "duration_s=6", f"sessions={k}",

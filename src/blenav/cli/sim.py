@@ -20,21 +20,17 @@ def run(cfg: DictConfig):
 
     sim_cfg = make_sim_config(cfg.sim)
     return simulate(sim_cfg, int(cfg.seed), cfg.out, float(cfg.duration_s), int(cfg.sessions),
-                    progress=bool(cfg.get("progress", False)))
+                    progress=bool(cfg.get("progress", False)), overwrite=bool(cfg.get("overwrite", False)))
 
 
 @hydra.main(config_path=str(conf_dir()), config_name="sim", version_base="1.3")
-def _main(cfg: DictConfig) -> None:
-    out = run(cfg)
-    print(f"wrote {out}")
-
-
-def main() -> None:
+def main(cfg: DictConfig) -> None:
     try:
-        _main()
-    except (ValueError, KeyError) as exc:
+        out = run(cfg)
+    except (ValueError, KeyError) as exc:  # bad settings: say what, without a traceback
         print(f"blenav-sim: error: {exc}", file=sys.stderr)
         sys.exit(1)
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ seed gives the same bytes and adding sessions does not change earlier ones.
 from __future__ import annotations
 
 import logging
+import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -185,11 +186,21 @@ def simulate_session(cfg: SimConfig, w: World, i: int, duration_s: float, ss: np
 
 
 def simulate(cfg: SimConfig, seed: int, out: str | Path, duration_s: float, sessions: int,
-             progress: bool = False) -> Path:
-    """Simulate ``sessions`` sessions of ``duration_s`` s and write the dataset to ``out``."""
+             progress: bool = False, overwrite: bool = False) -> Path:
+    """Simulate ``sessions`` sessions of ``duration_s`` s and write the dataset to ``out``.
+
+    An existing non-empty ``out`` is an error unless ``overwrite`` and it holds a dataset (dataset.yaml),
+    which is then replaced as a whole (so no session of an earlier run is left behind).
+    """
     if sessions < 1 or duration_s <= 0:
         raise ValueError(f"need sessions >= 1 and duration_s > 0 (got {sessions}, {duration_s})")
     out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        if not overwrite:
+            raise ValueError(f"output folder {out} is not empty; choose another out= or pass overwrite=true")
+        if not (out / "dataset.yaml").is_file():
+            raise ValueError(f"output folder {out} is not empty and holds no dataset; refusing to overwrite it")
+        shutil.rmtree(out)
     root_ss = np.random.SeedSequence(seed)
     b_ss, s_ss = root_ss.spawn(2)
     b_children = b_ss.spawn(cfg.buildings)

@@ -1,0 +1,571 @@
+"""Import the Kolakowski BLE RSS radio-map-calibration dataset into dataset format v1.
+
+Source: M. Kolakowski, "BLE RSS dataset for fingerprinting radio map calibration", Zenodo
+10.5281/zenodo.5457591 (github marckolak/ble-rss-fingerprints-calib2021, CC BY 4.0), as copied in
+``SOURCE.txt`` beside the raw files. The local README names a ``dataset_description`` file that was not
+copied; the facts marked *(upstream)* below come from that description
+(``description/dataset_description.tex``) and the authors' loader ``src/load_files.py`` in the same
+repository, read for this importer. Raw layout (``src`` is the folder holding it)::
+
+    anchors.csv                      id,x,y,z              the 6 fixed anchors (m)
+    layout.csv                       x,y                   wall polygon of the flat (m), closed ring
+    tests/test_robot_ble.txt         tab-separated system log, one line per anchor report (below)
+    tests/test_walk_ble.txt          idem, walking person
+    tests/test_robot_df.csv          ,ts,x,heading,y,rssi_1..rssi_6   preprocessed robot test (3 rows/s)
+    tests/test_walk_df.csv           ,ts,rssi_1..rssi_6               preprocessed walk test
+    tests/path_reference.csv         x0,y0,x1,y1           segments of the walked reference path
+    tests/test_robot_motion.txt      unix s, command, 0.15 teleoperation commands of the robot
+    calibration/calibration_df.csv   ,ts,x,heading,y,rssi_1..rssi_6   4 robot calibration runs
+    calibration/calib_df.csv         ,ts,x,y,rssi_3,rssi_4,rssi_5,rssi_8,rssi_10,rssi_11
+
+Geometry is reversed with respect to the format's phone picture: a mobile BLE **tag transmits** (5
+packets/s on the 3 advertising channels *(upstream)*) and the 6 **fixed anchors receive**, each with two
+Laird BL652 modules of perpendicular polarisation *(upstream)*. The anchors are written as anchors and
+the tag as the session's device (the link is reciprocal to first order). The tag rides at 1.3 m on a
+pole in the middle of the robot *(upstream)*; the same tag was worn by the walking person.
+
+Anchor ids
+----------
+The system logs and ``calib_df.csv`` name anchors by system id 3, 4, 5, 8, 10, 11; ``anchors.csv`` and
+the other ``*_df.csv`` files use 1..6. The mapping is by sorted order (3->1, 4->2, 5->3, 8->4, 10->5,
+11->6), checked on this copy: the per-second mean RSSI of system id *s* in ``test_*_ble.txt``
+correlates best with column ``rssi_<map(s)>`` of the matching ``*_df.csv`` (r = 0.83..0.95; the check is
+repeated on every import and its result is in the report notes). ``anchor_id`` is the ``anchors.csv``
+id (``"1"``..``"6"``); extra column ``system_id`` keeps the log id.
+
+System log format *(upstream loader)*
+-------------------------------------
+Tab-separated: ``ts`` (unix ms, arrival at the server), anchor system id, anchor sequence number,
+declared payload length, pressure, ``b`` = number of BLE packets, ``u`` = number of UWB packets, then
+``b`` groups of 8 (module 1/2, tag id, tag BLE counter, RSSI dBm, pressure, voltage, steps, alert) and
+``u`` groups of 4 (UWB, ignored). A line whose field count is not ``7 + 8 b + 4 u`` is malformed. A
+line whose declared length is shorter than ``12 b + 8 u + 19`` is a faulty frame that the authors'
+loader skips: its packets are dropped and counted. RSSI 0 means "not received" (the loader turns it
+into NaN): no row, counted.
+
+What is written
+---------------
+* One building ``kolakowski_flat``, floor ``0``; ``anchors.csv`` from ``anchors.csv``;
+  ``navgraph.geojson`` holds the walked reference path of ``tests/path_reference.csv`` as one
+  MultiLineString ``test_walk_reference_path`` of its 8 segments (not one LineString: the 6th segment,
+  (3.24, 0.9) -> (4.81, 0.9), is a spur, and the 7th starts again at (3.24, 0.9)).
+* ``test_robot`` (robot, labelled): ``rssi.csv`` = one row per BLE packet per receiving module from
+  ``test_robot_ble.txt`` (extra columns ``module`` 1/2, ``system_id``, ``tag_counter`` = the tag's BLE
+  counter of the packet, ``raw_line``); ``groundtruth.csv``
+  = the rows of ``test_robot_df.csv`` (x, y of the robot from the authors' LiDAR SLAM, z = 1.3 m tag
+  height, orientation empty, extra column ``heading``). The session clock starts at the first
+  ground-truth time; packets before the first or after the last ground-truth time are dropped and
+  counted (the robot was already turning 13 s before the first pose, and ground truth is not
+  extrapolated). The df's own RSSI columns are not used (they are 1/3 s log-means of the same packets).
+* ``test_walk`` (pedestrian, **unlabelled**): ``rssi.csv`` from ``test_walk_ble.txt`` as above. The
+  README does not say the reference path is time-aligned to the walk (the path has no times at all),
+  so no ground truth is interpolated; the path is in ``navgraph.geojson``.
+* ``calibration_run1`` .. ``calibration_run4`` (robot, labelled): ``calibration_df.csv`` holds four
+  runs one after the other (its unnamed index restarts and the time jumps by 22-87 min at each
+  boundary; split there). They are not static fingerprints at reference points: the robot keeps
+  moving with stops (speed between consecutive rows: median 0.07 m/s, 75th percentile 0.38 m/s) and
+  each row is the SLAM pose at that time, so they are labelled robot sessions, not ``static`` ones. ``rssi.csv`` = one row per non-empty
+  ``rssi_k`` cell (an empty cell = not received: no row, counted); these values are the authors'
+  1/3 s log-mean over both modules and all packets in the bin, *not* single packets. ``groundtruth.csv``
+  = every row (x, y, z = 1.3 m, ``heading``).
+* ``calib_df_unaligned`` (robot, **unlabelled**): ``calib_df.csv`` is an earlier run (2021-06-30; the
+  rest is 2021-08-03) whose x, y are in another SLAM frame (x in [-7.3, 0.4] m): a rigid 180 deg
+  rotation plus a shift puts all of it inside the flat, but the shift is not determined to better than
+  about 0.25 m, so it is not ground truth. Its positions minus the first position are written as
+  ``odometry.csv`` (arbitrary frame fixed at the start; only differences meaningful), its RSSI cells
+  (system ids, mapped) as ``rssi.csv``.
+* Not imported: ``test_robot_motion.txt`` is a teleoperation command log (forward/reverse/left/right/
+  stop with a constant 0.15), not odometry (commanded durations x 0.15 do not match the SLAM
+  displacement, and the turn rate is not given); ``test_walk_df.csv`` (derived from the walk log).
+
+Units, clock and frames
+-----------------------
+* World frame: the frame of ``layout.csv``/``anchors.csv`` (metres, flat from (0, 0) to (9.07, 7.1)),
+  used unchanged; assumed right-handed with z up (the SLAM ``heading`` is counter-clockwise from +x:
+  turning "right" decreases it). Its compass alignment is unknown.
+* ``heading`` (rad, unwrapped, CCW from +x) is the SLAM frame's heading of the robot. The robot's
+  forward motion points along ``heading + pi`` (median error 0.05-0.1 rad on both robot files), so it is
+  the LiDAR's axis, not the driving direction. It is not turned into a quaternion: the tag's own
+  orientation is unknown.
+* ``*_df.csv`` ``ts`` is unix time in **nanoseconds** (float). The authors' preprocessing rounds arrival
+  times to whole seconds and spreads packets over 1/3 s bins, so df times (and thus ground-truth times)
+  match the packet arrival times of the logs to within about 1 s.
+* ``*_ble.txt`` ``ts`` is unix time in **milliseconds** of arrival at the server (packets of one report
+  share it). A few lines (5 in the robot log, 1 in the walk log) are 1 ms earlier than the line
+  before; packets are stably sorted by time.
+* Each session's ``t`` is seconds since its first row (``test_robot``: first ground-truth row).
+* RSSI: dBm. Outside (-150, 0) dBm -> dropped and counted (none in this copy).
+
+Floor plan
+----------
+``layout.csv`` is one closed ring tracing the inner wall surfaces; interior walls (11-17 cm thick)
+appear as narrow notches. It is rasterised at ``RESOLUTION_M`` = 0.05 m: a pixel whose centre is inside
+the polygon is FREE; outside the polygon and within ``WALL_M`` = 0.15 m of its boundary OCCUPIED (so
+interior walls are solid and outer walls are 15 cm thick); further outside UNKNOWN (not part of the
+flat). The image is padded by ``PAD_M``. The fraction of ground-truth positions in FREE pixels is in the
+report notes.
+
+Bad input
+---------
+A line with a wrong field count, a non-numeric, non-integer (log) or non-finite value, an empty
+required cell, a wrong header, a df time going backwards, an anchor id missing from ``anchors.csv``, an
+invalid layout polygon or a zero-length path segment raise :class:`~blenav.importers.ImportError_`
+naming the file and the 1-based line. Nothing is written before all input has been read.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import shapely
+from shapely.geometry import MultiLineString, Polygon
+
+from blenav.data import FREE, OCCUPIED, UNKNOWN, DatasetError, validate
+from blenav.data.building import Building
+from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM
+from blenav.data.writer import write_building, write_dataset_meta, write_session
+
+from . import ImportError_, ImportReport
+
+BUILDING_ID = "kolakowski_flat"
+DEVICE_MODEL = "kolakowski-tag"
+#: system ids of the anchors in the logs, in the order of anchors.csv ids 1..6.
+SYSTEM_IDS = (3, 4, 5, 8, 10, 11)
+TAG_ID = 1
+#: tag height on the robot's pole (m) (upstream description).
+TAG_HEIGHT_M = 1.3
+RESOLUTION_M = 0.05
+WALL_M = 0.15
+PAD_M = 0.3
+#: a new calibration run starts where the df index does not increase or time jumps by more than this (s).
+RUN_GAP_S = 60.0
+NOT_RECEIVED = 0
+CHANNEL_MODEL = ("fixed receiver (two Laird BL652 modules, perpendicular polarisations, averaged in the df files); "
+                 "mobile tag transmits (reciprocal link)")
+SOURCE_DEFAULT = "Kolakowski, BLE RSS dataset for fingerprinting radio map calibration, Zenodo 10.5281/zenodo.5457591"
+
+
+# --------------------------------------------------------------------------------------------------
+# generic strict reading
+
+
+def _lines(path: Path) -> list[str]:
+    if not path.is_file():
+        raise ImportError_(path, None, "file does not exist")
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ImportError_(path, raw[: exc.start].count(b"\n") + 1, f"not UTF-8 text ({exc.reason})") from None
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    return lines
+
+
+def _first(mask: np.ndarray) -> int | None:
+    idx = np.flatnonzero(mask)
+    return int(idx[0]) if idx.size else None
+
+
+def _csv_cells(path: Path, header: list[str] | None = None) -> tuple[list[str], pd.DataFrame]:
+    """Header names and the str cells (stripped) of a comma-separated file with a header line.
+
+    ``header``: the exact expected names, else any header is accepted. Wrong field counts and blank
+    lines raise with the 1-based line.
+    """
+    lines = _lines(path)
+    if not lines:
+        raise ImportError_(path, None, "file is empty")
+    names = [c.strip() for c in lines[0].split(",")]
+    if header is not None and names != header:
+        raise ImportError_(path, 1, f"header is {lines[0]!r}, expected {','.join(header)!r}")
+    s = pd.Series(lines[1:], dtype=object)
+    if not len(s):
+        raise ImportError_(path, None, "file has a header but no rows")
+    blank = s.str.strip().eq("").to_numpy(bool)
+    counts = s.str.count(",").to_numpy(np.int64) + 1
+    bad = _first(blank | (counts != len(names)))
+    if bad is not None:
+        problem = "blank line" if blank[bad] else f"{counts[bad]} fields, expected {len(names)}"
+        raise ImportError_(path, bad + 2, problem)
+    cells = s.str.split(",", expand=True).apply(lambda c: c.str.strip())
+    cells.columns = list(range(len(names)))
+    return names, cells
+
+
+def _numbers(path: Path, cells: pd.Series, name: str, nullable: bool = False, integer: bool = False) -> np.ndarray:
+    """float64 of one column of str cells; bad cells raise naming line (header = line 1) and column."""
+    v = pd.to_numeric(cells, errors="coerce").to_numpy(dtype=float)
+    empty = cells.eq("").to_numpy(bool)
+    bad = ~np.isfinite(v) & ~(nullable & empty)
+    if integer:
+        bad |= np.isfinite(v) & (v != np.round(v))
+    r = _first(bad)
+    if r is not None:
+        what = "empty" if empty[r] else f"{cells.iloc[r]!r} is not {'an integer' if integer else 'a finite number'}"
+        raise ImportError_(path, r + 2, f"column {name!r}: {what}")
+    return v
+
+
+# --------------------------------------------------------------------------------------------------
+# the raw files
+
+
+def read_anchors(path: Path) -> pd.DataFrame:
+    _, cells = _csv_cells(path, ["id", "x", "y", "z"])
+    ids = _numbers(path, cells[0], "id", integer=True).astype(np.int64)
+    dup = _first(pd.Series(ids).duplicated().to_numpy(bool))
+    if dup is not None:
+        raise ImportError_(path, dup + 2, f"anchor id {ids[dup]} appears twice")
+    bad = _first((ids < 1) | (ids > len(SYSTEM_IDS)))
+    if bad is not None:
+        raise ImportError_(path, bad + 2, f"anchor id {ids[bad]} is not in 1..{len(SYSTEM_IDS)} (the ids mapped to "
+                           f"system ids {SYSTEM_IDS})")
+    if len(ids) != len(SYSTEM_IDS):
+        raise ImportError_(path, None, f"{len(ids)} anchors, expected {len(SYSTEM_IDS)}")
+    xyz = {c: _numbers(path, cells[k], c) for k, c in enumerate(("x", "y", "z"), start=1)}
+    return pd.DataFrame({"anchor_id": ids.astype(str), **xyz,
+                         "system_id": np.asarray(SYSTEM_IDS)[ids - 1]})
+
+
+def read_layout(path: Path) -> Polygon:
+    _, cells = _csv_cells(path, ["x", "y"])
+    xy = np.stack([_numbers(path, cells[0], "x"), _numbers(path, cells[1], "y")], axis=1)
+    poly = Polygon(xy)
+    if len(xy) < 4 or not poly.is_valid or poly.area <= 0:
+        raise ImportError_(path, None, "the wall vertices do not form a valid polygon")
+    return poly
+
+
+def read_reference_path(path: Path) -> MultiLineString:
+    """The walked reference path: one 2-point LineString per row, in file order (m)."""
+    _, cells = _csv_cells(path, ["x0", "y0", "x1", "y1"])
+    v = np.stack([_numbers(path, cells[k], n) for k, n in enumerate(("x0", "y0", "x1", "y1"))], axis=1)
+    bad = _first(np.hypot(v[:, 2] - v[:, 0], v[:, 3] - v[:, 1]) <= 0)
+    if bad is not None:
+        raise ImportError_(path, bad + 2, "segment has zero length")
+    return MultiLineString([[(a, b), (c, d)] for a, b, c, d in v])
+
+
+def read_system_log(path: Path, report: ImportReport) -> pd.DataFrame:
+    """BLE packets of a ``*_ble.txt`` log: t_s (unix s), system_id, module, tag, tag_counter, rssi, raw_line.
+
+    File order, then packet order within the line. Faulty frames, other tags and RSSI 0 are dropped
+    and counted in ``report``.
+    """
+    lines = _lines(path)
+    if not lines:
+        raise ImportError_(path, None, "file is empty")
+    s = pd.Series(lines, dtype=object)
+    blank = s.str.strip().eq("").to_numpy(bool)
+    bad = _first(blank)
+    if bad is not None:
+        raise ImportError_(path, bad + 1, "blank line")
+    tok = s.str.split("\t", expand=True)
+    ntok = tok.notna().sum(axis=1).to_numpy(np.int64)
+    bad = _first(ntok < 7)
+    if bad is not None:
+        raise ImportError_(path, bad + 1, f"{ntok[bad]} tab-separated fields, expected at least 7")
+    num = pd.DataFrame({c: pd.to_numeric(tok[c].str.strip(), errors="coerce") for c in tok.columns}).to_numpy(float)
+    badcell = tok.notna().to_numpy() & ~(np.isfinite(num) & (num == np.round(num)))
+    r = _first(badcell.any(axis=1))
+    if r is not None:
+        c = int(np.flatnonzero(badcell[r])[0])
+        raise ImportError_(path, r + 1, f"field {c + 1}: {tok.iat[r, c]!r} is not an integer")
+    b, u = num[:, 5].astype(np.int64), num[:, 6].astype(np.int64)
+    expected = 7 + 8 * b + 4 * u
+    bad = _first((b < 0) | (u < 0) | (ntok != expected))
+    if bad is not None:
+        raise ImportError_(path, bad + 1, f"{ntok[bad]} fields, but the line announces {b[bad]} BLE and {u[bad]} "
+                           f"UWB packets ({expected[bad]} fields)")
+    faulty = num[:, 3] < 12 * b + 8 * u + 19
+    report.drop(f"BLE packets in frames the authors' loader flags as faulty (declared length too short) "
+                f"in {path.name}", int(b[faulty].sum()))
+    parts = []
+    for k in range(int(b.max(initial=0))):
+        rows = np.flatnonzero((b > k) & ~faulty)
+        c0 = 7 + 8 * k
+        parts.append(pd.DataFrame({"raw_line": rows + 1, "k": k, "t_s": num[rows, 0] / 1000.0,
+                                   "system_id": num[rows, 1].astype(np.int64),
+                                   "module": num[rows, c0].astype(np.int64), "tag": num[rows, c0 + 1].astype(np.int64),
+                                   "tag_counter": num[rows, c0 + 2].astype(np.int64), "rssi": num[rows, c0 + 3]}))
+    if not parts:
+        raise ImportError_(path, None, "no BLE packets")
+    pk = pd.concat(parts).sort_values(["raw_line", "k"], kind="stable").reset_index(drop=True)
+    other = (pk["tag"] != TAG_ID).to_numpy()
+    report.drop(f"BLE packets of a tag other than {TAG_ID} in {path.name}", int(other.sum()))
+    pk = pk[~other]
+    unknown = ~pk["system_id"].isin(SYSTEM_IDS).to_numpy()
+    if unknown.any():
+        r = int(pk["raw_line"].to_numpy()[unknown][0])
+        raise ImportError_(path, r, f"anchor system id {int(pk['system_id'].to_numpy()[unknown][0])} is not one of "
+                           f"{SYSTEM_IDS}")
+    rssi = pk["rssi"].to_numpy()
+    nr = rssi == NOT_RECEIVED
+    invalid = ~nr & ((rssi >= RSSI_MAX_DBM) | (rssi <= RSSI_MIN_DBM))
+    report.drop(f"BLE packets with RSSI 0 (not received) in {path.name}", int(nr.sum()))
+    report.drop(f"BLE packets with an invalid RSSI (outside ({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm) in {path.name}",
+                int(invalid.sum()))
+    pk = pk[~nr & ~invalid]
+    return pk.iloc[np.argsort(pk["t_s"].to_numpy(), kind="stable")].reset_index(drop=True)
+
+
+@dataclass
+class _Df:
+    path: Path
+    index: np.ndarray        # the unnamed first column
+    t_s: np.ndarray          # unix s
+    cols: dict               # x, y, heading -> float arrays (present ones)
+    rssi: pd.DataFrame       # columns = anchors.csv ids "1".."6", NaN = not received
+    lines: np.ndarray        # 1-based file lines
+
+
+def read_df(path: Path, position: tuple[str, ...]) -> _Df:
+    """A preprocessed ``*_df.csv``: unnamed index, ``ts`` (unix ns), ``position`` columns, ``rssi_<id>``."""
+    names, cells = _csv_cells(path)
+    if names[0] != "" or "ts" not in names:
+        raise ImportError_(path, 1, "expected an unnamed first (index) column and a 'ts' column")
+    missing = [c for c in position if c not in names]
+    if missing:
+        raise ImportError_(path, 1, f"header lacks column(s) {', '.join(missing)}")
+    rcols = [n for n in names if n.startswith("rssi_")]
+    try:
+        suffix = [int(n[5:]) for n in rcols]
+    except ValueError:
+        raise ImportError_(path, 1, f"rssi columns must be rssi_<integer id>, got {rcols}") from None
+    if set(suffix) == set(SYSTEM_IDS):
+        ids = [str(SYSTEM_IDS.index(s) + 1) for s in suffix]
+    elif suffix and set(suffix) <= set(range(1, len(SYSTEM_IDS) + 1)):
+        ids = [str(s) for s in suffix]
+    else:
+        raise ImportError_(path, 1, f"rssi columns {rcols} name neither anchors 1..6 nor system ids {SYSTEM_IDS}")
+    col = {n: k for k, n in enumerate(names)}
+    index = _numbers(path, cells[0], "(index)", integer=True)
+    ts = _numbers(path, cells[col["ts"]], "ts")
+    back = _first(np.diff(ts) < 0)
+    if back is not None:
+        raise ImportError_(path, back + 3, "'ts' goes backwards (earlier than the line before)")
+    pos = {c: _numbers(path, cells[col[c]], c) for c in position}
+    rssi = pd.DataFrame({i: _numbers(path, cells[col[n]], n, nullable=True) for i, n in zip(ids, rcols)})
+    return _Df(path, index, ts / 1e9, pos, rssi, np.arange(2, len(cells) + 2))
+
+
+def _df_rssi(df: _Df, sel: np.ndarray, t0: float, report: ImportReport, what: str) -> pd.DataFrame:
+    """Long rssi rows (t, anchor_id, rssi, raw_line) of the df rows ``sel``; empty cells are not rows."""
+    r = df.rssi.iloc[sel]
+    long = pd.DataFrame({
+        "t": np.repeat(df.t_s[sel] - t0, r.shape[1]),
+        "anchor_id": np.tile(np.asarray(r.columns, dtype=object), len(r)),
+        "rssi": r.to_numpy().ravel(),
+        "raw_line": np.repeat(df.lines[sel], r.shape[1]),
+    })
+    v = long["rssi"].to_numpy()
+    empty = np.isnan(v)
+    invalid = ~empty & ((v >= RSSI_MAX_DBM) | (v <= RSSI_MIN_DBM))
+    report.drop(f"empty rssi cells (not received; no row) in {what}", int(empty.sum()))
+    report.drop(f"rssi cells with an invalid RSSI (outside ({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm) in {what}",
+                int(invalid.sum()))
+    return long[~empty & ~invalid].reset_index(drop=True)
+
+
+def _packet_rssi(pk: pd.DataFrame, t0: float) -> pd.DataFrame:
+    return pd.DataFrame({"t": pk["t_s"].to_numpy() - t0,
+                         "anchor_id": (np.searchsorted(SYSTEM_IDS, pk["system_id"].to_numpy()) + 1).astype(str),
+                         "rssi": pk["rssi"].to_numpy().astype(np.int64),
+                         "module": pk["module"].to_numpy(), "system_id": pk["system_id"].to_numpy(),
+                         "tag_counter": pk["tag_counter"].to_numpy(), "raw_line": pk["raw_line"].to_numpy()})
+
+
+def mapping_check(pk: pd.DataFrame, df: _Df) -> tuple[bool, float]:
+    """Whether each system id's per-second mean RSSI correlates best with the df column it maps to.
+
+    Returns ``(all_match, smallest matching correlation)``.
+    """
+    m = pk.assign(sec=np.floor(pk["t_s"]).astype(np.int64)).groupby(["sec", "system_id"])["rssi"].mean().unstack()
+    d = df.rssi.assign(sec=np.floor(df.t_s).astype(np.int64)).groupby("sec").mean()
+    j = m.join(d, how="inner")
+    ok, worst = True, 1.0
+    for s in m.columns:
+        corr = {a: j[s].corr(j[a]) for a in d.columns}
+        want = str(SYSTEM_IDS.index(s) + 1)
+        ok &= max(corr, key=lambda a: -np.inf if np.isnan(corr[a]) else corr[a]) == want
+        worst = min(worst, corr[want])
+    return bool(ok), float(worst)
+
+
+# --------------------------------------------------------------------------------------------------
+# floor
+
+
+def rasterise(poly: Polygon) -> tuple[np.ndarray, tuple[float, float]]:
+    """Occupancy (H, W) int8, row 0 on top, and the world origin of the lower-left pixel corner."""
+    x0, y0, x1, y1 = poly.bounds
+    lo = np.floor((np.array([x0, y0]) - PAD_M) / RESOLUTION_M) * RESOLUTION_M
+    hi = np.ceil((np.array([x1, y1]) + PAD_M) / RESOLUTION_M) * RESOLUTION_M
+    w, h = (int(round(v)) for v in (hi - lo) / RESOLUTION_M)
+    xc = lo[0] + (np.arange(w) + 0.5) * RESOLUTION_M
+    yc = lo[1] + (h - 1 - np.arange(h) + 0.5) * RESOLUTION_M
+    gx, gy = np.meshgrid(xc, yc)
+    inside = shapely.contains_xy(poly, gx, gy)
+    near = shapely.distance(poly.boundary, shapely.points(gx, gy)) <= WALL_M
+    occ = np.full((h, w), UNKNOWN, dtype=np.int8)
+    occ[near & ~inside] = OCCUPIED
+    occ[inside] = FREE
+    return occ, (round(float(lo[0]), 9), round(float(lo[1]), 9))
+
+
+# --------------------------------------------------------------------------------------------------
+# import
+
+
+def _check_out(out: Path) -> None:
+    if (out / "sessions").exists() or (out / "buildings").exists() or (out / "dataset.yaml").exists():
+        raise ImportError_(out, None, "output folder already holds a dataset; choose a new or empty folder")
+
+
+def _source_line(src: Path) -> str:
+    p = src / "SOURCE.txt"
+    if p.is_file():
+        for line in p.read_text(encoding="utf-8", errors="replace").splitlines():
+            if line.strip():
+                return line.strip()
+    return SOURCE_DEFAULT
+
+
+def _gt(df: _Df, sel: np.ndarray, t0: float) -> pd.DataFrame:
+    return pd.DataFrame({"t": df.t_s[sel] - t0, "x": df.cols["x"][sel], "y": df.cols["y"][sel], "z": TAG_HEIGHT_M,
+                         "qw": np.nan, "qx": np.nan, "qy": np.nan, "qz": np.nan,
+                         "heading": df.cols["heading"][sel], "raw_line": df.lines[sel]})
+
+
+def import_kolakowski_ble_calib(src: Path, out: Path) -> ImportReport:
+    """Convert ``src`` (the raw folder described in the module docstring) to a dataset at ``out``."""
+    src, out = Path(src), Path(out)
+    _check_out(out)
+    report = ImportReport(out=out)
+
+    anchors = read_anchors(src / "anchors.csv")
+    poly = read_layout(src / "layout.csv")
+    ref_path = read_reference_path(src / "tests" / "path_reference.csv")
+    robot_pk = read_system_log(src / "tests" / "test_robot_ble.txt", report)
+    walk_pk = read_system_log(src / "tests" / "test_walk_ble.txt", report)
+    robot_df = read_df(src / "tests" / "test_robot_df.csv", ("x", "heading", "y"))
+    walk_df = read_df(src / "tests" / "test_walk_df.csv", ())
+    calib = read_df(src / "calibration" / "calibration_df.csv", ("x", "heading", "y"))
+    old = read_df(src / "calibration" / "calib_df.csv", ("x", "y"))
+
+    for name, pk, df in (("test_robot", robot_pk, robot_df), ("test_walk", walk_pk, walk_df)):
+        ok, worst = mapping_check(pk, df)
+        report.notes.append(f"anchor-id mapping {dict(zip(SYSTEM_IDS, range(1, 7)))} checked on {name}: "
+                            + (f"every system id correlates best with its mapped df column (r >= {worst:.2f})" if ok
+                               else f"WARNING: the mapping does not give the best correlation (smallest r "
+                                    f"{worst:.2f})"))
+
+    sessions: list[tuple[str, dict, dict]] = []
+    gt_xy = []
+
+    # robot test: packets within the ground-truth span
+    t0, t1 = robot_df.t_s[0], robot_df.t_s[-1]
+    tt = robot_pk["t_s"].to_numpy()
+    inside = (tt >= t0) & (tt <= t1)
+    report.drop("BLE packets of test_robot_ble.txt outside the ground-truth time span", int((~inside).sum()))
+    gt = _gt(robot_df, np.arange(len(robot_df.t_s)), t0)
+    gt_xy.append(gt[["x", "y"]].to_numpy())
+    gaps = np.diff(robot_df.t_s)
+    sessions.append(("test_robot", {
+        "carrier": "robot", "labelled": True,
+        "notes": (f"Kolakowski robot test: rssi = single BLE packets per receiving module from "
+                  f"tests/test_robot_ble.txt "
+                  f"(t = arrival unix ms / 1000 - first ground-truth time {t0:.3f}); ground truth = LiDAR-SLAM robot "
+                  f"positions of tests/test_robot_df.csv (z = tag height 1.3 m; heading = SLAM heading, forward "
+                  f"motion is heading + pi); ground-truth times are the authors' 1/3 s bins (about 1 s accuracy); "
+                  f"largest ground-truth gap {gaps.max():.1f} s. {int((~inside).sum())} packets outside the "
+                  f"ground-truth span dropped. No IMU."),
+        "source_file": "tests/test_robot_ble.txt, tests/test_robot_df.csv"},
+        {"rssi": _packet_rssi(robot_pk[inside], t0), "groundtruth": gt}))
+
+    # walk test: no time-aligned ground truth
+    w0 = float(walk_pk["t_s"].min())
+    sessions.append(("test_walk", {
+        "carrier": "pedestrian", "labelled": False,
+        "notes": (f"Kolakowski walk test: rssi = single BLE packets per receiving module from tests/test_walk_ble.txt "
+                  f"(t = arrival unix ms / 1000 - {w0:.3f}). The walked path is the MultiLineString "
+                  f"'test_walk_reference_path' in the building's navgraph.geojson (tests/path_reference.csv); it has "
+                  f"no times, so there is no ground truth. No IMU."),
+        "source_file": "tests/test_walk_ble.txt"},
+        {"rssi": _packet_rssi(walk_pk, w0)}))
+
+    # calibration runs
+    new_run = np.r_[True, (np.diff(calib.index) <= 0) | (np.diff(calib.t_s) > RUN_GAP_S)]
+    run = np.cumsum(new_run)
+    for k in range(1, int(run.max()) + 1):
+        sel = np.flatnonzero(run == k)
+        c0 = calib.t_s[sel[0]]
+        sid = f"calibration_run{k}"
+        gt = _gt(calib, sel, c0)
+        gt_xy.append(gt[["x", "y"]].to_numpy())
+        sessions.append((sid, {
+            "carrier": "robot", "labelled": True,
+            "notes": (f"Kolakowski radio-map calibration run {k} of calibration/calibration_df.csv (lines "
+                      f"{calib.lines[sel[0]]}..{calib.lines[sel[-1]]}): the robot drives continuously with stops; "
+                      f"rssi = the authors' 1/3 s log-mean over both modules and all packets of each anchor (not "
+                      f"single packets), empty cells (not received) have no row; ground truth = LiDAR-SLAM positions, "
+                      f"z = tag height 1.3 m, heading = SLAM heading. t = ts (unix ns) / 1e9 - {c0:.3f}. No IMU."),
+            "source_file": "calibration/calibration_df.csv"},
+            {"rssi": _df_rssi(calib, sel, c0, report, "calibration/calibration_df.csv"), "groundtruth": gt}))
+
+    # the earlier calibration run, in an unaligned SLAM frame
+    sel = np.arange(len(old.t_s))
+    o0 = old.t_s[0]
+    odo = pd.DataFrame({"t": old.t_s - o0, "x": old.cols["x"] - old.cols["x"][0],
+                        "y": old.cols["y"] - old.cols["y"][0], "raw_line": old.lines})
+    sessions.append(("calib_df_unaligned", {
+        "carrier": "robot", "labelled": False,
+        "notes": ("Kolakowski calibration/calib_df.csv, an earlier run (2021-06-30) whose SLAM positions are in an "
+                  "unaligned frame (about 180 deg rotated and shifted; the shift is not determined to better than "
+                  "~0.25 m): written as odometry.csv (relative to the first position, only differences meaningful), "
+                  "not as ground truth. rssi = 1/3 s log-means, columns rssi_<system id> mapped to anchors.csv ids. "
+                  f"t = ts (unix ns) / 1e9 - {o0:.3f}. No IMU."),
+        "source_file": "calibration/calib_df.csv"},
+        {"rssi": _df_rssi(old, sel, o0, report, "calibration/calib_df.csv"), "odometry": odo}))
+
+    # write
+    occ, origin = rasterise(poly)
+    write_dataset_meta(out, "kolakowski_ble_calib", "Kolakowski BLE RSS dataset for fingerprinting radio map "
+                       "calibration: furnished flat, 6 fixed receivers, 1 mobile tag on a robot or a person",
+                       "CC-BY-4.0", _source_line(src))
+    anc = anchors.assign(kind="ble", floor=0, tx_power_dbm=np.nan, channel_model=CHANNEL_MODEL)
+    nav = [{"id": "test_walk_reference_path", "floor": 0, "geometry": ref_path,
+            "properties": {"source": "tests/path_reference.csv", "session": "test_walk"}}]
+    broot = write_building(out, BUILDING_ID, "Kolakowski test flat", [{"id": 0, "occupancy": occ,
+                           "resolution": RESOLUTION_M, "origin": origin, "z": 0.0}], anc, navgraph=nav,
+                           source_layout="layout.csv")
+    report.buildings = 1
+    for sid, meta, streams in sessions:
+        full = {"building": BUILDING_ID, "floor": 0, "device_model": DEVICE_MODEL, **meta}
+        write_session(out, sid, full, streams)
+        report.sessions += 1
+        report.notes.append(f"{sid}: " + ", ".join(f"{len(df)} {name} rows" for name, df in streams.items()))
+
+    xy = np.vstack(gt_xy)
+    floor = Building.load(broot).floor(0)
+    free = floor.is_free(xy)
+    report.notes.append(f"ground truth in FREE pixels of the rasterised layout: {100 * free.mean():.1f}% "
+                        f"({int(free.sum())} of {len(xy)} positions; inside the layout polygon: "
+                        f"{100 * shapely.contains_xy(poly, xy[:, 0], xy[:, 1]).mean():.1f}%)")
+    report.notes.append("not imported: tests/test_robot_motion.txt (teleoperation commands, not odometry), "
+                        "tests/test_walk_df.csv (derived from test_walk_ble.txt)")
+    _validate_or_raise(out, report)
+    return report
+
+
+def _validate_or_raise(out: Path, report: ImportReport) -> None:
+    issues = validate(out)
+    errors = [i for i in issues if i.is_error]
+    if errors:
+        raise DatasetError(errors)
+    report.notes += [f"validator: {i}" for i in issues]
