@@ -13,6 +13,7 @@ every 0.2 s: lines 2-5 at t=0, 6-9 at t=0.2, ...), groundtruth.csv (10 Hz, lines
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -23,12 +24,24 @@ from PIL import Image
 from blenav.cli.validate import main as validate_main
 from blenav.data import validate
 from blenav.data.schema import SESSION_KEYS
+from helpers import make_tiny_dataset
 
 S = "sessions/walk0"
 B = "buildings/house"
 
 
 # --------------------------------------------------------------------------- helpers
+
+
+@pytest.fixture(scope="module")
+def _tiny_template(tmp_path_factory):
+    return make_tiny_dataset(tmp_path_factory.mktemp("template") / "tiny")
+
+
+@pytest.fixture
+def tiny_dataset(_tiny_template, tmp_path):
+    """Like conftest's fixture (a fresh valid tiny dataset per test), copied from one written per module."""
+    return Path(shutil.copytree(_tiny_template, tmp_path / "tiny"))
 
 
 def rel(root: Path, issue) -> str:
@@ -206,6 +219,8 @@ CELL_CASES = [
     (f"{S}/groundtruth.csv", 30, "qw", "inf", "non-finite"),  # nullable, but never infinite
     (f"{S}/rssi.csv", 9, "rssi", "nan", "non-finite"),
     (f"{S}/rssi.csv", 9, "t", "", "non-finite"),
+    (f"{S}/rssi.csv", 9, "t", "inf", "non-finite"),   # not also 'time-backwards' on the next line
+    (f"{S}/rssi.csv", 9, "rssi", "-inf", "non-finite"),  # not also 'rssi-range'
     (f"{B}/anchors.csv", 3, "x", "nan", "non-finite"),
     (f"{B}/anchors.csv", 3, "y", "", "non-finite"),
     # text where a number belongs
@@ -413,8 +428,6 @@ def test_session_with_a_single_data_file_is_valid(tiny_dataset, only):
 
 
 def test_no_buildings_and_no_sessions(tiny_dataset):
-    import shutil
-
     shutil.rmtree(tiny_dataset / "buildings")
     shutil.rmtree(tiny_dataset / "sessions")
     issues = validate(tiny_dataset)
@@ -438,10 +451,8 @@ def test_dataset_yaml_missing(tiny_dataset):
 
 
 def test_dataset_yaml_syntax_error_names_the_line(tiny_dataset):
-    (tiny_dataset / "dataset.yaml").write_text("format: blenav/1\nname: tiny\ndescription: [unclosed\n")
-    (e,) = assert_only(tiny_dataset, validate(tiny_dataset), "yaml-syntax", "dataset.yaml",
-                       line=pytest.approx(4, abs=1))
-    assert e.line in (3, 4)
+    (tiny_dataset / "dataset.yaml").write_text("format: blenav/1\nname: tiny\n  bad: indent\nlicence: x\n")
+    assert_only(tiny_dataset, validate(tiny_dataset), "yaml-syntax", "dataset.yaml", line=3)
 
 
 def test_dataset_yaml_not_a_mapping(tiny_dataset):
@@ -721,3 +732,14 @@ def test_cli_invalid_dataset_exits_1_with_one_line_per_violation(tiny_dataset, c
 def test_cli_missing_folder_exits_1(tmp_path, capsys):
     assert validate_main([str(tmp_path / "nothing")]) == 1
     assert "[missing-dataset]" in capsys.readouterr().out
+
+
+def test_line_numbers_are_not_shifted_by_dropped_unknown_anchor_rows(tiny_dataset):
+    """Rows for unknown anchors are dropped, but later rows keep their own line numbers."""
+    p = tiny_dataset / S / "rssi.csv"
+    set_cell(p, 3, "anchor_id", "zz")
+    set_cell(p, 6, "anchor_id", "zz")
+    set_cell(p, 9, "rssi", "-200")
+    issues = validate(tiny_dataset)
+    assert_only(tiny_dataset, issues, "rssi-range", f"{S}/rssi.csv", 9)
+    assert [i.rule for i in warnings_(issues)] == ["unknown-anchor"]

@@ -94,7 +94,8 @@ def read_table(
 
     if time_column and len(df):
         t = df[time_column].to_numpy(dtype=float)
-        back = np.flatnonzero(np.diff(t) < 0) + 1  # rows whose time is before the previous row's
+        ok = np.flatnonzero(np.isfinite(t))  # non-finite times are reported above, not compared
+        back = ok[1:][np.diff(t[ok]) < 0]  # rows whose time is before the previous (finite) row's
         if len(back):
             issues += _rows_issue(path, "time-backwards", back,
                                   f"'{time_column}' goes backwards (earlier than the line before)")

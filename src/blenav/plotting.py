@@ -1,0 +1,302 @@
+"""Figures of a dataset: floor plans with anchors, rooms, routes and tracks; RSSI statistics.
+
+The only module of :mod:`blenav` that imports matplotlib. Figures are built with the object-oriented API
+on an explicit Agg canvas (``matplotlib.figure.Figure`` + ``FigureCanvasAgg``), never through pyplot: this
+renders headless without touching the process-wide backend (``matplotlib.use``), so importing this module
+does not change plotting in a notebook or GUI that uses it, and figures are freed with their last reference.
+
+World coordinates throughout: metres, x east, y north (docs/dataset-format.md). Computations (distance
+pairing, path-loss fit) live in :mod:`blenav.radio_stats`; this module only draws.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib import colormaps
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.ticker import FuncFormatter, NullFormatter
+from shapely.geometry import LineString, MultiLineString, MultiPolygon, Polygon
+
+from blenav.data import FREE, OCCUPIED, Building, Dataset, Session
+from blenav.data.schema import ANCHOR_TRUE_COLUMNS
+from blenav.radio_stats import fit_path_loss, path_loss_rssi, rssi_distance_pairs
+
+#: Resolution of saved figures (pixels per inch); a figure of size (w, h) inches saves as (w*DPI, h*DPI) px.
+DPI = 120
+
+#: Grey levels drawn for occupancy values: free white, unknown light grey, occupied black.
+FREE_GREY, UNKNOWN_GREY, OCCUPIED_GREY = 1.0, 0.82, 0.0
+
+#: Tracks named one by one in a legend; further sessions are summarised as "+ k more".
+MAX_LEGEND_SESSIONS = 12
+
+#: Anchors are labelled with their id when a floor has at most this many.
+MAX_LABELLED_ANCHORS = 40
+
+#: Points drawn per receiver in the RSSI scatter (the fit always uses all of them).
+MAX_SCATTER_POINTS = 20000
+
+ANCHOR_STYLE = {
+    "ble": {"marker": "^", "color": "tab:blue", "label": "BLE beacon"},
+    "wifi_rtt": {"marker": "s", "color": "tab:red", "label": "WiFi RTT AP"},
+}
+ROOM_COLOR = "tab:purple"
+ROUTE_COLOR = "tab:green"
+
+
+def new_figure(width_in: float, height_in: float) -> Figure:
+    """A figure on an Agg canvas (no pyplot, no global backend), with constrained layout."""
+    fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save_figure(fig: Figure, path: str | Path) -> Path:
+    """Write ``fig`` as PNG at :data:`DPI` (size exactly figsize * DPI) and return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=DPI, format="png")
+    return path
+
+
+def session_colors(n: int) -> list:
+    """``n`` distinct colours for tracks/receivers (Dark2: unlike the blue/red anchor markers)."""
+    if n <= 8:
+        return [colormaps["Dark2"](i) for i in range(n)]
+    return [colormaps["turbo"](0.05 + 0.9 * i / (n - 1)) for i in range(n)]
+
+
+# --------------------------------------------------------------------------- floor plans
+
+
+def _polygons(g) -> list[Polygon]:
+    if isinstance(g, Polygon):
+        return [g]
+    if isinstance(g, MultiPolygon):
+        return list(g.geoms)
+    return []
+
+
+def _lines(g) -> list[LineString]:
+    if isinstance(g, LineString):
+        return [g]
+    if isinstance(g, MultiLineString):
+        return list(g.geoms)
+    return []
+
+
+def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | None = None) -> Axes:
+    """Draw one floor in world metres: occupancy grid, rooms, navigation graph and radio anchors.
+
+    Anchors: BLE beacons as triangles, WiFi RTT access points as squares, at their prior (map) positions;
+    where the anchors carry ``x_true, y_true`` a thin line joins the prior to the true position (small x).
+    ``anchor_labels``: write anchor ids next to them (default: when the floor has at most
+    :data:`MAX_LABELLED_ANCHORS`).
+    """
+    fl = building.floor(floor_id)
+    occ = fl.occupancy
+    grey = np.full(occ.shape, UNKNOWN_GREY, dtype=float)
+    grey[occ == FREE] = FREE_GREY
+    grey[occ == OCCUPIED] = OCCUPIED_GREY
+    # row 0 of the image is its top (largest y): origin="upper" with the world extent
+    ax.imshow(grey, cmap="gray", vmin=0.0, vmax=1.0, extent=fl.extent, origin="upper",
+              interpolation="nearest", zorder=0)
+
+    for k, room in enumerate(building.rooms_on(fl.id)):
+        rings = [ring for poly in _polygons(room.geometry) for ring in (poly.exterior, *poly.interiors)]
+        for j, ring in enumerate(rings):
+            x, y = ring.xy
+            ax.plot(x, y, color=ROOM_COLOR, lw=0.8, alpha=0.6, zorder=1, label="room" if k == j == 0 else None)
+        p = room.geometry.representative_point()
+        ax.text(p.x, p.y, room.id, fontsize=7, color=ROOM_COLOR, alpha=0.55, ha="center", va="center", zorder=1)
+
+    segments = [np.asarray(line.coords)[:, :2] for r in building.routes_on(fl.id) for line in _lines(r.geometry)]
+    if segments:
+        ax.add_collection(LineCollection(segments, colors=ROUTE_COLOR, linewidths=1.0, linestyles="--",
+                                         alpha=0.8, zorder=2, label="navigation graph"))
+
+    anchors = building.anchors_of(floor=fl.id)
+    has_true = all(c in anchors.columns for c in ANCHOR_TRUE_COLUMNS[:2])
+    if has_true and len(anchors):
+        xt = pd.to_numeric(anchors["x_true"], errors="coerce").to_numpy(dtype=float)
+        yt = pd.to_numeric(anchors["y_true"], errors="coerce").to_numpy(dtype=float)
+        known = np.isfinite(xt) & np.isfinite(yt)
+        if known.any():
+            prior = anchors[["x", "y"]].to_numpy(dtype=float)[known]
+            true = np.column_stack([xt[known], yt[known]])
+            ax.add_collection(LineCollection(np.stack([prior, true], axis=1), colors="0.25", linewidths=0.6,
+                                             zorder=3))
+            ax.scatter(true[:, 0], true[:, 1], marker="x", s=14, linewidths=0.8, color="0.25", zorder=3,
+                       label="true anchor position")
+    for kind, style in ANCHOR_STYLE.items():
+        sub = anchors[anchors["kind"] == kind]
+        if len(sub):
+            ax.scatter(sub["x"], sub["y"], marker=style["marker"], s=40, color=style["color"], edgecolors="k",
+                       linewidths=0.5, zorder=4, label=f"{style['label']} ({len(sub)})")
+    if anchor_labels is None:
+        anchor_labels = len(anchors) <= MAX_LABELLED_ANCHORS
+    if anchor_labels:
+        for aid, x, y in zip(anchors["anchor_id"], anchors["x"], anchors["y"]):
+            ax.annotate(str(aid), (x, y), xytext=(3, 3), textcoords="offset points", fontsize=6, zorder=5)
+
+    x0, x1, y0, y1 = fl.extent
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (east) [m]")
+    ax.set_ylabel("y (north) [m]")
+    ax.set_title(f"{building.name}: floor {fl.id}", fontsize=10)
+    return ax
+
+
+def plot_tracks(ax: Axes, sessions: Iterable[Session], *, legend: bool = True) -> Axes:
+    """Draw the ground-truth (x, y) track of every labelled session, one colour each (start: a dot).
+
+    Sessions without ground truth are skipped. With ``legend`` a legend of everything labelled on ``ax``
+    (tracks, and anchors/rooms drawn by :func:`plot_floor`) is placed outside the axes, on the right.
+    """
+    tracks = [(s, s.groundtruth) for s in sessions if s.labelled]
+    tracks = [(s, gt) for s, gt in tracks if len(gt)]
+    colors = session_colors(len(tracks))
+    for k, ((s, gt), c) in enumerate(zip(tracks, colors)):
+        x, y = gt["x"].to_numpy(), gt["y"].to_numpy()
+        label = f"{s.id} ({s.device_model}, {s.carrier})" if k < MAX_LEGEND_SESSIONS else None
+        ax.plot(x, y, color=c, lw=1.2, alpha=0.9, zorder=6, label=label)
+        ax.plot(x[:1], y[:1], marker="o", ms=4, color=c, zorder=7)
+    if legend:
+        handles, labels = ax.get_legend_handles_labels()
+        if len(tracks) > MAX_LEGEND_SESSIONS:
+            handles.append(Line2D([], [], color="none"))
+            labels.append(f"+ {len(tracks) - MAX_LEGEND_SESSIONS} more sessions")
+        if handles:
+            ax.legend(handles, labels, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7,
+                      frameon=False, borderaxespad=0.0)
+    return ax
+
+
+def _building_of(dataset: Dataset, sessions: Sequence[Session], building_id: str | None) -> str:
+    if building_id is not None:
+        return building_id
+    ids = sorted({s.building.id for s in sessions})
+    if len(ids) == 1:
+        return ids[0]
+    if not ids and len(dataset.building_ids) == 1:
+        return dataset.building_ids[0]
+    raise ValueError(f"sessions are in buildings {ids or dataset.building_ids}: pass building_id")
+
+
+def figure_overview(dataset: Dataset, session_ids: Sequence[str] | None = None,
+                    building_id: str | None = None) -> Figure:
+    """One building: every floor (occupancy, rooms, routes, anchors) with the tracks of its sessions.
+
+    ``session_ids``: the sessions whose ground truth is drawn (default all); only those in the building
+    are used. ``building_id``: which building (default: the one building of the sessions, or of the
+    dataset). One panel per floor; legends sit to the right of each panel.
+    """
+    sessions = [dataset.session(i) for i in (dataset.session_ids if session_ids is None else session_ids)]
+    b = dataset.building(_building_of(dataset, sessions, building_id))
+    sessions = [s for s in sessions if s.building.id == b.id]
+    floors = list(b.floors)
+    ncols = 1 if len(floors) <= 2 else 2
+    nrows = math.ceil(len(floors) / ncols)
+    x0, x1, y0, y1 = b.floor(floors[0]).extent
+    panel_w = 6.5
+    panel_h = float(np.clip(panel_w * (y1 - y0) / max(x1 - x0, 1e-9), 3.0, 9.0))
+    legend_w = 3.2
+    fig = new_figure(ncols * (panel_w + legend_w), nrows * panel_h + 0.5)
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    for ax, fid in zip(axes, floors):
+        plot_floor(ax, b, fid)
+        plot_tracks(ax, [s for s in sessions if str(s.meta.get("floor")) == str(fid)])
+    for ax in axes[len(floors):]:
+        ax.set_visible(False)
+    n_tracks = sum(1 for s in sessions if s.labelled)
+    fig.suptitle(f"{dataset.name}: {b.name} ({b.id}), {len(sessions)} session(s), {n_tracks} with ground truth",
+                 fontsize=11)
+    return fig
+
+
+# --------------------------------------------------------------------------- radio
+
+
+def figure_radio(sessions: Iterable[Session]) -> Figure:
+    """RSSI statistics of ``sessions``.
+
+    Left: RSSI against the 3-D phone-anchor distance (labelled sessions; ground truth interpolated at each
+    reading, true anchor positions when known) per receiver model, with the least-squares log-distance
+    path-loss line ``A - 10 n log10(d)`` over all points (``n`` and the residual std in the legend).
+    Right: RSSI histograms per receiver (``device_model``), all sessions.
+    """
+    sessions = list(sessions)
+    fig = new_figure(13.0, 5.0)
+    ax_d, ax_h = fig.subplots(1, 2, width_ratios=[1.35, 1.0])
+
+    pairs, values = [], {}
+    for s in sessions:
+        r = s.rssi
+        if len(r):
+            values.setdefault(s.device_model or "?", []).append(r["rssi"].to_numpy(dtype=float))
+        p = rssi_distance_pairs(s)
+        if len(p):
+            pairs.append(p.assign(device_model=s.device_model or "?"))
+    models = sorted(values)
+    colors = dict(zip(models, session_colors(len(models))))
+
+    if pairs:
+        allp = pd.concat(pairs, ignore_index=True)
+        rng = np.random.default_rng(0)
+        for m, grp in allp.groupby("device_model", sort=True):
+            count = len(grp)
+            if count > MAX_SCATTER_POINTS:
+                grp = grp.iloc[np.sort(rng.choice(count, MAX_SCATTER_POINTS, replace=False))]
+            ax_d.scatter(grp["distance_m"], grp["rssi"], s=5, alpha=0.35, color=colors[m], linewidths=0,
+                         label=f"{m} ({count} readings)", rasterized=True)
+        d = allp["distance_m"].to_numpy()
+        try:
+            a_dbm, n, sd = fit_path_loss(d, allp["rssi"].to_numpy())
+        except ValueError as exc:
+            ax_d.text(0.5, 0.05, f"no path-loss fit: {exc}", transform=ax_d.transAxes, ha="center", fontsize=8)
+        else:
+            dd = np.geomspace(max(d[d > 0].min(), 0.05), d.max(), 200)
+            ax_d.plot(dd, path_loss_rssi(dd, a_dbm, n), color="k", lw=2,
+                      label=f"fit: A = {a_dbm:.1f} dBm at 1 m, n = {n:.2f}, residual std = {sd:.1f} dB")
+        ax_d.set_xscale("log")
+        ax_d.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        span = np.log10(d.max() / max(d[d > 0].min(), 1e-9)) if (d > 0).any() else 0.0
+        ax_d.xaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}") if span < 1.3 else NullFormatter())
+        ax_d.legend(loc="upper right", fontsize=7, markerscale=2.5)
+    else:
+        ax_d.text(0.5, 0.5, "no RSSI readings with ground truth", transform=ax_d.transAxes, ha="center",
+                  va="center")
+    ax_d.set_xlabel("3-D distance phone - anchor [m]")
+    ax_d.set_ylabel("RSSI [dBm]")
+    ax_d.set_title("RSSI against distance", fontsize=10)
+    ax_d.grid(True, which="both", alpha=0.3)
+
+    if values:
+        allv = np.concatenate([np.concatenate(v) for v in values.values()])
+        bins = np.arange(np.floor(allv.min()) - 0.5, np.ceil(allv.max()) + 1.5, 1.0)
+        if len(bins) > 121:  # wide ranges: about 120 bins
+            bins = np.linspace(bins[0], bins[-1], 121)
+        for m in models:
+            v = np.concatenate(values[m])
+            ax_h.hist(v, bins=bins, density=True, histtype="step", lw=1.4, color=colors[m],
+                      label=f"{m} (N = {v.size}, median {np.median(v):.0f} dBm)")
+        ax_h.legend(loc="upper left", fontsize=7)
+    else:
+        ax_h.text(0.5, 0.5, "no RSSI readings", transform=ax_h.transAxes, ha="center", va="center")
+    ax_h.set_xlabel("RSSI [dBm]")
+    ax_h.set_ylabel("density")
+    ax_h.set_title("RSSI per receiver", fontsize=10)
+    ax_h.grid(True, alpha=0.3)
+    fig.suptitle(f"Received signal strength, {len(sessions)} session(s)", fontsize=11)
+    return fig
