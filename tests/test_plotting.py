@@ -319,3 +319,26 @@ def test_radio_stats_and_cli_import_without_matplotlib_and_plotting_keeps_the_ba
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
+
+
+def test_rssi_vs_distance_figure_draws_every_panel(tmp_path):
+    import numpy as np
+    import pandas as pd
+    from PIL import Image
+
+    from blenav.plotting import figure_rssi_vs_distance, save_figure
+
+    rng = np.random.default_rng(0)
+    d = rng.uniform(1, 20, 500)
+    panels = {f"set {k}": pd.DataFrame({"distance_m": d, "rssi": -60 - 22 * np.log10(d) + rng.normal(0, 4, d.size)})
+              for k in range(4)}
+    fig = figure_rssi_vs_distance(panels)
+    assert sum(ax.get_visible() for ax in fig.axes) == 4
+    import re
+
+    for ax in fig.axes:
+        if ax.get_visible():
+            n = float(re.search(r"n = ([0-9.]+)", ax.get_legend().get_texts()[0].get_text()).group(1))
+            assert abs(n - 2.2) < 0.15
+    path = save_figure(fig, tmp_path / "r.png")
+    assert Image.open(path).size[0] > 800

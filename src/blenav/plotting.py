@@ -300,3 +300,42 @@ def figure_radio(sessions: Iterable[Session]) -> Figure:
     ax_h.grid(True, alpha=0.3)
     fig.suptitle(f"Received signal strength, {len(sessions)} session(s)", fontsize=11)
     return fig
+
+
+def figure_rssi_vs_distance(panels: dict[str, pd.DataFrame]) -> Figure:
+    """One panel per data set: RSSI against distance (2-D histogram) with its fitted path-loss line.
+
+    ``panels`` maps a title to a frame with ``distance_m`` and ``rssi`` (as from
+    :func:`blenav.radio_stats.rssi_distance_pairs`); shared axes so the sets compare at a glance.
+    """
+    n = max(len(panels), 1)
+    cols = min(n, 3)
+    rows = math.ceil(n / cols)
+    fig = new_figure(4.6 * cols, 3.6 * rows)
+    axes = np.atleast_1d(fig.subplots(rows, cols, sharex=True, sharey=True)).ravel()
+    dmin = min((p["distance_m"][p["distance_m"] > 0].min() for p in panels.values() if len(p)), default=0.1)
+    dmax = max((p["distance_m"].max() for p in panels.values() if len(p)), default=10.0)
+    xbins = np.geomspace(max(dmin, 0.1), dmax, 50)
+    ybins = np.arange(-110, -20, 2.0)
+    for ax, (title, p) in zip(axes, panels.items()):
+        d, r = p["distance_m"].to_numpy(float), p["rssi"].to_numpy(float)
+        ax.hist2d(d, r, bins=[xbins, ybins], cmap="Greys", cmin=1, rasterized=True)
+        try:
+            a_dbm, nexp, sd = fit_path_loss(d, r)
+            dd = np.geomspace(xbins[0], xbins[-1], 100)
+            ax.plot(dd, path_loss_rssi(dd, a_dbm, nexp), color="tab:red", lw=1.8,
+                    label=f"A = {a_dbm:.1f} dBm, n = {nexp:.2f}, std {sd:.1f} dB")
+            ax.legend(loc="lower left", fontsize=7)
+        except ValueError as exc:
+            ax.text(0.5, 0.5, str(exc), transform=ax.transAxes, ha="center", fontsize=7)
+        ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.set_title(f"{title} ({len(p):,} readings)", fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+    for ax in axes[len(panels):]:
+        ax.set_visible(False)
+    for ax in axes[::cols]:
+        ax.set_ylabel("RSSI [dBm]")
+    for ax in axes[-cols:]:
+        ax.set_xlabel("distance [m]")
+    return fig
