@@ -108,12 +108,23 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from blenav.data import FREE, OCCUPIED, UNKNOWN, DatasetError, validate
+from blenav.data import FREE, OCCUPIED, UNKNOWN
 from blenav.data.building import Building
 from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
 from . import ImportError_, ImportReport
+from ._common import (
+    check_out,
+    drop_rssi,
+    first_true,
+    grid_lookup,
+    parse_numbers,
+    read_cells,
+    read_lines,
+    source_line,
+    validate_or_raise,
+)
 
 BUILDING_ID = "tetam"
 DEVICE_MODEL = "danis-beacon"
@@ -126,6 +137,7 @@ SAME_POSITION_M = 1e-3
 #: tolerance for a proper rotation: singular values within this of 1, det > 0.
 ROTATION_TOL = 0.05
 CHANNEL_MODEL = "fixed receiver; moving transmitter (reciprocal link)"
+SOURCE_DEFAULT = "github philotuxo/Position-Annotated-BLE-RSSI-Dataset"
 TRACK_COLUMNS = ("unix_s", "receiver", "transmitter", "rssi", "x", "y", "z",
                  "m00", "m01", "m02", "m10", "m11", "m12", "m20", "m21", "m22")
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
@@ -138,26 +150,6 @@ _OCC_LINE = rf"^{_PAIR}::\s*({_NUM})$"
 # reading
 
 
-def _lines(path: Path) -> list[str]:
-    """Text lines of ``path`` (trailing blank lines dropped); missing or non-UTF-8 files raise."""
-    if not path.is_file():
-        raise ImportError_(path, None, "file does not exist")
-    raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise ImportError_(path, raw[: exc.start].count(b"\n") + 1, f"not UTF-8 text ({exc.reason})") from None
-    lines = text.splitlines()
-    while lines and not lines[-1].strip():
-        lines.pop()
-    return lines
-
-
-def _first(mask: np.ndarray) -> int | None:
-    idx = np.flatnonzero(mask)
-    return int(idx[0]) if idx.size else None
-
-
 @dataclass
 class _Receivers:
     table: pd.DataFrame   # anchor_id, x, y, z, alias
@@ -167,7 +159,7 @@ class _Receivers:
 def read_devices(path: Path) -> _Receivers:
     """``cnf/tetam.dev``: receivers ("Dongles") with positions (m) and the transmitter MACs ("Beacons")."""
     found: dict[str, tuple[int, dict]] = {}
-    for i, line in enumerate(_lines(path), start=1):
+    for i, line in enumerate(read_lines(path), start=1):
         if not line.strip():
             continue
         key, sep, rest = line.partition(":")
@@ -206,33 +198,18 @@ def read_devices(path: Path) -> _Receivers:
 
 def read_track(path: Path) -> pd.DataFrame:
     """One ``trk/*.mbd`` file as a frame with :data:`TRACK_COLUMNS` plus ``line`` (1-based), file order."""
-    lines = _lines(path)
-    if not lines:
-        raise ImportError_(path, None, "file is empty")
-    s = pd.Series(lines, dtype=object)
-    blank = s.str.strip().eq("").to_numpy(bool)
-    counts = s.str.count(",").to_numpy(np.int64) + 1
-    bad = _first(blank | (counts != len(TRACK_COLUMNS)))
-    if bad is not None:
-        problem = "blank line" if blank[bad] else f"{counts[bad]} fields, expected {len(TRACK_COLUMNS)}"
-        raise ImportError_(path, bad + 1, problem)
-    cells = s.str.split(",", expand=True)
-    cells.columns = list(TRACK_COLUMNS)
-    df = pd.DataFrame({"line": np.arange(1, len(s) + 1)})
+    cells, first = read_cells(path, len(TRACK_COLUMNS), require_rows=True)
+    df = pd.DataFrame({"line": np.arange(first, len(cells) + first)})
     for c in ("receiver", "transmitter"):
-        v = cells[c].str.strip().str.lower()
-        bad = _first(v.eq("").to_numpy(bool))
+        v = np.char.lower(cells[:, TRACK_COLUMNS.index(c)])
+        bad = first_true(v == "")
         if bad is not None:
-            raise ImportError_(path, bad + 1, f"column {c!r} (MAC) is empty")
-        df[c] = v.to_numpy(dtype=object)
-    for c in TRACK_COLUMNS:
-        if c in ("receiver", "transmitter"):
-            continue
-        v = pd.to_numeric(cells[c].str.strip(), errors="coerce").to_numpy(dtype=float)
-        bad = _first(~np.isfinite(v))
-        if bad is not None:
-            raise ImportError_(path, bad + 1, f"column {c!r}: {cells[c].iloc[bad]!r} is not a finite number")
-        df[c] = v
+            raise ImportError_(path, bad + first, f"column {c!r} (MAC) is empty")
+        df[c] = v.astype(object)
+    numeric = [k for k, c in enumerate(TRACK_COLUMNS) if c not in ("receiver", "transmitter")]
+    v = parse_numbers(path, cells[:, numeric], first, [TRACK_COLUMNS[k] for k in numeric])
+    for j, k in enumerate(numeric):
+        df[TRACK_COLUMNS[k]] = v[:, j]
     return df
 
 
@@ -245,7 +222,7 @@ class _OccGrid:
 
 def read_occupancy(path: Path) -> _OccGrid:
     """``occ/tetam_<cell>.occ`` as a grid indexed ``[ix, iy]`` (x east, y up); raw values 0/1."""
-    lines = _lines(path)
+    lines = read_lines(path)
     if not lines:
         raise ImportError_(path, None, "file is empty")
     m = _OCC_HEADER.match(lines[0].strip())
@@ -255,21 +232,21 @@ def read_occupancy(path: Path) -> _OccGrid:
     if not (cell > 0 and xmax > xmin and ymax > ymin):
         raise ImportError_(path, 1, "need cell_size > 0, xmax > xmin and ymax > ymin")
     parts = pd.Series(lines[1:], dtype=object).str.strip().str.extract(_OCC_LINE)
-    bad = _first(parts[0].isna().to_numpy(bool))
+    bad = first_true(parts[0].isna().to_numpy(bool))
     if bad is not None:
         raise ImportError_(path, bad + 2, "expected '[x, y]::value'")
     v = parts.astype(float).to_numpy()
-    bad = _first(~np.isin(v[:, 2], (0.0, 1.0)))
+    bad = first_true(~np.isin(v[:, 2], (0.0, 1.0)))
     if bad is not None:
         raise ImportError_(path, bad + 2, f"occupancy value {v[bad, 2]:g} is not 0 or 1")
     fx, fy = (v[:, 0] - xmin) / cell, (v[:, 1] - ymin) / cell
     ix, iy = np.rint(fx).astype(np.int64), np.rint(fy).astype(np.int64)
-    bad = _first((np.abs(fx - ix) > 1e-6) | (np.abs(fy - iy) > 1e-6) | (ix < 0) | (iy < 0))
+    bad = first_true((np.abs(fx - ix) > 1e-6) | (np.abs(fy - iy) > 1e-6) | (ix < 0) | (iy < 0))
     if bad is not None:
         raise ImportError_(path, bad + 2, f"cell [{v[bad, 0]:g}, {v[bad, 1]:g}] is not on the {cell:g} m grid "
                            f"starting at [{xmin:g}, {ymin:g}]")
     key = ix * (iy.max() + 1) + iy
-    bad = _first(pd.Series(key).duplicated().to_numpy(bool))
+    bad = first_true(pd.Series(key).duplicated().to_numpy(bool))
     if bad is not None:
         raise ImportError_(path, bad + 2, f"cell [{v[bad, 0]:g}, {v[bad, 1]:g}] is listed twice")
     grid = np.full((ix.max() + 1, iy.max() + 1), -1, dtype=np.int8)
@@ -279,13 +256,7 @@ def read_occupancy(path: Path) -> _OccGrid:
 
 def _raw_values_at(grid: _OccGrid, xy: np.ndarray) -> np.ndarray:
     """Raw occupancy value (0/1, -1 off the grid or unlisted) at world points (N, 2)."""
-    ix = np.floor((xy[:, 0] - grid.lower_left[0]) / grid.cell).astype(np.int64)
-    iy = np.floor((xy[:, 1] - grid.lower_left[1]) / grid.cell).astype(np.int64)
-    nx, ny = grid.values.shape
-    inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-    out = np.full(len(xy), -1, dtype=np.int8)
-    out[inside] = grid.values[ix[inside], iy[inside]]
-    return out
+    return grid_lookup(grid.values.T[::-1], grid.lower_left, xy, grid.cell, outside=-1)
 
 
 def floor_image(grid: _OccGrid, free_value: int) -> tuple[np.ndarray, tuple[float, float]]:
@@ -310,24 +281,10 @@ def proper_rotation_mask(m: np.ndarray) -> np.ndarray:
 # import
 
 
-def _check_out(out: Path) -> None:
-    if (out / "sessions").exists() or (out / "buildings").exists() or (out / "dataset.yaml").exists():
-        raise ImportError_(out, None, "output folder already holds a dataset; choose a new or empty folder")
-
-
-def _source_line(src: Path) -> str:
-    p = src / "SOURCE.txt"
-    if p.is_file():
-        for line in p.read_text(encoding="utf-8", errors="replace").splitlines():
-            if line.strip():
-                return line.strip()
-    return "github philotuxo/Position-Annotated-BLE-RSSI-Dataset"
-
-
 def import_danis_ble_tracks(src: Path, out: Path) -> ImportReport:
     """Convert ``src`` (the raw folder described in the module docstring) to a dataset at ``out``."""
     src, out = Path(src), Path(out)
-    _check_out(out)
+    check_out(out)
     report = ImportReport(out=out)
 
     dev = read_devices(src / "cnf" / "tetam.dev")
@@ -357,11 +314,9 @@ def import_danis_ble_tracks(src: Path, out: Path) -> ImportReport:
 
         unknown_rx = ~raw["receiver"].isin(receivers).to_numpy()
         rssi_v = raw["rssi"].to_numpy()
-        invalid = ~unknown_rx & ((rssi_v >= RSSI_MAX_DBM) | (rssi_v <= RSSI_MIN_DBM))
-        report.drop("rssi rows from a receiver not in cnf/tetam.dev", int(unknown_rx.sum()))
-        report.drop(f"rssi rows with an invalid RSSI (>= {RSSI_MAX_DBM:g} dBm or <= {RSSI_MIN_DBM:g} dBm)",
-                    int(invalid.sum()))
-        keep = ~unknown_rx & ~invalid
+        keep = drop_rssi(report, rssi_v, unknown_rx, "rssi rows from a receiver not in cnf/tetam.dev",
+                         f"rssi rows with an invalid RSSI (>= {RSSI_MAX_DBM:g} dBm or <= {RSSI_MIN_DBM:g} dBm)")
+        invalid = ~unknown_rx & ~keep
         rssi_out = rssi_v[keep]
         if np.all(rssi_out == np.round(rssi_out)):
             rssi_out = rssi_out.astype(np.int64)  # integer dBm as logged
@@ -412,7 +367,7 @@ def import_danis_ble_tracks(src: Path, out: Path) -> ImportReport:
     write_dataset_meta(out, "danis_ble_tracks", "Danis et al. position-annotated BLE RSSI tracks (TETAM area, "
                        f"Bogazici University): 1 moving beacon, {len(receivers)} fixed receivers, "
                        f"{len(sessions)} tracks",
-                       "CC0-1.0", _source_line(src))
+                       "CC0-1.0", source_line(src, SOURCE_DEFAULT))
     broot = write_building(out, BUILDING_ID, "TETAM test area (Danis et al.)",
                            [{"id": 0, "occupancy": occ, "resolution": grid.cell, "origin": origin, "z": 0.0}],
                            anchors, source_occupancy=f"occ/{OCC_FILE}", occupancy_free_value=free_value)
@@ -427,13 +382,6 @@ def import_danis_ble_tracks(src: Path, out: Path) -> ImportReport:
     free = floor.is_free(xy)
     report.notes.append(f"ground truth in FREE cells of the written floor: {100 * free.mean():.1f}% "
                         f"({int(free.sum())} of {len(xy)} positions)")
-    _validate_or_raise(out, report)
+    validate_or_raise(out, report)
     return report
 
-
-def _validate_or_raise(out: Path, report: ImportReport) -> None:
-    issues = validate(out)
-    errors = [i for i in issues if i.is_error]
-    if errors:
-        raise DatasetError(errors)
-    report.notes += [f"validator: {i}" for i in issues]

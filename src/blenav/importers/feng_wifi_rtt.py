@@ -85,24 +85,27 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
 from . import ImportError_, ImportReport
-from .uji_ble import (
-    RESOLUTION_M,
-    validate_or_raise,
+from ._common import (
     check_out,
     occupancy_grid,
     parse_numbers,
     raise_at,
+    raise_bad_rssi,
     read_cells,
+    read_lines,
+    validate_or_raise,
 )
 
 GRID_M = 0.6
 PHONE_HEIGHT_M = 1.2
 ANCHOR_Z_M = PHONE_HEIGHT_M
 SCAN_PERIOD_S = 1.0
+#: floor grid resolution (m/px) and margin around points and APs (m).
+RESOLUTION_M = 0.1
+MARGIN_M = 1.0
 RTT_NOT_RECEIVED_MM = 100000.0
 RSS_NOT_RECEIVED_DBM = -200.0
 N_AP_COLUMNS = 5
@@ -134,12 +137,7 @@ class _Split:
 
 def _read_ap_positions(path: Path) -> dict[str, tuple[np.ndarray, int]]:
     """env -> (positions (n, 2) in grid units, line of its 'AP X' line)."""
-    if not path.is_file():
-        raise ImportError_(path, None, "file does not exist")
-    try:
-        lines = path.read_text(encoding="utf-8-sig").splitlines()
-    except UnicodeDecodeError as exc:
-        raise ImportError_(path, None, f"not UTF-8 text ({exc.reason})") from None
+    lines = read_lines(path)
     out: dict[str, tuple[np.ndarray, int]] = {}
     env, xy, start = None, {}, 0
 
@@ -187,14 +185,11 @@ def _read_ap_positions(path: Path) -> dict[str, tuple[np.ndarray, int]]:
 
 
 def _read_split(path: Path) -> _Split:
-    cells, first = read_cells(path, len(HEADER), header=HEADER)
-    if len(cells) == 0:
-        raise ImportError_(path, None, "no data rows")
+    cells, first = read_cells(path, len(HEADER), header=HEADER, require_rows=True)
     v = parse_numbers(path, cells[:, :-1], first, HEADER[:-1])
     rtt, rss = v[:, 2:2 + N_AP_COLUMNS], v[:, 2 + N_AP_COLUMNS:]
-    raise_at(path, (rss != RSS_NOT_RECEIVED_DBM) & ~((rss > RSSI_MIN_DBM) & (rss < RSSI_MAX_DBM)), first,
-             lambda r, c: f"column {HEADER[2 + N_AP_COLUMNS + c]!r}: {rss[r, c]:g} is neither a reading in "
-                          f"({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm nor the not-received code -200")
+    raise_bad_rssi(path, rss, first, RSS_NOT_RECEIVED_DBM, lambda c: f"column {HEADER[2 + N_AP_COLUMNS + c]!r}:",
+                   "not-received code -200")
     los = cells[:, -1]
     bad_los = (los != "") & ~pd.Series(los, dtype=object).str.match(_LOS_RE).to_numpy(dtype=bool)
     raise_at(path, bad_los, first, lambda r, c: f"column 'LOS APs': {los[r]!r} is not a space-separated list of "
@@ -233,7 +228,7 @@ def import_feng_wifi_rtt(src: Path, out: Path) -> ImportReport:
         ap_ids = np.array([f"AP{k}" for k in ap_numbers])
         cols = np.array(ap_numbers) - 1
         pts = np.vstack([data[env][sp].grid for sp in SPLITS]) * GRID_M
-        occ, origin = occupancy_grid(np.vstack([pts, ap_xy]))
+        occ, origin = occupancy_grid(np.vstack([pts, ap_xy]), (), RESOLUTION_M, MARGIN_M)
         anchors = pd.DataFrame({
             "anchor_id": ap_ids, "kind": "wifi_rtt", "x": ap_xy[:, 0], "y": ap_xy[:, 1], "z": ANCHOR_Z_M, "floor": 0,
             "tx_power_dbm": np.nan,
@@ -242,8 +237,8 @@ def import_feng_wifi_rtt(src: Path, out: Path) -> ImportReport:
         write_building(out, env, name, [{"id": 0, "occupancy": occ, "resolution": RESOLUTION_M, "origin": origin,
                                          "z": 0.0}], anchors,
                        source=f"{AP_FILE} (grid units * {GRID_M} m)",
-                       floor_plan="no plan in the raw data: all-free grid over the bounding box of points and APs "
-                                  "+ 1.0 m; no walls")
+                       floor_plan=("no plan in the raw data: all-free grid over the bounding box of points and "
+                                   f"APs + {MARGIN_M} m; no walls"))
         report.buildings += 1
         for sp in SPLITS:
             d = data[env][sp]

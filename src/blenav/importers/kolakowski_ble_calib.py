@@ -123,12 +123,26 @@ import pandas as pd
 import shapely
 from shapely.geometry import MultiLineString, Polygon
 
-from blenav.data import FREE, OCCUPIED, UNKNOWN, DatasetError, validate
+from blenav.data import FREE, OCCUPIED, UNKNOWN
 from blenav.data.building import Building
 from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
 from . import ImportError_, ImportReport
+from ._common import (
+    check_out,
+    drop_rssi,
+    first_true,
+    grid_covering,
+    parse_numbers,
+    pixel_centres,
+    raise_at,
+    read_cells,
+    read_lines,
+    source_line,
+    split_cells,
+    validate_or_raise,
+)
 
 BUILDING_ID = "kolakowski_flat"
 DEVICE_MODEL = "kolakowski-tag"
@@ -145,70 +159,8 @@ RUN_GAP_S = 60.0
 NOT_RECEIVED = 0
 CHANNEL_MODEL = ("fixed receiver (two Laird BL652 modules, perpendicular polarisations, averaged in the df files); "
                  "mobile tag transmits (reciprocal link)")
+_RANGE = f"(outside ({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm)"
 SOURCE_DEFAULT = "Kolakowski, BLE RSS dataset for fingerprinting radio map calibration, Zenodo 10.5281/zenodo.5457591"
-
-
-# --------------------------------------------------------------------------------------------------
-# generic strict reading
-
-
-def _lines(path: Path) -> list[str]:
-    if not path.is_file():
-        raise ImportError_(path, None, "file does not exist")
-    raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise ImportError_(path, raw[: exc.start].count(b"\n") + 1, f"not UTF-8 text ({exc.reason})") from None
-    lines = text.splitlines()
-    while lines and not lines[-1].strip():
-        lines.pop()
-    return lines
-
-
-def _first(mask: np.ndarray) -> int | None:
-    idx = np.flatnonzero(mask)
-    return int(idx[0]) if idx.size else None
-
-
-def _csv_cells(path: Path, header: list[str] | None = None) -> tuple[list[str], pd.DataFrame]:
-    """Header names and the str cells (stripped) of a comma-separated file with a header line.
-
-    ``header``: the exact expected names, else any header is accepted. Wrong field counts and blank
-    lines raise with the 1-based line.
-    """
-    lines = _lines(path)
-    if not lines:
-        raise ImportError_(path, None, "file is empty")
-    names = [c.strip() for c in lines[0].split(",")]
-    if header is not None and names != header:
-        raise ImportError_(path, 1, f"header is {lines[0]!r}, expected {','.join(header)!r}")
-    s = pd.Series(lines[1:], dtype=object)
-    if not len(s):
-        raise ImportError_(path, None, "file has a header but no rows")
-    blank = s.str.strip().eq("").to_numpy(bool)
-    counts = s.str.count(",").to_numpy(np.int64) + 1
-    bad = _first(blank | (counts != len(names)))
-    if bad is not None:
-        problem = "blank line" if blank[bad] else f"{counts[bad]} fields, expected {len(names)}"
-        raise ImportError_(path, bad + 2, problem)
-    cells = s.str.split(",", expand=True).apply(lambda c: c.str.strip())
-    cells.columns = list(range(len(names)))
-    return names, cells
-
-
-def _numbers(path: Path, cells: pd.Series, name: str, nullable: bool = False, integer: bool = False) -> np.ndarray:
-    """float64 of one column of str cells; bad cells raise naming line (header = line 1) and column."""
-    v = pd.to_numeric(cells, errors="coerce").to_numpy(dtype=float)
-    empty = cells.eq("").to_numpy(bool)
-    bad = ~np.isfinite(v) & ~(nullable & empty)
-    if integer:
-        bad |= np.isfinite(v) & (v != np.round(v))
-    r = _first(bad)
-    if r is not None:
-        what = "empty" if empty[r] else f"{cells.iloc[r]!r} is not {'an integer' if integer else 'a finite number'}"
-        raise ImportError_(path, r + 2, f"column {name!r}: {what}")
-    return v
 
 
 # --------------------------------------------------------------------------------------------------
@@ -216,25 +168,23 @@ def _numbers(path: Path, cells: pd.Series, name: str, nullable: bool = False, in
 
 
 def read_anchors(path: Path) -> pd.DataFrame:
-    _, cells = _csv_cells(path, ["id", "x", "y", "z"])
-    ids = _numbers(path, cells[0], "id", integer=True).astype(np.int64)
-    dup = _first(pd.Series(ids).duplicated().to_numpy(bool))
-    if dup is not None:
-        raise ImportError_(path, dup + 2, f"anchor id {ids[dup]} appears twice")
-    bad = _first((ids < 1) | (ids > len(SYSTEM_IDS)))
-    if bad is not None:
-        raise ImportError_(path, bad + 2, f"anchor id {ids[bad]} is not in 1..{len(SYSTEM_IDS)} (the ids mapped to "
-                           f"system ids {SYSTEM_IDS})")
+    cells, first = read_cells(path, 4, header=("id", "x", "y", "z"), require_rows=True)
+    ids = parse_numbers(path, cells[:, :1], first, ("id",), integer=True)[:, 0].astype(np.int64)
+    raise_at(path, pd.Series(ids).duplicated().to_numpy(bool), first,
+             lambda r, c: f"anchor id {ids[r]} appears twice")
+    raise_at(path, (ids < 1) | (ids > len(SYSTEM_IDS)), first,
+             lambda r, c: f"anchor id {ids[r]} is not in 1..{len(SYSTEM_IDS)} (the ids mapped to system ids "
+                          f"{SYSTEM_IDS})")
     if len(ids) != len(SYSTEM_IDS):
         raise ImportError_(path, None, f"{len(ids)} anchors, expected {len(SYSTEM_IDS)}")
-    xyz = {c: _numbers(path, cells[k], c) for k, c in enumerate(("x", "y", "z"), start=1)}
-    return pd.DataFrame({"anchor_id": ids.astype(str), **xyz,
+    xyz = parse_numbers(path, cells[:, 1:], first, ("x", "y", "z"))
+    return pd.DataFrame({"anchor_id": ids.astype(str), "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
                          "system_id": np.asarray(SYSTEM_IDS)[ids - 1]})
 
 
 def read_layout(path: Path) -> Polygon:
-    _, cells = _csv_cells(path, ["x", "y"])
-    xy = np.stack([_numbers(path, cells[0], "x"), _numbers(path, cells[1], "y")], axis=1)
+    cells, first = read_cells(path, 2, header=("x", "y"), require_rows=True)
+    xy = parse_numbers(path, cells, first, ("x", "y"))
     poly = Polygon(xy)
     if len(xy) < 4 or not poly.is_valid or poly.area <= 0:
         raise ImportError_(path, None, "the wall vertices do not form a valid polygon")
@@ -243,11 +193,9 @@ def read_layout(path: Path) -> Polygon:
 
 def read_reference_path(path: Path) -> MultiLineString:
     """The walked reference path: one 2-point LineString per row, in file order (m)."""
-    _, cells = _csv_cells(path, ["x0", "y0", "x1", "y1"])
-    v = np.stack([_numbers(path, cells[k], n) for k, n in enumerate(("x0", "y0", "x1", "y1"))], axis=1)
-    bad = _first(np.hypot(v[:, 2] - v[:, 0], v[:, 3] - v[:, 1]) <= 0)
-    if bad is not None:
-        raise ImportError_(path, bad + 2, "segment has zero length")
+    cells, first = read_cells(path, 4, header=("x0", "y0", "x1", "y1"), require_rows=True)
+    v = parse_numbers(path, cells, first, ("x0", "y0", "x1", "y1"))
+    raise_at(path, np.hypot(v[:, 2] - v[:, 0], v[:, 3] - v[:, 1]) <= 0, first, lambda r, c: "segment has zero length")
     return MultiLineString([[(a, b), (c, d)] for a, b, c, d in v])
 
 
@@ -257,28 +205,28 @@ def read_system_log(path: Path, report: ImportReport) -> pd.DataFrame:
     File order, then packet order within the line. Faulty frames, other tags and RSSI 0 are dropped
     and counted in ``report``.
     """
-    lines = _lines(path)
+    lines = read_lines(path)
     if not lines:
         raise ImportError_(path, None, "file is empty")
     s = pd.Series(lines, dtype=object)
     blank = s.str.strip().eq("").to_numpy(bool)
-    bad = _first(blank)
+    bad = first_true(blank)
     if bad is not None:
         raise ImportError_(path, bad + 1, "blank line")
     tok = s.str.split("\t", expand=True)
     ntok = tok.notna().sum(axis=1).to_numpy(np.int64)
-    bad = _first(ntok < 7)
+    bad = first_true(ntok < 7)
     if bad is not None:
         raise ImportError_(path, bad + 1, f"{ntok[bad]} tab-separated fields, expected at least 7")
     num = pd.DataFrame({c: pd.to_numeric(tok[c].str.strip(), errors="coerce") for c in tok.columns}).to_numpy(float)
     badcell = tok.notna().to_numpy() & ~(np.isfinite(num) & (num == np.round(num)))
-    r = _first(badcell.any(axis=1))
+    r = first_true(badcell.any(axis=1))
     if r is not None:
         c = int(np.flatnonzero(badcell[r])[0])
         raise ImportError_(path, r + 1, f"field {c + 1}: {tok.iat[r, c]!r} is not an integer")
     b, u = num[:, 5].astype(np.int64), num[:, 6].astype(np.int64)
     expected = 7 + 8 * b + 4 * u
-    bad = _first((b < 0) | (u < 0) | (ntok != expected))
+    bad = first_true((b < 0) | (u < 0) | (ntok != expected))
     if bad is not None:
         raise ImportError_(path, bad + 1, f"{ntok[bad]} fields, but the line announces {b[bad]} BLE and {u[bad]} "
                            f"UWB packets ({expected[bad]} fields)")
@@ -305,12 +253,9 @@ def read_system_log(path: Path, report: ImportReport) -> pd.DataFrame:
         raise ImportError_(path, r, f"anchor system id {int(pk['system_id'].to_numpy()[unknown][0])} is not one of "
                            f"{SYSTEM_IDS}")
     rssi = pk["rssi"].to_numpy()
-    nr = rssi == NOT_RECEIVED
-    invalid = ~nr & ((rssi >= RSSI_MAX_DBM) | (rssi <= RSSI_MIN_DBM))
-    report.drop(f"BLE packets with RSSI 0 (not received) in {path.name}", int(nr.sum()))
-    report.drop(f"BLE packets with an invalid RSSI (outside ({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm) in {path.name}",
-                int(invalid.sum()))
-    pk = pk[~nr & ~invalid]
+    keep = drop_rssi(report, rssi, rssi == NOT_RECEIVED, f"BLE packets with RSSI 0 (not received) in {path.name}",
+                     f"BLE packets with an invalid RSSI {_RANGE} in {path.name}")
+    pk = pk[keep]
     return pk.iloc[np.argsort(pk["t_s"].to_numpy(), kind="stable")].reset_index(drop=True)
 
 
@@ -326,7 +271,13 @@ class _Df:
 
 def read_df(path: Path, position: tuple[str, ...]) -> _Df:
     """A preprocessed ``*_df.csv``: unnamed index, ``ts`` (unix ns), ``position`` columns, ``rssi_<id>``."""
-    names, cells = _csv_cells(path)
+    lines = read_lines(path)
+    if not lines:
+        raise ImportError_(path, None, "file is empty")
+    names = [c.strip() for c in lines[0].split(",")]  # any header; the columns are looked up by name
+    if len(lines) == 1:
+        raise ImportError_(path, None, "file has a header but no rows")
+    cells = split_cells(path, lines[1:], 2, len(names))
     if names[0] != "" or "ts" not in names:
         raise ImportError_(path, 1, "expected an unnamed first (index) column and a 'ts' column")
     missing = [c for c in position if c not in names]
@@ -344,13 +295,13 @@ def read_df(path: Path, position: tuple[str, ...]) -> _Df:
     else:
         raise ImportError_(path, 1, f"rssi columns {rcols} name neither anchors 1..6 nor system ids {SYSTEM_IDS}")
     col = {n: k for k, n in enumerate(names)}
-    index = _numbers(path, cells[0], "(index)", integer=True)
-    ts = _numbers(path, cells[col["ts"]], "ts")
-    back = _first(np.diff(ts) < 0)
-    if back is not None:
-        raise ImportError_(path, back + 3, "'ts' goes backwards (earlier than the line before)")
-    pos = {c: _numbers(path, cells[col[c]], c) for c in position}
-    rssi = pd.DataFrame({i: _numbers(path, cells[col[n]], n, nullable=True) for i, n in zip(ids, rcols)})
+    index = parse_numbers(path, cells[:, :1], 2, ("(index)",), integer=True)[:, 0]
+    ts = parse_numbers(path, cells[:, [col["ts"]]], 2, ("ts",))[:, 0]
+    raise_at(path, np.diff(ts) < 0, 3, lambda r, c: "'ts' goes backwards (earlier than the line before)")
+    pv = parse_numbers(path, cells[:, [col[c] for c in position]], 2, position)
+    pos = {c: pv[:, k] for k, c in enumerate(position)}
+    rv = parse_numbers(path, cells[:, [col[n] for n in rcols]], 2, rcols, nullable=True)
+    rssi = pd.DataFrame({i: rv[:, k] for k, i in enumerate(ids)})
     return _Df(path, index, ts / 1e9, pos, rssi, np.arange(2, len(cells) + 2))
 
 
@@ -364,12 +315,9 @@ def _df_rssi(df: _Df, sel: np.ndarray, t0: float, report: ImportReport, what: st
         "raw_line": np.repeat(df.lines[sel], r.shape[1]),
     })
     v = long["rssi"].to_numpy()
-    empty = np.isnan(v)
-    invalid = ~empty & ((v >= RSSI_MAX_DBM) | (v <= RSSI_MIN_DBM))
-    report.drop(f"empty rssi cells (not received; no row) in {what}", int(empty.sum()))
-    report.drop(f"rssi cells with an invalid RSSI (outside ({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm) in {what}",
-                int(invalid.sum()))
-    return long[~empty & ~invalid].reset_index(drop=True)
+    keep = drop_rssi(report, v, np.isnan(v), f"empty rssi cells (not received; no row) in {what}",
+                     f"rssi cells with an invalid RSSI {_RANGE} in {what}")
+    return long[keep].reset_index(drop=True)
 
 
 def _packet_rssi(pk: pd.DataFrame, t0: float) -> pd.DataFrame:
@@ -403,37 +351,18 @@ def mapping_check(pk: pd.DataFrame, df: _Df) -> tuple[bool, float]:
 
 def rasterise(poly: Polygon) -> tuple[np.ndarray, tuple[float, float]]:
     """Occupancy (H, W) int8, row 0 on top, and the world origin of the lower-left pixel corner."""
-    x0, y0, x1, y1 = poly.bounds
-    lo = np.floor((np.array([x0, y0]) - PAD_M) / RESOLUTION_M) * RESOLUTION_M
-    hi = np.ceil((np.array([x1, y1]) + PAD_M) / RESOLUTION_M) * RESOLUTION_M
-    w, h = (int(round(v)) for v in (hi - lo) / RESOLUTION_M)
-    xc = lo[0] + (np.arange(w) + 0.5) * RESOLUTION_M
-    yc = lo[1] + (h - 1 - np.arange(h) + 0.5) * RESOLUTION_M
-    gx, gy = np.meshgrid(xc, yc)
+    shape, origin = grid_covering(np.reshape(poly.bounds, (2, 2)), RESOLUTION_M, PAD_M)
+    gx, gy = pixel_centres(shape, origin, RESOLUTION_M)
     inside = shapely.contains_xy(poly, gx, gy)
     near = shapely.distance(poly.boundary, shapely.points(gx, gy)) <= WALL_M
-    occ = np.full((h, w), UNKNOWN, dtype=np.int8)
+    occ = np.full(shape, UNKNOWN, dtype=np.int8)
     occ[near & ~inside] = OCCUPIED
     occ[inside] = FREE
-    return occ, (round(float(lo[0]), 9), round(float(lo[1]), 9))
+    return occ, origin
 
 
 # --------------------------------------------------------------------------------------------------
 # import
-
-
-def _check_out(out: Path) -> None:
-    if (out / "sessions").exists() or (out / "buildings").exists() or (out / "dataset.yaml").exists():
-        raise ImportError_(out, None, "output folder already holds a dataset; choose a new or empty folder")
-
-
-def _source_line(src: Path) -> str:
-    p = src / "SOURCE.txt"
-    if p.is_file():
-        for line in p.read_text(encoding="utf-8", errors="replace").splitlines():
-            if line.strip():
-                return line.strip()
-    return SOURCE_DEFAULT
 
 
 def _gt(df: _Df, sel: np.ndarray, t0: float) -> pd.DataFrame:
@@ -445,7 +374,7 @@ def _gt(df: _Df, sel: np.ndarray, t0: float) -> pd.DataFrame:
 def import_kolakowski_ble_calib(src: Path, out: Path) -> ImportReport:
     """Convert ``src`` (the raw folder described in the module docstring) to a dataset at ``out``."""
     src, out = Path(src), Path(out)
-    _check_out(out)
+    check_out(out)
     report = ImportReport(out=out)
 
     anchors = read_anchors(src / "anchors.csv")
@@ -537,7 +466,7 @@ def import_kolakowski_ble_calib(src: Path, out: Path) -> ImportReport:
     occ, origin = rasterise(poly)
     write_dataset_meta(out, "kolakowski_ble_calib", "Kolakowski BLE RSS dataset for fingerprinting radio map "
                        "calibration: furnished flat, 6 fixed receivers, 1 mobile tag on a robot or a person",
-                       "CC-BY-4.0", _source_line(src))
+                       "CC-BY-4.0", source_line(src, SOURCE_DEFAULT))
     anc = anchors.assign(kind="ble", floor=0, tx_power_dbm=np.nan, channel_model=CHANNEL_MODEL)
     nav = [{"id": "test_walk_reference_path", "floor": 0, "geometry": ref_path,
             "properties": {"source": "tests/path_reference.csv", "session": "test_walk"}}]
@@ -559,13 +488,6 @@ def import_kolakowski_ble_calib(src: Path, out: Path) -> ImportReport:
                         f"{100 * shapely.contains_xy(poly, xy[:, 0], xy[:, 1]).mean():.1f}%)")
     report.notes.append("not imported: tests/test_robot_motion.txt (teleoperation commands, not odometry), "
                         "tests/test_walk_df.csv (derived from test_walk_ble.txt)")
-    _validate_or_raise(out, report)
+    validate_or_raise(out, report)
     return report
 
-
-def _validate_or_raise(out: Path, report: ImportReport) -> None:
-    issues = validate(out)
-    errors = [i for i in issues if i.is_error]
-    if errors:
-        raise DatasetError(errors)
-    report.notes += [f"validator: {i}" for i in issues]

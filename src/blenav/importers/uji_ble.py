@@ -80,26 +80,33 @@ expected one) or different row counts between the rss/tms/crd/ids files raises
 :class:`~blenav.importers.ImportError_` naming the file and the 1-based line. Nothing is written
 unless the whole source parses.
 
-The CSV helpers (:func:`read_cells`, :func:`parse_numbers`) and :func:`occupancy_grid` are shared
-with :mod:`blenav.importers.feng_wifi_rtt`.
+The strict CSV helpers, :func:`~blenav.importers._common.occupancy_grid` and the output checks are
+shared by all importers (:mod:`blenav.importers._common`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import pandas as pd
-import shapely
 from shapely.geometry import MultiPoint, Polygon
 
-from blenav.data import FREE, OCCUPIED, DatasetError, validate
-from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM
+from blenav.data import OCCUPIED
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
 from . import ImportError_, ImportReport
+from ._common import (
+    check_out,
+    grid_lookup,
+    occupancy_grid,
+    parse_numbers,
+    raise_at,
+    raise_bad_rssi,
+    read_cells,
+    validate_or_raise,
+)
 
 #: RSS value meaning "beacon not detected" in *_rss.csv.
 NOT_DETECTED = 100.0
@@ -123,116 +130,6 @@ ZONES = {
 CHANNEL_MODEL = ("BLE beacon (iBKS 105, advertising every 200 ms per the data paper); no calibrated RSSI at 1 m "
                  "in the raw data; configured TX power per session in session.yaml beacon_tx_power_dbm; "
                  "z assumed (= phone height, not surveyed)")
-
-
-# --------------------------------------------------------------------------------------------------
-# strict CSV helpers (shared with feng_wifi_rtt)
-
-
-def read_cells(path: Path, ncols: int, header: Sequence[str] | None = None,
-               what: str = "") -> tuple[np.ndarray, int]:
-    """Cells of a plain comma-separated file (no quoting), whitespace-stripped.
-
-    Returns ``(cells, first_line)``: a str array (n, ncols) and the 1-based file line of ``cells[0]``.
-    Trailing blank lines are ignored; a blank line elsewhere, a line with another number of columns,
-    or a header other than ``header`` raises :class:`ImportError_` with the file and line.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise ImportError_(path, None, "file does not exist")
-    raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise ImportError_(path, raw[: exc.start].count(b"\n") + 1, f"not UTF-8 text ({exc.reason})") from None
-    lines = text.splitlines()
-    while lines and not lines[-1].strip():
-        lines.pop()
-    first = 1
-    if header is not None:
-        if not lines:
-            raise ImportError_(path, 1, f"file is empty; expected the header {','.join(header)!r}")
-        got = [c.strip() for c in lines[0].split(",")]
-        if got != list(header):
-            raise ImportError_(path, 1, f"header is {lines[0]!r}, expected {','.join(header)!r}")
-        lines, first = lines[1:], 2
-    if not lines:
-        return np.empty((0, ncols), dtype=str), first
-    s = pd.Series(lines, dtype=object)
-    counts = s.str.count(",").to_numpy(dtype=np.int64) + 1
-    blank = s.str.strip().eq("").to_numpy(dtype=bool)
-    bad = np.flatnonzero((counts != ncols) | blank)
-    if bad.size:
-        i = int(bad[0])
-        problem = "blank line" if blank[i] else f"{counts[i]} columns, expected {ncols}{what}"
-        raise ImportError_(path, i + first, problem)
-    cells = s.str.split(",", expand=True).to_numpy(dtype=str)
-    return np.char.strip(cells), first
-
-
-def parse_numbers(path: Path, cells: np.ndarray, first_line: int, names: Sequence[str],
-                  integer: bool = False) -> np.ndarray:
-    """float64 array of ``cells`` (n, k); the first non-finite / non-numeric (or non-integer) cell
-    raises :class:`ImportError_` naming the line and the column (``names[k]``)."""
-    flat = pd.to_numeric(pd.Series(cells.ravel(), dtype=object), errors="coerce")
-    v = flat.to_numpy(dtype=float, na_value=np.nan).reshape(cells.shape)
-    bad = ~np.isfinite(v)
-    if integer:
-        bad |= np.isfinite(v) & (v != np.round(v))
-    if bad.any():
-        r, c = (int(i) for i in np.argwhere(bad)[0])
-        kind = "an integer" if integer else "a finite number"
-        raise ImportError_(path, r + first_line, f"column {names[c]!r}: {str(cells[r, c])!r} is not {kind}")
-    return v
-
-
-def raise_at(path: Path, mask: np.ndarray, first_line: int, problem) -> None:
-    """Raise :class:`ImportError_` at the first True row of ``mask`` (n,) or (n, k).
-
-    ``problem(row, col)`` (col is 0 for 1-D masks) returns the message.
-    """
-    if mask.any():
-        idx = np.argwhere(mask.reshape(mask.shape[0], -1))[0]
-        r, c = int(idx[0]), int(idx[1])
-        raise ImportError_(path, r + first_line, problem(r, c))
-
-
-def check_out(out: Path) -> None:
-    """Refuse to mix a new import into an existing dataset folder."""
-    if (out / "sessions").exists() or (out / "buildings").exists() or (out / "dataset.yaml").exists():
-        raise ImportError_(out, None, "output folder already holds a dataset; choose a new or empty folder")
-
-
-def occupancy_grid(xy: np.ndarray, obstacles: Sequence[Polygon] = (), resolution: float = RESOLUTION_M,
-                   margin: float = MARGIN_M) -> tuple[np.ndarray, tuple[float, float]]:
-    """Free grid covering the bounding box of ``xy`` (N, 2) m plus ``margin``, obstacles occupied.
-
-    Returns ``(occupancy, origin)``: int8 (H, W) with row 0 on top (largest y), and the world (x, y)
-    of the lower-left corner, snapped to a multiple of ``resolution``. A pixel is occupied when its
-    centre lies inside (or on the edge of) an obstacle polygon.
-    """
-    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-    lo_px = np.floor((xy.min(axis=0) - margin) / resolution)
-    hi_px = np.ceil((xy.max(axis=0) + margin) / resolution)
-    w, h = (int(v) for v in hi_px - lo_px)
-    lo = np.round(lo_px * resolution, 9)
-    occ = np.full((h, w), FREE, dtype=np.int8)
-    if len(obstacles):
-        xc = lo[0] + (np.arange(w) + 0.5) * resolution
-        yc = lo[1] + (h - 1 - np.arange(h) + 0.5) * resolution  # row 0 = top
-        gx, gy = np.meshgrid(xc, yc)
-        inside = shapely.intersects_xy(shapely.union_all(list(obstacles)), gx, gy)
-        occ[inside] = OCCUPIED
-    return occ, (float(lo[0]), float(lo[1]))
-
-
-def grid_lookup(occ: np.ndarray, origin: tuple[float, float], xy: np.ndarray,
-                resolution: float = RESOLUTION_M) -> np.ndarray:
-    """Occupancy at world points (N, 2) (all points must be on the grid)."""
-    h = occ.shape[0]
-    col = np.floor((xy[:, 0] - origin[0]) / resolution).astype(np.int64)
-    row = (h - 1) - np.floor((xy[:, 1] - origin[1]) / resolution).astype(np.int64)
-    return occ[row, col]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -288,9 +185,7 @@ def _read_zone(src: Path, zone: str) -> _Zone:
                                f"rss/tms/crd/ids files must describe the same fingerprint i")
 
     missing = rss == NOT_DETECTED
-    raise_at(rss_path, ~missing & ~((rss > RSSI_MIN_DBM) & (rss < RSSI_MAX_DBM)), 1,
-             lambda r, c: f"beacon {bid[c]}: RSS {rss[r, c]:g} is neither a reading in "
-                          f"({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm nor the not-detected code 100")
+    raise_bad_rssi(rss_path, rss, 1, NOT_DETECTED, lambda c: f"beacon {bid[c]}: RSS", "not-detected code 100")
     raise_at(tms_path, tms_f < 0, 1, lambda r, c: f"beacon {bid[c]}: negative time {tms_f[r, c]:.0f}")
     raise_at(tms_path, (tms_f == 0) != missing, 1,
              lambda r, c: f"beacon {bid[c]}: time {tms_f[r, c]:.0f} does not agree with RSS {rss[r, c]:g} "
@@ -366,7 +261,8 @@ def import_uji_ble(src: Path, out: Path) -> ImportReport:
     for zname, z in zones.items():
         spec = ZONES[zname]
         tms_path = z.rss_path.with_name(f"{zname}_tms.csv")
-        occ, origin = occupancy_grid(np.vstack([z.beacon_xy, z.crd, z.obstacle_xy]), z.obstacles)
+        occ, origin = occupancy_grid(np.vstack([z.beacon_xy, z.crd, z.obstacle_xy]), z.obstacles, RESOLUTION_M,
+                                     MARGIN_M)
         anchors = pd.DataFrame({"anchor_id": z.beacon_ids, "kind": "ble", "x": z.beacon_xy[:, 0],
                                 "y": z.beacon_xy[:, 1], "z": ANCHOR_Z_M, "floor": 0, "tx_power_dbm": np.nan,
                                 "channel_model": CHANNEL_MODEL})
@@ -376,7 +272,7 @@ def import_uji_ble(src: Path, out: Path) -> ImportReport:
                        floor_plan=(f"no walls in the raw data: free grid over the bounding box of beacons, points and "
                                    f"obstacles + {MARGIN_M} m; obstacles (convex hull of each obs id) occupied"))
         report.buildings += 1
-        in_obstacle = int((grid_lookup(occ, origin, z.crd) == OCCUPIED).sum())
+        in_obstacle = int((grid_lookup(occ, origin, z.crd, RESOLUTION_M) == OCCUPIED).sum())
         if in_obstacle:
             report.notes.append(f"{zname}: {in_obstacle} fingerprints lie in an obstacle pixel of the grid (kept)")
 
@@ -415,11 +311,3 @@ def import_uji_ble(src: Path, out: Path) -> ImportReport:
     validate_or_raise(out, report)
     return report
 
-
-def validate_or_raise(out: Path, report: ImportReport) -> None:
-    """Run the format-v1 validator on the written dataset; errors raise, warnings become notes."""
-    issues = validate(out)
-    errors = [i for i in issues if i.is_error]
-    if errors:
-        raise DatasetError(errors)
-    report.notes += [f"validator: {i}" for i in issues]
