@@ -339,3 +339,72 @@ def figure_rssi_vs_distance(panels: dict[str, pd.DataFrame]) -> Figure:
     for ax in axes[-cols:]:
         ax.set_xlabel("distance [m]")
     return fig
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def figure_error_cdf(grid: np.ndarray, cdfs: dict[str, np.ndarray], title: str = "") -> Figure:
+    """Position-error CDF per method: median over runs with the 5-95 % band (``cdfs[name]`` (3, G))."""
+    fig = new_figure(7.0, 4.6)
+    ax = fig.subplots()
+    for (name, band), c in zip(cdfs.items(), session_colors(len(cdfs))):
+        ax.fill_between(grid, band[0], band[2], color=c, alpha=0.2, linewidth=0)
+        ax.plot(grid, band[1], color=c, lw=1.8, label=name)
+    ax.set_xlabel("position error [m]")
+    ax.set_ylabel("fraction of estimates")
+    ax.set_ylim(0, 1)
+    ax.set_xlim(grid[0], grid[-1])
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="lower right")
+    ax.set_title(title or "error CDF (median over runs, 5-95 % band)", fontsize=9)
+    return fig
+
+
+def figure_rmse_box(rmses: dict[str, np.ndarray], title: str = "") -> Figure:
+    """Box plot of per-run RMSE (m) per method."""
+    fig = new_figure(1.4 + 1.2 * len(rmses), 4.4)
+    ax = fig.subplots()
+    ax.boxplot(list(rmses.values()), tick_labels=list(rmses), showfliers=True)
+    ax.set_ylabel("RMSE per run [m]")
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.set_title(title or "RMSE per run", fontsize=9)
+    return fig
+
+
+def figure_error_over_time(err_t: dict[str, tuple[np.ndarray, np.ndarray]], init_s: float, session_id: str) -> Figure:
+    """Error over time per method (median over runs, 5-95 % band); the global-localization period shaded."""
+    fig = new_figure(9.0, 4.0)
+    ax = fig.subplots()
+    t0 = None
+    for (name, (t, err)), c in zip(err_t.items(), session_colors(len(err_t))):
+        q = np.quantile(err, [0.05, 0.5, 0.95], axis=0)
+        ax.fill_between(t, q[0], q[2], color=c, alpha=0.15, linewidth=0)
+        ax.plot(t, q[1], color=c, lw=1.2, label=name)
+        t0 = t[0] if t0 is None else min(t0, t[0])
+    if t0 is not None:
+        ax.axvspan(t0, t0 + init_s, color="0.85", zorder=0, label="global localization")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("position error [m]")
+    ax.set_title(f"error over time, session {session_id}", fontsize=9)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    return fig
+
+
+def figure_trajectories(session: Session, tracks: dict[str, tuple[np.ndarray, np.ndarray]]) -> Figure:
+    """Estimated trajectories (one run per method) over the floor plan with the ground truth."""
+    b = session.building
+    fl = session.floor
+    x0, x1, y0, y1 = fl.extent
+    w = 9.0
+    fig = new_figure(w, max(3.5, w * (y1 - y0) / max(x1 - x0, 1e-9) * 0.85))
+    ax = fig.subplots()
+    plot_floor(ax, b, session.meta.get("floor"), anchor_labels=False)
+    gt = session.groundtruth
+    ax.plot(gt["x"], gt["y"], color="k", lw=2.0, label="ground truth")
+    for (name, (t, p)), c in zip(tracks.items(), session_colors(len(tracks))):
+        ax.plot(p[:, 0], p[:, 1], color=c, lw=1.0, alpha=0.9, label=name)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    ax.set_title(f"trajectories, session {session.id} (first run)", fontsize=9)
+    return fig

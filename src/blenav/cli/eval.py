@@ -1,0 +1,52 @@
+"""``blenav-eval experiment=NAME data=DIR runs=N out=OUT [sessions=ID,ID]``: compare localization methods."""
+
+from __future__ import annotations
+
+import re
+import sys
+
+import hydra
+from omegaconf import DictConfig
+
+from blenav.paths import conf_dir
+
+
+def register_configs() -> None:
+    from hydra.core.config_store import ConfigStore
+
+    from blenav.filters.engine import FilterConfig
+
+    ConfigStore.instance().store(group="filter", name="schema", node=FilterConfig)
+
+
+register_configs()
+
+
+def _lists_from_commas(argv: list[str]) -> list[str]:
+    """``sessions=a,b`` -> ``sessions=[a,b]``: Hydra would read a bare comma list as a sweep."""
+    return [f"sessions=[{a.split('=', 1)[1]}]" if re.match(r"^sessions=[^\[].*,", a) else a for a in argv]
+
+
+@hydra.main(config_path=str(conf_dir()), config_name="eval", version_base="1.3")
+def _main(cfg: DictConfig) -> None:
+    from blenav.eval.harness import EvalError, evaluate
+
+    try:
+        res = evaluate(cfg)
+    except EvalError as exc:
+        print(f"blenav-eval: error: {exc}", file=sys.stderr)
+        sys.exit(1)
+    for name, m in res["methods"].items():
+        r = m["rmse_m"]
+        print(f"{name:12s} RMSE {r['mean']:.2f} +- {r['stderr']:.2f} m  p75 {m['error_m']['p75']:.2f} m  "
+              f"({m['realtime_factor']:.0f}x real time)")
+    print(f"wrote {cfg.out}/results.json")
+
+
+def main() -> None:
+    sys.argv = [sys.argv[0]] + _lists_from_commas(sys.argv[1:])
+    _main()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,225 @@
+"""``evaluate(cfg)``: every method of an experiment on every selected labelled session, R runs each.
+
+Writes ``OUT/results.json`` (schema below), ``OUT/results.md`` (a table like the papers') and, unless
+``plots=false``, PNG plots. ``results.json``::
+
+    {"experiment", "title", "dataset", "runs", "sessions": [...], "init_s",
+     "methods": {NAME: {"rmse_m": {"mean","std","stderr","ci99"}, "error_m": {"mean","median","p75","p90","max"},
+                        "ate_m", "ee_m", "init_error_m", "orientation_rmse_deg" (when the method runs an AHRS
+                        and the ground truth has orientation), "wall_s", "realtime_factor", "recoveries",
+                        "map_notes", "per_session": {SESSION_ID: {the same metrics for that session}}}}}
+
+All methods are built (and so checked) before the first run: a misconfigured method fails at once.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from blenav.data import Dataset, DatasetError
+from blenav.filters.attitude import AttitudeConfig, misalignment_deg
+from blenav.filters.calibration import apply_fit, fit_sessions
+from blenav.filters.engine import FilterConfig
+from blenav.filters.runner import MapSpec, Method, RunResult, run_session
+
+from .metrics import cdf_band, pool, session_metrics
+
+log = logging.getLogger("blenav.eval")
+
+
+class EvalError(ValueError):
+    """A bad experiment, dataset or session selection, with a message that says what to fix."""
+
+
+def build_methods(cfg: DictConfig) -> dict[str, Method]:
+    """Instantiate every method of ``cfg.methods`` (fails early on unknown keys or targets)."""
+    if "methods" not in cfg or not cfg.methods:
+        raise EvalError("the experiment defines no methods")
+    out = {}
+    fcfg = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(FilterConfig), cfg.filter))
+    att = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(AttitudeConfig), cfg.get("attitude", {})))
+    for key, m in cfg.methods.items():
+        label = str(m.get("label", key))
+        try:
+            motion = instantiate(m.motion)
+            meas = [instantiate(v) for v in (m.get("measurements") or {}).values()]
+            spec = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(MapSpec), m.get("map") or {}))
+            f = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(fcfg), m.get("filter") or {}))
+        except Exception as exc:  # hydra/omegaconf raise many types; name the method and re-raise ours
+            raise EvalError(f"method {label!r}: {exc}") from exc
+        out[label] = Method(label, f, motion, meas, spec, att)
+    return out
+
+
+def select_sessions(ds: Dataset, ids) -> list:
+    if ids:
+        wanted = [str(i) for i in (ids if not isinstance(ids, str) else ids.split(","))]
+        unknown = [i for i in wanted if i not in ds.session_ids]
+        if unknown:
+            raise EvalError(f"sessions {unknown} are not in {ds.root} (it has {ds.session_ids[:10]}...)")
+        sessions = [ds.session(i) for i in wanted]
+        unl = [s.id for s in sessions if not s.labelled]
+        if unl:
+            raise EvalError(f"sessions {unl} are unlabelled: they have no ground truth to score against")
+        return sessions
+    sessions = list(ds.sessions(labelled=True))
+    if not sessions:
+        raise EvalError(f"{ds.root} has no labelled session to evaluate")
+    return sessions
+
+
+def calibrate(methods: dict[str, Method], ds: Dataset, sessions: list, spec) -> dict | None:
+    """Fit a_X and gamma for measurement models with ``calibrated: true``.
+
+    ``spec``: 'none' (keep the configured, paper values), 'auto' (labelled static survey sessions of the
+    dataset that are not evaluated, else the evaluated sessions themselves: two parameters, said in the
+    results), or a list of session ids.
+    """
+    wanted = [m for meth in methods.values() for m in meth.measurements if getattr(m, "calibrated", False)]
+    if not wanted or spec in (None, "none"):
+        return None
+    evaluated = {s.id for s in sessions}
+    if spec == "auto":
+        cal = [s for s in ds.sessions(labelled=True) if s.carrier == "static" and s.id not in evaluated]
+        note = "fitted on the dataset's labelled static survey sessions (not evaluated)"
+        if not cal:
+            cal = sessions
+            note = "no separate survey session: fitted on the evaluated sessions' own readings (2 parameters)"
+    else:
+        cal = select_sessions(ds, list(spec))
+        note = "fitted on the sessions named by calibration"
+    fit = fit_sessions(cal)
+    for meth in methods.values():
+        apply_fit(meth.measurements, fit)
+    return {**fit.as_dict(), "note": note}
+
+
+@dataclass
+class MethodOutcome:
+    results: dict  # session id -> RunResult
+    metrics: dict  # session id -> metrics
+
+
+def orientation_rmse(res: RunResult, session) -> float | None:
+    gt = session.groundtruth
+    if res.q_imu is None or gt[["qw", "qx", "qy", "qz"]].isna().all().all():
+        return None
+    gq = gt[["qw", "qx", "qy", "qz"]].to_numpy()
+    gt_t = gt["t"].to_numpy()
+    idx = np.clip(np.searchsorted(res.imu_t, gt_t), 0, len(res.imu_t) - 1)
+    ok = (gt_t >= res.imu_t[0]) & (gt_t <= res.imu_t[-1])
+    ang = misalignment_deg(res.q_imu[idx[ok]], gq[ok])
+    return float(np.sqrt(np.mean(ang**2)))
+
+
+def evaluate(cfg: DictConfig) -> dict:
+    """Run the experiment of ``cfg`` and write its outputs; returns the results dictionary."""
+    try:
+        ds = Dataset.open(cfg.data)
+    except DatasetError as exc:
+        raise EvalError(f"cannot open dataset {cfg.data}: {exc}") from exc
+    methods = build_methods(cfg)
+    sessions = select_sessions(ds, cfg.get("sessions"))
+    runs = int(cfg.runs)
+    if runs < 1:
+        raise EvalError(f"runs must be >= 1, got {runs}")
+    calibration = calibrate(methods, ds, sessions, cfg.get("calibration", "auto"))
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    progress = _progress(bool(cfg.get("progress", False)), len(methods) * len(sessions))
+    outcomes: dict[str, MethodOutcome] = {}
+    results = {"experiment": cfg.experiment.name, "title": cfg.experiment.get("title", ""), "dataset": str(ds.root),
+               "runs": runs, "sessions": [s.id for s in sessions], "init_s": float(cfg.init_s), "seed": int(cfg.seed),
+               "calibration": calibration, "methods": {}}
+    for mi, (name, method) in enumerate(methods.items()):
+        per, res_by = {}, {}
+        wall = 0.0
+        duration = 0.0
+        orient = []
+        notes: list[str] = []
+        recoveries = 0
+        for si, s in enumerate(sessions):
+            seed = int(cfg.seed) * 1_000_003 + 1000 * si  # the same random stream for every method
+            try:
+                res = run_session(method, s, runs, seed)
+            except (ValueError, DatasetError) as exc:
+                raise EvalError(f"method {name}, session {s.id}: {exc}") from exc
+            gt = s.groundtruth
+            m = session_metrics(res.t, res.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), float(cfg.init_s))
+            o = orientation_rmse(res, s)
+            if o is not None:
+                m["orientation_rmse_deg"] = o
+                orient.append(o)
+            m["wall_s"] = res.wall_s
+            m["recoveries"] = len(res.events)
+            per[s.id], res_by[s.id] = m, res
+            wall += res.wall_s
+            duration += float(res.t[-1] - res.t[0])
+            recoveries += len(res.events)
+            notes += [n for n in res.map_notes if n not in notes]
+            progress(f"{name} / {s.id}")
+        agg = pool(per)
+        agg.update({"wall_s": wall, "realtime_factor": duration * runs / max(wall, 1e-9), "recoveries": recoveries,
+                    "map_notes": notes})
+        if orient:
+            agg["orientation_rmse_deg"] = float(np.mean(orient))
+        agg["per_session"] = {k: {kk: vv for kk, vv in v.items() if kk != "_runs"} for k, v in per.items()}
+        results["methods"][name] = agg
+        outcomes[name] = MethodOutcome(res_by, per)
+    (out / "results.json").write_text(json.dumps(results, indent=1, default=_json_default), encoding="utf-8")
+    from .report import write_markdown
+
+    write_markdown(out / "results.md", results, cfg)
+    if cfg.get("plots", True):
+        _plots(out, results, outcomes, sessions)
+    return results
+
+
+def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions) -> None:
+    from blenav import plotting
+
+    grid = np.linspace(0, 15, 301)
+    cdfs, rmses, err_t = {}, {}, {}
+    for name, oc in outcomes.items():
+        R = next(iter(oc.results.values())).position.shape[0]
+        per_run = [np.concatenate([oc.metrics[s]["_runs"]["err"][r] for s in oc.metrics]) for r in range(R)]
+        cdfs[name] = cdf_band(per_run, grid)
+        rmses[name] = np.concatenate([oc.metrics[s]["_runs"]["rmse"] for s in oc.metrics])
+        first = sessions[0].id
+        err_t[name] = (oc.metrics[first]["_runs"]["t"], oc.metrics[first]["_runs"]["err_all"])
+    plotting.save_figure(plotting.figure_error_cdf(grid, cdfs, results["title"]), out / "error_cdf.png")
+    plotting.save_figure(plotting.figure_rmse_box(rmses, results["title"]), out / "rmse_box.png")
+    plotting.save_figure(plotting.figure_error_over_time(err_t, results["init_s"], sessions[0].id),
+                         out / "error_over_time.png")
+    s = sessions[0]
+    tracks = {name: (oc.results[s.id].t, oc.results[s.id].position[0]) for name, oc in outcomes.items()}
+    plotting.save_figure(plotting.figure_trajectories(s, tracks), out / "trajectories.png")
+
+
+def _progress(enabled: bool, total: int):
+    if not enabled:
+        return lambda msg: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc="evaluating", unit="method-session")
+
+    def tick(msg: str) -> None:
+        bar.set_postfix_str(msg)
+        bar.update(1)
+
+    return tick
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o)}")

@@ -1,0 +1,78 @@
+"""Localization metrics against ground truth (pure numpy; no plotting).
+
+Errors are planar Euclidean distances (m) between estimates and ground truth linearly interpolated at
+the estimate times; estimates outside the ground truth's time span are not scored. The first
+``init_s`` seconds (global localization) are scored separately, not hidden and not mixed in.
+
+Per run: RMSE over the tracking period; ATE is that RMSE (Roy's absolute trajectory error, the
+estimates being in the world frame no alignment is applied); EE is the error at the last scored step.
+Across runs: mean, standard deviation, standard error and a 99 % confidence interval of the mean
+(normal approximation, mean +- 2.576 stderr), and pooled error percentiles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+Z99 = 2.5758293035489004
+
+
+def errors_vs_groundtruth(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Errors (R, K') at the K' estimate times inside the ground truth span, and those times (K',)."""
+    inside = (t >= gt_t[0]) & (t <= gt_t[-1])
+    tt = t[inside]
+    ref = np.stack([np.interp(tt, gt_t, gt_xy[:, 0]), np.interp(tt, gt_t, gt_xy[:, 1])], axis=-1)
+    return np.linalg.norm(pos[:, inside] - ref[None], axis=-1), tt
+
+
+def summary(values: np.ndarray) -> dict:
+    v = np.asarray(values, float)
+    n = v.size
+    mean = float(v.mean()) if n else float("nan")
+    std = float(v.std(ddof=1)) if n > 1 else 0.0
+    se = std / np.sqrt(n) if n > 1 else 0.0
+    return {"mean": mean, "std": std, "stderr": se, "ci99": [mean - Z99 * se, mean + Z99 * se], "n": int(n)}
+
+
+def error_stats(err: np.ndarray) -> dict:
+    e = np.asarray(err, float).ravel()
+    if e.size == 0:
+        return {k: float("nan") for k in ("mean", "median", "p75", "p90", "max")}
+    return {"mean": float(e.mean()), "median": float(np.median(e)), "p75": float(np.percentile(e, 75)),
+            "p90": float(np.percentile(e, 90)), "max": float(e.max())}
+
+
+def session_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray, init_s: float) -> dict:
+    """Metrics of R runs on one session; includes the raw per-run arrays under '_runs' for pooling."""
+    err, tt = errors_vs_groundtruth(t, pos, gt_t, gt_xy)
+    if err.shape[1] == 0:
+        raise ValueError("no estimate falls inside the ground truth's time span")
+    track = tt >= tt[0] + init_s
+    if not track.any():  # a session shorter than the init period: score everything, say so
+        track = np.ones_like(tt, bool)
+    rmse = np.sqrt(np.mean(err[:, track] ** 2, axis=1))
+    ee = err[:, np.flatnonzero(track)[-1]]
+    init = err[:, ~track]
+    return {
+        "rmse_m": summary(rmse), "error_m": error_stats(err[:, track]), "ate_m": float(rmse.mean()),
+        "ee_m": float(ee.mean()), "init_error_m": error_stats(init) if init.size else None,
+        "_runs": {"rmse": rmse, "ee": ee, "err": err[:, track], "t": tt, "err_all": err},
+    }
+
+
+def pool(per_session: dict[str, dict]) -> dict:
+    """Aggregate session metrics: RMSE stats over all (session, run) pairs, pooled error percentiles."""
+    rmse = np.concatenate([m["_runs"]["rmse"] for m in per_session.values()])
+    ee = np.concatenate([m["_runs"]["ee"] for m in per_session.values()])
+    err = np.concatenate([m["_runs"]["err"].ravel() for m in per_session.values()])
+    inits = [m["_runs"]["err_all"][:, : m["_runs"]["err_all"].shape[1] - m["_runs"]["err"].shape[1]].ravel()
+             for m in per_session.values()]
+    init = np.concatenate(inits) if inits else np.zeros(0)
+    return {"rmse_m": summary(rmse), "error_m": error_stats(err), "ate_m": float(rmse.mean()), "ee_m": float(ee.mean()),
+            "init_error_m": error_stats(init) if init.size else None}
+
+
+def cdf_band(err_runs: list[np.ndarray], grid: np.ndarray, q=(0.05, 0.5, 0.95)) -> np.ndarray:
+    """Per-run empirical CDFs on ``grid`` and their quantiles across runs: (len(q), len(grid))."""
+    cdfs = np.stack([np.searchsorted(np.sort(e), grid, side="right") / max(e.size, 1) for e in err_runs])
+    return np.quantile(cdfs, q, axis=0)

@@ -1,0 +1,15 @@
+"""The particle-filter engine and its components.
+
+- :mod:`~blenav.filters.engine`: the SIR algorithm over R runs x N particles (log weights, n_eff, resampling,
+  recovery, estimates);
+- :mod:`~blenav.filters.resampling`: systematic, stratified, multinomial, residual, low-variance;
+- :mod:`~blenav.filters.motion`: RW, DR, the IMU proposal (Ghaffari Jadidi et al. eqs. 4-7), odometry
+  increment (Roy eq. 3.7), PDR;
+- :mod:`~blenav.filters.measurement`: PF-PL path-loss ranges, PF-PS RSSI-domain likelihood (Patel et al.);
+- :mod:`~blenav.filters.map_fusion`: map-aware initialisation and resampling (Patel et al. section V), wall
+  crossing, rooms and routes derived from the occupancy grid when a building lacks them;
+- :mod:`~blenav.filters.attitude`: AHRS (Madgwick, Mahony, EKF from the ``ahrs`` package) after a median prefilter;
+- :mod:`~blenav.filters.steps`: sensor streams -> per-step controls and observations (batch and streaming);
+- :mod:`~blenav.filters.runner`: one method on one session for R runs, and the streaming ``OnlineLocalizer``;
+- :mod:`~blenav.filters.calibration`: path-loss fit from labelled sessions (``blenav-calibrate``).
+"""

@@ -1,0 +1,132 @@
+"""Measurement models: log-likelihoods of one step's observations for all runs and particles.
+
+``log_likelihood(xy, obs) -> (R, N)`` with xy (R, N, 2) world metres and ``obs`` the step's packed
+observations; ``n_obs(obs)`` counts the observations used (for divergence checks). Constants common to
+all particles are dropped. The BLE packets of one step are conditionally independent given the position,
+so their log-likelihoods add.
+
+Path loss (Patel et al. eq. 1; Ghaffari Jadidi et al. use the same form with a reference distance d0):
+
+    rssi = a_X - 10 gamma log10(d / d0) + eps
+
+* PF-PL (:class:`PathLossRange`): each RSSI becomes a range r = d0 10^((a_X - rssi) / (10 gamma));
+  ranges over ``max_range_m`` (10 m) are discarded; likelihood N(||x - l|| - r; 0, sigma_n^2) with
+  sigma_n = 5 m (000, Table I) or 6 m (002, Table I).
+* PF-PS (:class:`RssiDomain`, Patel et al. section IV, eq. 2): the particle's distance to the beacon gives
+  an expected RSSI; the residual rssi - rssi_hat ~ N(0, sigma_s^2), sigma_s = 6.85 dB (002, Table I
+  prints "m"; the quantity is a dB residual).
+
+Distances are 3-D: the anchor's z against the device height ``device_z`` (m). a_X is per anchor: the
+anchor's ``tx_power_dbm`` (calibrated RSSI at 1 m) when ``use_anchor_tx_power`` and it is known, else
+the configured value.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class AnchorTable:
+    """Anchors one measurement model uses: ids, positions (A, 3) m, 1 m levels (A,) dBm (NaN unknown)."""
+
+    ids: np.ndarray
+    xyz: np.ndarray
+    tx_power_dbm: np.ndarray
+
+    @classmethod
+    def from_frame(cls, anchors, kind: str = "ble") -> "AnchorTable":
+        a = anchors[anchors["kind"] == kind]
+        return cls(a["anchor_id"].astype(str).to_numpy(), a[["x", "y", "z"]].to_numpy(float),
+                   a["tx_power_dbm"].to_numpy(float))
+
+    def index_of(self, ids: np.ndarray) -> np.ndarray:
+        """Row of each id in this table, -1 for unknown ids."""
+        order = np.argsort(self.ids)
+        pos = np.searchsorted(self.ids[order], ids)
+        pos = np.clip(pos, 0, len(order) - 1)
+        hit = self.ids[order][pos] == ids
+        return np.where(hit, order[pos], -1)
+
+
+@dataclass
+class _PathLoss:
+    a_x: float = -60.0
+    gamma: float = 2.25
+    d0: float = 1.0
+    device_z: float = 1.2
+    use_anchor_tx_power: bool = True
+    calibrated: bool = False  # True: the harness replaces a_x, gamma, d0 by a fit on labelled data
+    anchors: AnchorTable | None = field(default=None, repr=False)
+
+    needs = ("rssi",)
+
+    def bind(self, anchors: AnchorTable) -> None:
+        """Attach the building's anchors (prior map); a later back-end may re-bind a corrected map."""
+        self.anchors = anchors
+
+    def _ax(self) -> np.ndarray:
+        tx = self.anchors.tx_power_dbm
+        if self.use_anchor_tx_power:
+            return np.where(np.isfinite(tx), tx, self.a_x)
+        return np.full(len(tx), self.a_x)
+
+    def _distances(self, xy: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """(R, N, M) 3-D distances (m) from particles to the anchors of the step's packets."""
+        l = self.anchors.xyz[idx]  # (M, 3)
+        dx = xy[..., 0:1] - l[:, 0]
+        dy = xy[..., 1:2] - l[:, 1]
+        dz2 = (self.device_z - l[:, 2]) ** 2
+        return np.sqrt(dx * dx + dy * dy + dz2)
+
+    def n_obs(self, obs: dict) -> int:
+        return int(len(obs["rssi_idx"]))
+
+
+@dataclass
+class PathLossRange(_PathLoss):
+    """PF-PL: RSSI -> range by path loss, ranges over max_range_m discarded, Gaussian range likelihood."""
+
+    a_x: float = -64.53
+    gamma: float = 1.72
+    d0: float = 1.78
+    sigma_n: float = 5.0
+    max_range_m: float = 10.0
+
+    def ranges(self, obs: dict) -> tuple[np.ndarray, np.ndarray]:
+        idx, rssi = obs["rssi_idx"], obs["rssi"]
+        r = self.d0 * 10.0 ** ((self._ax()[idx] - rssi) / (10.0 * self.gamma))
+        keep = r <= self.max_range_m
+        return idx[keep], r[keep]
+
+    def n_obs(self, obs: dict) -> int:
+        return int(len(self.ranges(obs)[0]))
+
+    def log_likelihood(self, xy: np.ndarray, obs: dict) -> np.ndarray:
+        idx, r = self.ranges(obs)
+        if len(idx) == 0:
+            return np.zeros(xy.shape[:-1])
+        res = (self._distances(xy, idx) - r) / self.sigma_n
+        return -0.5 * np.einsum("rnm,rnm->rn", res, res)
+
+
+@dataclass
+class RssiDomain(_PathLoss):
+    """PF-PS: expected RSSI from the particle's distance, residual ~ N(0, sigma_s^2) (Patel et al. eq. 2)."""
+
+    sigma_s: float = 6.85
+    d_min: float = 0.5
+
+    def log_likelihood(self, xy: np.ndarray, obs: dict) -> np.ndarray:
+        idx, rssi = obs["rssi_idx"], obs["rssi"]
+        if len(idx) == 0:
+            return np.zeros(xy.shape[:-1])
+        d = np.maximum(self._distances(xy, idx), self.d_min)
+        expected = self._ax()[idx] - 10.0 * self.gamma * np.log10(d / self.d0)
+        res = (rssi - expected) / self.sigma_s
+        return -0.5 * np.einsum("rnm,rnm->rn", res, res)
+
+
+MEASUREMENT_MODELS = {"pl": PathLossRange, "ps": RssiDomain}

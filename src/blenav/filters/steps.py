@@ -1,0 +1,239 @@
+"""From sensor streams to filter steps: controls and observations per step window, batch and streaming.
+
+The filter steps at ``rate_hz`` (000 samples its motion model at the BLE rate). Step k closes the
+window (t_{k-1}, t_k], t_k = t_start + k / rate_hz. Per window (all causal, so that the streaming
+:class:`StepStream` and the batch :func:`session_steps` compute the very same numbers):
+
+* ``acc_w`` (2,): mean over the window's IMU samples of the horizontal gravity-compensated world
+  acceleration R a + g (000 eq. 6) with R from the AHRS (m/s^2);
+* ``heading`` (rad): AHRS heading of the device's forward axis at the window's last IMU sample;
+* ``steps``: PDR steps detected in the window (:class:`StepDetector`, causal);
+* ``odo`` (2,): inertial-odometry displacement between the last odometry samples at or before
+  t_{k-1} and t_k (odometry frame, m);
+* ``rssi_idx`` (M,), ``rssi`` (M,): the window's BLE packets (anchor row in the model's
+  :class:`~blenav.filters.measurement.AnchorTable`, dBm); packets of anchors that are not BLE anchors
+  of the building are left out (the reader already dropped unknown ids and reported them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .attitude import AttitudeConfig, StreamingAttitude, estimate_attitude, gravity_compensated_acc, yaw_of_device_forward
+from .measurement import AnchorTable
+
+
+@dataclass
+class StepDetectorConfig:
+    threshold: float = 1.2  # m/s^2 above gravity of the smoothed acceleration norm
+    min_interval_s: float = 0.3
+    smooth_s: float = 0.1
+
+
+class StepDetector:
+    """Causal step detector: upward crossings of (smoothed |a| - g) above ``threshold``, at least
+    ``min_interval_s`` apart. Smoothing is a trailing mean over ``smooth_s``."""
+
+    def __init__(self, cfg: StepDetectorConfig, rate_hz: float):
+        self.cfg = cfg
+        self.w = max(1, int(round(cfg.smooth_s * rate_hz)))
+        self.buf: list[float] = []
+        self.prev_above = False
+        self.last_step = -np.inf
+
+    def update(self, t: float, acc: np.ndarray) -> bool:
+        self.buf.append(float(np.sqrt(acc[0] ** 2 + acc[1] ** 2 + acc[2] ** 2)))
+        if len(self.buf) > self.w:
+            self.buf.pop(0)
+        above = (sum(self.buf) / len(self.buf) - 9.80665) > self.cfg.threshold
+        step = above and not self.prev_above and t - self.last_step >= self.cfg.min_interval_s
+        self.prev_above = above
+        if step:
+            self.last_step = t
+        return step
+
+
+@dataclass
+class Window:
+    """Raw samples of one step window, collected by either path."""
+
+    imu_t: list = field(default_factory=list)
+    acc: list = field(default_factory=list)
+    q: list = field(default_factory=list)
+    steps: int = 0
+    rssi_idx: list = field(default_factory=list)
+    rssi: list = field(default_factory=list)
+
+
+def window_step(win_acc: np.ndarray, win_q: np.ndarray, steps: int, odo_prev: np.ndarray, odo_now: np.ndarray,
+                rssi_idx: np.ndarray, rssi: np.ndarray, last_heading: float) -> tuple[dict, dict, float]:
+    """Controls and observations of one window (both paths call this)."""
+    if len(win_acc):
+        aw = gravity_compensated_acc(win_q, win_acc)
+        acc_w = aw[:, :2].mean(axis=0)
+        heading = float(yaw_of_device_forward(win_q[-1:])[0])
+    else:
+        acc_w, heading = np.zeros(2), last_heading
+    ctrl = {"acc_w": acc_w, "heading": heading, "steps": steps, "odo": odo_now - odo_prev}
+    obs = {"rssi_idx": rssi_idx, "rssi": rssi}
+    return ctrl, obs, heading
+
+
+@dataclass
+class SessionArrays:
+    """A session's streams as arrays (times in s)."""
+
+    imu_t: np.ndarray
+    acc: np.ndarray
+    gyr: np.ndarray
+    mag_t: np.ndarray | None
+    mag: np.ndarray | None
+    rssi_t: np.ndarray
+    rssi_idx: np.ndarray
+    rssi: np.ndarray
+    odo_t: np.ndarray
+    odo: np.ndarray
+    t_start: float
+    t_end: float
+
+    @classmethod
+    def from_session(cls, session, anchors: AnchorTable) -> "SessionArrays":
+        imu = session.imu
+        mag = session.mag
+        r = session.rssi
+        idx = anchors.index_of(r["anchor_id"].astype(str).to_numpy()) if len(r) else np.zeros(0, int)
+        keep = idx >= 0
+        odo = session.odometry
+        ts = [s["t"].to_numpy() for s in (imu, r, odo) if len(s)]
+        if not ts:
+            raise ValueError(f"session {session.id} has no IMU, RSSI or odometry to filter")
+        c = np.ascontiguousarray  # row-major like the streaming path's stacked samples: same float results
+        return cls(
+            c(imu["t"].to_numpy(float)), c(imu[["ax", "ay", "az"]].to_numpy(float)),
+            c(imu[["gx", "gy", "gz"]].to_numpy(float)),
+            c(mag["t"].to_numpy(float)) if len(mag) else None, c(mag[["mx", "my", "mz"]].to_numpy(float)) if len(mag) else None,
+            c(r["t"].to_numpy(float)[keep]), idx[keep], c(r["rssi"].to_numpy(float)[keep]),
+            c(odo["t"].to_numpy(float)), c(odo[["x", "y"]].to_numpy(float)),
+            float(min(t[0] for t in ts)), float(max(t[-1] for t in ts)))
+
+
+def step_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
+    n = int(np.floor((t_end - t_start) * rate_hz + 1e-9))
+    return t_start + np.arange(1, n + 1) / rate_hz
+
+
+def _odo_at(odo_t: np.ndarray, odo: np.ndarray, t: float) -> np.ndarray:
+    i = np.searchsorted(odo_t, t, side="right") - 1
+    return odo[i] if i >= 0 else (odo[0] if len(odo) else np.zeros(2))
+
+
+def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det_cfg: StepDetectorConfig,
+                  need_imu: bool = True):
+    """Yield (t_k, ctrl, obs) for every step of a session (batch path). Also returns AHRS quaternions.
+
+    Returns ``(steps, q)`` with ``steps`` a list and ``q`` (T, 4) the AHRS orientation at IMU times
+    (``None`` without IMU or when the motion model does not need it).
+    """
+    ts = step_times(a.t_start, a.t_end, rate_hz)
+    q = None
+    step_flags = np.zeros(len(a.imu_t), bool)
+    if need_imu and len(a.imu_t):
+        q = estimate_attitude(a.imu_t, a.acc, a.gyr, a.mag_t, a.mag, att_cfg)
+        imu_rate = 1.0 / np.median(np.diff(a.imu_t)) if len(a.imu_t) > 1 else 100.0
+        det = StepDetector(det_cfg, imu_rate)
+        step_flags = np.fromiter((det.update(t, v) for t, v in zip(a.imu_t, a.acc)), bool, len(a.imu_t))
+    bounds_imu = np.searchsorted(a.imu_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right") if need_imu else None
+    bounds_rssi = np.searchsorted(a.rssi_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right")
+    out = []
+    heading = 0.0
+    prev_t = a.t_start
+    for k, t in enumerate(ts):
+        if need_imu and q is not None:
+            s = slice(bounds_imu[k], bounds_imu[k + 1])
+            wa, wq, n_steps = a.acc[s], q[s], int(step_flags[s].sum())
+        else:
+            wa, wq, n_steps = np.zeros((0, 3)), np.zeros((0, 4)), 0
+        r = slice(bounds_rssi[k], bounds_rssi[k + 1])
+        ctrl, obs, heading = window_step(wa, wq, n_steps, _odo_at(a.odo_t, a.odo, prev_t), _odo_at(a.odo_t, a.odo, t),
+                                         a.rssi_idx[r], a.rssi[r], heading)
+        out.append((float(t), ctrl, obs))
+        prev_t = t
+    return out, q
+
+
+class StepStream:
+    """Streaming counterpart of :func:`session_steps`: push samples in time order, get steps when due.
+
+    ``push_*`` return the list of (t_k, ctrl, obs) of the windows that the new sample closed. A sample at
+    exactly t_k belongs to window k. Call :meth:`close` at the end of the data.
+    """
+
+    def __init__(self, anchors: AnchorTable, rate_hz: float, att_cfg: AttitudeConfig, det_cfg: StepDetectorConfig,
+                 t_start: float = 0.0, imu_rate_hz: float = 200.0, need_imu: bool = True):
+        self.anchors, self.rate = anchors, rate_hz
+        self.t_start = t_start
+        self.k = 1
+        self.att = StreamingAttitude(att_cfg) if need_imu else None
+        self.det = StepDetector(det_cfg, imu_rate_hz)
+        self.win = Window()
+        self.heading = 0.0
+        self.odo_t: list[float] = []
+        self.odo: list[np.ndarray] = []
+        self.prev_t = t_start
+
+    def _due(self, t: float) -> list:
+        out = []
+        while t > self.t_start + self.k / self.rate:
+            out.append(self._close())
+        return out
+
+    def _close(self):
+        t = self.t_start + self.k / self.rate
+        ot, oo = np.asarray(self.odo_t), np.asarray(self.odo).reshape(-1, 2)
+        w = self.win
+        ctrl, obs, self.heading = window_step(
+            np.asarray(w.acc).reshape(-1, 3), np.asarray(w.q).reshape(-1, 4), w.steps, _odo_at(ot, oo, self.prev_t),
+            _odo_at(ot, oo, t), np.asarray(w.rssi_idx, dtype=int), np.asarray(w.rssi, dtype=float), self.heading)
+        self.win = Window()
+        self.prev_t = t
+        self.k += 1
+        return (float(t), ctrl, obs)
+
+    def push_imu(self, t: float, acc: np.ndarray, gyr: np.ndarray) -> list:
+        out = self._due(t)
+        if self.att is not None:
+            q = self.att.update(t, np.asarray(acc, float), np.asarray(gyr, float))
+            self.win.imu_t.append(t)
+            self.win.acc.append(np.asarray(acc, float))
+            self.win.q.append(q)
+            self.win.steps += int(self.det.update(t, np.asarray(acc, float)))
+        return out
+
+    def push_mag(self, t: float, mag: np.ndarray) -> list:
+        out = self._due(t)
+        if self.att is not None:
+            self.att.update_mag(t, np.asarray(mag, float))
+        return out
+
+    def push_rssi(self, t: float, anchor_id: str, rssi: float) -> list:
+        out = self._due(t)
+        i = int(self.anchors.index_of(np.array([str(anchor_id)]))[0])
+        if i >= 0:
+            self.win.rssi_idx.append(i)
+            self.win.rssi.append(float(rssi))
+        return out
+
+    def push_odometry(self, t: float, xy: np.ndarray) -> list:
+        out = self._due(t)
+        self.odo_t.append(t)
+        self.odo.append(np.asarray(xy, float))
+        return out
+
+    def close(self, t_end: float) -> list:
+        """Close every window that ends at or before t_end (the last, partial window is dropped, as in batch)."""
+        out = []
+        while self.t_start + self.k / self.rate <= t_end + 1e-9:
+            out.append(self._close())
+        return out
