@@ -16,7 +16,9 @@ from blenav.data.writer import write_session
 from blenav.eval.harness import build_methods
 from blenav.filters.calibration import apply_fit, fit_sessions
 from blenav.filters.motion import Pdr
-from blenav.filters.runner import OnlineLocalizer, replay, run_session
+from blenav.filters.measurement import AnchorTable
+from blenav.filters.runner import OnlineLocalizer, magnetometer_offset, replay, run_session
+from blenav.filters.steps import SessionArrays
 from blenav.paths import conf_dir
 
 
@@ -53,7 +55,8 @@ def test_streaming_equals_batch(office):
     m = methods("frontend_000", office, n_particles=100)["IMU"]
     batch = run_session(m, s, n_runs=3, seed=5)
     m2 = methods("frontend_000", office, n_particles=100)["IMU"]
-    online = OnlineLocalizer(m2, s, n_runs=3, seed=5, t_start=0.0)
+    arrays = SessionArrays.from_session(s, AnchorTable.from_frame(s.building.anchors))
+    online = OnlineLocalizer(m2, s, n_runs=3, seed=5, t_start=0.0, mag_offset=magnetometer_offset(arrays, m2))
     out = []
     for e in replay(s):
         kind = e[0]

@@ -37,6 +37,9 @@ def _main(cfg: DictConfig) -> None:
         print(f"blenav-eval: error: {exc}", file=sys.stderr)
         sys.exit(1)
     for name, m in res["methods"].items():
+        if "rmse_m" not in m:
+            print(f"{name:12s} skipped on {len(m['skipped'])} session(s): {next(iter(m['skipped'].values()))}")
+            continue
         r = m["rmse_m"]
         print(f"{name:12s} RMSE {r['mean']:.2f} +- {r['stderr']:.2f} m  p75 {m['error_m']['p75']:.2f} m  "
               f"({m['realtime_factor']:.0f}x real time)")

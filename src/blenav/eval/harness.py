@@ -27,7 +27,7 @@ from blenav.data import Dataset, DatasetError
 from blenav.filters.attitude import AttitudeConfig, misalignment_deg
 from blenav.filters.calibration import apply_fit, fit_sessions
 from blenav.filters.engine import FilterConfig
-from blenav.filters.runner import MapSpec, Method, RunResult, run_session
+from blenav.filters.runner import MapSpec, Method, MissingStream, RunResult, run_session
 
 from .metrics import cdf_band, pool, session_metrics
 
@@ -145,10 +145,16 @@ def evaluate(cfg: DictConfig) -> dict:
         orient = []
         notes: list[str] = []
         recoveries = 0
+        skipped = {}
         for si, s in enumerate(sessions):
             seed = int(cfg.seed) * 1_000_003 + 1000 * si  # the same random stream for every method
             try:
                 res = run_session(method, s, runs, seed)
+            except MissingStream as exc:  # e.g. no IMU in a fixed-receiver recording: skip, and say so
+                skipped[s.id] = str(exc)
+                log.warning("skipping %s on %s: %s", name, s.id, exc)
+                progress(f"{name} / {s.id} (skipped)")
+                continue
             except (ValueError, DatasetError) as exc:
                 raise EvalError(f"method {name}, session {s.id}: {exc}") from exc
             gt = s.groundtruth
@@ -165,7 +171,12 @@ def evaluate(cfg: DictConfig) -> dict:
             recoveries += len(res.events)
             notes += [n for n in res.map_notes if n not in notes]
             progress(f"{name} / {s.id}")
+        if not per:
+            results["methods"][name] = {"skipped": skipped}
+            continue
         agg = pool(per)
+        if skipped:
+            agg["skipped"] = skipped
         agg.update({"wall_s": wall, "realtime_factor": duration * runs / max(wall, 1e-9), "recoveries": recoveries,
                     "map_notes": notes})
         if orient:
@@ -187,19 +198,24 @@ def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], session
 
     grid = np.linspace(0, 15, 301)
     cdfs, rmses, err_t = {}, {}, {}
+    outcomes = {k: v for k, v in outcomes.items() if v.results}
+    if not outcomes:
+        return
+    sessions = [s for s in sessions if all(s.id in oc.results for oc in outcomes.values())] or sessions
     for name, oc in outcomes.items():
         R = next(iter(oc.results.values())).position.shape[0]
         per_run = [np.concatenate([oc.metrics[s]["_runs"]["err"][r] for s in oc.metrics]) for r in range(R)]
         cdfs[name] = cdf_band(per_run, grid)
         rmses[name] = np.concatenate([oc.metrics[s]["_runs"]["rmse"] for s in oc.metrics])
-        first = sessions[0].id
+        first = sessions[0].id if sessions[0].id in oc.metrics else next(iter(oc.metrics))
         err_t[name] = (oc.metrics[first]["_runs"]["t"], oc.metrics[first]["_runs"]["err_all"])
     plotting.save_figure(plotting.figure_error_cdf(grid, cdfs, results["title"]), out / "error_cdf.png")
     plotting.save_figure(plotting.figure_rmse_box(rmses, results["title"]), out / "rmse_box.png")
     plotting.save_figure(plotting.figure_error_over_time(err_t, results["init_s"], sessions[0].id),
                          out / "error_over_time.png")
     s = sessions[0]
-    tracks = {name: (oc.results[s.id].t, oc.results[s.id].position[0]) for name, oc in outcomes.items()}
+    tracks = {name: (oc.results[s.id].t, oc.results[s.id].position[0]) for name, oc in outcomes.items()
+              if s.id in oc.results}
     plotting.save_figure(plotting.figure_trajectories(s, tracks), out / "trajectories.png")
 
 

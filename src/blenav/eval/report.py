@@ -20,6 +20,8 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
              "| method | RMSE [m] mean +- stderr | RMSE 99% CI | error median | CDF p75 | p90 | max | ATE | EE | "
              "init error mean | orientation RMSE [deg] | recoveries | wall [s] | x real time |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    skipped = {n: m["skipped"] for n, m in ms.items() if "skipped" in m}
+    ms = {n: m for n, m in ms.items() if "rmse_m" in m}
     for name, m in ms.items():
         r, e = m["rmse_m"], m["error_m"]
         init = m.get("init_error_m") or {}
@@ -31,7 +33,11 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
     lines += ["", "Per session (RMSE mean over runs, m):", "",
               "| session | " + " | ".join(ms) + " |", "|---|" + "---|" * len(ms)]
     for sid in results["sessions"]:
-        lines.append(f"| {sid} | " + " | ".join(_f(m["per_session"][sid]["rmse_m"]["mean"]) for m in ms.values()) + " |")
+        cells = [_f(m["per_session"][sid]["rmse_m"]["mean"]) if sid in m["per_session"] else "skipped" for m in ms.values()]
+        lines.append(f"| {sid} | " + " | ".join(cells) + " |")
+    for n, sk in skipped.items():
+        lines += ["", f"{n}: skipped on {len(sk)} session(s) ({', '.join(sorted(sk))[:300]}): "
+                  + "; ".join(sorted(set(sk.values())))]
     notes = sorted({n for m in ms.values() for n in m.get("map_notes", [])})
     if notes:
         lines += ["", "Map notes:", ""] + [f"- {n}" for n in notes]

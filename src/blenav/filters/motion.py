@@ -55,9 +55,9 @@ class RandomWalk(MotionModel):
 
     def propagate(self, x, ctrl, dt, rng):
         out = x.copy()
-        v = x[..., 2:4] + self.sigma_v * rng.standard_normal(x.shape[:-1] + (2,))
-        out[..., 2:4] = _clip_speed(v, self.max_speed)
-        out[..., :2] = x[..., :2] + dt * out[..., 2:4] + self.sigma_p * rng.standard_normal(x.shape[:-1] + (2,))
+        e = rng.standard_normal(x.shape[:-1] + (4,))  # one draw: (nu, eps)
+        out[..., 2:4] = _clip_speed(x[..., 2:4] + self.sigma_v * e[..., :2], self.max_speed)
+        out[..., :2] = x[..., :2] + dt * out[..., 2:4] + self.sigma_p * e[..., 2:]
         return out
 
 
@@ -220,8 +220,10 @@ class Pdr(_HeadingOffset):
 
 
 def _clip_speed(v: np.ndarray, vmax: float) -> np.ndarray:
-    s = np.hypot(v[..., 0], v[..., 1])
-    f = np.minimum(1.0, vmax / np.maximum(s, 1e-12))
+    s2 = v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1]
+    if not (s2 > vmax * vmax).any():
+        return v
+    f = np.minimum(1.0, vmax / np.sqrt(np.maximum(s2, 1e-24)))
     return v * f[..., None]
 
 

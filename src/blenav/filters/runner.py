@@ -16,11 +16,15 @@ import numpy as np
 
 from blenav.data import Session
 
-from .attitude import AttitudeConfig
+from .attitude import AttitudeConfig, estimate_hard_iron
 from .engine import Event, FilterConfig, ParticleFilter
 from .map_fusion import MapGeometry, WallCrossing
 from .measurement import AnchorTable
 from .steps import SessionArrays, StepDetectorConfig, StepStream, session_steps
+
+
+class MissingStream(ValueError):
+    """The session lacks a stream the method needs (e.g. IMU for the IMU proposal): skip, do not fail."""
 
 
 @dataclass
@@ -126,10 +130,13 @@ def run_session(method: Method, session: Session, n_runs: int, seed: int,
     rng = np.random.default_rng(seed)
     pf, anchors, geom = build_filter(method, session, n_runs, rng, geom)
     if not any(len(m.anchors.ids) for m in method.measurements) and method.measurements:
-        raise ValueError(f"session {session.id}: building {session.building.id} has no BLE anchors for "
-                         f"the measurement models of {method.name}")
+        raise MissingStream(f"building {session.building.id} has no BLE anchors for the measurement models of "
+                            f"{method.name}")
     arrays = SessionArrays.from_session(session, anchors)
-    steps, q = session_steps(arrays, method.filter.rate_hz, method.attitude, method.steps, method.needs_imu)
+    if method.needs_imu and len(arrays.imu_t) == 0:
+        raise MissingStream(f"no IMU data, which the {type(method.motion).__name__} motion model of {method.name} needs")
+    offset = magnetometer_offset(arrays, method)
+    steps, q = session_steps(arrays, method.filter.rate_hz, method.attitude, method.steps, method.needs_imu, offset)
     if not steps:
         raise ValueError(f"session {session.id} is shorter than one filter step ({1 / method.filter.rate_hz:.2f} s)")
     pf.initialize(arrays.t_start)
@@ -145,6 +152,18 @@ def run_session(method: Method, session: Session, n_runs: int, seed: int,
                      arrays.imu_t if q is not None else None, time.perf_counter() - t0, list(geom.notes))
 
 
+def magnetometer_offset(arrays: SessionArrays, method: Method) -> np.ndarray | None:
+    """Hard-iron offset (uT) fitted on the session's magnetometer (sphere fit), or None.
+
+    Phones calibrate their magnetometer continuously; a raw (uncalibrated) recording, as the simulator
+    writes, needs this before an AHRS can use the field. Offline it is fitted on the whole session; a
+    live :class:`OnlineLocalizer` takes the device's calibration as ``mag_offset``.
+    """
+    if not method.needs_imu or arrays.mag is None or not method.attitude.use_mag or len(arrays.mag) < 50:
+        return None
+    return estimate_hard_iron(arrays.mag)
+
+
 class OnlineLocalizer:
     """Streaming API: push sensor samples in time order; each closed step yields estimates.
 
@@ -153,12 +172,12 @@ class OnlineLocalizer:
     """
 
     def __init__(self, method: Method, session_meta_building: Session, n_runs: int, seed: int,
-                 t_start: float = 0.0, imu_rate_hz: float = 200.0):
+                 t_start: float = 0.0, imu_rate_hz: float = 200.0, mag_offset: np.ndarray | None = None):
         self.method = method
         rng = np.random.default_rng(seed)
         self.pf, anchors, self.geom = build_filter(method, session_meta_building, n_runs, rng)
         self.stream = StepStream(anchors, method.filter.rate_hz, method.attitude, method.steps, t_start, imu_rate_hz,
-                                 method.needs_imu)
+                                 method.needs_imu, mag_offset)
         self.pf.initialize(t_start)
 
     def _run(self, steps):

@@ -130,7 +130,7 @@ def _odo_at(odo_t: np.ndarray, odo: np.ndarray, t: float) -> np.ndarray:
 
 
 def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det_cfg: StepDetectorConfig,
-                  need_imu: bool = True):
+                  need_imu: bool = True, mag_offset: np.ndarray | None = None):
     """Yield (t_k, ctrl, obs) for every step of a session (batch path). Also returns AHRS quaternions.
 
     Returns ``(steps, q)`` with ``steps`` a list and ``q`` (T, 4) the AHRS orientation at IMU times
@@ -140,7 +140,7 @@ def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det
     q = None
     step_flags = np.zeros(len(a.imu_t), bool)
     if need_imu and len(a.imu_t):
-        q = estimate_attitude(a.imu_t, a.acc, a.gyr, a.mag_t, a.mag, att_cfg)
+        q = estimate_attitude(a.imu_t, a.acc, a.gyr, a.mag_t, a.mag, att_cfg, mag_offset=mag_offset)
         imu_rate = 1.0 / np.median(np.diff(a.imu_t)) if len(a.imu_t) > 1 else 100.0
         det = StepDetector(det_cfg, imu_rate)
         step_flags = np.fromiter((det.update(t, v) for t, v in zip(a.imu_t, a.acc)), bool, len(a.imu_t))
@@ -171,11 +171,12 @@ class StepStream:
     """
 
     def __init__(self, anchors: AnchorTable, rate_hz: float, att_cfg: AttitudeConfig, det_cfg: StepDetectorConfig,
-                 t_start: float = 0.0, imu_rate_hz: float = 200.0, need_imu: bool = True):
+                 t_start: float = 0.0, imu_rate_hz: float = 200.0, need_imu: bool = True,
+                 mag_offset: np.ndarray | None = None):
         self.anchors, self.rate = anchors, rate_hz
         self.t_start = t_start
         self.k = 1
-        self.att = StreamingAttitude(att_cfg) if need_imu else None
+        self.att = StreamingAttitude(att_cfg, mag_offset=mag_offset) if need_imu else None
         self.det = StepDetector(det_cfg, imu_rate_hz)
         self.win = Window()
         self.heading = 0.0
