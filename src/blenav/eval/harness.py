@@ -58,6 +58,18 @@ def build_methods(cfg: DictConfig) -> dict[str, Method]:
     return out
 
 
+def check_session_in_building(s) -> None:
+    """A session whose ground truth lies mostly off its building's floor plan names the wrong building."""
+    gt = s.groundtruth
+    x0, x1, y0, y1 = s.floor.extent
+    xy = gt[["x", "y"]].to_numpy()
+    off = np.mean((xy[:, 0] < x0) | (xy[:, 0] > x1) | (xy[:, 1] < y0) | (xy[:, 1] > y1))
+    if off > 0.5:
+        raise EvalError(f"session {s.id}: {off:.0%} of its ground truth lies outside the floor plan of building "
+                        f"{s.building.id} (x {x0:.1f}..{x1:.1f}, y {y0:.1f}..{y1:.1f} m); is 'building' in its "
+                        f"session.yaml right?")
+
+
 def select_sessions(ds: Dataset, ids) -> list:
     if ids:
         wanted = [str(i) for i in (ids if not isinstance(ids, str) else ids.split(","))]
@@ -72,7 +84,8 @@ def select_sessions(ds: Dataset, ids) -> list:
     sessions = list(ds.sessions(labelled=True))
     if not sessions:
         raise EvalError(f"{ds.root} has no labelled session to evaluate")
-    return sessions
+    moving = [s for s in sessions if s.carrier != "static"]
+    return moving or sessions  # static surveys are calibration data unless they are all there is
 
 
 def calibrate(methods: dict[str, Method], ds: Dataset, sessions: list, spec) -> dict | None:
@@ -120,13 +133,19 @@ def orientation_rmse(res: RunResult, session) -> float | None:
 
 
 def evaluate(cfg: DictConfig) -> dict:
-    """Run the experiment of ``cfg`` and write its outputs; returns the results dictionary."""
+    """Run the experiment of ``cfg`` and write its outputs; returns the results dictionary.
+
+    Sessions: ``cfg.sessions`` or, by default, every labelled session that is not a static survey
+    (surveys calibrate the path-loss model); a dataset of surveys only is evaluated on its surveys.
+    """
     try:
         ds = Dataset.open(cfg.data)
     except DatasetError as exc:
         raise EvalError(f"cannot open dataset {cfg.data}: {exc}") from exc
     methods = build_methods(cfg)
     sessions = select_sessions(ds, cfg.get("sessions"))
+    for s in sessions:
+        check_session_in_building(s)
     runs = int(cfg.runs)
     if runs < 1:
         raise EvalError(f"runs must be >= 1, got {runs}")

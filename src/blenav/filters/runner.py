@@ -133,6 +133,9 @@ def run_session(method: Method, session: Session, n_runs: int, seed: int,
         raise MissingStream(f"building {session.building.id} has no BLE anchors for the measurement models of "
                             f"{method.name}")
     arrays = SessionArrays.from_session(session, anchors)
+    if method.measurements and len(arrays.rssi_t) == 0:
+        raise MissingStream("no usable BLE readings (rssi.csv absent or empty, or every row names an anchor "
+                            "that is not a BLE anchor of the building)")
     if method.needs_imu and len(arrays.imu_t) == 0:
         raise MissingStream(f"no IMU data, which the {type(method.motion).__name__} motion model of {method.name} needs")
     offset = magnetometer_offset(arrays, method)

@@ -1,0 +1,134 @@
+"""blenav-eval: results schema, CLI, real data, and clear errors on bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+from hydra import compose, initialize_config_dir
+from PIL import Image
+
+from blenav.cli.eval import _lists_from_commas
+from blenav.cli.sim import run as sim_run
+from blenav.data import Dataset
+from blenav.eval.harness import EvalError, evaluate
+from blenav.importers import run_import
+from blenav.paths import conf_dir
+
+PAPER_KEYS = {"frontend_000": {"RW", "DR", "IMU"}, "mapfusion_002": {"PF-PL", "PF-PL+MAP", "PF-PS", "PF-PS+MAP"}}
+
+
+def cfg(*overrides):
+    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+        return compose(config_name="eval", overrides=["progress=false", *overrides])
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ev") / "small"
+    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+        sim_run(compose(config_name="sim", overrides=["sim=small", "seed=4", f"out={out}", "duration_s=25", "sessions=2",
+                                                      "progress=false", "sim.carriers=[pedestrian]"]))
+    return out
+
+
+@pytest.mark.parametrize("experiment", sorted(PAPER_KEYS))
+def test_results_schema_and_files(small, tmp_path, experiment):
+    out = tmp_path / experiment
+    res = evaluate(cfg(f"experiment={experiment}", f"data={small}", "runs=3", f"out={out}", "init_s=5"))
+    on_disk = json.loads((out / "results.json").read_text())
+    assert on_disk["experiment"] == experiment and on_disk["runs"] == 3
+    assert set(on_disk["methods"]) == PAPER_KEYS[experiment] == set(res["methods"])
+    for name, m in on_disk["methods"].items():
+        assert set(m["rmse_m"]) >= {"mean", "std", "stderr", "ci99"}
+        assert set(m["error_m"]) == {"mean", "median", "p75", "p90", "max"}
+        for k in ("ate_m", "ee_m", "wall_s", "realtime_factor"):
+            assert np.isfinite(m[k]), (name, k)
+        assert m["rmse_m"]["ci99"][0] <= m["rmse_m"]["mean"] <= m["rmse_m"]["ci99"][1]
+        assert set(m["per_session"]) == set(on_disk["sessions"])
+        assert m["init_error_m"] is not None  # global localization reported separately
+    if experiment == "frontend_000":
+        assert "orientation_rmse_deg" in on_disk["methods"]["IMU"]
+    md = (out / "results.md").read_text()
+    assert all(k in md for k in PAPER_KEYS[experiment])
+    for png in ("error_cdf.png", "rmse_box.png", "error_over_time.png", "trajectories.png"):
+        with Image.open(out / png) as im:
+            assert im.size[0] > 500
+
+
+def test_comma_sessions_become_a_list():
+    assert _lists_from_commas(["sessions=a,b", "runs=3", "sessions=[c]"]) == ["sessions=[a,b]", "runs=3", "sessions=[c]"]
+
+
+def test_cli_smoke(small, tmp_path):
+    ds = Dataset.open(small)
+    sid = ds.session_ids[0]
+    out = tmp_path / "cli"
+    cmd = [sys.executable, "-m", "blenav.cli.eval", "experiment=mapfusion_002", f"data={small}", "runs=2", f"out={out}",
+           f"sessions={sid},{ds.session_ids[1]}", "progress=false", "plots=false"]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert "PF-PS+MAP" in p.stdout
+    assert json.loads((out / "results.json").read_text())["sessions"] == [sid, ds.session_ids[1]]
+    bad = subprocess.run([sys.executable, "-m", "blenav.cli.eval", "experiment=mapfusion_002", f"data={tmp_path / 'nope'}",
+                          "runs=1", f"out={out}"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 1 and "cannot open dataset" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def _copy(small, tmp_path, name):
+    root = tmp_path / name
+    shutil.copytree(small, root)
+    return root
+
+
+def test_session_without_usable_ble_is_skipped_and_said(small, tmp_path):
+    root = _copy(small, tmp_path, "noble")
+    sid = Dataset.open(root).session_ids[0]
+    r = pd.read_csv(root / "sessions" / sid / "rssi.csv")
+    r["anchor_id"] = "not-a-beacon"  # every row names an unknown anchor: dropped with a warning
+    r.to_csv(root / "sessions" / sid / "rssi.csv", index=False)
+    res = evaluate(cfg("experiment=mapfusion_002", f"data={root}", "runs=2", f"out={tmp_path / 'o'}", "plots=false"))
+    m = res["methods"]["PF-PS"]
+    assert sid in m["skipped"] and "no usable BLE" in m["skipped"][sid]
+    assert sid not in m["per_session"]
+
+
+def test_floor_without_free_space_is_a_clear_error(small, tmp_path):
+    root = _copy(small, tmp_path, "nofree")
+    b = next((root / "buildings").iterdir())
+    img = next(b.glob("*.png"))
+    Image.fromarray(np.zeros_like(np.asarray(Image.open(img)))).save(img)
+    with pytest.raises(EvalError, match="no free space"):
+        evaluate(cfg("experiment=mapfusion_002", f"data={root}", "runs=1", f"out={tmp_path / 'o'}", "plots=false"))
+
+
+def test_session_in_the_wrong_building_is_a_clear_error(small, tmp_path):
+    root = _copy(small, tmp_path, "wrong")
+    sid = Dataset.open(root).session_ids[0]
+    gt = pd.read_csv(root / "sessions" / sid / "groundtruth.csv")
+    gt["x"] += 500.0
+    gt.to_csv(root / "sessions" / sid / "groundtruth.csv", index=False)
+    with pytest.raises(EvalError, match="outside the floor plan"):
+        evaluate(cfg("experiment=mapfusion_002", f"data={root}", "runs=1", f"out={tmp_path / 'o'}", "plots=false"))
+
+
+def test_unknown_session_and_unlabelled_session_are_named(small, tmp_path):
+    with pytest.raises(EvalError, match="not in"):
+        evaluate(cfg("experiment=mapfusion_002", f"data={small}", "runs=1", "sessions=[zzz]", f"out={tmp_path}"))
+
+
+@pytest.mark.realdata
+def test_runs_on_an_imported_real_dataset(raw_dir, tmp_path):
+    """A dataset the harness never saw: fixed receivers, no IMU, no rooms or routes (derived, and said)."""
+    data = tmp_path / "danis"
+    run_import("danis_ble_tracks", raw_dir / "danis_ble_tracks", data)
+    res = evaluate(cfg("experiment=frontend_000", f"data={data}", "runs=2", "sessions=[straight_01]", f"out={tmp_path / 'o'}",
+                       "plots=false"))
+    assert np.isfinite(res["methods"]["RW"]["rmse_m"]["mean"])
+    assert "skipped" in res["methods"]["IMU"]  # no IMU in this recording
+    assert any("derived" in n for n in res["methods"]["RW"]["map_notes"])
