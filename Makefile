@@ -19,10 +19,12 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/blenav-sim sim=office_45x55 seed=0 out=$(DEMO) duration_s=300 sessions=3 overwrite=true
-	$(BIN)/blenav-validate $(DEMO)
-	$(BIN)/blenav-plot $(DEMO) --out $(DEMO)/report
-	@echo "demo report: $(DEMO)/report"
+	$(BIN)/blenav-sim sim=office_45x55 seed=0 out=$(DEMO)/dataset duration_s=240 sessions=3 \
+	    'sim.carriers=[pedestrian,robot,static]' overwrite=true
+	$(BIN)/blenav-validate $(DEMO)/dataset
+	$(BIN)/blenav-plot $(DEMO)/dataset --out $(DEMO)/report
+	$(BIN)/blenav-eval experiment=mapfusion_002 data=$(DEMO)/dataset runs=20 out=$(DEMO)/report/mapfusion_002
+	@echo "demo report: $(DEMO)/report (dataset plots, results.md and plots of the localization comparison)"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -35,6 +37,8 @@ test-all: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/sim_speed.py
+	$(BIN)/python benchmarks/filter_speed.py
+	$(BIN)/python benchmarks/map_index.py
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md
