@@ -1,14 +1,22 @@
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import pytest
 
 from helpers import RAW, make_tiny_dataset
 
 
+@pytest.fixture(scope="session")
+def _tiny_template(tmp_path_factory):
+    return make_tiny_dataset(tmp_path_factory.mktemp("template") / "tiny")
+
+
 @pytest.fixture
-def tiny_dataset(tmp_path):
-    """A small valid dataset written by the project's writer (fresh per test, so tests may corrupt it)."""
-    return make_tiny_dataset(tmp_path / "tiny")
+def tiny_dataset(_tiny_template, tmp_path):
+    """A small valid dataset written by the project's writer, copied fresh per test (tests may corrupt it)."""
+    return Path(shutil.copytree(_tiny_template, tmp_path / "tiny"))
 
 
 @pytest.fixture

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -18,7 +17,7 @@ from blenav.cli.plot import main as plot_main
 from blenav.data import Dataset
 from blenav.data.writer import write_building, write_session
 from blenav.radio_stats import anchor_positions, fit_path_loss, path_loss_rssi, rssi_distance_pairs
-from helpers import make_tiny_dataset, tiny_grid
+from helpers import tiny_grid
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "blenav"
 
@@ -27,15 +26,6 @@ TINY_ANCHORS = {"b1": (1.0, 1.0, 2.5), "b2": (9.0, 1.0, 2.5), "b3": (1.0, 7.0, 2
                 "ap1": (5.0, 4.0, 2.5)}
 
 
-@pytest.fixture(scope="module")
-def _tiny_template(tmp_path_factory):
-    return make_tiny_dataset(tmp_path_factory.mktemp("template") / "tiny")
-
-
-@pytest.fixture
-def tiny_dataset(_tiny_template, tmp_path):
-    """Like conftest's fixture (a fresh valid tiny dataset per test), copied from one written per module."""
-    return Path(shutil.copytree(_tiny_template, tmp_path / "tiny"))
 
 
 def add_true_anchor_positions(root: Path, dx: dict[str, tuple[float, float, float]]) -> None:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -22,21 +21,12 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from blenav.data import FREE, OCCUPIED, UNKNOWN, Dataset, DatasetError, Floor, validate
-from helpers import make_tiny_dataset
+
 
 S = "sessions/walk0"
 B = "buildings/house"
 
 
-@pytest.fixture(scope="module")
-def _tiny_template(tmp_path_factory):
-    return make_tiny_dataset(tmp_path_factory.mktemp("template") / "tiny")
-
-
-@pytest.fixture
-def tiny_dataset(_tiny_template, tmp_path):
-    """Like conftest's fixture (a fresh valid tiny dataset per test), copied from one written per module."""
-    return Path(shutil.copytree(_tiny_template, tmp_path / "tiny"))
 
 
 def set_cell(path: Path, line: int, column: str, value: str) -> None:

@@ -24,7 +24,7 @@ from PIL import Image
 from blenav.cli.validate import main as validate_main
 from blenav.data import validate
 from blenav.data.schema import SESSION_KEYS
-from helpers import make_tiny_dataset
+
 
 S = "sessions/walk0"
 B = "buildings/house"
@@ -33,15 +33,6 @@ B = "buildings/house"
 # --------------------------------------------------------------------------- helpers
 
 
-@pytest.fixture(scope="module")
-def _tiny_template(tmp_path_factory):
-    return make_tiny_dataset(tmp_path_factory.mktemp("template") / "tiny")
-
-
-@pytest.fixture
-def tiny_dataset(_tiny_template, tmp_path):
-    """Like conftest's fixture (a fresh valid tiny dataset per test), copied from one written per module."""
-    return Path(shutil.copytree(_tiny_template, tmp_path / "tiny"))
 
 
 def rel(root: Path, issue) -> str:

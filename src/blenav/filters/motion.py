@@ -102,14 +102,10 @@ class DeadReckoning(_HeadingOffset):
     needs = ("heading",)
 
     def propagate(self, x, ctrl, dt, rng):
-        out = x.copy()
         psi, off = self._heading(x, ctrl, dt, rng)
         step = self.increment_m * np.stack([np.cos(psi), np.sin(psi)], axis=-1)
         noise = dt * self.sigma_v * rng.standard_normal(x.shape[:-1] + (2,))
-        out[..., :2] = x[..., :2] + step + noise
-        out[..., 2:4] = (step + noise) / dt
-        out[..., 4] = off
-        return out
+        return _moved(x, step + noise, dt, off)
 
 
 @dataclass
@@ -174,15 +170,11 @@ class OdometryIncrement(MotionModel):
 
     def propagate(self, x, ctrl, dt, rng):
         d = np.asarray(ctrl["odo"], dtype=float)
-        out = x.copy()
         th = x[..., 4] + self.sigma_theta * rng.standard_normal(x.shape[:-1])
         c, s = np.cos(th), np.sin(th)
         step = np.stack([c * d[0] - s * d[1], s * d[0] + c * d[1]], axis=-1)
         eta = np.sqrt(self.sigma2_per_s * dt) * rng.standard_normal(x.shape[:-1] + (2,))
-        out[..., :2] = x[..., :2] + step + eta
-        out[..., 2:4] = (step + eta) / dt
-        out[..., 4] = th
-        return out
+        return _moved(x, step + eta, dt, th)
 
 
 @dataclass
@@ -205,18 +197,22 @@ class Pdr(_HeadingOffset):
     def propagate(self, x, ctrl, dt, rng):
         n = float(ctrl["steps"])
         shape = x.shape[:-1]
-        out = x.copy()
         psi0, off = self._heading(x, ctrl, dt, rng)
         move = np.zeros(shape + (2,))
         if n > 0:
             L = n * (self.step_length + self.sigma_length * rng.standard_normal(shape))
             psi = psi0 + self.sigma_heading * rng.standard_normal(shape)
             move = np.stack([L * np.cos(psi), L * np.sin(psi)], axis=-1)
-        move = move + self.sigma_p * rng.standard_normal(shape + (2,))
-        out[..., :2] = x[..., :2] + move
-        out[..., 2:4] = move / dt
-        out[..., 4] = off
-        return out
+        return _moved(x, move + self.sigma_p * rng.standard_normal(shape + (2,)), dt, off)
+
+
+def _moved(x: np.ndarray, move: np.ndarray, dt: float, col4: np.ndarray) -> np.ndarray:
+    """New state: position += move (R, N, 2), velocity = move / dt, column 4 = col4."""
+    out = x.copy()
+    out[..., :2] = x[..., :2] + move
+    out[..., 2:4] = move / dt
+    out[..., 4] = col4
+    return out
 
 
 def _clip_speed(v: np.ndarray, vmax: float) -> np.ndarray:
