@@ -132,3 +132,15 @@ def test_runs_on_an_imported_real_dataset(raw_dir, tmp_path):
     assert np.isfinite(res["methods"]["RW"]["rmse_m"]["mean"])
     assert "skipped" in res["methods"]["IMU"]  # no IMU in this recording
     assert any("derived" in n for n in res["methods"]["RW"]["map_notes"])
+
+
+def test_calibration_sessions_are_fitted_on_and_not_scored(small, tmp_path):
+    ds = Dataset.open(small)
+    cal, other = ds.session_ids
+    res = evaluate(cfg("experiment=mapfusion_002", f"data={small}", "runs=2", f"calibration=[{cal}]",
+                       f"out={tmp_path}", "plots=false"))
+    assert res["calibration"]["sessions"] == [cal] and res["sessions"] == [other]
+    assert 1.0 < res["calibration"]["gamma"] < 4.0
+    none = evaluate(cfg("experiment=mapfusion_002", f"data={small}", "runs=2", "calibration=none",
+                        f"out={tmp_path / 'n'}", "plots=false"))
+    assert none["calibration"] is None and none["sessions"] == [cal, other]

@@ -70,7 +70,7 @@ def check_session_in_building(s) -> None:
                         f"session.yaml right?")
 
 
-def select_sessions(ds: Dataset, ids) -> list:
+def select_sessions(ds: Dataset, ids, exclude: set = frozenset()) -> list:
     if ids:
         wanted = [str(i) for i in (ids if not isinstance(ids, str) else ids.split(","))]
         unknown = [i for i in wanted if i not in ds.session_ids]
@@ -81,7 +81,7 @@ def select_sessions(ds: Dataset, ids) -> list:
         if unl:
             raise EvalError(f"sessions {unl} are unlabelled: they have no ground truth to score against")
         return sessions
-    sessions = list(ds.sessions(labelled=True))
+    sessions = [s for s in ds.sessions(labelled=True) if s.id not in exclude]  # calibration sessions are not scored
     if not sessions:
         raise EvalError(f"{ds.root} has no labelled session to evaluate")
     moving = [s for s in sessions if s.carrier != "static"]
@@ -106,8 +106,8 @@ def calibrate(methods: dict[str, Method], ds: Dataset, sessions: list, spec) -> 
             cal = sessions
             note = "no separate survey session: fitted on the evaluated sessions' own readings (2 parameters)"
     else:
-        cal = select_sessions(ds, list(spec))
-        note = "fitted on the sessions named by calibration"
+        cal = select_sessions(ds, [str(i) for i in spec])
+        note = f"fitted on session(s) {', '.join(str(i) for i in spec)} (named by calibration, not evaluated)"
     fit = fit_sessions(cal)
     for meth in methods.values():
         apply_fit(meth.measurements, fit)
@@ -136,20 +136,23 @@ def evaluate(cfg: DictConfig) -> dict:
     """Run the experiment of ``cfg`` and write its outputs; returns the results dictionary.
 
     Sessions: ``cfg.sessions`` or, by default, every labelled session that is not a static survey
-    (surveys calibrate the path-loss model); a dataset of surveys only is evaluated on its surveys.
+    (surveys calibrate the path-loss model) nor named by ``calibration``; a dataset of surveys only is
+    evaluated on its surveys.
     """
     try:
         ds = Dataset.open(cfg.data)
     except DatasetError as exc:
         raise EvalError(f"cannot open dataset {cfg.data}: {exc}") from exc
     methods = build_methods(cfg)
-    sessions = select_sessions(ds, cfg.get("sessions"))
+    cal_spec = cfg.get("calibration", "auto")
+    exclude = set(cal_spec) if not isinstance(cal_spec, str) and cal_spec is not None else set()
+    sessions = select_sessions(ds, cfg.get("sessions"), exclude=exclude)
     for s in sessions:
         check_session_in_building(s)
     runs = int(cfg.runs)
     if runs < 1:
         raise EvalError(f"runs must be >= 1, got {runs}")
-    calibration = calibrate(methods, ds, sessions, cfg.get("calibration", "auto"))
+    calibration = calibrate(methods, ds, sessions, cal_spec)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     progress = _progress(bool(cfg.get("progress", False)), len(methods) * len(sessions))
