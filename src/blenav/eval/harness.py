@@ -3,11 +3,14 @@
 Writes ``OUT/results.json`` (schema below), ``OUT/results.md`` (a table like the papers') and, unless
 ``plots=false``, PNG plots. ``results.json``::
 
-    {"experiment", "title", "dataset", "runs", "sessions": [...], "init_s",
+    {"experiment", "title", "dataset", "runs", "sessions": [...], "init_s", "seed", "calibration",
      "methods": {NAME: {"rmse_m": {"mean","std","stderr","ci99"}, "error_m": {"mean","median","p75","p90","max"},
                         "ate_m", "ee_m", "init_error_m", "orientation_rmse_deg" (when the method runs an AHRS
                         and the ground truth has orientation), "wall_s", "realtime_factor", "recoveries",
-                        "map_notes", "per_session": {SESSION_ID: {the same metrics for that session}}}}}
+                        "map_notes", "skipped" (sessions the method could not run, with the reason),
+                        "per_session": {SESSION_ID: {the same metrics for that session}}}}}
+
+A method that could run on no session is ``{"skipped": {SESSION_ID: reason}}`` only.
 
 All methods are built (and so checked) before the first run: a misconfigured method fails at once.
 """
@@ -160,7 +163,7 @@ def evaluate(cfg: DictConfig) -> dict:
     results = {"experiment": cfg.experiment.name, "title": cfg.experiment.get("title", ""), "dataset": str(ds.root),
                "runs": runs, "sessions": [s.id for s in sessions], "init_s": float(cfg.init_s), "seed": int(cfg.seed),
                "calibration": calibration, "methods": {}}
-    for mi, (name, method) in enumerate(methods.items()):
+    for name, method in methods.items():
         per, res_by = {}, {}
         wall = 0.0
         duration = 0.0
