@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism clean-demo
+.PHONY: install demo test test-slow test-all bench realism paper-tables clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -39,6 +39,20 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/sim_speed.py
 	$(BIN)/python benchmarks/filter_speed.py
 	$(BIN)/python benchmarks/map_index.py
+
+# The README's result tables: per preset, 5 sessions of 384 s with one phone model (as the papers), the
+# first walk calibrates the path-loss model and is not scored, then both experiments with 100 runs.
+PRESETS ?= office_45x55 campus_floor
+paper-tables: $(STAMP)
+	for P in $(PRESETS); do \
+	  $(BIN)/blenav-sim sim=$$P seed=1 out=data/$${P}_eval duration_s=384 sessions=5 'sim.receivers=[iphone-8]' \
+	      'sim.carriers=[pedestrian,pedestrian,robot,pedestrian,robot]' sim.unlabelled_every=0 overwrite=true progress=false && \
+	  CAL=$$(ls data/$${P}_eval/sessions | head -1) && \
+	  $(BIN)/blenav-eval experiment=mapfusion_002 data=data/$${P}_eval runs=100 calibration=[$$CAL] \
+	      out=data/results/$${P}_mapfusion_002 progress=false && \
+	  $(BIN)/blenav-eval experiment=frontend_000 data=data/$${P}_eval runs=100 calibration=[$$CAL] \
+	      out=data/results/$${P}_frontend_000 progress=false || exit 1; \
+	done
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md

@@ -4,8 +4,11 @@ The filter steps at ``rate_hz`` (000 samples its motion model at the BLE rate). 
 window (t_{k-1}, t_k], t_k = t_start + k / rate_hz. Per window (all causal, so that the streaming
 :class:`StepStream` and the batch :func:`session_steps` compute the very same numbers):
 
-* ``acc_w`` (2,): mean over the window's IMU samples of the horizontal gravity-compensated world
-  acceleration R a + g (000 eq. 6) with R from the AHRS (m/s^2);
+* ``acc_w`` (2,): horizontal gravity-compensated world acceleration R_t a_t + g (000 eq. 6) at the
+  window's last IMU sample t, with a_t the median of the last ``median_window`` accelerometer samples
+  (000's median prefilter) and R_t from the AHRS (m/s^2). Eq. 6 uses the current sample, not an
+  average: averaging over the window leaves mostly the gravity leak of small tilt errors, a constant
+  direction, and the proposal then only moves particles along it;
 * ``heading`` (rad): AHRS heading of the device's forward axis at the window's last IMU sample;
 * ``steps``: PDR steps detected in the window (:class:`StepDetector`, causal);
 * ``odo`` (2,): inertial-odometry displacement between the last odometry samples at or before
@@ -68,11 +71,12 @@ class Window:
 
 
 def window_step(win_acc: np.ndarray, win_q: np.ndarray, steps: int, odo_prev: np.ndarray, odo_now: np.ndarray,
-                rssi_idx: np.ndarray, rssi: np.ndarray, last_heading: float) -> tuple[dict, dict, float]:
+                rssi_idx: np.ndarray, rssi: np.ndarray, last_heading: float, median_window: int = 5
+                ) -> tuple[dict, dict, float]:
     """Controls and observations of one window (both paths call this)."""
     if len(win_acc):
-        aw = gravity_compensated_acc(win_q, win_acc)
-        acc_w = aw[:, :2].mean(axis=0)
+        a_t = np.median(win_acc[-median_window:], axis=0)
+        acc_w = gravity_compensated_acc(win_q[-1:], a_t[None, :])[0, :2]
         heading = float(yaw_of_device_forward(win_q[-1:])[0])
     else:
         acc_w, heading = np.zeros(2), last_heading
@@ -157,7 +161,7 @@ def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det
             wa, wq, n_steps = np.zeros((0, 3)), np.zeros((0, 4)), 0
         r = slice(bounds_rssi[k], bounds_rssi[k + 1])
         ctrl, obs, heading = window_step(wa, wq, n_steps, _odo_at(a.odo_t, a.odo, prev_t), _odo_at(a.odo_t, a.odo, t),
-                                         a.rssi_idx[r], a.rssi[r], heading)
+                                         a.rssi_idx[r], a.rssi[r], heading, att_cfg.median_window)
         out.append((float(t), ctrl, obs))
         prev_t = t
     return out, q
@@ -177,6 +181,7 @@ class StepStream:
         self.t_start = t_start
         self.k = 1
         self.att = StreamingAttitude(att_cfg, mag_offset=mag_offset) if need_imu else None
+        self.median_window = att_cfg.median_window
         self.det = StepDetector(det_cfg, imu_rate_hz)
         self.win = Window()
         self.heading = 0.0
@@ -196,7 +201,8 @@ class StepStream:
         w = self.win
         ctrl, obs, self.heading = window_step(
             np.asarray(w.acc).reshape(-1, 3), np.asarray(w.q).reshape(-1, 4), w.steps, _odo_at(ot, oo, self.prev_t),
-            _odo_at(ot, oo, t), np.asarray(w.rssi_idx, dtype=int), np.asarray(w.rssi, dtype=float), self.heading)
+            _odo_at(ot, oo, t), np.asarray(w.rssi_idx, dtype=int), np.asarray(w.rssi, dtype=float), self.heading,
+            self.median_window)
         self.win = Window()
         self.prev_t = t
         self.k += 1
