@@ -69,7 +69,7 @@ class ParticleFilter:
     * ``motion``: ``init_state(xy, rng)``, ``propagate(x, ctrl, dt, rng)``, ``state_dim``;
     * ``measurements``: list of objects with ``log_likelihood(xy, obs) -> (R, N)`` and ``n_obs(obs)``;
     * ``initializer``: ``sample(rng, R, N) -> (R, N, 2)`` (uniform over free space, or map-aware);
-    * ``conditioner`` (optional): ``condition(xy, rng) -> xy`` applied to resampled particles;
+    * ``conditioner`` (optional): ``condition(xy, rng, mask) -> xy`` applied to the new copies made by resampling;
     * ``walls`` (optional): ``crossed(xy_prev, xy_new) -> bool (R, N)``.
     """
 
@@ -145,7 +145,9 @@ class ParticleFilter:
         self.x[runs] = np.take_along_axis(self.x[runs], idx[..., None], axis=1)
         self.logw[runs] = -np.log(self.N)
         if self.conditioner is not None:
-            self.x[runs, :, :2] = self.conditioner.condition(self.x[runs, :, :2], self.rng)
+            # Patel et al. eq. 4: the *new* particles (the extra copies that replace the dropped ones) are
+            # generated around the strong particle and conditioned on the map; one copy of each survivor stays
+            self.x[runs, :, :2] = self.conditioner.condition(self.x[runs, :, :2], self.rng, mask=_duplicates(idx))
 
     def _recover(self, t: float, loglik: np.ndarray, n_obs: int) -> None:
         """Re-initialise runs whose weights vanished or whose cloud no longer explains the data."""
@@ -174,6 +176,17 @@ class ParticleFilter:
                                      "all weights vanished" if was_dead else "measurements unexplained"))
         self._last_local[redo[~go_global]] = t
         self._bad_since[redo] = np.nan
+
+
+def _duplicates(idx: np.ndarray) -> np.ndarray:
+    """(R, N) bool: True for every copy of an ancestor index after its first, row by row."""
+    order = np.argsort(idx, axis=1, kind="stable")
+    srt = np.take_along_axis(idx, order, axis=1)
+    dup_sorted = np.zeros_like(srt, dtype=bool)
+    dup_sorted[:, 1:] = srt[:, 1:] == srt[:, :-1]
+    dup = np.empty_like(dup_sorted)
+    np.put_along_axis(dup, order, dup_sorted, axis=1)
+    return dup
 
 
 def _weighted_median(xy: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -74,11 +74,15 @@ class _PathLoss:
         return np.full(len(tx), self.a_x)
 
     def _distances(self, xy: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """(R, N, M) 3-D distances (m) from particles to the anchors of the step's packets."""
-        l = self.anchors.xyz[idx]  # (M, 3)
-        dx = xy[..., 0:1] - l[:, 0]
-        dy = xy[..., 1:2] - l[:, 1]
-        dz2 = (self.device_z - l[:, 2]) ** 2
+        """(R, N, M) 3-D distances (m) from particles to the anchors of the step's packets.
+
+        float32: the (R, N, M) arrays are the filter's largest; centimetre resolution is plenty for
+        residuals of metres (PF-PL) or dB (PF-PS), and it halves their time."""
+        l = self.anchors.xyz[idx].astype(np.float32)  # (M, 3)
+        xy32 = xy.astype(np.float32)
+        dx = xy32[..., 0:1] - l[:, 0]
+        dy = xy32[..., 1:2] - l[:, 1]
+        dz2 = (np.float32(self.device_z) - l[:, 2]) ** 2
         return np.sqrt(dx * dx + dy * dy + dz2)
 
     def n_obs(self, obs: dict) -> int:
@@ -108,8 +112,8 @@ class PathLossRange(_PathLoss):
         idx, r = self.ranges(obs)
         if len(idx) == 0:
             return np.zeros(xy.shape[:-1])
-        res = (self._distances(xy, idx) - r) / self.sigma_n
-        return -0.5 * np.einsum("rnm,rnm->rn", res, res)
+        res = (self._distances(xy, idx) - r.astype(np.float32)) * np.float32(1.0 / self.sigma_n)
+        return -0.5 * np.einsum("rnm,rnm->rn", res, res).astype(np.float64)
 
 
 @dataclass
@@ -123,10 +127,11 @@ class RssiDomain(_PathLoss):
         idx, rssi = obs["rssi_idx"], obs["rssi"]
         if len(idx) == 0:
             return np.zeros(xy.shape[:-1])
-        d = np.maximum(self._distances(xy, idx), self.d_min)
-        expected = self._ax()[idx] - 10.0 * self.gamma * np.log10(d / self.d0)
-        res = (rssi - expected) / self.sigma_s
-        return -0.5 * np.einsum("rnm,rnm->rn", res, res)
+        d = np.maximum(self._distances(xy, idx), np.float32(self.d_min))
+        # residual rssi - (a_X - 10 gamma log10(d / d0)), rearranged to one log per element
+        base = (rssi - self._ax()[idx] - 10.0 * self.gamma * np.log10(self.d0)).astype(np.float32)
+        res = (base + np.float32(10.0 * self.gamma) * np.log10(d)) * np.float32(1.0 / self.sigma_s)
+        return -0.5 * np.einsum("rnm,rnm->rn", res, res).astype(np.float64)
 
 
 MEASUREMENT_MODELS = {"pl": PathLossRange, "ps": RssiDomain}

@@ -86,9 +86,9 @@ class _Conditioner:
     def __init__(self, geom: MapGeometry, spec: MapSpec):
         self.geom, self.spec = geom, spec
 
-    def condition(self, xy, rng):
+    def condition(self, xy, rng, mask=None):
         return self.geom.condition(xy, rng, sigma=self.spec.sigma, max_edge_dist=self.spec.max_edge_dist,
-                                   shrink=self.spec.shrink)
+                                   shrink=self.spec.shrink, mask=mask)
 
 
 @dataclass
