@@ -144,3 +144,25 @@ def test_calibration_sessions_are_fitted_on_and_not_scored(small, tmp_path):
     none = evaluate(cfg("experiment=mapfusion_002", f"data={small}", "runs=2", "calibration=none",
                         f"out={tmp_path / 'n'}", "plots=false"))
     assert none["calibration"] is None and none["sessions"] == [cal, other]
+
+
+def test_results_md_names_inverted_orderings(tmp_path):
+    from blenav.eval.report import write_markdown
+
+    def m(rmse, orient=None):
+        d = {"rmse_m": {"mean": rmse, "std": 0.1, "stderr": 0.01, "ci99": [rmse - 0.03, rmse + 0.03]},
+             "error_m": {"mean": rmse, "median": rmse, "p75": rmse, "p90": rmse, "max": rmse}, "ate_m": rmse,
+             "ee_m": rmse, "wall_s": 1.0, "realtime_factor": 10.0, "per_session": {"s": {"rmse_m": {"mean": rmse}}}}
+        if orient is not None:
+            d["orientation_rmse_deg"] = orient
+        return d
+
+    res = {"experiment": "frontend_000", "title": "t", "dataset": "d", "runs": 2, "sessions": ["s"], "init_s": 10,
+           "methods": {"RW": m(2.0), "DR": m(9.0, 18.0), "IMU": m(2.2, 18.0)}}
+    write_markdown(tmp_path / "r.md", res, cfg("experiment=frontend_000", "data=x"))
+    text = (tmp_path / "r.md").read_text()
+    assert "expected RMSE order IMU < RW < DR; measured RW < IMU < DR" in text
+    assert "Inverted: IMU (2.20 m) is worse than RW (2.00 m)" in text and "18.0 deg" in text
+    res["methods"]["IMU"] = m(1.9, 2.0)
+    write_markdown(tmp_path / "r.md", res, cfg("experiment=frontend_000", "data=x"))
+    assert "The ordering holds." in (tmp_path / "r.md").read_text()
