@@ -1,0 +1,115 @@
+"""RSSI windows for the learned BLE localizer (Roy, section 3.1.3).
+
+A window is the matrix S in R_{>=0}^{B x H}: B beacons in one fixed order (stored with a model) by H
+time steps of ``1 / step_hz`` seconds (H = 5 at 1 Hz in the thesis). Each entry is the mean, on the
+thesis' non-negative scale u = rssi_dBm + ``offset_db`` (clipped at 0), of the packets of that beacon in
+that step; a beacon not heard in the step is 0 ("not heard = 0"). The label of the window ending at step
+k is the ground-truth position (x, y, metres, world frame) at the end of step k.
+
+The scale: Table 3.2 of the thesis reports about 30 for a beacon at 1 m; with the -70 dBm 1 m level of
+our receiver model that is u = rssi + 100 (:data:`blenav.sim.receivers.THESIS_OFFSET_DB`). Readings below
+-``offset_db`` dBm would be negative and are clipped to a small positive value (``floor_u``), not 0, so
+that a weak packet is never confused with none.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from blenav.sim.receivers import THESIS_OFFSET_DB
+
+
+@dataclass
+class WindowConfig:
+    history: int = 5  # H
+    step_hz: float = 1.0
+    offset_db: float = THESIS_OFFSET_DB
+    floor_u: float = 0.5  # value of a packet weaker than -offset_db dBm (heard, but barely)
+
+
+@dataclass
+class Windows:
+    """S (K, B, H) float32 on the thesis scale, labels xy (K, 2) m (NaN when unlabelled), t (K,) s (window ends)."""
+
+    S: np.ndarray
+    xy: np.ndarray
+    t: np.ndarray
+    beacons: list[str]
+    device_model: str
+    session: str
+
+
+def beacon_order(building) -> list[str]:
+    """The building's BLE anchor ids, sorted: the fixed row order of S stored with a model."""
+    a = building.anchors
+    return sorted(a.loc[a["kind"] == "ble", "anchor_id"].astype(str).tolist())
+
+
+def rssi_to_scale(rssi_dbm: np.ndarray, cfg: WindowConfig) -> np.ndarray:
+    """dBm -> thesis scale u = rssi + offset, at least ``floor_u`` for any received packet."""
+    return np.maximum(np.asarray(rssi_dbm, float) + cfg.offset_db, cfg.floor_u)
+
+
+def session_windows(session, beacons: list[str], cfg: WindowConfig = WindowConfig()) -> Windows:
+    """Every complete window of a session (steps from the session's first RSSI time)."""
+    r = session.rssi
+    B, H = len(beacons), cfg.history
+    empty = Windows(np.zeros((0, B, H), np.float32), np.zeros((0, 2)), np.zeros(0), beacons, session.device_model,
+                    session.id)
+    if len(r) == 0:
+        return empty
+    col = {b: i for i, b in enumerate(beacons)}
+    j = r["anchor_id"].astype(str).map(col)
+    keep = j.notna().to_numpy()
+    if not keep.any():
+        return empty
+    t = r["t"].to_numpy(float)[keep]
+    j = j.to_numpy()[keep].astype(int)
+    t0 = float(r["t"].iloc[0])
+    k = np.floor((t - t0) * cfg.step_hz).astype(int)
+    K = int(k.max()) + 1
+    sums = np.zeros((K, B))
+    counts = np.zeros((K, B))
+    np.add.at(sums, (k, j), rssi_to_scale(r["rssi"].to_numpy(float)[keep], cfg))
+    np.add.at(counts, (k, j), 1.0)
+    steps = np.divide(sums, counts, out=np.zeros_like(sums), where=counts > 0)  # (K, B): 0 = not heard
+    if K < H:
+        return empty
+    S = sliding_window_view(steps, H, axis=0).astype(np.float32)  # (K-H+1, B, H), oldest step first
+    t_end = t0 + (np.arange(H - 1, K) + 1) / cfg.step_hz
+    xy = np.full((len(t_end), 2), np.nan)
+    if session.labelled and len(session.groundtruth):
+        gt = session.groundtruth
+        inside = (t_end >= gt["t"].iloc[0]) & (t_end <= gt["t"].iloc[-1])
+        xy[inside] = session.positions_at(t_end[inside])
+    return Windows(np.ascontiguousarray(S), xy, t_end, beacons, session.device_model, session.id)
+
+
+def split_by_device(sessions, train_devices=None, test_devices=None, unlabelled_devices=None) -> dict[str, list]:
+    """Sessions grouped as 'train' / 'test' / 'unlabelled' by their ``device_model`` (session.yaml).
+
+    A device named in two groups is an error; ``None`` for train means every device not named elsewhere.
+    """
+    groups = {"train": train_devices, "test": test_devices, "unlabelled": unlabelled_devices}
+    named = [d for v in groups.values() if v for d in v]
+    dup = sorted({d for d in named if named.count(d) > 1})
+    if dup:
+        raise ValueError(f"device model(s) {dup} are in more than one of train/test/unlabelled devices")
+    out = {"train": [], "test": [], "unlabelled": []}
+    known = {s.device_model for s in sessions}
+    for name, devs in groups.items():
+        missing = sorted(set(devs or []) - known)
+        if missing:
+            raise ValueError(f"{name} devices {missing} have no session; device models here: {sorted(known)}")
+    for s in sessions:
+        d = s.device_model
+        if unlabelled_devices and d in unlabelled_devices:
+            out["unlabelled"].append(s)
+        elif test_devices and d in test_devices:
+            out["test"].append(s)
+        elif train_devices is None or d in train_devices:
+            out["train"].append(s)
+    return out

@@ -1,0 +1,58 @@
+"""RSSI windows for the learned localizer (Roy, section 3.1.3)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blenav.data import Dataset
+from blenav.learn.windows import WindowConfig, beacon_order, rssi_to_scale, session_windows, split_by_device
+
+
+def test_windows_match_a_hand_computation(tiny_dataset):
+    ds = Dataset.open(tiny_dataset)
+    s = ds.session("walk0")
+    beacons = beacon_order(s.building)
+    assert beacons == ["b1", "b2", "b3", "b4"]  # BLE anchors only, sorted; the RTT AP is not a row
+    w = session_windows(s, beacons, WindowConfig(history=5, step_hz=1.0))
+    r = s.rssi
+    K = int(np.floor(r["t"].max())) + 1
+    assert w.S.shape == (K - 4, 4, 5) and w.S.dtype == np.float32
+    # entry (window 3, beacon b2, last step) = mean of b2's packets in [7, 8) s on the +100 scale
+    sel = r[(r["anchor_id"] == "b2") & (r["t"] >= 7) & (r["t"] < 8)]["rssi"]
+    assert w.S[3, 1, 4] == pytest.approx(float(np.mean(sel + 100)), rel=1e-6)
+    np.testing.assert_allclose(w.t[:2], [5.0, 6.0])
+    np.testing.assert_allclose(w.xy[0], s.positions_at(np.array([5.0]))[0])
+
+
+def test_not_heard_is_zero_and_weak_packets_are_not(tiny_dataset):
+    ds = Dataset.open(tiny_dataset)
+    s = ds.session("walk0")
+    r = s.rssi.copy()
+    r.loc[r["anchor_id"] == "b4", "rssi"] = -120.0  # heard, but below -100 dBm
+    r = r[~((r["anchor_id"] == "b1") & (r["t"] < 3))].reset_index(drop=True)  # b1 silent for 3 s
+    s.__dict__["_streams"]["rssi"] = r  # the session's cached stream, as if read from disk
+    w = session_windows(s, beacon_order(s.building))
+    assert (w.S[0, 0, :3] == 0).all() and (w.S[0, 0, 3:] > 0).all()
+    assert (w.S[:, 3, :] == WindowConfig().floor_u).all()
+    assert rssi_to_scale(np.array([-70.0]), WindowConfig())[0] == pytest.approx(30.0)  # Table 3.2's 1 m level
+
+
+def test_unlabelled_session_has_nan_labels(tiny_dataset):
+    ds = Dataset.open(tiny_dataset)
+    s = ds.session("walk0")
+    s.meta["labelled"] = False
+    s.__dict__.pop("_streams", None)
+    w = session_windows(s, beacon_order(s.building))
+    assert len(w.S) > 0 and np.isnan(w.xy).all()
+
+
+def test_split_by_device_and_clear_errors(tiny_dataset):
+    ds = Dataset.open(tiny_dataset)
+    sessions = list(ds.sessions())
+    assert [s.id for s in split_by_device(sessions, test_devices=["test-phone"])["test"]] == ["walk0"]
+    assert split_by_device(sessions)["train"] == sessions
+    with pytest.raises(ValueError, match="more than one"):
+        split_by_device(sessions, train_devices=["test-phone"], test_devices=["test-phone"])
+    with pytest.raises(ValueError, match="no session"):
+        split_by_device(sessions, test_devices=["nokia"])
