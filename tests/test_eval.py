@@ -166,3 +166,9 @@ def test_results_md_names_inverted_orderings(tmp_path):
     res["methods"]["IMU"] = m(1.9, 2.0)
     write_markdown(tmp_path / "r.md", res, cfg("experiment=frontend_000", "data=x"))
     assert "The ordering holds." in (tmp_path / "r.md").read_text()
+
+
+def test_cli_without_data_says_what_to_give():
+    p = subprocess.run([sys.executable, "-m", "blenav.cli.eval", "experiment=frontend_000"], capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 1 and "data=DIR" in p.stderr and "Traceback" not in p.stderr

@@ -29,8 +29,14 @@ def _lists_from_commas(argv: list[str]) -> list[str]:
 
 @hydra.main(config_path=str(conf_dir()), config_name="eval", version_base="1.3")
 def _main(cfg: DictConfig) -> None:
+    from omegaconf import OmegaConf
+
     from blenav.eval.harness import EvalError, evaluate
 
+    if OmegaConf.is_missing(cfg, "data"):
+        print("blenav-eval: error: name the dataset to evaluate on: data=DIR (a format-v1 dataset folder)",
+              file=sys.stderr)
+        sys.exit(1)
     try:
         res = evaluate(cfg)
     except EvalError as exc:
