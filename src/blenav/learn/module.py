@@ -1,0 +1,76 @@
+"""The LightningModule of the cross-phone localizer: wraps built networks, one step for train/val/test.
+
+Batches are dicts: ``S`` (b, B, H) windows on the normalised scale u / 100 (see
+:mod:`blenav.learn.losses`), ``xy`` (b, 2) metres (NaN rows for unlabelled windows), optionally
+``S_prev`` (b, B, H) the window one step earlier for the position-smoothness loss. With ``transnet`` None
+the module is plain LocNet (scenario 1 and the baselines 1/2 of Roy). Loss weights follow eq. 3.6;
+``M`` (B, B) is the known brand's statistics matrix (eq. 3.1) when the SSL term is used.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import lightning as L
+import torch
+
+from .losses import localization_loss, position_smoothness_loss, ssl_loss, temporal_smoothness_loss, total_loss
+
+
+class CrossPhoneModule(L.LightningModule):
+    def __init__(self, locnet: torch.nn.Module, transnet: torch.nn.Module | None = None,
+                 optimizer=partial(torch.optim.Adam, lr=1e-4), weights: dict | None = None,
+                 M: torch.Tensor | None = None, tau: float = 0.1):
+        super().__init__()
+        self.locnet, self.transnet = locnet, transnet
+        self.optimizer_factory = optimizer
+        self.weights = {"loc": 1.0, "ps": 0.0, "ssl": 0.0, "ts": 0.0, **(weights or {})}
+        self.tau = tau
+        self.register_buffer("M", M if M is not None else torch.zeros(0, 0), persistent=True)
+
+    def translate(self, S: torch.Tensor) -> torch.Tensor:
+        return self.transnet(S) if self.transnet is not None else S
+
+    def forward(self, S: torch.Tensor) -> torch.Tensor:
+        """Positions (b, 2) in metres."""
+        return self.locnet(self.translate(S))
+
+    def model_step(self, batch: dict) -> dict[str, torch.Tensor]:
+        S = batch["S"]
+        g = self.translate(S)
+        f = self.locnet(g)
+        terms = {}
+        labelled = ~torch.isnan(batch["xy"]).any(dim=1)
+        if labelled.any() and self.weights["loc"]:
+            terms["loc"] = localization_loss(f[labelled], batch["xy"][labelled])
+        if self.weights["ps"] and "S_prev" in batch:
+            terms["ps"] = position_smoothness_loss(f, self.locnet(self.translate(batch["S_prev"])))
+        if self.transnet is not None and self.weights["ssl"] and self.M.numel():
+            terms["ssl"] = ssl_loss(g, S, self.M, self.tau)
+        if self.transnet is not None and self.weights["ts"]:
+            terms["ts"] = temporal_smoothness_loss(g)
+        if not terms:
+            raise ValueError("no loss term applies to this batch (no labels and no unsupervised term enabled)")
+        terms["loss"] = total_loss({k: v for k, v in terms.items()}, self.weights)
+        with torch.no_grad():
+            if labelled.any():
+                terms["err_m"] = (f[labelled] - batch["xy"][labelled]).norm(dim=1).mean()
+        return terms
+
+    def _log_step(self, batch, stage: str) -> torch.Tensor:
+        out = self.model_step(batch)
+        for k, v in out.items():
+            self.log(f"{stage}/{k}", v, prog_bar=k in ("loss", "err_m"), batch_size=batch["S"].shape[0])
+        return out["loss"]
+
+    def training_step(self, batch, batch_idx):
+        return self._log_step(batch, "train")
+
+    def validation_step(self, batch, batch_idx):
+        return self._log_step(batch, "val")
+
+    def test_step(self, batch, batch_idx):
+        return self._log_step(batch, "test")
+
+    def configure_optimizers(self):
+        return self.optimizer_factory(self.parameters())
