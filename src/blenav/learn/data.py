@@ -1,0 +1,108 @@
+"""Window data for training: sessions -> normalised RSSI windows, split by device model.
+
+Windows come from :func:`blenav.learn.windows.session_windows` on one building (its BLE beacons in sorted
+order are the model's rows), divided by :data:`blenav.learn.losses.U_SCALE`. Each window carries the
+previous window of its session (``S_prev``) for the position-smoothness loss. Validation sessions are
+a seeded fraction of the training sessions (whole sessions, never windows of one walk on both sides).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, TensorDataset
+
+from blenav.data import Dataset
+
+from .losses import U_SCALE
+from .windows import WindowConfig, beacon_order, session_windows, split_by_device
+
+
+@dataclass
+class WindowDataConfig:
+    path: str = "???"
+    train_devices: list | None = None
+    test_devices: list | None = None
+    unlabelled_devices: list | None = None
+    val_fraction: float = 0.2
+    history: int = 5
+    step_hz: float = 1.0
+    batch_size: int = 256
+    seed: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+def _tensors(sessions, beacons, wcfg: WindowConfig, labelled: bool):
+    S, P, xy = [], [], []
+    for s in sessions:
+        w = session_windows(s, beacons, wcfg)
+        if len(w.S) < 2:
+            continue
+        S.append(w.S[1:])
+        P.append(w.S[:-1])
+        xy.append(w.xy[1:] if labelled else np.full((len(w.S) - 1, 2), np.nan))
+    if not S:
+        return None
+    S, P, xy = (np.concatenate(a) for a in (S, P, xy))
+    keep = ~np.isnan(xy).any(axis=1) if labelled else np.ones(len(S), bool)
+    return TensorDataset(torch.from_numpy(S[keep] / U_SCALE), torch.from_numpy(P[keep] / U_SCALE),
+                         torch.from_numpy(xy[keep]).float())
+
+
+def _collate(rows) -> dict[str, torch.Tensor]:
+    return {"S": torch.stack([r[0] for r in rows]), "S_prev": torch.stack([r[1] for r in rows]),
+            "xy": torch.stack([r[2] for r in rows])}
+
+
+class WindowDataModule(L.LightningDataModule):
+    def __init__(self, cfg: WindowDataConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.beacons: list[str] = []
+        self.sets: dict[str, TensorDataset | None] = {}
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.sets:
+            return
+        c = self.cfg
+        ds = Dataset.open(c.path)
+        sessions = list(ds.sessions())
+        buildings = sorted({s.building.id for s in sessions})
+        if len(buildings) != 1:
+            raise ValueError(f"{c.path}: window training needs sessions of one building, found {buildings}")
+        self.beacons = beacon_order(sessions[0].building)
+        groups = split_by_device(sessions, c.train_devices, c.test_devices, c.unlabelled_devices)
+        train = [s for s in groups["train"] if s.labelled]
+        rng = np.random.default_rng(c.seed)
+        n_val = int(round(c.val_fraction * len(train))) if len(train) > 1 else 0
+        order = rng.permutation(len(train))
+        val = [train[i] for i in order[:n_val]]
+        train = [train[i] for i in order[n_val:]]
+        wcfg = WindowConfig(history=c.history, step_hz=c.step_hz)
+        self.sets = {"train": _tensors(train, self.beacons, wcfg, True), "val": _tensors(val, self.beacons, wcfg, True),
+                     "test": _tensors([s for s in groups["test"] if s.labelled], self.beacons, wcfg, True),
+                     "unlabelled": _tensors(groups["unlabelled"], self.beacons, wcfg, False)}
+        if self.sets["train"] is None:
+            raise ValueError(f"{c.path}: no labelled training windows for devices {c.train_devices or 'all'}")
+
+    def train_labels(self) -> torch.Tensor:
+        return self.sets["train"].tensors[2]
+
+    def _loader(self, name: str, shuffle: bool):
+        d = self.sets.get(name)
+        if d is None:
+            return []
+        g = torch.Generator().manual_seed(self.cfg.seed)
+        return DataLoader(d, batch_size=self.cfg.batch_size, shuffle=shuffle, generator=g, collate_fn=_collate)
+
+    def train_dataloader(self):
+        return self._loader("train", True)
+
+    def val_dataloader(self):
+        return self._loader("val", False)
+
+    def test_dataloader(self):
+        return self._loader("test", False)

@@ -1,0 +1,42 @@
+"""train(cfg): fits from the real config shrunk to seconds, leaves last.ckpt, and resumes from it."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+from blenav.cli.sim import run as sim_run
+from blenav.learn.train import train
+from blenav.paths import conf_dir
+
+
+@pytest.fixture(scope="module")
+def two_phones(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tr") / "d"
+    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+        sim_run(compose(config_name="sim", overrides=["sim=small", "seed=5", f"out={out}", "duration_s=60", "sessions=4",
+                                                      "progress=false", "sim.carriers=[pedestrian]",
+                                                      "sim.receivers=[iphone-8,galaxy-s10]"]))
+    return out
+
+
+def cfg(*overrides):
+    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+        return compose(config_name="train", overrides=list(overrides))
+
+
+@pytest.mark.parametrize("model", ["locnet", "transnet_locnet"])
+def test_train_leaves_a_checkpoint_and_resumes(two_phones, tmp_path, model):
+    common = [f"model={model}", f"data.path={two_phones}", f"out={tmp_path / 'run'}", "data.batch_size=32",
+              "model.lr=3e-3", "trainer.enable_progress_bar=false", "data.test_devices=[galaxy-s10]",
+              "model.locnet.hidden=16", "model.locnet.fc_hidden=8"]
+    metrics, objs = train(cfg(*common, "trainer.max_epochs=2"))
+    ck = tmp_path / "run" / "last.ckpt"
+    assert ck.is_file() and objs["trainer"].current_epoch == 2
+    assert "test/err_m" in metrics and metrics["test/err_m"] == metrics["test/err_m"]  # finite, not NaN
+    steps = objs["trainer"].global_step
+    metrics2, objs2 = train(cfg(*common, "trainer.max_epochs=3"))  # same out: resumes, one more epoch
+    assert objs2["trainer"].current_epoch == 3 and objs2["trainer"].global_step == steps * 3 // 2
+    state = torch.load(ck, map_location="cpu", weights_only=False)
+    assert state["global_step"] == objs2["trainer"].global_step  # last.ckpt now holds the resumed run's end

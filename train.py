@@ -1,0 +1,17 @@
+"""Train a learned localizer from a Hydra config: ``python train.py [overrides]`` (see conf/train.yaml)."""
+
+import hydra
+from omegaconf import DictConfig
+
+from blenav.learn.train import train
+from blenav.paths import conf_dir
+
+
+@hydra.main(config_path=str(conf_dir()), config_name="train", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    metrics, _ = train(cfg)
+    print({k: round(v, 4) for k, v in metrics.items()})
+
+
+if __name__ == "__main__":
+    main()
