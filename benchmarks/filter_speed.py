@@ -52,7 +52,7 @@ def main() -> None:
             m = build_methods(cfg)[name]
             apply_fit(m.measurements, fit_sessions([s]))
             t0 = time.perf_counter()
-            res = run_session(m, s, args.runs, seed=0)
+            run_session(m, s, args.runs, seed=0)
             wall = time.perf_counter() - t0
             print(f"{name:10s} {args.runs:5d} {args.particles:9d} {wall:9.2f} {wall / BUDGET_S:9.2f} "
                   f"{PAPER_ONE_RUN_S * args.runs / wall:14.0f}x {args.duration * args.runs / wall:12.0f}")

@@ -14,7 +14,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 from hydra import compose, initialize_config_dir
 
 from blenav.cli.sim import run  # registers the sim schema
@@ -46,7 +45,7 @@ def main() -> None:
         size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file()) / 2**20
     hours = args.duration / 3600.0
     print(f"preset {args.preset}, {args.duration:.0f} s of a pedestrian, seed {args.seed}")
-    print(f"rows written: " + ", ".join(f"{k} {v:,}" for k, v in rows.items()) + f"; {size:.1f} MiB on disk")
+    print("rows written: " + ", ".join(f"{k} {v:,}" for k, v in rows.items()) + f"; {size:.1f} MiB on disk")
     print(f"wall time            {wall:8.2f} s")
     print(f"peak RSS             {peak:8.0f} MiB (process; {rss0:.0f} MiB before simulating)")
     print(f"budget (60 s / h)    {BUDGET_S * hours:8.2f} s  -> {wall / (BUDGET_S * hours):.2f} x budget")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from blenav.filters.engine import FilterConfig, ParticleFilter
 from blenav.filters.measurement import AnchorTable, PathLossRange, RssiDomain

@@ -9,7 +9,7 @@ from __future__ import annotations
 from functools import cached_property
 from pathlib import Path
 
-from .building import Building, load_building, load_yaml
+from .building import Building, load_yaml
 from .issues import DatasetError, error, raise_or_log
 from .schema import FORMAT
 from .session import Session, check_session_meta

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .building import Building, Floor, _floor_key, load_yaml
+from .building import Building, Floor, _floor_key
 from .issues import Issue, error, raise_or_log, warning
 from .schema import (
     ANCHORED_STREAMS,

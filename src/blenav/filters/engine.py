@@ -21,7 +21,7 @@ Weights stay in log space; normalisation subtracts the row maximum first.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

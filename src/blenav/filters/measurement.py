@@ -133,5 +133,3 @@ class RssiDomain(_PathLoss):
         res = (base + np.float32(10.0 * self.gamma) * np.log10(d)) * np.float32(1.0 / self.sigma_s)
         return -0.5 * np.einsum("rnm,rnm->rn", res, res).astype(np.float64)
 
-
-MEASUREMENT_MODELS = {"pl": PathLossRange, "ps": RssiDomain}

@@ -222,6 +222,3 @@ def _clip_speed(v: np.ndarray, vmax: float) -> np.ndarray:
     f = np.minimum(1.0, vmax / np.sqrt(np.maximum(s2, 1e-24)))
     return v * f[..., None]
 
-
-MOTION_MODELS = {"rw": RandomWalk, "dr": DeadReckoning, "imu": ImuProposal, "odometry": OdometryIncrement,
-                 "pdr": Pdr}

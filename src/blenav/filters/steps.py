@@ -62,7 +62,6 @@ class StepDetector:
 class Window:
     """Raw samples of one step window, collected by either path."""
 
-    imu_t: list = field(default_factory=list)
     acc: list = field(default_factory=list)
     q: list = field(default_factory=list)
     steps: int = 0
@@ -212,7 +211,6 @@ class StepStream:
         out = self._due(t)
         if self.att is not None:
             q = self.att.update(t, np.asarray(acc, float), np.asarray(gyr, float))
-            self.win.imu_t.append(t)
             self.win.acc.append(np.asarray(acc, float))
             self.win.q.append(q)
             self.win.steps += int(self.det.update(t, np.asarray(acc, float)))

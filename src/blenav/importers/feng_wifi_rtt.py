@@ -139,7 +139,7 @@ def _read_ap_positions(path: Path) -> dict[str, tuple[np.ndarray, int]]:
     """env -> (positions (n, 2) in grid units, line of its 'AP X' line)."""
     lines = read_lines(path)
     out: dict[str, tuple[np.ndarray, int]] = {}
-    env, xy, start = None, {}, 0
+    env, xy = None, {}
 
     def close(line_no: int) -> None:
         if env is None:
@@ -167,7 +167,7 @@ def _read_ap_positions(path: Path) -> dict[str, tuple[np.ndarray, int]]:
                                    f"{', '.join(e.replace('_', ' ') for e in ENVIRONMENTS)}")
             if env in out:
                 raise ImportError_(path, i, f"environment {s!r} appears twice")
-            xy, start = {}, i
+            xy = {}
             continue
         if env is None:
             raise ImportError_(path, i, "AP coordinates before any environment name")
