@@ -160,6 +160,7 @@ def evaluate(cfg: DictConfig) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     progress = _progress(bool(cfg.get("progress", False)), len(methods) * len(sessions))
     outcomes: dict[str, MethodOutcome] = {}
+    cache: dict = {}  # map geometry per floor, AHRS per session: shared by all methods
     results = {"experiment": cfg.experiment.name, "title": cfg.experiment.get("title", ""), "dataset": str(ds.root),
                "runs": runs, "sessions": [s.id for s in sessions], "init_s": float(cfg.init_s), "seed": int(cfg.seed),
                "calibration": calibration, "methods": {}}
@@ -174,7 +175,7 @@ def evaluate(cfg: DictConfig) -> dict:
         for si, s in enumerate(sessions):
             seed = int(cfg.seed) * 1_000_003 + 1000 * si  # the same random stream for every method
             try:
-                res = run_session(method, s, runs, seed)
+                res = run_session(method, s, runs, seed, cache=cache)
             except MissingStream as exc:  # e.g. no IMU in a fixed-receiver recording: skip, and say so
                 skipped[s.id] = str(exc)
                 log.warning("skipping %s on %s: %s", name, s.id, exc)

@@ -132,8 +132,25 @@ def _odo_at(odo_t: np.ndarray, odo: np.ndarray, t: float) -> np.ndarray:
     return odo[i] if i >= 0 else (odo[0] if len(odo) else np.zeros(2))
 
 
+def imu_features(a: SessionArrays, att_cfg: AttitudeConfig, det_cfg: StepDetectorConfig,
+                 mag_offset: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray]:
+    """AHRS quaternions (T, 4) and PDR step flags (T,) at the IMU times of a session (batch path).
+
+    They depend only on the session and the attitude/step settings, so callers running several
+    methods on one session compute them once (see :func:`blenav.filters.runner.run_session`).
+    """
+    if not len(a.imu_t):
+        return None, np.zeros(0, bool)
+    q = estimate_attitude(a.imu_t, a.acc, a.gyr, a.mag_t, a.mag, att_cfg, mag_offset=mag_offset)
+    imu_rate = 1.0 / np.median(np.diff(a.imu_t)) if len(a.imu_t) > 1 else 100.0
+    det = StepDetector(det_cfg, imu_rate)
+    flags = np.fromiter((det.update(t, v) for t, v in zip(a.imu_t, a.acc)), bool, len(a.imu_t))
+    return q, flags
+
+
 def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det_cfg: StepDetectorConfig,
-                  need_imu: bool = True, mag_offset: np.ndarray | None = None):
+                  need_imu: bool = True, mag_offset: np.ndarray | None = None,
+                  imu: tuple[np.ndarray | None, np.ndarray] | None = None):
     """Yield (t_k, ctrl, obs) for every step of a session (batch path). Also returns AHRS quaternions.
 
     Returns ``(steps, q)`` with ``steps`` a list and ``q`` (T, 4) the AHRS orientation at IMU times
@@ -143,10 +160,7 @@ def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det
     q = None
     step_flags = np.zeros(len(a.imu_t), bool)
     if need_imu and len(a.imu_t):
-        q = estimate_attitude(a.imu_t, a.acc, a.gyr, a.mag_t, a.mag, att_cfg, mag_offset=mag_offset)
-        imu_rate = 1.0 / np.median(np.diff(a.imu_t)) if len(a.imu_t) > 1 else 100.0
-        det = StepDetector(det_cfg, imu_rate)
-        step_flags = np.fromiter((det.update(t, v) for t, v in zip(a.imu_t, a.acc)), bool, len(a.imu_t))
+        q, step_flags = imu if imu is not None else imu_features(a, att_cfg, det_cfg, mag_offset)
     bounds_imu = np.searchsorted(a.imu_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right") if need_imu else None
     bounds_rssi = np.searchsorted(a.rssi_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right")
     out = []
