@@ -27,10 +27,10 @@ navigation edge within ``max_edge_dist``. Two interchangeable implementations (`
 Both return the same projections (tests check 1e-9; the benchmark finds at most 9e-16 m apart).
 Measured with ``benchmarks/map_index.py`` on the simulated office_45x55 building (38 rooms, 124 edge
 segments), conditioning 100 runs x 300 particles with the defaults (max_edge_dist 3 m, shrink 1 m),
-median of 30 calls on a shared 2-core machine: **grid 16.7 ms, STRtree 144 ms per call (8.7x)**; on
-the same building's derived map (42 rooms, 298 segments) 27.9 ms vs 181 ms (6.5x). So
+median of 30 calls on a 2-core machine: **grid 12.4 ms, STRtree 142 ms per call (11.5x)**; on the
+same building's derived map (42 rooms, 298 segments) 17.8 ms vs 191 ms (10.8x). So
 :data:`DEFAULT_INDEX` is ``'grid'``. The grid is built lazily, once per (max_edge_dist, shrink), in about
-35 ms (3 456 cells; 2.3 candidate edges and 0.73 rooms per cell on average, at most 13 and 4). Most of
+15 ms (3 456 cells; 2.3 candidate edges and 0.73 rooms per cell on average, at most 13 and 4). Most of
 the STRtree time goes to building shapely Point objects and the GEOS queries.
 
 Obstacles. The paper's equations ignore walls and furniture: a Gaussian around an edge or a room leaves
