@@ -15,15 +15,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-from hydra import compose, initialize_config_dir
+from blenav.configs import compose
 
-import blenav.cli.eval  # noqa: F401  (filter schema)
 from blenav.cli.sim import run as sim_run
 from blenav.data import Dataset
 from blenav.eval.harness import build_methods
 from blenav.filters.calibration import apply_fit, fit_sessions
 from blenav.filters.runner import OnlineLocalizer, replay, run_session
-from blenav.paths import conf_dir
 
 PAPER_ONE_RUN_S = 66.0
 BUDGET_S = 30.0
@@ -37,9 +35,9 @@ def main() -> None:
     ap.add_argument("--stream-particles", type=int, default=1000)
     ap.add_argument("--stream-steps", type=int, default=300)
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp, initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+    with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "office"
-        sim_run(compose(config_name="sim", overrides=["sim=office_45x55", "seed=0", f"out={out}", f"duration_s={args.duration}",
+        sim_run(compose("sim", *["sim=office_45x55", "seed=0", f"out={out}", f"duration_s={args.duration}",
                                                       "sessions=1", "progress=false"]))
         ds = Dataset.open(out)
         s = ds.session(ds.session_ids[0])
@@ -48,7 +46,7 @@ def main() -> None:
               f"from {s.building.anchors.kind.eq('ble').sum()} beacons")
         print(f"{'method':10s} {'runs':>5s} {'particles':>9s} {'wall [s]':>9s} {'x budget':>9s} {'vs paper 1 run':>15s} {'x real time':>12s}")
         for exp, name in (("frontend_000", "IMU"), ("frontend_000", "RW"), ("mapfusion_002", "PF-PS+MAP")):
-            cfg = compose(config_name="eval", overrides=[f"experiment={exp}", "data=x", f"filter.n_particles={args.particles}"])
+            cfg = compose("eval", *[f"experiment={exp}", "data=x", f"filter.n_particles={args.particles}"])
             m = build_methods(cfg)[name]
             apply_fit(m.measurements, fit_sessions([s]))
             t0 = time.perf_counter()
@@ -58,7 +56,7 @@ def main() -> None:
                   f"{PAPER_ONE_RUN_S * args.runs / wall:14.0f}x {args.duration * args.runs / wall:12.0f}")
 
         # streaming: one run, N particles, time each closed step (IMU model)
-        cfg = compose(config_name="eval", overrides=["experiment=frontend_000", "data=x",
+        cfg = compose("eval", *["experiment=frontend_000", "data=x",
                                                      f"filter.n_particles={args.stream_particles}"])
         m = build_methods(cfg)["IMU"]
         apply_fit(m.measurements, fit_sessions([s]))

@@ -17,18 +17,16 @@ import time
 from pathlib import Path
 
 import numpy as np
-from hydra import compose, initialize_config_dir
+from blenav.configs import compose
 
 from blenav.cli.sim import run  # registers the sim schema
 from blenav.data import Building
 from blenav.filters.map_fusion import INDEX_KINDS, MapGeometry
-from blenav.paths import conf_dir
 
 
 def simulate_office(out: Path) -> Path:
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        cfg = compose(config_name="sim", overrides=["sim=office_45x55", "seed=0", "duration_s=2", "sessions=1",
-                                                    f"out={out}", "progress=false"])
+    cfg = compose("sim", *["sim=office_45x55", "seed=0", "duration_s=2", "sessions=1",
+                                                f"out={out}", "progress=false"])
     run(cfg)
     return next((out / "buildings").iterdir())
 

@@ -20,12 +20,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from hydra import compose, initialize_config_dir
+from blenav.configs import compose
 
 from blenav.cli.sim import run  # registers the sim schema
 from blenav.data import Dataset
 from blenav.importers import run_import
-from blenav.paths import conf_dir
 from blenav.radio_stats import fit_path_loss, rssi_distance_pairs
 from blenav.sim.calibration import one_metre_series, profile_for
 from blenav.sim.radio import BleConfig
@@ -37,10 +36,9 @@ CLEAN_PHONE = "iphone-8"
 
 
 def simulate(out: Path, preset: str, seed: int, duration: float, sessions: int, *extra: str) -> Path:
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        cfg = compose(config_name="sim", overrides=[f"sim={preset}", f"seed={seed}", f"out={out}",
-                                                    f"duration_s={duration}", f"sessions={sessions}",
-                                                    "progress=false", *extra])
+    cfg = compose("sim", *[f"sim={preset}", f"seed={seed}", f"out={out}",
+                                                f"duration_s={duration}", f"sessions={sessions}",
+                                                "progress=false", *extra])
     return run(cfg)
 
 

@@ -14,10 +14,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from hydra import compose, initialize_config_dir
+from blenav.configs import compose
 
 from blenav.cli.sim import run  # registers the sim schema
-from blenav.paths import conf_dir
 
 BUDGET_S = 60.0
 
@@ -31,10 +30,9 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "bench"
-        with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-            cfg = compose(config_name="sim", overrides=[f"sim={args.preset}", f"seed={args.seed}", f"out={out}",
-                                                        f"duration_s={args.duration}", "sessions=1",
-                                                        "progress=false", "sim.carriers=[pedestrian]"])
+        cfg = compose("sim", *[f"sim={args.preset}", f"seed={args.seed}", f"out={out}",
+                                                    f"duration_s={args.duration}", "sessions=1",
+                                                    "progress=false", "sim.carriers=[pedestrian]"])
         rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         t0 = time.perf_counter()
         run(cfg)

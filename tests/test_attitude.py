@@ -14,7 +14,7 @@ import functools
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from blenav.configs import compose
 
 from blenav.data import Dataset
 from blenav.filters.attitude import (
@@ -30,17 +30,14 @@ from blenav.filters.attitude import (
     quat_to_matrix,
     yaw_of_device_forward,
 )
-from blenav.paths import conf_dir
-from blenav.sim.config import make_sim_config, register_configs
+from blenav.sim.config import make_sim_config
 from blenav.sim.world import simulate
 
 SETTLE_S = 5.0
 
 
 def compose_sim(*overrides: str):
-    register_configs()  # the presets' ``schema`` default (as blenav.cli.sim does on import)
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        return compose(config_name="sim", overrides=list(overrides))
+    return compose("sim", *overrides)
 
 
 def load(ds: Dataset, carrier: str, index: int = 0) -> dict:

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
-from hydra import compose, initialize_config_dir
+from blenav.configs import compose
 from PIL import Image
 
 from blenav.cli.eval import _lists_from_commas
@@ -18,22 +18,19 @@ from blenav.cli.sim import run as sim_run
 from blenav.data import Dataset
 from blenav.eval.harness import EvalError, evaluate
 from blenav.importers import run_import
-from blenav.paths import conf_dir
 
 PAPER_KEYS = {"frontend_000": {"RW", "DR", "IMU"}, "mapfusion_002": {"PF-PL", "PF-PL+MAP", "PF-PS", "PF-PS+MAP"}}
 
 
 def cfg(*overrides):
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        return compose(config_name="eval", overrides=["progress=false", *overrides])
+    return compose("eval", *["progress=false", *overrides])
 
 
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     out = tmp_path_factory.mktemp("ev") / "small"
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        sim_run(compose(config_name="sim", overrides=["sim=small", "seed=4", f"out={out}", "duration_s=25", "sessions=2",
-                                                      "progress=false", "sim.carriers=[pedestrian]"]))
+    sim_run(compose("sim", *["sim=small", "seed=4", f"out={out}", "duration_s=25", "sessions=2",
+                                                  "progress=false", "sim.carriers=[pedestrian]"]))
     return out
 
 

@@ -7,9 +7,8 @@ import shutil
 import numpy as np
 import pandas as pd
 import pytest
-from hydra import compose, initialize_config_dir
+from blenav.configs import compose
 
-import blenav.cli.eval  # noqa: F401  # registers the filter schema
 from blenav.cli.sim import run as sim_run
 from blenav.data import Dataset
 from blenav.data.writer import write_session
@@ -19,17 +18,14 @@ from blenav.filters.motion import Pdr
 from blenav.filters.measurement import AnchorTable
 from blenav.filters.runner import OnlineLocalizer, magnetometer_offset, replay, run_session
 from blenav.filters.steps import SessionArrays
-from blenav.paths import conf_dir
 
 
 def eval_cfg(*overrides):
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        return compose(config_name="eval", overrides=["data=unused", *overrides])
+    return compose("eval", *["data=unused", *overrides])
 
 
 def sim(out, *overrides):
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        cfg = compose(config_name="sim", overrides=[f"out={out}", "progress=false", *overrides])
+    cfg = compose("sim", *[f"out={out}", "progress=false", *overrides])
     return sim_run(cfg)
 
 

@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 import shapely
-from hydra import compose, initialize_config_dir
+from blenav.configs import compose
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, box
@@ -24,15 +24,13 @@ from blenav.filters.map_fusion import (
     MapGeometry,
     WallCrossing,
 )
-from blenav.paths import conf_dir
 
 
 @pytest.fixture(scope="module")
 def small_building(tmp_path_factory):
     out = tmp_path_factory.mktemp("mapfusion") / "small"
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        cfg = compose(config_name="sim", overrides=["sim=small", "seed=0", f"out={out}", "duration_s=2", "sessions=1",
-                                                    "progress=false"])
+    cfg = compose("sim", *["sim=small", "seed=0", f"out={out}", "duration_s=2", "sessions=1",
+                                                "progress=false"])
     run(cfg)
     return out / "buildings" / "small"
 

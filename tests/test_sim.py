@@ -7,20 +7,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from blenav.configs import compose
 from scipy.spatial.transform import Rotation
 
 from blenav.cli.sim import run
 from blenav.data import Dataset, validate
-from blenav.paths import conf_dir
 from blenav.sim.config import make_sim_config
 from blenav.sim.radio import gaussian_field
 from blenav.sim.world import simulate
 
 
 def compose_sim(*overrides: str):
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        return compose(config_name="sim", overrides=list(overrides))
+    return compose("sim", *overrides)
 
 
 def tree_digest(root: Path) -> str:

@@ -4,26 +4,23 @@ from __future__ import annotations
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
+from blenav.configs import compose
 
 from blenav.cli.sim import run as sim_run
 from blenav.learn.train import train
-from blenav.paths import conf_dir
 
 
 @pytest.fixture(scope="module")
 def two_phones(tmp_path_factory):
     out = tmp_path_factory.mktemp("tr") / "d"
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        sim_run(compose(config_name="sim", overrides=["sim=small", "seed=5", f"out={out}", "duration_s=60", "sessions=4",
-                                                      "progress=false", "sim.carriers=[pedestrian]",
-                                                      "sim.receivers=[iphone-8,galaxy-s10]"]))
+    sim_run(compose("sim", *["sim=small", "seed=5", f"out={out}", "duration_s=60", "sessions=4",
+                                                  "progress=false", "sim.carriers=[pedestrian]",
+                                                  "sim.receivers=[iphone-8,galaxy-s10]"]))
     return out
 
 
 def cfg(*overrides):
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        return compose(config_name="train", overrides=list(overrides))
+    return compose("train", *overrides)
 
 
 @pytest.mark.parametrize("model", ["locnet", "transnet_locnet"])

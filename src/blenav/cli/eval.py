@@ -8,15 +8,8 @@ import sys
 import hydra
 from omegaconf import DictConfig
 
+from blenav.configs import register_configs
 from blenav.paths import conf_dir
-
-
-def register_configs() -> None:
-    from hydra.core.config_store import ConfigStore
-
-    from blenav.filters.engine import FilterConfig
-
-    ConfigStore.instance().store(group="filter", name="schema", node=FilterConfig)
 
 
 register_configs()

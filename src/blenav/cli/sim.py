@@ -8,7 +8,7 @@ import hydra
 from omegaconf import DictConfig
 
 from blenav.paths import conf_dir
-from blenav.sim.config import register_configs
+from blenav.configs import register_configs
 
 register_configs()
 

@@ -62,10 +62,3 @@ def make_sim_config(node: DictConfig | dict | None) -> SimConfig:
         raise ValueError(f"sim.carriers: {bad} not in pedestrian, robot, static")
     return cfg
 
-
-def register_configs() -> None:
-    """Register :class:`SimConfig` as ``sim/schema`` so presets (``defaults: [schema, _self_]``) are
-    type-checked and a misspelt key fails at Hydra composition."""
-    from hydra.core.config_store import ConfigStore
-
-    ConfigStore.instance().store(group="sim", name="schema", node=SimConfig)

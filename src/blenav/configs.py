@@ -1,0 +1,34 @@
+"""One place to register the structured config schemas and to compose a config from ``conf/``.
+
+Entry points call :func:`register_configs` before Hydra runs; tests and benchmarks call :func:`compose`
+(the real config with overrides) instead of repeating Hydra's initialisation.
+"""
+
+from __future__ import annotations
+
+from omegaconf import DictConfig
+
+from .paths import conf_dir
+
+
+def register_configs() -> None:
+    """``sim/schema`` (:class:`blenav.sim.config.SimConfig`) and ``filter/schema``
+    (:class:`blenav.filters.engine.FilterConfig`): a misspelt key fails at composition. Idempotent."""
+    from hydra.core.config_store import ConfigStore
+
+    from blenav.filters.engine import FilterConfig
+    from blenav.sim.config import SimConfig
+
+    cs = ConfigStore.instance()
+    cs.store(group="sim", name="schema", node=SimConfig)
+    cs.store(group="filter", name="schema", node=FilterConfig)
+
+
+def compose(config_name: str, *overrides: str) -> DictConfig:
+    """The composed ``conf/<config_name>.yaml`` with command-line style ``overrides``."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    register_configs()
+    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+        return hydra_compose(config_name=config_name, overrides=list(overrides))
