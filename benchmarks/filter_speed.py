@@ -65,14 +65,7 @@ def main() -> None:
         steps = 0
         for e in replay(s):
             t0 = time.perf_counter()
-            if e[0] == "imu":
-                out_ = loc.push_imu(e[1], e[2], e[3])
-            elif e[0] == "mag":
-                out_ = loc.push_mag(e[1], e[2])
-            elif e[0] == "rssi":
-                out_ = loc.push_rssi(e[1], e[2], e[3])
-            else:
-                out_ = loc.push_odometry(e[1], e[2])
+            out_ = loc.push_event(e)
             dt = time.perf_counter() - t0
             (lat if out_ else push).append(dt)
             steps += len(out_)

@@ -55,15 +55,7 @@ def test_streaming_equals_batch(office):
     online = OnlineLocalizer(m2, s, n_runs=3, seed=5, t_start=0.0, mag_offset=magnetometer_offset(arrays, m2))
     out = []
     for e in replay(s):
-        kind = e[0]
-        if kind == "imu":
-            out += online.push_imu(e[1], e[2], e[3])
-        elif kind == "mag":
-            out += online.push_mag(e[1], e[2])
-        elif kind == "rssi":
-            out += online.push_rssi(e[1], e[2], e[3])
-        else:
-            out += online.push_odometry(e[1], e[2])
+        out += online.push_event(e)
     out += online.close(batch.t[-1])
     pos = np.stack([r.position for r in out], axis=1)
     assert pos.shape == batch.position.shape

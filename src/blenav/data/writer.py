@@ -8,6 +8,7 @@ the same bytes.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,9 @@ from PIL import Image
 from shapely.geometry import mapping
 
 from .building import FREE, OCCUPIED
+from .issues import DatasetError
 from .schema import ANCHOR_COLUMNS, FORMAT, STREAMS
+from .tables import read_stream
 
 #: decimals written per column (others: 6)
 DECIMALS = {"t": 4, "rssi": 2, "range_m": 3, "range_std_m": 3, "x": 4, "y": 4, "z": 4}
@@ -101,3 +104,64 @@ def write_session(root: Path, session_id: str, meta: dict, streams: dict[str, pd
         cols = list(spec.columns) + [c for c in df.columns if c not in spec.columns]
         write_csv(sroot / spec.filename, df[cols])
     return sroot
+
+
+def write_fixes(session_dir: Path, t, xy, std=None, *, source: str) -> Path:
+    """Write position fixes of one ``source`` into ``<session_dir>/fixes.csv``; returns the file's path.
+
+    ``t`` (F,) s since session start, ``xy`` (F, 2) world metres, ``std`` None (unknown: empty cells),
+    a scalar or (F,) metres (NaN = unknown on that row), ``source`` a non-empty name of what produced
+    the fixes (e.g. ``"locnet-4beacons"``; surrounding spaces are stripped).
+
+    Merging: rows of *other* sources already in the file (including rows with an empty source) are
+    kept, with any extra columns; rows of the same source are replaced. The result is sorted by t
+    (stable: at equal t, kept rows come before new ones, and each keeps its own order), written to a
+    temporary file and moved into place, so a failure leaves the old file intact.
+
+    Invalid input raises ``ValueError`` and writes nothing: a NaN or infinite position or time (the
+    message says how many rows; a localizer that has no fix for a window should leave that row out,
+    never write NaN), a negative or infinite std, mismatched lengths. An existing fixes.csv that
+    does not pass the format's checks raises :class:`~blenav.data.DatasetError` instead of being
+    overwritten. An open :class:`~blenav.data.Session` caches its streams: reopen it to see the new rows.
+    """
+    session_dir = Path(session_dir)
+    if not session_dir.is_dir():
+        raise FileNotFoundError(f"session folder {session_dir} does not exist")
+    src = str(source).strip() if source is not None else ""
+    if not src or "\n" in src or "\r" in src:
+        raise ValueError(f"source must be a non-empty one-line name, got {source!r}")
+    t = np.asarray(t, dtype=float).reshape(-1)
+    xy = np.asarray(xy, dtype=float)
+    if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) != len(t):
+        raise ValueError(f"xy must have shape (len(t), 2) = ({len(t)}, 2), got {xy.shape}")
+    sd = np.full(len(t), np.nan) if std is None else np.broadcast_to(np.asarray(std, dtype=float), t.shape).copy()
+    bad_xy = ~np.isfinite(xy).all(axis=1)
+    if bad_xy.any():
+        raise ValueError(f"{int(bad_xy.sum())} of {len(t)} fixes have a NaN or infinite position (first at row "
+                         f"{int(np.argmax(bad_xy))}); leave windows without a fix out instead of writing NaN")
+    bad_t = ~np.isfinite(t)
+    if bad_t.any():
+        raise ValueError(f"{int(bad_t.sum())} of {len(t)} fixes have a NaN or infinite time")
+    bad_sd = np.isinf(sd) | (sd < 0)
+    if bad_sd.any():
+        raise ValueError(f"{int(bad_sd.sum())} of {len(t)} fixes have a negative or infinite std (NaN means unknown)")
+
+    spec = STREAMS["fixes"]
+    path = session_dir / spec.filename
+    new = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1], "std": sd, "source": src})
+    frames = []
+    if path.is_file():
+        old, issues = read_stream(path, spec)
+        errors = [i for i in issues if i.is_error]
+        if old is None or errors:  # do not overwrite rows we could not read
+            raise DatasetError(errors)
+        keep = old["source"].fillna("").astype(str).str.strip() != src
+        frames.append(old[keep.to_numpy()])
+    frames.append(new)
+    out = pd.concat([f for f in frames if len(f)] or [new], ignore_index=True)
+    out = out.sort_values("t", kind="stable").reset_index(drop=True)
+    cols = list(spec.columns) + [c for c in out.columns if c not in spec.columns]
+    tmp = path.with_name(f".{spec.filename}.tmp")
+    write_csv(tmp, out[cols])
+    os.replace(tmp, path)
+    return path

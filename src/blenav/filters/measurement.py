@@ -19,6 +19,13 @@ Path loss (Patel et al. eq. 1; Ghaffari Jadidi et al. use the same form with a r
 Distances are 3-D: the anchor's z against the device height ``device_z`` (m). a_X is per anchor: the
 anchor's ``tx_power_dbm`` (calibrated RSSI at 1 m) when ``use_anchor_tx_power`` and it is known, else
 the configured value.
+
+Position fixes (:class:`FixLikelihood`, Roy section 3.2, eq. 3.9): a fix z (world x, y in m) from another
+localizer, e.g. a learned BLE localizer, weighs a particle at x by N(||x - z||; 0, sigma), sigma = 3 m.
+
+Every model names the per-step observations it reads in ``needs`` (``"rssi"``: ``rssi_idx``/``rssi``;
+``"fixes"``: ``fix_xy``/``fix_std``/``fix_source``, see :mod:`blenav.filters.steps`) and has
+``bind(anchors)`` (a no-op for models that do not use the anchors).
 """
 
 from __future__ import annotations
@@ -133,3 +140,71 @@ class RssiDomain(_PathLoss):
         res = (base + np.float32(10.0 * self.gamma) * np.log10(d)) * np.float32(1.0 / self.sigma_s)
         return -0.5 * np.einsum("rnm,rnm->rn", res, res).astype(np.float64)
 
+
+
+@dataclass
+class FixLikelihood:
+    """Position fixes as a measurement: log N(||x - z||; 0, sigma) summed over the step's fixes (eq. 3.9, Roy).
+
+    Roy (section 3.2) weighs every particle x by the output z of the BLE localization model,
+    w = N(||x - z||, 0, 3), i.e. sigma = 3 m. Per step, with F selected fixes z_f (world m):
+
+        log p(z_1..z_F | x) = -0.5 sum_f (||x - z_f|| / sigma_f)^2 + const
+
+    The fixes of a step are taken as conditionally independent given x. ``sigma_f`` is ``sigma_m`` or,
+    with ``use_std`` and a finite positive ``std`` on the row, that row's std (m). Terms common to all
+    particles (the normalisers, -log sigma_f) are dropped, as in the other models. The 2-D isotropic
+    Gaussian N(z; x, sigma^2 I) has the same particle-dependent term, so either reading of eq. 3.9 gives
+    the same weights.
+
+    ``source``: the ``fixes.csv`` source to use (exact match after stripping spaces); ``None`` uses
+    every row whatever its source.
+    """
+
+    sigma_m: float = 3.0
+    source: str | None = None
+    use_std: bool = False
+
+    needs = ("fixes",)
+
+    def __post_init__(self):
+        if not (np.isfinite(self.sigma_m) and self.sigma_m > 0):
+            raise ValueError(f"FixLikelihood.sigma_m must be a positive number of metres, got {self.sigma_m!r}")
+        if self.source is not None:
+            self.source = str(self.source).strip()
+
+    def bind(self, anchors: AnchorTable) -> None:
+        """Fixes are world positions: the anchors are not used."""
+
+    def select(self, source: np.ndarray) -> np.ndarray:
+        """(F,) bool: the fixes this model uses, from their ``source`` strings (F,) ('' when empty)."""
+        if self.source is None:
+            return np.ones(len(source), dtype=bool)
+        return np.asarray(source, dtype=str) == self.source
+
+    def _fixes(self, obs: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Selected fixes (F, 2) m and their inverse variances (F,) 1/m^2."""
+        keep = self.select(obs["fix_source"])
+        z = obs["fix_xy"][keep]
+        sigma = np.full(len(z), float(self.sigma_m))
+        if self.use_std:
+            std = obs["fix_std"][keep]
+            ok = np.isfinite(std) & (std > 0)
+            sigma[ok] = std[ok]
+        return z, 1.0 / (sigma * sigma)
+
+    def n_obs(self, obs: dict) -> int:
+        if not len(obs.get("fix_xy", ())):
+            return 0
+        return int(np.count_nonzero(self.select(obs["fix_source"])))
+
+    def log_likelihood(self, xy: np.ndarray, obs: dict) -> np.ndarray:
+        """(R, N) log-likelihood (float64) of the step's fixes for particles xy (R, N, 2) world m."""
+        if not len(obs.get("fix_xy", ())):
+            return np.zeros(xy.shape[:-1])
+        z, inv_var = self._fixes(obs)
+        if len(z) == 0:
+            return np.zeros(xy.shape[:-1])
+        dx = xy[..., 0:1] - z[:, 0]  # (R, N, F)
+        dy = xy[..., 1:2] - z[:, 1]
+        return -0.5 * ((dx * dx + dy * dy) @ inv_var)

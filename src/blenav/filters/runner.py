@@ -63,6 +63,10 @@ class Method:
     def needs_imu(self) -> bool:
         return any(n in getattr(self.motion, "needs", ()) for n in ("acc_w", "heading", "steps"))
 
+    def measurements_needing(self, stream: str) -> list:
+        """The measurement models that read ``stream`` ('rssi', 'fixes')."""
+        return [m for m in self.measurements if stream in getattr(m, "needs", ())]
+
 
 class _Initializer:
     """Adapter: the filter's initializer from a map geometry and a :class:`MapSpec`."""
@@ -140,13 +144,16 @@ def run_session(method: Method, session: Session, n_runs: int, seed: int,
                                                     index=method.map.index)
         geom = cache[gkey]
     pf, anchors, geom = build_filter(method, session, n_runs, rng, geom)
-    if not any(len(m.anchors.ids) for m in method.measurements) and method.measurements:
+    radio = method.measurements_needing("rssi")
+    if radio and not len(anchors.ids):
         raise MissingStream(f"building {session.building.id} has no BLE anchors for the measurement models of "
                             f"{method.name}")
     arrays = SessionArrays.from_session(session, anchors)
-    if method.measurements and len(arrays.rssi_t) == 0:
+    if radio and len(arrays.rssi_t) == 0:
         raise MissingStream("no usable BLE readings (rssi.csv absent or empty, or every row names an anchor "
                             "that is not a BLE anchor of the building)")
+    for m in method.measurements_needing("fixes"):
+        check_fixes(m, arrays.fix_source, session.id, method.name)
     if method.needs_imu and len(arrays.imu_t) == 0:
         raise MissingStream(f"no IMU data, which the {type(method.motion).__name__} motion model of {method.name} needs")
     offset = magnetometer_offset(arrays, method)
@@ -173,6 +180,24 @@ def run_session(method: Method, session: Session, n_runs: int, seed: int,
         ts[k], pos[:, k], cov[:, k], neff[:, k] = t, res.position, res.cov, res.n_eff
     return RunResult(method.name, session.id, ts, pos, cov, neff, pf.events, q,
                      arrays.imu_t if q is not None else None, time.perf_counter() - t0, list(geom.notes))
+
+
+def check_fixes(model, sources: np.ndarray, session_id: str, method_name: str) -> None:
+    """Raise :class:`MissingStream` when ``model`` (a fix likelihood) selects no row of the session's fixes.
+
+    ``sources``: the session's fix sources (F,) ('' for an empty cell). The message names the session
+    and the sources it has, with their row counts, so that a misspelt ``source`` is easy to see.
+    """
+    if model.select(sources).any():
+        return
+    what = type(model).__name__
+    if not len(sources):
+        raise MissingStream(f"session {session_id} has no position fixes (fixes.csv absent or empty), which the "
+                            f"{what} of {method_name} needs; available sources: none")
+    names, counts = np.unique(np.asarray(sources, dtype=str), return_counts=True)
+    avail = ", ".join(f"{str(n)!r} ({c} rows)" if n else f"<empty> ({c} rows)" for n, c in zip(names, counts))
+    raise MissingStream(f"session {session_id} has no fixes of source {model.source!r}, which the {what} of "
+                        f"{method_name} needs; available sources in fixes.csv: {avail}")
 
 
 def magnetometer_offset(arrays: SessionArrays, method: Method) -> np.ndarray | None:
@@ -218,21 +243,51 @@ class OnlineLocalizer:
     def push_odometry(self, t, xy):
         return self._run(self.stream.push_odometry(t, xy))
 
+    def push_fix(self, t, x, y, std=None, source=None):
+        """A position fix from another localizer: world x, y (m), std (m, None when unknown), source name.
+
+        A :class:`~blenav.filters.measurement.FixLikelihood` with ``source`` set uses only fixes pushed
+        with that source; with ``source=None`` it uses every fix."""
+        return self._run(self.stream.push_fix(t, x, y, std, source))
+
+    def push_event(self, e: tuple):
+        """Push one event of :func:`replay` (dispatch on its kind)."""
+        kind = e[0]
+        if kind == "imu":
+            return self.push_imu(e[1], e[2], e[3])
+        if kind == "mag":
+            return self.push_mag(e[1], e[2])
+        if kind == "rssi":
+            return self.push_rssi(e[1], e[2], e[3])
+        if kind == "odo":
+            return self.push_odometry(e[1], e[2])
+        if kind == "fix":
+            return self.push_fix(e[1], e[2], e[3], e[4], e[5])
+        raise ValueError(f"unknown event kind {kind!r}")
+
     def close(self, t_end):
         return self._run(self.stream.close(t_end))
 
 
 def replay(session: Session):
-    """The session's samples as one time-ordered event list (kind, t, payload...)."""
+    """The session's samples as one time-ordered event list (kind, t, payload...).
+
+    Kinds: ('mag', t, m), ('odo', t, xy), ('rssi', t, anchor_id, rssi), ('fix', t, x, y, std | None,
+    source | None), ('imu', t, acc, gyr); :meth:`OnlineLocalizer.push_event` dispatches them.
+    """
     ev = []
-    imu, mag, r, odo = session.imu, session.mag, session.rssi, session.odometry
-    order = {"mag": 0, "odo": 1, "rssi": 2, "imu": 3}
+    imu, mag, r, odo, fx = session.imu, session.mag, session.rssi, session.odometry, session.fixes
+    order = {"mag": 0, "odo": 1, "rssi": 2, "fix": 3, "imu": 4}
     for row in mag.itertuples(index=False):
         ev.append(("mag", row.t, np.array([row.mx, row.my, row.mz])))
     for row in odo.itertuples(index=False):
         ev.append(("odo", row.t, np.array([row.x, row.y])))
     for row in r.itertuples(index=False):
         ev.append(("rssi", row.t, str(row.anchor_id), float(row.rssi)))
+    for t, x, y, std, src in zip(fx["t"].to_numpy(float), fx["x"].to_numpy(float), fx["y"].to_numpy(float),
+                                 fx["std"].to_numpy(float), fx["source"].to_numpy(object)):
+        ev.append(("fix", float(t), float(x), float(y), None if np.isnan(std) else float(std),
+                   None if not isinstance(src, str) else src))
     for row in imu.itertuples(index=False):
         ev.append(("imu", row.t, np.array([row.ax, row.ay, row.az]), np.array([row.gx, row.gy, row.gz])))
     ev.sort(key=lambda e: (e[1], order[e[0]]))

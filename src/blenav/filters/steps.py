@@ -15,7 +15,11 @@ window (t_{k-1}, t_k], t_k = t_start + k / rate_hz. Per window (all causal, so t
   t_{k-1} and t_k (odometry frame, m);
 * ``rssi_idx`` (M,), ``rssi`` (M,): the window's BLE packets (anchor row in the model's
   :class:`~blenav.filters.measurement.AnchorTable`, dBm); packets of anchors that are not BLE anchors
-  of the building are left out (the reader already dropped unknown ids and reported them).
+  of the building are left out (the reader already dropped unknown ids and reported them);
+* ``fix_xy`` (F, 2), ``fix_std`` (F,), ``fix_source`` (F,): the window's position fixes (``fixes.csv``,
+  or :meth:`StepStream.push_fix`): world x, y (m), reported std (m, NaN when unknown) and source
+  (str, '' when empty), in time order. All sources are packed; each
+  :class:`~blenav.filters.measurement.FixLikelihood` selects its own.
 """
 
 from __future__ import annotations
@@ -67,12 +71,25 @@ class Window:
     steps: int = 0
     rssi_idx: list = field(default_factory=list)
     rssi: list = field(default_factory=list)
+    fix_xy: list = field(default_factory=list)
+    fix_std: list = field(default_factory=list)
+    fix_source: list = field(default_factory=list)
+
+
+def pack_fixes(xy, std, source) -> dict:
+    """The fix observations of one window: fix_xy (F, 2) float64 m, fix_std (F,) m, fix_source (F,) str."""
+    return {"fix_xy": np.asarray(xy, dtype=float).reshape(-1, 2), "fix_std": np.asarray(std, dtype=float).reshape(-1),
+            "fix_source": np.asarray(source, dtype=str).reshape(-1)}
+
+
 
 
 def window_step(win_acc: np.ndarray, win_q: np.ndarray, steps: int, odo_prev: np.ndarray, odo_now: np.ndarray,
-                rssi_idx: np.ndarray, rssi: np.ndarray, last_heading: float, median_window: int = 5
-                ) -> tuple[dict, dict, float]:
-    """Controls and observations of one window (both paths call this)."""
+                rssi_idx: np.ndarray, rssi: np.ndarray, last_heading: float, median_window: int = 5,
+                fixes: dict | None = None) -> tuple[dict, dict, float]:
+    """Controls and observations of one window (both paths call this).
+
+    ``fixes``: the window's fixes as :func:`pack_fixes` returns them (None: no fixes)."""
     if len(win_acc):
         a_t = np.median(win_acc[-median_window:], axis=0)
         acc_w = gravity_compensated_acc(win_q[-1:], a_t[None, :])[0, :2]
@@ -80,13 +97,18 @@ def window_step(win_acc: np.ndarray, win_q: np.ndarray, steps: int, odo_prev: np
     else:
         acc_w, heading = np.zeros(2), last_heading
     ctrl = {"acc_w": acc_w, "heading": heading, "steps": steps, "odo": odo_now - odo_prev}
-    obs = {"rssi_idx": rssi_idx, "rssi": rssi}
+    obs = {"rssi_idx": rssi_idx, "rssi": rssi, **(fixes if fixes is not None else pack_fixes([], [], []))}
     return ctrl, obs, heading
 
 
 @dataclass
 class SessionArrays:
-    """A session's streams as arrays (times in s)."""
+    """A session's streams as arrays (times in s).
+
+    Fixes: ``fix_t`` (F,) s, ``fix_xy`` (F, 2) world m, ``fix_std`` (F,) m (NaN when unknown),
+    ``fix_source`` (F,) str ('' when empty); all rows of ``fixes.csv``, every source.
+    ``t_start``/``t_end`` span the IMU, RSSI, odometry and fixes.
+    """
 
     imu_t: np.ndarray
     acc: np.ndarray
@@ -100,18 +122,26 @@ class SessionArrays:
     odo: np.ndarray
     t_start: float
     t_end: float
+    fix_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    fix_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    fix_std: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    fix_source: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=str))
 
     @classmethod
     def from_session(cls, session, anchors: AnchorTable) -> "SessionArrays":
         imu = session.imu
         mag = session.mag
         r = session.rssi
-        idx = anchors.index_of(r["anchor_id"].astype(str).to_numpy()) if len(r) else np.zeros(0, int)
+        if len(r) and len(anchors.ids):
+            idx = anchors.index_of(r["anchor_id"].astype(str).to_numpy())
+        else:  # no BLE anchor in the building: no packet is usable
+            idx = np.full(len(r), -1, dtype=int)
         keep = idx >= 0
         odo = session.odometry
-        ts = [s["t"].to_numpy() for s in (imu, r, odo) if len(s)]
+        fx = session.fixes
+        ts = [s["t"].to_numpy() for s in (imu, r, odo, fx) if len(s)]
         if not ts:
-            raise ValueError(f"session {session.id} has no IMU, RSSI or odometry to filter")
+            raise ValueError(f"session {session.id} has no IMU, RSSI, odometry or fixes to filter")
         c = np.ascontiguousarray  # row-major like the streaming path's stacked samples: same float results
         return cls(
             c(imu["t"].to_numpy(float)), c(imu[["ax", "ay", "az"]].to_numpy(float)),
@@ -119,7 +149,9 @@ class SessionArrays:
             c(mag["t"].to_numpy(float)) if len(mag) else None, c(mag[["mx", "my", "mz"]].to_numpy(float)) if len(mag) else None,
             c(r["t"].to_numpy(float)[keep]), idx[keep], c(r["rssi"].to_numpy(float)[keep]),
             c(odo["t"].to_numpy(float)), c(odo[["x", "y"]].to_numpy(float)),
-            float(min(t[0] for t in ts)), float(max(t[-1] for t in ts)))
+            float(min(t[0] for t in ts)), float(max(t[-1] for t in ts)),
+            c(fx["t"].to_numpy(float)), c(fx[["x", "y"]].to_numpy(float)), c(fx["std"].to_numpy(float)),
+            fx["source"].fillna("").astype(str).str.strip().to_numpy(dtype=str))
 
 
 def step_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
@@ -163,6 +195,7 @@ def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det
         q, step_flags = imu if imu is not None else imu_features(a, att_cfg, det_cfg, mag_offset)
     bounds_imu = np.searchsorted(a.imu_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right") if need_imu else None
     bounds_rssi = np.searchsorted(a.rssi_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right")
+    bounds_fix = np.searchsorted(a.fix_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right")
     out = []
     heading = 0.0
     prev_t = a.t_start
@@ -173,8 +206,10 @@ def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det
         else:
             wa, wq, n_steps = np.zeros((0, 3)), np.zeros((0, 4)), 0
         r = slice(bounds_rssi[k], bounds_rssi[k + 1])
+        f = slice(bounds_fix[k], bounds_fix[k + 1])
+        fixes = pack_fixes(a.fix_xy[f], a.fix_std[f], a.fix_source[f]) if f.stop > f.start else None
         ctrl, obs, heading = window_step(wa, wq, n_steps, _odo_at(a.odo_t, a.odo, prev_t), _odo_at(a.odo_t, a.odo, t),
-                                         a.rssi_idx[r], a.rssi[r], heading, att_cfg.median_window)
+                                         a.rssi_idx[r], a.rssi[r], heading, att_cfg.median_window, fixes)
         out.append((float(t), ctrl, obs))
         prev_t = t
     return out, q
@@ -215,7 +250,7 @@ class StepStream:
         ctrl, obs, self.heading = window_step(
             np.asarray(w.acc).reshape(-1, 3), np.asarray(w.q).reshape(-1, 4), w.steps, _odo_at(ot, oo, self.prev_t),
             _odo_at(ot, oo, t), np.asarray(w.rssi_idx, dtype=int), np.asarray(w.rssi, dtype=float), self.heading,
-            self.median_window)
+            self.median_window, pack_fixes(w.fix_xy, w.fix_std, w.fix_source) if w.fix_xy else None)
         self.win = Window()
         self.prev_t = t
         self.k += 1
@@ -242,6 +277,14 @@ class StepStream:
         if i >= 0:
             self.win.rssi_idx.append(i)
             self.win.rssi.append(float(rssi))
+        return out
+
+    def push_fix(self, t: float, x: float, y: float, std: float | None = None, source: str | None = None) -> list:
+        """A position fix (world m) with its std (m, None when unknown) and source ('' when None)."""
+        out = self._due(t)
+        self.win.fix_xy.append((float(x), float(y)))
+        self.win.fix_std.append(np.nan if std is None else float(std))
+        self.win.fix_source.append("" if source is None else str(source).strip())
         return out
 
     def push_odometry(self, t: float, xy: np.ndarray) -> list:
