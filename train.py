@@ -1,8 +1,11 @@
 """Train a learned localizer from a Hydra config: ``python train.py [overrides]`` (see conf/train.yaml)."""
 
+import sys
+
 import hydra
 from omegaconf import DictConfig
 
+from blenav.configs import cli_overrides
 from blenav.learn.train import train
 from blenav.paths import conf_dir
 
@@ -14,4 +17,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv = [sys.argv[0]] + cli_overrides(sys.argv[1:])  # data=DIR -> data.path=DIR
     main()

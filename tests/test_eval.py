@@ -13,7 +13,7 @@ import pytest
 from blenav.configs import compose
 from PIL import Image
 
-from blenav.cli.eval import _lists_from_commas
+from blenav.configs import cli_overrides
 from blenav.cli.sim import run as sim_run
 from blenav.data import Dataset
 from blenav.eval.harness import EvalError, evaluate
@@ -58,8 +58,9 @@ def test_results_schema_and_files(small, tmp_path, experiment):
             assert im.size[0] > 500
 
 
-def test_comma_sessions_become_a_list():
-    assert _lists_from_commas(["sessions=a,b", "runs=3", "sessions=[c]"]) == ["sessions=[a,b]", "runs=3", "sessions=[c]"]
+def test_command_line_conveniences():
+    assert cli_overrides(["sessions=a,b", "runs=3", "sessions=[c]"]) == ["sessions=[a,b]", "runs=3", "sessions=[c]"]
+    assert cli_overrides(["data=/x/y", "data.train_devices=[a]"]) == ["data.path=/x/y", "data.train_devices=[a]"]
 
 
 def test_cli_smoke(small, tmp_path):

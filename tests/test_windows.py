@@ -52,7 +52,30 @@ def test_split_by_device_and_clear_errors(tiny_dataset):
     sessions = list(ds.sessions())
     assert [s.id for s in split_by_device(sessions, test_devices=["test-phone"])["test"]] == ["walk0"]
     assert split_by_device(sessions)["train"] == sessions
-    with pytest.raises(ValueError, match="more than one"):
-        split_by_device(sessions, train_devices=["test-phone"], test_devices=["test-phone"])
+    with pytest.raises(ValueError, match="both train and unlabelled"):
+        split_by_device(sessions, train_devices=["test-phone"], unlabelled_devices=["test-phone"])
     with pytest.raises(ValueError, match="no session"):
         split_by_device(sessions, test_devices=["nokia"])
+
+
+def _fake_sessions(per_device: dict[str, tuple[int, int]]):
+    """SimpleNamespace sessions: device -> (labelled count, unlabelled count)."""
+    from types import SimpleNamespace
+    out = []
+    for d, (n_lab, n_unl) in per_device.items():
+        out += [SimpleNamespace(id=f"{d}-{i}", device_model=d, labelled=i < n_lab) for i in range(n_lab + n_unl)]
+    return out
+
+
+def test_split_holds_out_whole_sessions_and_shares_unlabelled_devices():
+    sessions = _fake_sessions({"a": (4, 0), "b": (4, 0), "c": (4, 0), "d": (2, 1), "e": (3, 0)})
+    g = split_by_device(sessions, train_devices=["a", "b"], unlabelled_devices=["c", "d"], holdout=0.25, seed=1)
+    ids = {k: {s.id for s in v} for k, v in g.items()}
+    assert not (ids["train"] & ids["test"]) and not (ids["unlabelled"] & ids["test"])
+    assert len([i for i in ids["test"] if i[0] in "ab"]) == 2  # one of four per trained device
+    assert len([i for i in ids["train"] if i[0] in "ab"]) == 6
+    assert len([i for i in ids["unlabelled"] if i[0] == "c"]) == 2  # no unlabelled session: half of them
+    assert {i for i in ids["unlabelled"] if i[0] == "d"} == {"d-2"}  # its unlabelled session
+    assert {i for i in ids["test"] if i[0] in "de"} == {"d-0", "d-1", "e-0", "e-1", "e-2"}
+    again = split_by_device(sessions, train_devices=["a", "b"], unlabelled_devices=["c", "d"], holdout=0.25, seed=1)
+    assert [s.id for s in again["test"]] == [s.id for s in g["test"]]  # seeded

@@ -6,6 +6,8 @@ Entry points call :func:`register_configs` before Hydra runs; tests and benchmar
 
 from __future__ import annotations
 
+import re
+
 from omegaconf import DictConfig
 
 from .paths import conf_dir
@@ -24,11 +26,28 @@ def register_configs() -> None:
     cs.store(group="filter", name="schema", node=FilterConfig)
 
 
+def cli_overrides(args: list[str]) -> list[str]:
+    """Command-line conveniences shared by the entry points (and :func:`compose`):
+
+    - ``data=DIR`` -> ``data.path=DIR``: ``data`` is a node (the dataset path plus its device split,
+      ``data.train_devices=[...]`` etc.), and the short form names the dataset;
+    - ``sessions=a,b`` -> ``sessions=[a,b]``: Hydra would read a bare comma list as a sweep.
+    """
+    out = []
+    for a in args:
+        if a.startswith("data=") and not a.startswith("data=["):
+            a = "data.path=" + a.split("=", 1)[1]
+        elif re.match(r"^sessions=[^\[].*,", a):
+            a = f"sessions=[{a.split('=', 1)[1]}]"
+        out.append(a)
+    return out
+
+
 def compose(config_name: str, *overrides: str) -> DictConfig:
-    """The composed ``conf/<config_name>.yaml`` with command-line style ``overrides``."""
+    """The composed ``conf/<config_name>.yaml`` with command-line style ``overrides`` (see :func:`cli_overrides`)."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
 
     register_configs()
     with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        return hydra_compose(config_name=config_name, overrides=list(overrides))
+        return hydra_compose(config_name=config_name, overrides=cli_overrides(list(overrides)))

@@ -2,22 +2,16 @@
 
 from __future__ import annotations
 
-import re
 import sys
 
 import hydra
 from omegaconf import DictConfig
 
-from blenav.configs import register_configs
+from blenav.configs import cli_overrides, register_configs
 from blenav.paths import conf_dir
 
 
 register_configs()
-
-
-def _lists_from_commas(argv: list[str]) -> list[str]:
-    """``sessions=a,b`` -> ``sessions=[a,b]``: Hydra would read a bare comma list as a sweep."""
-    return [f"sessions=[{a.split('=', 1)[1]}]" if re.match(r"^sessions=[^\[].*,", a) else a for a in argv]
 
 
 @hydra.main(config_path=str(conf_dir()), config_name="eval", version_base="1.3")
@@ -26,7 +20,7 @@ def _main(cfg: DictConfig) -> None:
 
     from blenav.eval.harness import EvalError, evaluate
 
-    if OmegaConf.is_missing(cfg, "data"):
+    if OmegaConf.is_missing(cfg.data, "path"):
         print("blenav-eval: error: name the dataset to evaluate on: data=DIR (a format-v1 dataset folder)",
               file=sys.stderr)
         sys.exit(1)
@@ -46,7 +40,7 @@ def _main(cfg: DictConfig) -> None:
 
 
 def main() -> None:
-    sys.argv = [sys.argv[0]] + _lists_from_commas(sys.argv[1:])
+    sys.argv = [sys.argv[0]] + cli_overrides(sys.argv[1:])
     _main()
 
 

@@ -143,9 +143,9 @@ def evaluate(cfg: DictConfig) -> dict:
     evaluated on its surveys.
     """
     try:
-        ds = Dataset.open(cfg.data)
+        ds = Dataset.open(cfg.data.path)
     except DatasetError as exc:
-        raise EvalError(f"cannot open dataset {cfg.data}: {exc}") from exc
+        raise EvalError(f"cannot open dataset {cfg.data.path}: {exc}") from exc
     methods = build_methods(cfg)
     cal_spec = cfg.get("calibration", "auto")
     exclude = set(cal_spec) if not isinstance(cal_spec, str) and cal_spec is not None else set()

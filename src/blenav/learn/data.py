@@ -4,6 +4,8 @@ Windows come from :func:`blenav.learn.windows.session_windows` on one building (
 order are the model's rows), divided by :data:`blenav.learn.losses.U_SCALE`. Each window carries the
 previous window of its session (``S_prev``) for the position-smoothness loss. Validation sessions are
 a seeded fraction of the training sessions (whole sessions, never windows of one walk on both sides).
+Splits follow :func:`blenav.learn.windows.split_by_device`. For the semi-supervised stage (scenario 3 of
+Roy) the training loader adds the unlabelled windows (labels NaN) from epoch ``semi_from_epoch`` on.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from dataclasses import dataclass, field
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, TensorDataset
+from torch.utils.data import ConcatDataset, DataLoader, TensorDataset
 
 from blenav.data import Dataset
 
@@ -27,6 +29,9 @@ class WindowDataConfig:
     train_devices: list | None = None
     test_devices: list | None = None
     unlabelled_devices: list | None = None
+    known_devices: list | None = None  # brand J of eq. 3.1 (statistics M); None: the train devices
+    holdout: float = 0.25  # share of a trained-and-tested device's labelled sessions kept for testing
+    unlabelled_share: float = 0.5
     val_fraction: float = 0.2
     history: int = 5
     step_hz: float = 1.0
@@ -63,6 +68,9 @@ class WindowDataModule(L.LightningDataModule):
         self.cfg = cfg
         self.beacons: list[str] = []
         self.sets: dict[str, TensorDataset | None] = {}
+        self.groups: dict[str, list] = {}
+        self.building = None
+        self.semi_from_epoch: int | None = None  # set by train(cfg) for the semi-supervised stage
 
     def setup(self, stage: str | None = None) -> None:
         if self.sets:
@@ -74,17 +82,27 @@ class WindowDataModule(L.LightningDataModule):
         if len(buildings) != 1:
             raise ValueError(f"{c.path}: window training needs sessions of one building, found {buildings}")
         self.beacons = beacon_order(sessions[0].building)
-        groups = split_by_device(sessions, c.train_devices, c.test_devices, c.unlabelled_devices)
+        self.building = sessions[0].building
+        groups = split_by_device(sessions, c.train_devices, c.test_devices, c.unlabelled_devices,
+                                 holdout=c.holdout, unlabelled_share=c.unlabelled_share, seed=c.seed)
         train = [s for s in groups["train"] if s.labelled]
-        rng = np.random.default_rng(c.seed)
+        rng = np.random.default_rng([c.seed, 1])
         n_val = int(round(c.val_fraction * len(train))) if len(train) > 1 else 0
         order = rng.permutation(len(train))
         val = [train[i] for i in order[:n_val]]
         train = [train[i] for i in order[n_val:]]
-        wcfg = WindowConfig(history=c.history, step_hz=c.step_hz)
+        self.window = WindowConfig(history=c.history, step_hz=c.step_hz)
+        wcfg = self.window
+        self.groups = {**groups, "train": train, "val": val}
+        known = set(c.known_devices) if c.known_devices else {s.device_model for s in train}
+        unknown = sorted(known - {s.device_model for s in train})
+        if unknown:
+            raise ValueError(f"known devices {unknown} have no labelled training session; "
+                             f"training devices: {sorted({s.device_model for s in train})}")
         self.sets = {"train": _tensors(train, self.beacons, wcfg, True), "val": _tensors(val, self.beacons, wcfg, True),
                      "test": _tensors([s for s in groups["test"] if s.labelled], self.beacons, wcfg, True),
-                     "unlabelled": _tensors(groups["unlabelled"], self.beacons, wcfg, False)}
+                     "unlabelled": _tensors(groups["unlabelled"], self.beacons, wcfg, False),
+                     "known": _tensors([s for s in train if s.device_model in known], self.beacons, wcfg, True)}
         if self.sets["train"] is None:
             raise ValueError(f"{c.path}: no labelled training windows for devices {c.train_devices or 'all'}")
 
@@ -99,6 +117,12 @@ class WindowDataModule(L.LightningDataModule):
         return DataLoader(d, batch_size=self.cfg.batch_size, shuffle=shuffle, generator=g, collate_fn=_collate)
 
     def train_dataloader(self):
+        semi = self.semi_from_epoch is not None and self.trainer is not None \
+            and self.trainer.current_epoch >= self.semi_from_epoch
+        if semi and self.sets.get("unlabelled") is not None:
+            both = ConcatDataset([self.sets["train"], self.sets["unlabelled"]])
+            g = torch.Generator().manual_seed(self.cfg.seed + self.trainer.current_epoch)
+            return DataLoader(both, batch_size=self.cfg.batch_size, shuffle=True, generator=g, collate_fn=_collate)
         return self._loader("train", True)
 
     def val_dataloader(self):

@@ -20,12 +20,15 @@ from .losses import localization_loss, position_smoothness_loss, ssl_loss, tempo
 class CrossPhoneModule(L.LightningModule):
     def __init__(self, locnet: torch.nn.Module, transnet: torch.nn.Module | None = None,
                  optimizer=partial(torch.optim.Adam, lr=1e-4), weights: dict | None = None,
-                 M: torch.Tensor | None = None, tau: float = 0.1):
+                 M: torch.Tensor | None = None, tau: float = 0.1, meta: dict | None = None):
         super().__init__()
         self.locnet, self.transnet = locnet, transnet
         self.optimizer_factory = optimizer
         self.weights = {"loc": 1.0, "ps": 0.0, "ssl": 0.0, "ts": 0.0, **(weights or {})}
         self.tau = tau
+        self.meta = meta or {}  # stored in checkpoints under "blenav" (see blenav.learn.checkpoint)
+        self.semi_from_epoch: int | None = None  # scenario 3: from this epoch on, Adam's lr is semi_lr
+        self.semi_lr = 1e-5
         self.register_buffer("M", M if M is not None else torch.zeros(0, 0), persistent=True)
 
     def translate(self, S: torch.Tensor) -> torch.Tensor:
@@ -71,6 +74,15 @@ class CrossPhoneModule(L.LightningModule):
 
     def test_step(self, batch, batch_idx):
         return self._log_step(batch, "test")
+
+    def on_train_epoch_start(self) -> None:
+        if self.semi_from_epoch is not None and self.current_epoch >= self.semi_from_epoch:
+            for opt in self.trainer.optimizers:
+                for group in opt.param_groups:
+                    group["lr"] = self.semi_lr
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint["blenav"] = self.meta
 
     def configure_optimizers(self):
         return self.optimizer_factory(self.parameters())

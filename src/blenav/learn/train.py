@@ -1,24 +1,68 @@
 """``train(cfg)``: build data, networks and the LightningModule from a Hydra config, fit, test.
 
-Leaves ``OUT/last.ckpt`` (and per-epoch metrics in ``OUT/metrics.csv`` via Lightning's CSVLogger). A run
-interrupted and started again with the same ``out`` resumes from ``OUT/last.ckpt``: optimizer state,
-epoch and step counters included. Seeding: ``lightning.seed_everything(cfg.seed)`` once, plus the data
-module's own generators.
+Leaves ``OUT/last.ckpt`` (and per-epoch metrics in ``OUT/logs/.../metrics.csv`` via Lightning's CSVLogger,
+plus TensorBoard event files when tensorboard is installed). A run interrupted and started again with
+the same ``out`` resumes from ``OUT/last.ckpt``: optimizer state, epoch and step counters included.
+Seeding: ``lightning.seed_everything(cfg.seed)`` once, plus the data module's own generators.
+
+Scenario 3 of Roy (``cfg.semi`` set and unlabelled devices given): after ``trainer.max_epochs`` supervised
+epochs, ``semi.epochs`` more run at ``semi.lr`` on labelled + unlabelled windows (the semi-supervised
+objective of eq. 3.6: L_loc on labelled windows, L_ps, L_ssl and L_ts on all). One Trainer runs both
+stages, so a run interrupted in either stage resumes where it stopped.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from functools import partial
+from importlib.util import find_spec
 from pathlib import Path
 
 import lightning as L
 import torch
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from .checkpoint import build_networks, data_hash
 from .data import WindowDataConfig, WindowDataModule
-from .losses import brand_statistics
+from .losses import U_SCALE, brand_statistics
 from .module import CrossPhoneModule
+
+
+def data_config(cfg: DictConfig) -> WindowDataConfig:
+    """The ``data`` node checked against :class:`WindowDataConfig` (a misspelt key fails here)."""
+    node = OmegaConf.to_container(cfg.data, resolve=True)  # resolve ${seed} against the root first
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(WindowDataConfig), node))
+
+
+def build_module(cfg: DictConfig, dm: WindowDataModule) -> CrossPhoneModule:
+    """Networks sized for the data module's beacons, label normalisation, M of eq. 3.1, checkpoint meta."""
+    model = OmegaConf.to_container(cfg.model, resolve=True)
+    B = len(dm.beacons)
+    locnet, transnet = build_networks(model, B)
+    locnet.set_normalisation(dm.train_labels())
+    M = torch.tensor(brand_statistics(dm.sets["known"].tensors[0].numpy())) if transnet is not None else None
+    tr = dm.sets["train"].tensors
+    c = dm.cfg
+    meta = {"model": model, "beacons": list(dm.beacons), "building": dm.building.id,
+            "window": {**dataclasses.asdict(dm.window), "u_scale": U_SCALE},
+            "data_hash": data_hash(tr[0].numpy(), tr[2].numpy()),
+            "train_devices": sorted({s.device_model for s in dm.groups["train"]}),
+            "known_devices": sorted(c.known_devices or {s.device_model for s in dm.groups["train"]}),
+            "unlabelled_devices": list(c.unlabelled_devices or [])}
+    semi = cfg.get("semi")
+    module = CrossPhoneModule(locnet, transnet, optimizer=partial(torch.optim.Adam, lr=float(model["lr"])),
+                              weights=dict(model.get("weights") or {}), M=M, meta=meta)
+    if semi and dm.sets.get("unlabelled") is not None:
+        module.semi_from_epoch, module.semi_lr = int(cfg.trainer.max_epochs), float(semi.lr)
+        dm.semi_from_epoch = int(cfg.trainer.max_epochs)
+    return module
+
+
+def loggers(out: Path) -> list:
+    log = [L.pytorch.loggers.CSVLogger(out, name="logs")]
+    if find_spec("tensorboard") is not None or find_spec("tensorboardX") is not None:
+        log.append(L.pytorch.loggers.TensorBoardLogger(out, name="tb"))
+    return log
 
 
 def train(cfg: DictConfig) -> tuple[dict, dict]:
@@ -26,24 +70,25 @@ def train(cfg: DictConfig) -> tuple[dict, dict]:
     L.seed_everything(int(cfg.seed), workers=True)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    data_node = OmegaConf.to_container(cfg.data, resolve=True)  # resolve ${seed} against the root first
-    dcfg = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(WindowDataConfig), data_node))
-    dm = WindowDataModule(dcfg)
+    dm = WindowDataModule(data_config(cfg))
     dm.setup()
-    B = len(dm.beacons)
-    locnet = instantiate(cfg.model.locnet, n_beacons=B)
-    locnet.set_normalisation(dm.train_labels())
-    transnet = instantiate(cfg.model.transnet, n_beacons=B) if cfg.model.get("transnet") else None
-    M = torch.tensor(brand_statistics(dm.sets["train"].tensors[0].numpy())) if transnet is not None else None
-    module = CrossPhoneModule(locnet, transnet, optimizer=partial(torch.optim.Adam, lr=float(cfg.model.lr)),
-                              weights=dict(cfg.model.get("weights") or {}), M=M)
+    module = build_module(cfg, dm)
+    trainer_kw = OmegaConf.to_container(cfg.trainer, resolve=True)
+    semi = cfg.get("semi")
+    if semi and dm.sets.get("unlabelled") is None:
+        raise ValueError("semi-supervised stage requested but no unlabelled windows: set "
+                         "data.unlabelled_devices=[...] to device models of this dataset")
+    if semi:
+        trainer_kw["max_epochs"] = int(cfg.trainer.max_epochs) + int(semi.epochs)
+        trainer_kw["reload_dataloaders_every_n_epochs"] = 1
     ckpt = L.pytorch.callbacks.ModelCheckpoint(dirpath=out, save_last=True, save_top_k=0)
-    trainer = L.Trainer(**cfg.trainer, default_root_dir=out, callbacks=[ckpt],
-                        logger=L.pytorch.loggers.CSVLogger(out, name="logs"), enable_model_summary=False)
+    trainer = L.Trainer(**trainer_kw, default_root_dir=out, callbacks=[ckpt], logger=loggers(out),
+                        enable_model_summary=False)
     resume = out / "last.ckpt"
     trainer.fit(module, datamodule=dm, ckpt_path=str(resume) if resume.is_file() else None)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
-    if dm.sets.get("test") is not None:
+    if dm.sets.get("test") is not None and trainer.is_global_zero:
         metrics.update({k: float(v) for k, v in trainer.test(module, datamodule=dm, verbose=False)[0].items()})
-    (out / "beacons.txt").write_text("\n".join(dm.beacons) + "\n", encoding="utf-8")
+    if trainer.is_global_zero:
+        (out / "beacons.txt").write_text("\n".join(dm.beacons) + "\n", encoding="utf-8")
     return metrics, {"module": module, "datamodule": dm, "trainer": trainer}

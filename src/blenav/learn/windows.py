@@ -88,28 +88,53 @@ def session_windows(session, beacons: list[str], cfg: WindowConfig = WindowConfi
     return Windows(np.ascontiguousarray(S), xy, t_end, beacons, session.device_model, session.id)
 
 
-def split_by_device(sessions, train_devices=None, test_devices=None, unlabelled_devices=None) -> dict[str, list]:
+def split_by_device(sessions, train_devices=None, test_devices=None, unlabelled_devices=None,
+                    holdout: float = 0.0, unlabelled_share: float = 0.5, seed: int = 0) -> dict[str, list]:
     """Sessions grouped as 'train' / 'test' / 'unlabelled' by their ``device_model`` (session.yaml).
 
-    A device named in two groups is an error; ``None`` for train means every device not named elsewhere.
+    - ``train_devices`` None: every device not named in ``unlabelled_devices`` or ``test_devices``. Only
+      labelled sessions train.
+    - ``test_devices`` None: every device. A device both trained on and tested gives ``holdout`` of its
+      labelled sessions (rounded, at least one when holdout > 0 and it has two or more) to the test set,
+      so no session is on both sides.
+    - ``unlabelled_devices``: their sessions without ground truth are unlabelled training data; a device
+      that is also tested and has no such session gives ``unlabelled_share`` of its sessions to the
+      unlabelled set (their labels unused) and the rest to the test set (scenario 3 of Roy).
+    Session choice is seeded and whole sessions move, never windows. A device in train and unlabelled,
+    or a named device without sessions, is an error naming the devices present.
     """
-    groups = {"train": train_devices, "test": test_devices, "unlabelled": unlabelled_devices}
-    named = [d for v in groups.values() if v for d in v]
-    dup = sorted({d for d in named if named.count(d) > 1})
-    if dup:
-        raise ValueError(f"device model(s) {dup} are in more than one of train/test/unlabelled devices")
-    out = {"train": [], "test": [], "unlabelled": []}
-    known = {s.device_model for s in sessions}
-    for name, devs in groups.items():
-        missing = sorted(set(devs or []) - known)
+    known = sorted({s.device_model for s in sessions})
+    for name, devs in (("train", train_devices), ("test", test_devices), ("unlabelled", unlabelled_devices)):
+        missing = sorted(set(devs or []) - set(known))
         if missing:
-            raise ValueError(f"{name} devices {missing} have no session; device models here: {sorted(known)}")
-    for s in sessions:
-        d = s.device_model
-        if unlabelled_devices and d in unlabelled_devices:
-            out["unlabelled"].append(s)
-        elif test_devices and d in test_devices:
-            out["test"].append(s)
-        elif train_devices is None or d in train_devices:
-            out["train"].append(s)
+            raise ValueError(f"{name} devices {missing} have no session; device models here: {known}")
+    U = set(unlabelled_devices or [])
+    T = set(train_devices) if train_devices is not None else set(known) - U - set(test_devices or [])
+    E = set(test_devices) if test_devices is not None else set(known)
+    both = sorted(T & U)
+    if both:
+        raise ValueError(f"device model(s) {both} are in both train and unlabelled devices")
+    rng = np.random.default_rng(seed)
+    out = {"train": [], "test": [], "unlabelled": []}
+    for d in known:
+        mine = sorted((s for s in sessions if s.device_model == d), key=lambda s: s.id)
+        lab = [s for s in mine if s.labelled]
+        unl = [s for s in mine if not s.labelled]
+        order = [lab[i] for i in rng.permutation(len(lab))]  # drawn for every device: stable across configs
+        if d in T:
+            k = 0
+            if d in E and holdout > 0 and len(lab) >= 2:
+                k = min(max(1, int(round(holdout * len(lab)))), len(lab) - 1)
+            out["test"] += sorted(order[:k], key=lambda s: s.id)
+            out["train"] += sorted(order[k:], key=lambda s: s.id)
+        elif d in U:
+            if unl or d not in E:
+                out["unlabelled"] += unl if d in E else mine
+                out["test"] += lab if d in E else []
+            else:
+                k = min(max(1, int(round(unlabelled_share * len(lab)))), max(len(lab) - 1, 1))
+                out["unlabelled"] += sorted(order[:k], key=lambda s: s.id)
+                out["test"] += sorted(order[k:], key=lambda s: s.id)
+        elif d in E:
+            out["test"] += lab
     return out
