@@ -1,6 +1,7 @@
 """Networks as plain ``torch.nn.Module``s (Roy, chapter 3). Training wrappers live elsewhere."""
 
+from .dlrnn import DLRNN
 from .locnet import LocNet
 from .transnet import TransNet
 
-__all__ = ["LocNet", "TransNet"]
+__all__ = ["DLRNN", "LocNet", "TransNet"]
