@@ -61,26 +61,9 @@ def test_gradients_reach_both_networks():
 
 @pytest.mark.onnx
 def test_onnx_export_matches_pytorch(tmp_path):
-    import onnxruntime as ort
+    from blenav.learn.export import StreamingLocalizer, export_onnx, onnx_max_diff, random_inputs
 
-    class Full(torch.nn.Module):
-        def __init__(self):
-            super().__init__()
-            self.t, self.l = TransNet(7), LocNet(7, hidden=16)
-
-        def forward(self, S, h0, c0):
-            return self.l.forward_state(self.t(S), h0, c0)
-
-    m = seeded(0, Full).eval()
-    S = _S(batch=3)
-    h0, c0 = m.l.initial_state(3)
-    path = tmp_path / "m.onnx"
-    torch.onnx.export(m, (S, h0, c0), str(path), input_names=["S", "h0", "c0"], output_names=["xy", "h", "c"],
-                      dynamic_axes={"S": {0: "batch"}, "h0": {1: "batch"}, "c0": {1: "batch"}, "xy": {0: "batch"}},
-                      dynamo=False)
-    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    got = sess.run(None, {"S": S.numpy(), "h0": h0.numpy(), "c0": c0.numpy()})
-    with torch.no_grad():
-        ref = m(S, h0, c0)
-    for a, b in zip(got, ref):
-        np.testing.assert_allclose(a, b.numpy(), rtol=1e-4, atol=1e-4)
+    m = seeded(0, lambda: StreamingLocalizer(LocNet(7, hidden=16), TransNet(7))).eval()
+    path = export_onnx(m, random_inputs(7, 5, 2, 16, batch=2, u_max=0.4, zero_state=True), tmp_path / "m.onnx")
+    for batch in (1, 3):
+        assert onnx_max_diff(path, m, random_inputs(7, 5, 2, 16, batch=batch, seed=batch, u_max=0.4)) < 1e-4

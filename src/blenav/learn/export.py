@@ -1,0 +1,205 @@
+"""ONNX export of the cross-phone localizer (TransNet + LocNet, Roy section 3.1) for streaming on a device.
+
+The exported graph, for a model of B beacons and windows of H steps (both fixed; the batch is dynamic):
+
+- inputs ``S`` (batch, B, H) float32 on the thesis scale u (u = rssi_dbm + offset_db, at least floor_u for a
+  heard packet, 0 = not heard; rows in the model's beacon order, columns oldest..newest step), ``h0`` and
+  ``c0`` (layers, batch, hidden) float32, the LSTM state (zeros for a fresh start);
+- outputs ``xy`` (batch, 2) float32, world x, y in metres at the window's last step, and ``h``, ``c``
+  (layers, batch, hidden), the new state to feed with the next window.
+
+The graph divides S by ``u_scale`` itself (the networks are trained on u / u_scale, see
+:mod:`blenav.learn.losses`) and applies TransNet when the model has one, so an app feeds the same numbers it
+would write in a dataset window. ``metadata_props`` of the model carry, as JSON strings: ``beacons``,
+``window`` (history, step_hz, offset_db, floor_u, u_scale), ``building``, ``data_hash``, ``model`` (the
+model node of the training config), ``model_name``, ``train_devices``, ``known_devices``,
+``unlabelled_devices``, ``blenav_version`` and ``input_transform`` (the text of :data:`INPUT_TRANSFORM`).
+:class:`blenav.runtime.OnnxLocalizer` reads them back.
+
+:func:`export` (``python export.py ckpt=RUN/last.ckpt out=MODEL.onnx``) loads a checkpoint written by
+``train(cfg)``; :func:`export_module` does the rest for an already built module (benchmarks use it). Every
+export is checked with ``onnx.checker`` and against PyTorch on random inputs (max abs diff <= ``TOL``).
+The pieces :class:`StreamingLocalizer`, :func:`random_inputs`, :func:`export_onnx` and :func:`onnx_max_diff`
+work for bare networks too.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+TOL = 1e-4  # max abs difference between onnxruntime and PyTorch outputs (metres and state units)
+DEFAULT_OPSET = 17
+INPUT_NAMES = ("S", "h0", "c0")
+OUTPUT_NAMES = ("xy", "h", "c")
+INPUT_TRANSFORM = ("u = rssi_dbm + offset_db, max(u, floor_u) when heard, 0 when not heard; "
+                   "S rows in beacons order, columns oldest..newest step")
+META_KEYS = ("beacons", "window", "building", "data_hash", "model", "model_name", "train_devices", "known_devices",
+             "unlabelled_devices", "blenav_version", "input_transform")
+REQUIRED_META = ("model", "beacons", "window")
+_DOCS = {
+    "S": "(batch, B, H) float32 RSSI windows on the thesis scale u (see metadata input_transform)",
+    "h0": "(layers, batch, hidden) float32 LSTM hidden state; zeros for a fresh start",
+    "c0": "(layers, batch, hidden) float32 LSTM cell state; zeros for a fresh start",
+    "xy": "(batch, 2) float32 world x, y in metres at the window's last step",
+    "h": "(layers, batch, hidden) float32 new LSTM hidden state",
+    "c": "(layers, batch, hidden) float32 new LSTM cell state",
+}
+
+
+class StreamingLocalizer(nn.Module):
+    """(S on the thesis scale, h0, c0) -> (xy m, h, c): divide by ``u_scale``, TransNet if any, LocNet with state."""
+
+    def __init__(self, locnet: nn.Module, transnet: nn.Module | None = None, u_scale: float = 1.0):
+        super().__init__()
+        self.locnet, self.transnet, self.u_scale = locnet, transnet, float(u_scale)
+
+    def forward(self, S: torch.Tensor, h0: torch.Tensor, c0: torch.Tensor):
+        g = S / self.u_scale
+        if self.transnet is not None:
+            g = self.transnet(g)
+        return self.locnet.forward_state(g, h0, c0)
+
+
+def random_inputs(n_beacons: int, history: int, layers: int, hidden: int, batch: int = 3, seed: int = 0,
+                  u_max: float = 70.0, p_heard: float = 0.7, zero_state: bool = False):
+    """(S, h0, c0) float32 tensors: S uniform in [0, u_max) with about 1 - p_heard of the entries 0 (not heard),
+    state standard normal (or zeros). Own generator, no global random state."""
+    g = torch.Generator().manual_seed(seed)
+    S = torch.rand(batch, n_beacons, history, generator=g) * u_max
+    S = S * (torch.rand(batch, n_beacons, history, generator=g) < p_heard)
+    if zero_state:
+        h0 = torch.zeros(layers, batch, hidden)
+        c0 = torch.zeros(layers, batch, hidden)
+    else:
+        h0 = torch.randn(layers, batch, hidden, generator=g)
+        c0 = torch.randn(layers, batch, hidden, generator=g)
+    return S, h0, c0
+
+
+def export_onnx(net: nn.Module, inputs: tuple, path: str | Path, opset: int = DEFAULT_OPSET,
+                metadata: dict[str, str] | None = None, doc: str = "") -> Path:
+    """Trace ``net(S, h0, c0) -> (xy, h, c)`` to ONNX at ``path`` with a dynamic batch, write ``metadata``
+    (str -> str) into ``metadata_props``, run ``onnx.checker``. Returns the path."""
+    import onnx
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    dynamic = {"S": {0: "batch"}, "h0": {1: "batch"}, "c0": {1: "batch"}, "xy": {0: "batch"}, "h": {1: "batch"},
+               "c": {1: "batch"}}
+    net = net.eval()
+    with warnings.catch_warnings(), torch.no_grad():
+        # the TorchScript exporter (the dynamo one needs onnxscript, not a dependency) warns about shape checks
+        # traced as constants (B, H are fixed by design), its own deprecation, and LSTM batch sizes (h0/c0
+        # are graph inputs here, which is the remedy it suggests)
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        warnings.filterwarnings("ignore", message=".*legacy TorchScript-based ONNX export.*")
+        warnings.filterwarnings("ignore", message=".*batch_size other than 1.*LSTM.*")
+        warnings.filterwarnings("ignore", message="The feature will be removed.*")
+        torch.onnx.export(net, tuple(inputs), str(path), input_names=list(INPUT_NAMES),
+                          output_names=list(OUTPUT_NAMES), dynamic_axes=dynamic, opset_version=int(opset),
+                          dynamo=False)
+    model = onnx.load(str(path))
+    for v in list(model.graph.input) + list(model.graph.output):
+        v.doc_string = _DOCS.get(v.name, "")
+    model.doc_string = doc
+    del model.metadata_props[:]
+    for k, v in (metadata or {}).items():
+        model.metadata_props.add(key=str(k), value=str(v))
+    onnx.checker.check_model(model, full_check=True)
+    onnx.save(model, str(path))
+    return path
+
+
+def onnx_max_diff(path: str | Path, net: nn.Module, inputs: tuple) -> float:
+    """Max abs difference over all outputs between onnxruntime (one thread) and ``net`` on ``inputs``."""
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = 1
+    sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+    got = sess.run(list(OUTPUT_NAMES), {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)})
+    with torch.no_grad():
+        ref = net.eval()(*inputs)
+    return max(float(np.max(np.abs(a - b.numpy()))) if a.size else 0.0 for a, b in zip(got, ref))
+
+
+def blenav_version() -> str:
+    try:
+        return importlib_metadata.version("blenav")
+    except importlib_metadata.PackageNotFoundError:
+        from blenav import __version__
+
+        return __version__
+
+
+def onnx_metadata(meta: dict) -> dict[str, str]:
+    """The ``metadata_props`` (JSON strings) of an export from a checkpoint's ``meta`` (see
+    :mod:`blenav.learn.checkpoint`)."""
+    missing = [k for k in REQUIRED_META if k not in meta]
+    if missing:
+        raise ValueError(f"checkpoint metadata lacks {missing} (has {sorted(meta)}); it must come from train(cfg)")
+    model = meta["model"]
+    values = {
+        "beacons": [str(b) for b in meta["beacons"]],
+        "window": meta["window"],
+        "building": meta.get("building"),
+        "data_hash": meta.get("data_hash"),
+        "model": model,
+        "model_name": model.get("name") if isinstance(model, dict) else None,
+        "train_devices": meta.get("train_devices"),
+        "known_devices": meta.get("known_devices"),
+        "unlabelled_devices": meta.get("unlabelled_devices"),
+        "blenav_version": blenav_version(),
+        "input_transform": INPUT_TRANSFORM,
+    }
+    return {k: json.dumps(values[k], sort_keys=True) for k in META_KEYS}
+
+
+def streaming_net(module, meta: dict) -> StreamingLocalizer:
+    """The :class:`StreamingLocalizer` of a :class:`~blenav.learn.module.CrossPhoneModule` and its meta."""
+    window = meta["window"]
+    if "u_scale" not in window or "history" not in window:
+        raise ValueError(f"checkpoint metadata 'window' lacks history/u_scale: {window}")
+    return StreamingLocalizer(module.locnet, module.transnet, float(window["u_scale"])).eval()
+
+
+def export_module(module, meta: dict, out: str | Path, opset: int = DEFAULT_OPSET, seed: int = 0) -> Path:
+    """Export a built module (eval mode, any weights) with its meta; check parity on random inputs."""
+    props = onnx_metadata(meta)
+    net = streaming_net(module, meta)
+    loc = module.locnet
+    B, H = len(meta["beacons"]), int(meta["window"]["history"])
+    if getattr(loc, "n_beacons", B) != B:
+        raise ValueError(f"LocNet has {loc.n_beacons} inputs but the metadata lists {B} beacons")
+    u_max = float(meta["window"].get("u_scale", 100.0)) * 0.7
+    example = random_inputs(B, H, loc.layers, loc.hidden, batch=2, seed=seed, u_max=u_max, zero_state=True)
+    name = meta["model"].get("name", "model") if isinstance(meta["model"], dict) else "model"
+    doc = (f"blenav cross-phone localizer '{name}' for building {meta.get('building')}: S (batch, {B}, {H}) "
+           f"thesis scale, h0/c0 ({loc.layers}, batch, {loc.hidden}) -> xy (batch, 2) m, h, c")
+    path = export_onnx(net, example, out, opset=opset, metadata=props, doc=doc)
+    worst = 0.0
+    for i, batch in enumerate((1, 3, 5)):  # other batch sizes than traced, random non-zero state
+        inputs = random_inputs(B, H, loc.layers, loc.hidden, batch=batch, seed=seed + 1 + i, u_max=u_max,
+                               zero_state=(i == 0))
+        worst = max(worst, onnx_max_diff(path, net, inputs))
+    if not worst <= TOL:
+        path.unlink(missing_ok=True)  # never leave a rejected model where an app could pick it up
+        raise RuntimeError(f"{path}: onnxruntime differs from PyTorch by {worst:.3g} > {TOL:g}; export rejected")
+    return path
+
+
+def export(cfg) -> Path:
+    """``cfg.ckpt`` (a ``last.ckpt`` of ``train(cfg)``) -> ``cfg.out`` (an .onnx file), opset ``cfg.opset``
+    (default 17). Returns the output path."""
+    from .checkpoint import load_module
+
+    module, meta = load_module(cfg.ckpt)
+    opset = cfg.get("opset", DEFAULT_OPSET) if hasattr(cfg, "get") else getattr(cfg, "opset", DEFAULT_OPSET)
+    return export_module(module, meta, cfg.out, opset=int(opset if opset is not None else DEFAULT_OPSET))

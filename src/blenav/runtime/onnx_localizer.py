@@ -1,0 +1,177 @@
+"""Run an exported cross-phone localizer (:mod:`blenav.learn.export`) with onnxruntime, as an app would.
+
+Windows S are (K, B, H) float32 on the thesis scale u: rows in the model's beacon order (:attr:`beacons`),
+columns oldest..newest step of ``1 / step_hz`` s, u = rssi_dbm + offset_db (at least floor_u) for a heard
+beacon and 0 when not heard (:meth:`OnnxLocalizer.to_u` converts dBm with NaN = not heard). Outputs are
+world x, y in metres at each window's last step.
+
+- :meth:`OnnxLocalizer.predict`: independent windows, each from a zero LSTM state;
+- :meth:`OnnxLocalizer.step`: one window per call, carrying the LSTM state from call to call (what
+  ``LocNet.forward_state`` does when fed its own state back); :meth:`OnnxLocalizer.reset` starts afresh.
+
+No beacon heard -> no fix: a window with every entry 0 gives a NaN row (the network's output there is only
+its prior; :meth:`OnnxLocalizer.heard` tells which windows have a reading). In :meth:`~OnnxLocalizer.step`
+such a window still advances the LSTM state, exactly as the network would.
+
+Given a :class:`blenav.data.Building`, the loader refuses a model trained for another building or beacon set.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from blenav.learn.windows import beacon_order
+
+_EXAMPLES = 5
+
+
+def _examples(ids: list[str]) -> str:
+    more = f", ... ({len(ids) - _EXAMPLES} more)" if len(ids) > _EXAMPLES else ""
+    return ", ".join(ids[:_EXAMPLES]) + more
+
+
+class OnnxLocalizer:
+    """An exported model in an onnxruntime session (``threads`` intra-op threads, sequential execution)."""
+
+    def __init__(self, path: str | Path, building=None, threads: int = 1):
+        import onnxruntime as ort
+
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"ONNX model {self.path} does not exist")
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = int(threads)
+        so.inter_op_num_threads = 1
+        so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        self._sess = ort.InferenceSession(str(self.path), so, providers=["CPUExecutionProvider"])
+        props = self._sess.get_modelmeta().custom_metadata_map
+        self._meta = {}
+        for k, v in props.items():
+            try:
+                self._meta[k] = json.loads(v)
+            except json.JSONDecodeError:
+                self._meta[k] = v
+        names = [i.name for i in self._sess.get_inputs()]
+        if names != ["S", "h0", "c0"] or "beacons" not in self._meta or "window" not in self._meta:
+            raise ValueError(f"{self.path} is not a blenav localizer export (inputs {names}, metadata keys "
+                             f"{sorted(self._meta)}); write it with `python export.py ckpt=... out=...`")
+        s, h = self._sess.get_inputs()[0].shape, self._sess.get_inputs()[1].shape
+        self.n_beacons, self.history = int(s[1]), int(s[2])
+        self.layers, self.hidden = int(h[0]), int(h[2])
+        if self.n_beacons != len(self.beacons):
+            raise ValueError(f"{self.path}: graph reads {self.n_beacons} beacons, metadata lists {len(self.beacons)}")
+        if building is not None:
+            self.check_building(building)
+        self.reset()
+
+    # --- metadata ---------------------------------------------------------------------------------------
+    @property
+    def meta(self) -> dict:
+        """Decoded ``metadata_props`` (beacons, window, building, data_hash, model, devices, versions)."""
+        return json.loads(json.dumps(self._meta))  # a copy the caller may change
+
+    @property
+    def session(self):
+        """The underlying ``onnxruntime.InferenceSession`` (inputs S, h0, c0; outputs xy, h, c)."""
+        return self._sess
+
+    @property
+    def beacons(self) -> list[str]:
+        return list(self._meta["beacons"])
+
+    @property
+    def building(self) -> str | None:
+        return self._meta.get("building")
+
+    def check_building(self, building) -> None:
+        """ValueError unless ``building`` has exactly the model's BLE beacons (and its id, when recorded)."""
+        have = beacon_order(building)
+        want = self.beacons
+        lacks = sorted(set(want) - set(have))
+        unknown = sorted(set(have) - set(want))
+        head = (f"model {self.path} was trained for building {self.building!r} with {len(want)} beacons; "
+                f"this building {building.id!r}")
+        if lacks or unknown:
+            parts = []
+            if lacks:
+                parts.append(f"lacks {len(lacks)} of them ({_examples(lacks)})")
+            if unknown:
+                parts.append(f"has {len(unknown)} unknown ({_examples(unknown)})")
+            raise ValueError(f"{head} {' and '.join(parts)}; train and export a model for this building")
+        if self.building is not None and str(building.id) != str(self.building):
+            raise ValueError(f"{head} has the same beacon ids but is another building; "
+                             "train and export a model for this building")
+
+    # --- inputs -----------------------------------------------------------------------------------------
+    def to_u(self, rssi_dbm) -> np.ndarray:
+        """dBm (NaN = not heard) -> thesis scale u with the model's window settings, float32."""
+        w = self._meta["window"]
+        r = np.asarray(rssi_dbm, dtype=float)
+        u = np.maximum(r + float(w["offset_db"]), float(w["floor_u"]))
+        return np.where(np.isnan(r), 0.0, u).astype(np.float32)
+
+    def _check(self, S, name: str) -> np.ndarray:
+        S = np.asarray(S, dtype=np.float32)
+        if S.ndim != 3 or S.shape[1:] != (self.n_beacons, self.history):
+            raise ValueError(f"{name} expects windows (K, {self.n_beacons}, {self.history}) (beacons x steps), "
+                             f"got {S.shape}")
+        if not np.isfinite(S).all():
+            raise ValueError(f"{name}: windows contain NaN/inf; use 0 for a beacon not heard")
+        if (S < 0).any():
+            raise ValueError(f"{name}: windows must be on the thesis scale u >= 0 (rssi_dbm + "
+                             f"{self._meta['window'].get('offset_db')}), found {float(S.min()):.1f}; dBm given? "
+                             "see to_u()")
+        return np.ascontiguousarray(S)
+
+    @staticmethod
+    def heard(S) -> np.ndarray:
+        """(K,) bool: the window has at least one reading (some entry > 0)."""
+        S = np.asarray(S)
+        return (S > 0).reshape(len(S), -1).any(axis=1)
+
+    # --- inference --------------------------------------------------------------------------------------
+    def _run(self, S: np.ndarray, h0: np.ndarray, c0: np.ndarray):
+        return self._sess.run(None, {"S": S, "h0": h0, "c0": c0})
+
+    def zero_state(self, batch: int) -> tuple[np.ndarray, np.ndarray]:
+        z = np.zeros((self.layers, batch, self.hidden), np.float32)
+        return z, z.copy()
+
+    def predict(self, S) -> np.ndarray:
+        """(K, B, H) windows -> (K, 2) metres, each from a zero state; NaN rows where no beacon was heard."""
+        S = self._check(S, "predict")
+        if len(S) == 0:
+            return np.zeros((0, 2))
+        xy = self._run(S, *self.zero_state(len(S)))[0].astype(float)
+        xy[~self.heard(S)] = np.nan
+        return xy
+
+    def step(self, S) -> np.ndarray:
+        """One window (1, B, H) (or (B, H)) -> (1, 2) metres, continuing the state of the previous call.
+        NaN when no beacon was heard (the state still advances)."""
+        S = np.asarray(S, dtype=np.float32)
+        if S.ndim == 2:
+            S = S[None]
+        S = self._check(S, "step")
+        if len(S) != 1:
+            raise ValueError(f"step takes one window (1, {self.n_beacons}, {self.history}), got {S.shape}")
+        xy, self._h, self._c = self._run(S, self._h, self._c)
+        xy = xy.astype(float)
+        xy[~self.heard(S)] = np.nan
+        return xy
+
+    def reset(self) -> None:
+        """Forget the streaming state (next :meth:`step` starts from zeros)."""
+        self._h, self._c = self.zero_state(1)
+
+    @property
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of the streaming (h, c), each (layers, 1, hidden)."""
+        return self._h.copy(), self._c.copy()
+
+    def __repr__(self) -> str:
+        return (f"OnnxLocalizer({str(self.path)!r}, model={self._meta.get('model_name')!r}, "
+                f"building={self.building!r}, B={self.n_beacons}, H={self.history})")

@@ -1,0 +1,205 @@
+"""ONNX export of trained localizers and the onnxruntime loader: metadata, parity with PyTorch incl. the
+streaming state, refusal of another building, no fix without a beacon, the ``export.py`` entry point."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from blenav.cli.sim import run as sim_run
+from blenav.configs import compose
+from blenav.data import Dataset
+from blenav.learn import export as export_mod
+from blenav.learn.checkpoint import load_module
+from blenav.learn.export import INPUT_TRANSFORM, export, random_inputs
+from blenav.learn.train import train
+from blenav.learn.windows import WindowConfig, session_windows
+from blenav.runtime import OnnxLocalizer
+
+pytestmark = pytest.mark.onnx
+
+REPO = Path(__file__).resolve().parents[1]
+MODELS = ["locnet", "transnet_locnet"]
+TOL = 1e-4
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("exp") / "d"
+    sim_run(compose("sim", "sim=small", "seed=5", f"out={out}", "duration_s=60", "sessions=4", "progress=false",
+                    "sim.carriers=[pedestrian]", "sim.receivers=[iphone-8,galaxy-s10]"))
+    return out
+
+
+@pytest.fixture(scope="module")
+def runs(dataset, tmp_path_factory):
+    """model name -> (last.ckpt, exported .onnx) of a one-epoch tiny training run, exported with export(cfg)."""
+    root = tmp_path_factory.mktemp("runs")
+    out = {}
+    for model in MODELS:
+        run = root / model
+        train(compose("train", f"model={model}", f"data.path={dataset}", f"out={run}", "data.batch_size=32",
+                      "model.lr=3e-3", "trainer.enable_progress_bar=false", "trainer.max_epochs=1",
+                      "model.locnet.hidden=16", "model.locnet.fc_hidden=8"))
+        ckpt = run / "last.ckpt"
+        path = export(compose("export", f"ckpt={ckpt}", f"out={root / (model + '.onnx')}"))
+        out[model] = (ckpt, Path(path))
+    return out
+
+
+def real_windows(dataset, meta) -> np.ndarray:
+    """(K, B, H) thesis-scale windows of the first session, in the model's beacon order."""
+    w = meta["window"]
+    s = next(Dataset.open(dataset).sessions())
+    cfg = WindowConfig(history=w["history"], step_hz=w["step_hz"], offset_db=w["offset_db"], floor_u=w["floor_u"])
+    return session_windows(s, meta["beacons"], cfg).S
+
+
+def torch_state_step(module, meta, S: np.ndarray, h0, c0):
+    """The checkpoint's networks on thesis-scale S with an explicit state, as training sees them (u / u_scale)."""
+    with torch.no_grad():
+        g = module.translate(torch.from_numpy(S) / meta["window"]["u_scale"])
+        return module.locnet.forward_state(g, h0, c0)
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_metadata_round_trip_and_graph(runs, model):
+    import onnx
+
+    ckpt, path = runs[model]
+    _, meta = load_module(ckpt)
+    props = {p.key: json.loads(p.value) for p in onnx.load(str(path)).metadata_props}
+    for k in ("beacons", "window", "building", "data_hash", "model", "train_devices", "known_devices",
+              "unlabelled_devices"):
+        assert props[k] == meta[k], k
+    assert props["model_name"] == model and props["input_transform"] == INPUT_TRANSFORM
+    assert props["blenav_version"] == importlib_metadata.version("blenav")
+    loc = OnnxLocalizer(path)
+    assert loc.meta == props and loc.beacons == meta["beacons"] and loc.building == meta["building"]
+    assert (loc.n_beacons, loc.history) == (len(meta["beacons"]), meta["window"]["history"])
+    assert (loc.layers, loc.hidden) == (2, 16)
+    shapes = {i.name: i.shape for i in loc.session.get_inputs() + loc.session.get_outputs()}
+    B, H = loc.n_beacons, loc.history
+    assert shapes["S"][1:] == [B, H] and isinstance(shapes["S"][0], str)  # fixed B, H; dynamic batch
+    assert shapes["h0"][0] == 2 and isinstance(shapes["h0"][1], str) and shapes["xy"][1] == 2
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_onnxruntime_matches_pytorch_incl_streaming_state(runs, dataset, model):
+    ckpt, path = runs[model]
+    module, meta = load_module(ckpt)
+    loc = OnnxLocalizer(path)
+    S = real_windows(dataset, meta)
+    assert len(S) > 10 and loc.heard(S).all()
+    rnd = random_inputs(loc.n_beacons, loc.history, 2, 16, batch=6, seed=3)[0].numpy()
+    for X in (S, rnd, S[:1]):  # several batch sizes through the dynamic axis
+        h0, c0 = module.locnet.initial_state(len(X))
+        ref = torch_state_step(module, meta, X, h0, c0)[0].numpy()
+        np.testing.assert_allclose(loc.predict(X), ref, atol=TOL, rtol=0)
+        with torch.no_grad():
+            np.testing.assert_allclose(ref, module(torch.from_numpy(X) / 100.0).numpy(), atol=1e-6)
+    # streaming: two steps with the state carried equal forward_state twice
+    loc.reset()
+    a, b = loc.step(S[0:1]), loc.step(S[1])  # (1, B, H) and (B, H) both accepted
+    h, c = module.locnet.initial_state(1)
+    x1, h, c = torch_state_step(module, meta, S[0:1], h, c)
+    x2, h, c = torch_state_step(module, meta, S[1:2], h, c)
+    np.testing.assert_allclose(a, x1.numpy(), atol=TOL, rtol=0)
+    np.testing.assert_allclose(b, x2.numpy(), atol=TOL, rtol=0)
+    for got, ref in zip(loc.state, (h, c)):
+        np.testing.assert_allclose(got, ref.numpy(), atol=TOL, rtol=0)
+    assert np.abs(b - loc.predict(S[1:2])).max() > 1e-6  # the carried state matters
+    loc.reset()
+    np.testing.assert_allclose(loc.step(S[0:1]), a, atol=1e-6)
+
+
+def test_no_beacon_heard_gives_no_fix(runs, dataset):
+    ckpt, path = runs["transnet_locnet"]
+    _, meta = load_module(ckpt)
+    loc = OnnxLocalizer(path)
+    S = real_windows(dataset, meta)[:4].copy()
+    S[[1, 3]] = 0.0
+    assert loc.heard(S).tolist() == [True, False, True, False]
+    xy = loc.predict(S)
+    assert np.isnan(xy[[1, 3]]).all() and np.isfinite(xy[[0, 2]]).all()
+    loc.reset()
+    assert np.isnan(loc.step(S[1:2])).all()
+    assert np.abs(loc.state[0]).max() > 0  # the network still read the window: state advanced
+    assert loc.predict(S[:0]).shape == (0, 2)
+
+
+def test_input_checks_and_dbm_conversion(runs):
+    loc = OnnxLocalizer(runs["locnet"][1])
+    B, H = loc.n_beacons, loc.history
+    with pytest.raises(ValueError, match=rf"\(K, {B}, {H}\)"):
+        loc.predict(np.zeros((2, B + 1, H)))
+    with pytest.raises(ValueError, match="dBm"):
+        loc.predict(np.full((1, B, H), -70.0))
+    with pytest.raises(ValueError, match="NaN"):
+        loc.predict(np.full((1, B, H), np.nan))
+    with pytest.raises(ValueError, match="one window"):
+        loc.step(np.zeros((2, B, H)))
+    np.testing.assert_allclose(loc.to_u([-60.0, np.nan, -120.0]), [40.0, 0.0, 0.5])
+    with pytest.raises(FileNotFoundError):
+        OnnxLocalizer(runs["locnet"][1].with_name("missing.onnx"))
+
+
+def test_loader_refuses_another_building(runs, dataset, tmp_path):
+    path = runs["transnet_locnet"][1]
+    own = Dataset.open(dataset)
+    building = own.building(own.building_ids[0])
+    assert OnnxLocalizer(path, building=building).beacons == sorted(building.anchors_of("ble")["anchor_id"])
+    # another simulated building: more beacons, another id
+    other = tmp_path / "annex"
+    sim_run(compose("sim", "sim=small", "sim.name=annex", "sim.n_beacons=10", "seed=9", f"out={other}",
+                    "duration_s=5", "sessions=1", "progress=false", "sim.carriers=[static]",
+                    "sim.receivers=[iphone-8]"))
+    annex = Dataset.open(other).building("annex")
+    with pytest.raises(ValueError) as e:
+        OnnxLocalizer(path, building=annex)
+    msg = str(e.value)
+    assert str(path) in msg and "building 'small' with 8 beacons" in msg and "this building 'annex'" in msg
+    assert "has 2 unknown (ble-008, ble-009)" in msg and "lacks" not in msg
+    # the same id with a changed beacon list: 2 missing, 7 unknown (5 examples shown)
+    a = building.anchors
+    ble = a[a["kind"] == "ble"]
+    extra = ble.iloc[[0] * 7].assign(anchor_id=[f"x-{i:03d}" for i in range(7)])
+    changed = dataclasses.replace(building, anchors=pd.concat([a.drop(ble.index[:2]), extra], ignore_index=True))
+    with pytest.raises(ValueError) as e:
+        OnnxLocalizer(path, building=changed)
+    msg = str(e.value)
+    assert "lacks 2 of them (ble-000, ble-001)" in msg
+    assert "has 7 unknown (x-000, x-001, x-002, x-003, x-004, ... (2 more))" in msg
+    # identical beacon ids but another building
+    with pytest.raises(ValueError, match="'elsewhere' has the same beacon ids but is another building"):
+        OnnxLocalizer(path, building=dataclasses.replace(building, id="elsewhere"))
+
+
+def test_export_errors(runs, tmp_path, monkeypatch):
+    with pytest.raises(FileNotFoundError):
+        export(compose("export", f"ckpt={tmp_path / 'none.ckpt'}", f"out={tmp_path / 'm.onnx'}"))
+    monkeypatch.setattr(export_mod, "onnx_max_diff", lambda *a, **k: 1.0)  # a broken runtime
+    out = tmp_path / "bad.onnx"
+    with pytest.raises(RuntimeError, match="differs from PyTorch"):
+        export(compose("export", f"ckpt={runs['locnet'][0]}", f"out={out}"))
+    assert not out.exists()
+
+
+def test_entry_point(runs, tmp_path):
+    ckpt, ref = runs["transnet_locnet"]
+    out = tmp_path / "cli" / "MODEL.onnx"
+    r = subprocess.run([sys.executable, "export.py", f"ckpt={ckpt}", f"out={out}"], cwd=REPO,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert f"wrote {out}" in r.stdout
+    S = random_inputs(8, 5, 2, 16, batch=4, seed=1)[0].numpy()
+    np.testing.assert_allclose(OnnxLocalizer(out).predict(S), OnnxLocalizer(ref).predict(S), atol=1e-6)
