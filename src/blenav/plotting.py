@@ -361,6 +361,23 @@ def figure_error_cdf(grid: np.ndarray, cdfs: dict[str, np.ndarray], title: str =
     return fig
 
 
+def figure_per_device(means: dict[str, dict[str, float]], title: str = "") -> Figure:
+    """Grouped bars: mean error (m) per test device (x) and method (colour); ``means[method][device]``."""
+    devices = sorted({d for m in means.values() for d in m})
+    fig = new_figure(max(6.0, 0.55 * len(devices) * max(1, len(means)) ** 0.5 + 2), 4.4)
+    ax = fig.subplots()
+    w = 0.8 / max(len(means), 1)
+    x = np.arange(len(devices))
+    for k, ((name, m), c) in enumerate(zip(means.items(), session_colors(len(means)))):
+        ax.bar(x + (k - (len(means) - 1) / 2) * w, [m.get(d, np.nan) for d in devices], w, color=c, label=name)
+    ax.set_xticks(x, devices, rotation=45, ha="right", fontsize=8)
+    ax.set_ylabel("mean absolute error [m]")
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    ax.set_title(title or "mean error per test device", fontsize=9)
+    return fig
+
+
 def figure_rmse_box(rmses: dict[str, np.ndarray], title: str = "") -> Figure:
     """Box plot of per-run RMSE (m) per method."""
     fig = new_figure(1.4 + 1.2 * len(rmses), 4.4)

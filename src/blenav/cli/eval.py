@@ -33,6 +33,11 @@ def _main(cfg: DictConfig) -> None:
         if "rmse_m" not in m:
             print(f"{name:12s} skipped on {len(m['skipped'])} session(s): {next(iter(m['skipped'].values()))}")
             continue
+        if "per_device" in m:  # a window-level comparison (crossphone): absolute error per window
+            e = m["error_m"]
+            print(f"{name:22s} error mean {e['mean']:.2f} m  median {e['median']:.2f}  p90 {e['p90']:.2f}  "
+                  f"max {e['max']:.2f}  ({m['n_windows']} windows)")
+            continue
         r = m["rmse_m"]
         print(f"{name:12s} RMSE {r['mean']:.2f} +- {r['stderr']:.2f} m  p75 {m['error_m']['p75']:.2f} m  "
               f"({m['realtime_factor']:.0f}x real time)")

@@ -140,8 +140,13 @@ def evaluate(cfg: DictConfig) -> dict:
 
     Sessions: ``cfg.sessions`` or, by default, every labelled session that is not a static survey
     (surveys calibrate the path-loss model) nor named by ``calibration``; a dataset of surveys only is
-    evaluated on its surveys.
+    evaluated on its surveys. An experiment of ``kind: crossphone`` (learned localizers scored per window,
+    Roy's Tables 3.3-3.5) runs :func:`blenav.eval.crossphone.evaluate_crossphone` instead.
     """
+    if cfg.experiment.get("kind") == "crossphone":
+        from .crossphone import evaluate_crossphone
+
+        return evaluate_crossphone(cfg)
     try:
         ds = Dataset.open(cfg.data.path)
     except DatasetError as exc:

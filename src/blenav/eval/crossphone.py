@@ -1,0 +1,232 @@
+"""``evaluate_crossphone(cfg)``: the cross-phone comparison of Roy, section 3.1.4 (Tables 3.3-3.5).
+
+Every method sees the same split (:func:`blenav.learn.windows.split_by_device` with ``cfg.data``): the
+learned methods train through :func:`blenav.learn.train.train` into ``OUT/runs/<key>`` (a run that is
+already complete is reused, an interrupted one resumes, one trained on other data is refused), the
+baselines of Table 3.5 fit on the same labelled windows. All are scored on the same test windows: every
+window of a labelled test session whose end lies inside the ground truth and in which at least one
+beacon was heard (a window with no beacon heard gives no fix; how many there were is reported).
+
+``results.json`` follows the shared schema (``experiment``, ``title``, ``dataset``, ``sessions``,
+``seed``, ``methods``) with per method::
+
+    {"error_m": {"mean","std","median","p75","p90","max"}, "rmse_m": {summary over sessions},
+     "per_device": {device_model: {"mean","std","median","p90","max","n"}},
+     "per_brand": {brand: {...}}, "per_session": {SESSION_ID: {"error_m": {...}, "device_model"}},
+     "train_s", "predict_s", "n_windows", "source" ("trained: OUT/runs/KEY" | "model: FILE.onnx" | "fitted")}
+
+A method is named by its label (``LocNet``, ``TransNet+LocNet``, ``TransNet+LocNet+semi``, ``DL-RNN``,
+``KNN``, ``Bayesian``, ``KRR+KF``). ``model=FILE.onnx`` replaces the training of ``TransNet+LocNet`` by an
+exported model (its beacon list must match the building).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from blenav.data import DatasetError
+
+from .harness import EvalError, _json_default
+
+log = logging.getLogger("blenav.eval")
+
+
+def _error_stats(e: np.ndarray) -> dict:
+    e = np.asarray(e, float)
+    if e.size == 0:
+        return {k: float("nan") for k in ("mean", "std", "median", "p75", "p90", "max")} | {"n": 0}
+    return {"mean": float(e.mean()), "std": float(e.std()), "median": float(np.median(e)),
+            "p75": float(np.percentile(e, 75)), "p90": float(np.percentile(e, 90)), "max": float(e.max()),
+            "n": int(e.size)}
+
+
+class TestWindows:
+    """Windows of the test sessions, scored ones only: S (K, B, H) thesis scale, xy (K, 2), t (K,) per session."""
+
+    def __init__(self, dm):
+        from blenav.learn.windows import session_windows
+
+        self.sessions, self.windows, self.no_fix = [], {}, {}
+        for s in dm.groups["test"]:
+            if not s.labelled:
+                continue
+            w = session_windows(s, dm.beacons, dm.window)
+            ok = ~np.isnan(w.xy).any(axis=1)
+            heard = (w.S > 0).any(axis=(1, 2))
+            self.no_fix[s.id] = int((ok & ~heard).sum())
+            keep = ok & heard
+            if keep.any():
+                self.sessions.append(s)
+                self.windows[s.id] = (w.S[keep], w.xy[keep], w.t[keep])
+        if not self.sessions:
+            raise EvalError("no labelled test windows: name test devices with labelled sessions "
+                            "(data.test_devices=[...]) or keep data.holdout > 0")
+
+
+def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path) -> Path:
+    """Train (or resume, or reuse) one learned method; returns its last.ckpt."""
+    from blenav.learn.train import train
+
+    tcfg = OmegaConf.create({"seed": cfg.seed, "out": str(run_dir), "semi": spec.get("semi"),
+                             "data": OmegaConf.to_container(cfg.data, resolve=True),
+                             "model": OmegaConf.to_container(spec.model, resolve=True),
+                             "trainer": {**OmegaConf.to_container(cfg.trainer, resolve=True),
+                                         "enable_progress_bar": bool(cfg.get("progress", False))}})
+    init = spec.get("init_from")
+    ck = run_dir / "last.ckpt"
+    if init and not ck.exists():  # scenario 3 continues scenario 2's run: start from its checkpoint
+        src = run_dir.parent / str(init) / "last.ckpt"
+        run_dir.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, ck)
+    train(tcfg)
+    return ck
+
+
+def _check_reuse(ck: Path, dm) -> None:
+    from blenav.learn.checkpoint import data_hash, read_meta
+
+    if not ck.is_file():
+        return
+    meta = read_meta(ck)
+    tr = dm.sets["train"].tensors
+    now = data_hash(tr[0].numpy(), tr[2].numpy())
+    if meta.get("data_hash") not in (None, now):
+        raise EvalError(f"{ck} was trained on other data (hash {meta.get('data_hash')} != {now}); "
+                        f"delete {ck.parent} or choose another out=")
+
+
+def _predict_module(ck: Path):
+    from blenav.learn.checkpoint import load_module
+    from blenav.learn.losses import U_SCALE
+
+    module, _ = load_module(ck)
+
+    def predict(S: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return module(torch.from_numpy(np.ascontiguousarray(S, np.float32) / U_SCALE)).numpy().astype(float)
+
+    return predict
+
+
+def _predict_onnx(path: str, building):
+    from blenav.runtime import OnnxLocalizer
+
+    try:
+        model = OnnxLocalizer(path, building=building)
+    except (ValueError, FileNotFoundError) as exc:  # another building's model, a missing file: say so
+        raise EvalError(str(exc)) from exc
+    return model.predict
+
+
+def evaluate_crossphone(cfg: DictConfig) -> dict:
+    """Train-if-needed, fit, predict, score; writes OUT/results.json, results.md and plots."""
+    from blenav.learn.baselines import make_baseline
+    from blenav.learn.data import WindowDataModule
+    from blenav.learn.train import data_config
+
+    out = Path(cfg.out)
+    try:
+        dm = WindowDataModule(data_config(cfg))
+        dm.setup()
+    except (ValueError, DatasetError, FileNotFoundError) as exc:
+        raise EvalError(str(exc)) from exc
+    test = TestWindows(dm)
+    runs_dir = Path(cfg.experiment.get("runs_dir") or out / "runs")
+    train_S, train_xy = (t.numpy() for t in (dm.sets["train"].tensors[0], dm.sets["train"].tensors[2]))
+    from blenav.learn.losses import U_SCALE
+
+    train_S = train_S * U_SCALE  # baselines read the thesis scale
+    onnx_model = cfg.get("model")
+    predictors, sources, train_s = {}, {}, {}
+    for key, spec in (cfg.experiment.get("learned") or {}).items():
+        label = str(spec.get("label", key))
+        if spec.get("needs_unlabelled") and dm.sets.get("unlabelled") is None:
+            log.info("%s: no unlabelled devices (data.unlabelled_devices), not run", label)
+            continue
+        if onnx_model and label == "TransNet+LocNet":
+            predictors[label], sources[label], train_s[label] = _predict_onnx(onnx_model, dm.building), \
+                f"model: {onnx_model}", 0.0
+            continue
+        t0 = time.perf_counter()
+        ck = runs_dir / key / "last.ckpt"
+        _check_reuse(ck, dm)
+        ck = _train_run(cfg, key, spec, runs_dir / key)
+        train_s[label] = time.perf_counter() - t0
+        predictors[label], sources[label] = _predict_module(ck), f"trained: {ck.parent}"
+    for key, spec in (cfg.experiment.get("baselines") or {}).items():
+        kw = OmegaConf.to_container(spec, resolve=True) or {}
+        name = str(kw.pop("label", key))
+        t0 = time.perf_counter()
+        b = make_baseline(name, **kw)
+        b.fit(train_S, train_xy)
+        train_s[name] = time.perf_counter() - t0
+        predictors[name], sources[name] = b.predict_sequence, "fitted"
+    results = {"experiment": cfg.experiment.name, "title": cfg.experiment.get("title", ""),
+               "dataset": str(Path(cfg.data.path)), "sessions": [s.id for s in test.sessions], "seed": int(cfg.seed),
+               "runs": 1, "split": {k: sorted({s.device_model for s in v}) for k, v in dm.groups.items()},
+               "train_sessions": [s.id for s in dm.groups["train"]],
+               "no_fix_windows": test.no_fix, "methods": {}}
+    errors: dict[str, dict[str, np.ndarray]] = {}
+    for name, predict in predictors.items():
+        t0 = time.perf_counter()
+        errs = {}
+        for s in test.sessions:
+            S, xy, _ = test.windows[s.id]
+            p = predict(S)
+            if not np.isfinite(p).all():
+                raise EvalError(f"{name} gave a non-finite position on session {s.id}")
+            errs[s.id] = np.linalg.norm(p - xy, axis=1)
+        errors[name] = errs
+        results["methods"][name] = _method_result(errs, test.sessions, time.perf_counter() - t0, train_s[name],
+                                                  sources[name])
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(results, indent=1, default=_json_default), encoding="utf-8")
+    from .report import write_crossphone_markdown
+
+    write_crossphone_markdown(out / "results.md", results, cfg)
+    if cfg.get("plots", True):
+        _plots(out, results, errors)
+    return results
+
+
+def brand_of(session) -> str:
+    """The receiver brand (session.yaml ``receiver_brand``, a simulator extension) or the device model."""
+    return str(session.meta.get("receiver_brand") or session.device_model)
+
+
+def _method_result(errs: dict[str, np.ndarray], sessions, predict_s: float, train_s: float, source: str) -> dict:
+    by_dev: dict[str, list] = {}
+    by_brand: dict[str, list] = {}
+    for s in sessions:
+        by_dev.setdefault(s.device_model, []).append(errs[s.id])
+        by_brand.setdefault(brand_of(s), []).append(errs[s.id])
+    allerr = np.concatenate(list(errs.values()))
+    from .metrics import summary
+
+    rmse = np.array([np.sqrt(np.mean(e ** 2)) for e in errs.values()])
+    return {"error_m": _error_stats(allerr), "rmse_m": summary(rmse),
+            "per_device": {d: _error_stats(np.concatenate(v)) for d, v in sorted(by_dev.items())},
+            "per_brand": {b: _error_stats(np.concatenate(v)) for b, v in sorted(by_brand.items())},
+            "per_session": {s.id: {"error_m": _error_stats(errs[s.id]), "device_model": s.device_model}
+                            for s in sessions},
+            "train_s": train_s, "predict_s": predict_s, "n_windows": int(allerr.size), "source": source}
+
+
+def _plots(out: Path, results: dict, errors: dict[str, dict[str, np.ndarray]]) -> None:
+    from blenav import plotting
+
+    from .metrics import cdf_band
+
+    grid = np.linspace(0, 15, 301)
+    cdfs = {n: cdf_band([np.concatenate(list(e.values()))], grid, q=(0.5, 0.5, 0.5)) for n, e in errors.items()}
+    plotting.save_figure(plotting.figure_error_cdf(grid, cdfs, results["title"]), out / "error_cdf.png")
+    per_dev = {n: {d: v["mean"] for d, v in m["per_device"].items()} for n, m in results["methods"].items()}
+    plotting.save_figure(plotting.figure_per_device(per_dev, results["title"]), out / "per_device.png")
