@@ -63,7 +63,8 @@ class CrossPhoneModule(L.LightningModule):
     def _log_step(self, batch, stage: str) -> torch.Tensor:
         out = self.model_step(batch)
         for k, v in out.items():
-            self.log(f"{stage}/{k}", v, prog_bar=k in ("loss", "err_m"), batch_size=batch["S"].shape[0])
+            self.log(f"{stage}/{k}", v, prog_bar=k in ("loss", "err_m"), batch_size=batch["S"].shape[0],
+                     sync_dist=stage != "train")  # epoch metrics averaged over DDP ranks
         return out["loss"]
 
     def training_step(self, batch, batch_idx):

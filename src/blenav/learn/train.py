@@ -65,8 +65,24 @@ def loggers(out: Path) -> list:
     return log
 
 
+TASKS = ("crossphone", "mapprior")
+
+
 def train(cfg: DictConfig) -> tuple[dict, dict]:
-    """Returns (metrics, objects) like lightning-hydra-template's train()."""
+    """Returns (metrics, objects) like lightning-hydra-template's train().
+
+    ``cfg.task`` picks what is fitted: ``crossphone`` (default, this module) or ``mapprior`` (the map prior
+    network of Roy section 3.2.2, :func:`blenav.learn.mapprior.train_mapprior`; ``experiment=mapprior``)."""
+    task = str(cfg.get("task") or "crossphone")
+    if task not in TASKS:
+        raise ValueError(f"task={task!r} is not one of {TASKS}")
+    if task == "mapprior":
+        from .mapprior import train_mapprior
+
+        return train_mapprior(cfg)
+    if (cfg.get("model") or {}).get("kind") == "mapprior":
+        raise ValueError("model=mapprior is trained with task=mapprior: use `python train.py experiment=mapprior "
+                         "data=DIR out=RUN`")
     L.seed_everything(int(cfg.seed), workers=True)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -87,7 +103,7 @@ def train(cfg: DictConfig) -> tuple[dict, dict]:
     resume = out / "last.ckpt"
     trainer.fit(module, datamodule=dm, ckpt_path=str(resume) if resume.is_file() else None)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
-    if dm.sets.get("test") is not None and trainer.is_global_zero:
+    if dm.sets.get("test") is not None:  # every rank: under DDP the test loop is collective too
         metrics.update({k: float(v) for k, v in trainer.test(module, datamodule=dm, verbose=False)[0].items()})
     if trainer.is_global_zero:
         (out / "beacons.txt").write_text("\n".join(dm.beacons) + "\n", encoding="utf-8")
