@@ -203,3 +203,25 @@ def test_entry_point(runs, tmp_path):
     assert f"wrote {out}" in r.stdout
     S = random_inputs(8, 5, 2, 16, batch=4, seed=1)[0].numpy()
     np.testing.assert_allclose(OnnxLocalizer(out).predict(S), OnnxLocalizer(ref).predict(S), atol=1e-6)
+
+
+def test_model_fixes_feed_the_particle_filter(dataset, runs, tmp_path):
+    """blenav-fixes writes the exported model's fixes; fused_003 filters them (eq. 3.9) beside PF-PS+MAP."""
+    import shutil
+
+    from blenav.cli.fixes import main as fixes_main
+    from blenav.data.validate import validate
+    from blenav.eval.harness import evaluate
+
+    data = tmp_path / "d"
+    shutil.copytree(dataset, data)
+    sid = Dataset.open(data).session_ids[0]
+    assert fixes_main([str(data), str(runs["transnet_locnet"][1]), "--sessions", sid]) == 0
+    fx = Dataset.open(data).session(sid).fixes
+    assert len(fx) > 30 and set(fx["source"]) == {"TransNet+LocNet"} and np.isfinite(fx[["x", "y"]].to_numpy()).all()
+    assert not [i for i in validate(data) if i.severity == "error"]
+    res = evaluate(compose("eval", "experiment=fused_003", f"data={data}", f"sessions=[{sid}]", "runs=2",
+                           f"out={tmp_path / 'o'}", "plots=false", "progress=false", "filter.n_particles=200"))
+    assert {"PF-PS+MAP", "PF-FIX", "PF-FIX+MAP"} <= set(res["methods"])
+    assert np.isfinite(res["methods"]["PF-FIX"]["rmse_m"]["mean"])
+    assert fixes_main([str(data), str(tmp_path / "missing.onnx")]) == 1  # a clear error, no traceback
