@@ -61,6 +61,8 @@ def test_results_schema_and_files(small, tmp_path, experiment):
 def test_command_line_conveniences():
     assert cli_overrides(["sessions=a,b", "runs=3", "sessions=[c]"]) == ["sessions=[a,b]", "runs=3", "sessions=[c]"]
     assert cli_overrides(["data=/x/y", "data.train_devices=[a]"]) == ["data.path=/x/y", "data.train_devices=[a]"]
+    assert cli_overrides(["model=DIR2"], model_is_path=True) == ["model_path=DIR2"]  # blenav-eval: a trained model
+    assert cli_overrides(["model=locnet"]) == ["model=locnet"]  # train.py: a network config
 
 
 def test_cli_smoke(small, tmp_path):

@@ -26,17 +26,21 @@ def register_configs() -> None:
     cs.store(group="filter", name="schema", node=FilterConfig)
 
 
-def cli_overrides(args: list[str]) -> list[str]:
+def cli_overrides(args: list[str], model_is_path: bool = False) -> list[str]:
     """Command-line conveniences shared by the entry points (and :func:`compose`):
 
     - ``data=DIR`` -> ``data.path=DIR``: ``data`` is a node (the dataset path plus its device split,
       ``data.train_devices=[...]`` etc.), and the short form names the dataset;
-    - ``sessions=a,b`` -> ``sessions=[a,b]``: Hydra would read a bare comma list as a sweep.
+    - ``sessions=a,b`` -> ``sessions=[a,b]``: Hydra would read a bare comma list as a sweep;
+    - with ``model_is_path`` (blenav-eval): ``model=PATH`` -> ``model_path=PATH``, the trained model to
+      evaluate; for train.py ``model=NAME`` stays the choice of a ``conf/model`` network.
     """
     out = []
     for a in args:
         if a.startswith("data=") and not a.startswith("data=["):
             a = "data.path=" + a.split("=", 1)[1]
+        elif model_is_path and a.startswith("model="):
+            a = "model_path=" + a.split("=", 1)[1]
         elif re.match(r"^sessions=[^\[].*,", a):
             a = f"sessions=[{a.split('=', 1)[1]}]"
         out.append(a)
@@ -50,4 +54,4 @@ def compose(config_name: str, *overrides: str) -> DictConfig:
 
     register_configs()
     with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        return hydra_compose(config_name=config_name, overrides=cli_overrides(list(overrides)))
+        return hydra_compose(config_name=config_name, overrides=cli_overrides(list(overrides), model_is_path=config_name == "eval"))

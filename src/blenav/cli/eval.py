@@ -45,7 +45,7 @@ def _main(cfg: DictConfig) -> None:
 
 
 def main() -> None:
-    sys.argv = [sys.argv[0]] + cli_overrides(sys.argv[1:])
+    sys.argv = [sys.argv[0]] + cli_overrides(sys.argv[1:], model_is_path=True)
     _main()
 
 

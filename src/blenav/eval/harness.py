@@ -12,6 +12,12 @@ Writes ``OUT/results.json`` (schema below), ``OUT/results.md`` (a table like the
 
 A method that could run on no session is ``{"skipped": {SESSION_ID: reason}}`` only.
 
+Roy's fusion experiments (``mapprior_003_*``) add: ``model`` (path of a learned map prior, given to every
+:class:`~blenav.filters.map_prior.MapPriorLikelihood`; without it those methods are skipped with the
+reason), ``fixes`` (named ``fixes.csv`` sources or fixes computed from rssi.csv per role, see
+:mod:`blenav.eval.fixes`; ``results.json`` then has a ``fixes`` entry saying what each session used) and
+methods with ``score_fixes: ROLE`` (the role's fixes scored directly, Table 3.7's BLE-only rows).
+
 All methods are built (and so checked) before the first run: a misconfigured method fails at once.
 """
 
@@ -30,7 +36,10 @@ from blenav.data import Dataset, DatasetError
 from blenav.filters.attitude import AttitudeConfig, misalignment_deg
 from blenav.filters.calibration import apply_fit, fit_sessions
 from blenav.filters.engine import FilterConfig
+from blenav.filters.map_prior import attach_prior
 from blenav.filters.runner import MapSpec, Method, MissingStream, RunResult, run_session
+
+from .fixes import FixProvider, FixTrack
 
 from .metrics import cdf_band, pool, session_metrics
 
@@ -50,15 +59,56 @@ def build_methods(cfg: DictConfig) -> dict[str, Method]:
     att = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(AttitudeConfig), cfg.get("attitude", {})))
     for key, m in cfg.methods.items():
         label = str(m.get("label", key))
-        try:
-            motion = instantiate(m.motion)
-            meas = [instantiate(v) for v in (m.get("measurements") or {}).values()]
-            spec = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(MapSpec), m.get("map") or {}))
-            f = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(fcfg), m.get("filter") or {}))
-        except Exception as exc:  # hydra/omegaconf raise many types; name the method and re-raise ours
-            raise EvalError(f"method {label!r}: {exc}") from exc
-        out[label] = Method(label, f, motion, meas, spec, att)
+        if m.get("score_fixes"):  # a BLE-only row: the role's fixes themselves (Roy, Table 3.7)
+            out[label] = FixTrack(label, str(m.score_fixes))
+            continue
+        out[label] = build_method(label, m, fcfg, att)
     return out
+
+
+def build_method(label: str, m: DictConfig, fcfg: FilterConfig, att: AttitudeConfig) -> Method:
+    """One :class:`Method` from its config node (motion, measurements, map, filter overrides)."""
+    try:
+        motion = instantiate(m.motion)
+        meas = [instantiate(v) for v in (m.get("measurements") or {}).values()]
+        spec = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(MapSpec), m.get("map") or {}))
+        f = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(fcfg), m.get("filter") or {}))
+    except Exception as exc:  # hydra/omegaconf raise many types; name the method and re-raise ours
+        raise EvalError(f"method {label!r}: {exc}") from exc
+    return Method(label, f, motion, meas, spec, att)
+
+
+def model_path(cfg: DictConfig) -> str | None:
+    """The learned model's path, ``model_path`` (``model=DIR`` on the command line, see
+    :func:`blenav.configs.cli_overrides`: ``model`` names the network config group)."""
+    v = cfg.get("model_path")
+    return str(v) if v else None
+
+
+def build_fix_provider(cfg: DictConfig, methods: dict, out: Path) -> FixProvider | None:
+    """The experiment's :class:`FixProvider` (``cfg.fixes``), or None when it has no ``fixes`` block."""
+    fx = cfg.get("fixes")
+    if fx is None:
+        return None
+    roles = {r: fx.get(r) for r in ("dense", "sparse") if r in fx}
+    used = {m.role for m in methods.values() if isinstance(m, FixTrack)}
+    used |= {getattr(x, "role", None) for m in methods.values() for x in m.measurements} - {None}
+    missing = used - set(roles)
+    if missing:
+        raise EvalError(f"methods use fix role(s) {sorted(missing)} that the experiment's fixes block does not define")
+    localizers = {}
+    if fx.get("compute") is not None:
+        fcfg = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(FilterConfig), cfg.filter))
+        att = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(AttitudeConfig), cfg.get("attitude", {})))
+        for r in roles:
+            localizers[r] = build_method(f"BLE fixes ({r})", fx.compute, fcfg, att)
+    sb = fx.get("sparse_beacons", 4)
+    sb = int(sb) if isinstance(sb, (int, float)) else [str(b) for b in sb]
+    try:
+        return FixProvider(roles, localizers, sb, out, seed=int(cfg.seed), rate_hz=float(fx.get("rate_hz", 1.0)),
+                           write=bool(fx.get("write", False)))
+    except ValueError as exc:
+        raise EvalError(str(exc)) from exc
 
 
 def check_session_in_building(s) -> None:
@@ -111,6 +161,9 @@ def calibrate(methods: dict[str, Method], ds: Dataset, sessions: list, spec) -> 
     else:
         cal = select_sessions(ds, [str(i) for i in spec])
         note = f"fitted on session(s) {', '.join(str(i) for i in spec)} (named by calibration, not evaluated)"
+    if not any(s.has("rssi") for s in cal):  # an inertial-only dataset: the radio methods will be skipped anyway
+        log.warning("no RSSI readings to calibrate the path-loss model on: configured values kept")
+        return None
     fit = fit_sessions(cal)
     for meth in methods.values():
         apply_fit(meth.measurements, fit)
@@ -152,6 +205,7 @@ def evaluate(cfg: DictConfig) -> dict:
     except DatasetError as exc:
         raise EvalError(f"cannot open dataset {cfg.data.path}: {exc}") from exc
     methods = build_methods(cfg)
+    reason = attach_prior([x for m in methods.values() for x in m.measurements], model_path(cfg))
     cal_spec = cfg.get("calibration", "auto")
     exclude = set(cal_spec) if not isinstance(cal_spec, str) and cal_spec is not None else set()
     sessions = select_sessions(ds, cfg.get("sessions"), exclude=exclude)
@@ -160,8 +214,9 @@ def evaluate(cfg: DictConfig) -> dict:
     runs = int(cfg.runs)
     if runs < 1:
         raise EvalError(f"runs must be >= 1, got {runs}")
-    calibration = calibrate(methods, ds, sessions, cal_spec)
     out = Path(cfg.out)
+    provider = build_fix_provider(cfg, methods, out)
+    calibration = calibrate({**methods, **(provider.methods if provider else {})}, ds, sessions, cal_spec)
     out.mkdir(parents=True, exist_ok=True)
     progress = _progress(bool(cfg.get("progress", False)), len(methods) * len(sessions))
     outcomes: dict[str, MethodOutcome] = {}
@@ -169,6 +224,8 @@ def evaluate(cfg: DictConfig) -> dict:
     results = {"experiment": cfg.experiment.name, "title": cfg.experiment.get("title", ""), "dataset": str(ds.root),
                "runs": runs, "sessions": [s.id for s in sessions], "init_s": float(cfg.init_s), "seed": int(cfg.seed),
                "calibration": calibration, "methods": {}}
+    if reason:
+        results["map_prior"] = reason
     for name, method in methods.items():
         per, res_by = {}, {}
         wall = 0.0
@@ -180,7 +237,13 @@ def evaluate(cfg: DictConfig) -> dict:
         for si, s in enumerate(sessions):
             seed = int(cfg.seed) * 1_000_003 + 1000 * si  # the same random stream for every method
             try:
-                res = run_session(method, s, runs, seed, cache=cache)
+                if isinstance(method, FixTrack):
+                    if provider is None:
+                        raise EvalError(f"method {name} scores fixes but the experiment has no fixes block")
+                    res = method.run(s, runs, provider)
+                else:
+                    extra = provider.prepare(method, s) if provider is not None else None
+                    res = run_session(method, s, runs, seed, cache=cache, fixes=extra)
             except MissingStream as exc:  # e.g. no IMU in a fixed-receiver recording: skip, and say so
                 skipped[s.id] = str(exc)
                 log.warning("skipping %s on %s: %s", name, s.id, exc)
@@ -215,6 +278,8 @@ def evaluate(cfg: DictConfig) -> dict:
         agg["per_session"] = {k: {kk: vv for kk, vv in v.items() if kk != "_runs"} for k, v in per.items()}
         results["methods"][name] = agg
         outcomes[name] = MethodOutcome(res_by, per)
+    if provider is not None:
+        results["fixes"] = provider.describe()
     (out / "results.json").write_text(json.dumps(results, indent=1, default=_json_default), encoding="utf-8")
     from .report import write_markdown
 

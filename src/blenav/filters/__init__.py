@@ -8,6 +8,8 @@
 - :mod:`~blenav.filters.measurement`: PF-PL path-loss ranges, PF-PS RSSI-domain likelihood (Patel et al.);
 - :mod:`~blenav.filters.map_fusion`: map-aware initialisation and resampling (Patel et al. section V), wall
   crossing, rooms and routes derived from the occupancy grid when a building lacks them;
+- :mod:`~blenav.filters.map_prior`: Roy's learned map prior (eq. 3.8) as a measurement, with per-particle
+  odometry-frame heading bins and an odometry window; a non-learned reference prior;
 - :mod:`~blenav.filters.attitude`: AHRS (Madgwick, Mahony, EKF from the ``ahrs`` package) after a median prefilter;
 - :mod:`~blenav.filters.steps`: sensor streams -> per-step controls and observations (batch and streaming);
 - :mod:`~blenav.filters.runner`: one method on one session for R runs, and the streaming ``OnlineLocalizer``;

@@ -4,15 +4,23 @@ One :class:`ParticleFilter` holds R independent runs of N particles each (state 
 them together through one session: all runs see the same observations and draw their own random
 numbers from one explicit ``numpy.random.Generator``. A step:
 
-1. ``propagate``: the motion model moves every particle (proposal);
+1. ``propagate``: the motion model moves every particle (proposal); with a ``walls`` component, each
+   step is tested for crossing an obstacle. The obstacle re-initialisation rule of Roy (section 3.2),
+   when enabled (``reinit_fraction`` not None): a run in which more than ``reinit_fraction``
+   (s_reinit = 0.9) of the particles crossed an obstacle on this step is re-initialised uniformly over
+   the free space within ``reinit_radius_m`` (r_reinit = 5 m) of its last estimate (positions only: the
+   other state columns, e.g. the odometry frame angle, are kept), with uniform weights, and recorded as
+   a ``reinit-obstacles`` event; the step's measurements then weigh the new particles;
 2. ``reweight``: log-weights += sum of the measurement models' log-likelihoods (+ wall-crossing
-   penalty); non-finite log-weights become -inf;
+   penalty, unless the walls only serve the re-initialisation); non-finite log-weights become -inf;
 3. ``recover``: a run whose weights all vanished, or whose best particle explains the observations
    worse than ``divergence_sigma`` standard deviations per observation for ``patience_s``, is
    re-initialised around its last estimate (``local_sigma_m``), and globally (the initialiser) if it
-   diverges again within ``global_after_s``; each recovery is recorded as an event;
+   diverges again within ``global_after_s``; each recovery is recorded as an event. Only models with
+   ``divergence_check`` (default True) count: a map-prior score is not a residual;
 4. ``estimate``: weighted mean and covariance (and, if asked, the median particle: the particle closest
-   to the coordinate-wise weighted median);
+   to the coordinate-wise weighted median, Roy's estimate, always a particle so never inside an
+   obstacle the cloud avoids);
 5. ``resample`` the runs whose effective sample size n_eff = 1 / sum w^2 fell below
    ``ess_threshold * N``, then let the map component condition the new particles (Patel et al. eq. 4-5).
 
@@ -22,6 +30,7 @@ Weights stay in log space; normalisation subtracts the row maximum first.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -42,13 +51,18 @@ class FilterConfig:
     local_sigma_m: float = 3.0
     global_after_s: float = 10.0
     wall_log_penalty: float = -np.inf  # log-weight added to a particle whose step crossed a wall
+    # Roy section 3.2: re-initialise a run when more than reinit_fraction (s_reinit) of its particles crossed an
+    # obstacle on one step, uniformly over free space within reinit_radius_m (r_reinit) of the last estimate.
+    # None disables the rule; it needs a walls component (map.walls, or added for the rule alone by the runner).
+    reinit_fraction: Optional[float] = None
+    reinit_radius_m: float = 5.0
 
 
 @dataclass
 class Event:
     t: float
     run: int
-    kind: str  # 'recover-local' | 'recover-global' | 'weights-vanished'
+    kind: str  # 'recover-local' | 'recover-global' | 'reinit-obstacles'
     detail: str = ""
 
 
@@ -68,19 +82,31 @@ class ParticleFilter:
 
     * ``motion``: ``init_state(xy, rng)``, ``propagate(x, ctrl, dt, rng)``, ``state_dim``;
     * ``measurements``: list of objects with ``log_likelihood(xy, obs) -> (R, N)`` and ``n_obs(obs)``;
+      optional attributes: ``observe(obs)`` (called every step before ``n_obs``, for models that keep a
+      history, e.g. an odometry window), ``wants_state = True`` (``log_likelihood`` receives the full
+      state (R, N, D) instead of the positions), ``divergence_check = False`` (not used by the
+      divergence test of ``recover``);
     * ``initializer``: ``sample(rng, R, N) -> (R, N, 2)`` (uniform over free space, or map-aware);
+      optional ``adjust_state(x, rng) -> x`` applied after ``motion.init_state`` at initialisation (e.g. a
+      known odometry frame angle) and ``sample_within(rng, centres (M, 2), N, radius) -> (M, N, 2)``
+      (free space within a radius, for the obstacle re-initialisation; without it the disc is not
+      restricted to free space);
     * ``conditioner`` (optional): ``condition(xy, rng, mask) -> xy`` applied to the new copies made by resampling;
-    * ``walls`` (optional): ``crossed(xy_prev, xy_new) -> bool (R, N)``.
+    * ``walls`` (optional): ``crossed(xy_prev, xy_new) -> bool (R, N)``; ``penalise_walls`` (default True)
+      adds ``wall_log_penalty`` to the crossing particles (False: walls only feed the re-initialisation rule).
     """
 
     def __init__(self, cfg: FilterConfig, motion, measurements: list, initializer, rng: np.random.Generator,
-                 n_runs: int = 1, conditioner=None, walls=None):
+                 n_runs: int = 1, conditioner=None, walls=None, penalise_walls: bool = True):
         self.cfg = cfg
         self.motion = motion
         self.measurements = list(measurements)
         self.initializer = initializer
         self.conditioner = conditioner
         self.walls = walls
+        self.penalise_walls = bool(penalise_walls)
+        if cfg.reinit_fraction is not None and not 0.0 <= cfg.reinit_fraction < 1.0:
+            raise ValueError(f"filter.reinit_fraction must be in [0, 1) or null, got {cfg.reinit_fraction!r}")
         self.rng = rng
         self.R, self.N = int(n_runs), int(cfg.n_particles)
         self.resample_fn = get_scheme(cfg.resampling)
@@ -99,26 +125,43 @@ class ParticleFilter:
         self.t = t0
         xy = self.initializer.sample(self.rng, self.R, self.N)
         self.x = self.motion.init_state(xy, self.rng)
+        if hasattr(self.initializer, "adjust_state"):
+            self.x = self.initializer.adjust_state(self.x, self.rng)
         self.logw = np.full((self.R, self.N), -np.log(self.N))
 
     def step(self, t: float, ctrl: dict, obs: dict) -> StepResult:
         dt = max(t - self.t, 1e-6)
         xy_prev = self.x[..., :2].copy()
         self.x = self.motion.propagate(self.x, ctrl, dt, self.rng)
-        loglik = np.zeros((self.R, self.N))
-        n_obs = 0
-        for m in self.measurements:
-            k = m.n_obs(obs)
-            if k:
-                loglik += m.log_likelihood(self.x[..., :2], obs)
-                n_obs += k
+        crossed = None
         if self.walls is not None:
             crossed = self.walls.crossed(xy_prev, self.x[..., :2])
+            if self.cfg.reinit_fraction is not None:
+                crossed = self._reinit_obstacles(t, xy_prev, crossed)
+        loglik = np.zeros((self.R, self.N))
+        loglik_div = None  # the part the divergence test sees (None: all of loglik)
+        n_obs = 0
+        for m in self.measurements:
+            if hasattr(m, "observe"):
+                m.observe(obs)
+            k = m.n_obs(obs)
+            if k:
+                ll = m.log_likelihood(self.x if getattr(m, "wants_state", False) else self.x[..., :2], obs)
+                if getattr(m, "divergence_check", True):
+                    n_obs += k
+                    if loglik_div is not None:
+                        loglik_div = loglik_div + ll
+                elif loglik_div is None:
+                    loglik_div = loglik.copy()
+                loglik += ll
+        if crossed is not None and self.penalise_walls:
             loglik = np.where(crossed, loglik + self.cfg.wall_log_penalty, loglik)
+            if loglik_div is not None:
+                loglik_div = np.where(crossed, loglik_div + self.cfg.wall_log_penalty, loglik_div)
         self.logw = self.logw + loglik
         self.logw[~np.isfinite(self.logw)] = -np.inf
         self.t = t
-        self._recover(t, loglik, n_obs)
+        self._recover(t, loglik if loglik_div is None else loglik_div, n_obs)
         w, _ = log_normalise(self.logw)
         pos, cov = self._estimate(w)
         n_eff = ess(w)
@@ -148,6 +191,37 @@ class ParticleFilter:
             # Patel et al. eq. 4: the *new* particles (the extra copies that replace the dropped ones) are
             # generated around the strong particle and conditioned on the map; one copy of each survivor stays
             self.x[runs, :, :2] = self.conditioner.condition(self.x[runs, :, :2], self.rng, mask=_duplicates(idx))
+
+    def _reinit_obstacles(self, t: float, xy_prev: np.ndarray, crossed: np.ndarray) -> np.ndarray:
+        """Roy's re-initialisation (section 3.2): runs where more than ``reinit_fraction`` of the particles
+        crossed an obstacle on this step get N new positions uniform over the free space within
+        ``reinit_radius_m`` of the run's last estimate (of the previous step; before the first estimate, the
+        mean of the previous positions) and uniform weights. Returns ``crossed`` (R, N) with those runs'
+        rows cleared (the new particles did not move through anything)."""
+        frac = crossed.mean(axis=1)
+        redo = np.flatnonzero(frac > self.cfg.reinit_fraction)
+        if len(redo) == 0:
+            return crossed
+        centre = self._last_est[redo].copy()
+        unknown = ~np.isfinite(centre[:, 0])
+        if unknown.any():
+            centre[unknown] = xy_prev[redo[unknown]].mean(axis=1)
+        r = float(self.cfg.reinit_radius_m)
+        if hasattr(self.initializer, "sample_within"):
+            xy = self.initializer.sample_within(self.rng, centre, self.N, r)
+        else:  # uniform in the disc (sqrt of a uniform radius), free space unknown
+            rad = r * np.sqrt(self.rng.random((len(redo), self.N)))
+            ang = self.rng.uniform(-np.pi, np.pi, (len(redo), self.N))
+            xy = centre[:, None, :] + np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=-1)
+        self.x[redo, :, :2] = xy
+        self.logw[redo] = -np.log(self.N)
+        for run, f in zip(redo, frac[redo]):
+            self.events.append(Event(t, int(run), "reinit-obstacles",
+                                     f"{f:.0%} of the particles crossed an obstacle (> {self.cfg.reinit_fraction:.0%}): "
+                                     f"re-initialised within {r:g} m of the last estimate"))
+        crossed = crossed.copy()
+        crossed[redo] = False
+        return crossed
 
     def _recover(self, t: float, loglik: np.ndarray, n_obs: int) -> None:
         """Re-initialise runs whose weights vanished or whose cloud no longer explains the data."""

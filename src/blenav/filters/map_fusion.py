@@ -102,6 +102,9 @@ class WallCrossing:
         self.unknown_blocks = bool(unknown_blocks)
         self.max_samples = int(max_samples)
         self._blocked = (self.occupancy != FREE) if unknown_blocks else (self.occupancy == OCCUPIED)
+        # the same, padded by one pixel of "off-image" on every side and flattened: crossed() clips indices
+        # into the padding instead of testing bounds
+        self._blocked_pad = np.pad(self._blocked, 1, constant_values=self.unknown_blocks).ravel()
 
     @classmethod
     def from_floor(cls, floor: Floor, **kw) -> "WallCrossing":
@@ -130,8 +133,19 @@ class WallCrossing:
         longest = float(np.max(np.hypot(d[..., 0], d[..., 1]), initial=0.0))
         n = int(np.clip(np.ceil(longest / (0.5 * self.resolution)), 1, self.max_samples))
         t = np.arange(1, n + 1, dtype=float) / n
-        pts = p0[..., None, :] + t[:, None] * d[..., None, :]
-        return self._blocked_at(pts).any(axis=-1)
+        # one pass per sample along the steps (n <= max_samples), vectorised over all steps: the same points
+        # and pixel arithmetic as _blocked_at on the (..., n, 2) array, without its large temporaries
+        h, w = self._blocked.shape
+        ox, oy = self.origin
+        res = self.resolution
+        x0, y0, dx, dy = p0[..., 0], p0[..., 1], d[..., 0], d[..., 1]
+        out = np.zeros(p0.shape[:-1], dtype=bool)
+        for tk in t:
+            # fmax/fmin: a NaN position lands in the padding (off-image), as in _blocked_at
+            col = np.fmin(np.fmax(np.floor(((x0 + tk * dx) - ox) / res), -1), w).astype(np.int64)
+            rb = np.fmin(np.fmax(np.floor(((y0 + tk * dy) - oy) / res), -1), h).astype(np.int64)  # from the bottom
+            out = out | self._blocked_pad[(h - rb) * (w + 2) + (col + 1)]
+        return out
 
 
 # ------------------------------------------------------------------------------------- geometry helpers
@@ -662,6 +676,46 @@ class MapGeometry:
         k = rng.integers(0, len(r), size=(R, N))
         centre = self.floor.pixel_to_world(r[k], c[k])
         return centre + (rng.random((R, N, 2)) - 0.5) * self.floor.resolution
+
+    def sample_free_within(self, rng: np.random.Generator, centres: np.ndarray, N: int, radius: float,
+                           max_rounds: int = 30) -> np.ndarray:
+        """(M, N, 2) world m: N points per centre (M, 2), uniform over the FREE space within ``radius`` (m).
+
+        Roy's re-initialisation (section 3.2, r_reinit = 5 m). Vectorised rejection from the disc (radius
+        ``radius * sqrt(U)``, uniform angle) for ``max_rounds`` rounds; the few points still not free after
+        that (a disc that is mostly wall) are drawn uniformly among the free pixels inside that disc (one
+        ``nonzero`` per such centre, not per particle), or, when the disc holds no free pixel, moved to
+        the nearest free pixel (:meth:`snap_free`).
+        """
+        c = np.asarray(centres, dtype=float).reshape(-1, 2)
+        M = len(c)
+        r = float(radius)
+
+        def draw(n_pts, cen):
+            rad = r * np.sqrt(rng.random(n_pts))
+            ang = rng.uniform(-np.pi, np.pi, n_pts)
+            return cen + np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=-1)
+
+        xy = draw((M, N), c[:, None, :])
+        for _ in range(max_rounds):
+            bad = ~self.floor.is_free(xy)
+            if not bad.any():
+                return xy
+            m_idx = np.nonzero(bad)[0]
+            xy[bad] = draw(len(m_idx), c[m_idx])
+        bad = ~self.floor.is_free(xy)
+        if bad.any():
+            pts = self.floor.free_points()
+            res = self.floor.resolution
+            for m in np.unique(np.nonzero(bad)[0]):  # rare: a loop over runs, never over particles
+                row = bad[m]
+                inside = pts[np.sum((pts - c[m]) ** 2, axis=1) <= r * r]
+                if len(inside):
+                    k = rng.integers(0, len(inside), int(row.sum()))
+                    xy[m, row] = inside[k] + (rng.random((len(k), 2)) - 0.5) * res
+                else:
+                    xy[m, row] = self.snap_free(xy[m, row])
+        return xy
 
     def _draw_edges(self, rng, shape, sigma):
         L = self.edge_lengths

@@ -158,12 +158,15 @@ class FixLikelihood:
     the same weights.
 
     ``source``: the ``fixes.csv`` source to use (exact match after stripping spaces); ``None`` uses
-    every row whatever its source.
+    every row whatever its source. ``role`` (optional, e.g. ``"sparse"``): which of an experiment's fix
+    sets feeds the model; the evaluation sets ``source`` per session from it (the named ``fixes.<role>``
+    source, or fixes it computed from ``rssi.csv``, see :mod:`blenav.eval.fixes`).
     """
 
     sigma_m: float = 3.0
     source: str | None = None
     use_std: bool = False
+    role: str | None = None
 
     needs = ("fixes",)
 

@@ -162,6 +162,9 @@ class OdometryIncrement(MotionModel):
     theta0: float | None = None
     state_dim = 5
     needs = ("odo",)
+    #: state column of the odometry-to-world frame angle (read by the map prior's heading bins and set by an
+    #: oracle start, see :class:`blenav.filters.runner.MapSpec` ``heading``)
+    frame_angle_col = 4
 
     def init_state(self, xy, rng):
         x = super().init_state(xy, rng)

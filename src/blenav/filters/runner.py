@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -27,14 +28,30 @@ class MissingStream(ValueError):
     """The session lacks a stream the method needs (e.g. IMU for the IMU proposal): skip, do not fail."""
 
 
+INIT_MODES = ("uniform", "map", "fix", "groundtruth")
+HEADING_MODES = ("motion", "groundtruth")
+
+
 @dataclass
 class MapSpec:
     """How a method uses the floor plan.
 
-    init: 'uniform' (global localization over free space, 000) or 'map' (Patel et al. eq. 3:
-    beta on navigation edges with sigma_nav, the rest in rooms with sigma_rm); condition: project
-    resampled particles onto edges / shrunk rooms (eqs. 4-5) with jitter ``sigma``; walls: penalise steps
-    through obstacles (weight factor exp(filter.wall_log_penalty)).
+    init: 'uniform' (global localization over free space, 000), 'map' (Patel et al. eq. 3:
+    beta on navigation edges with sigma_nav, the rest in rooms with sigma_rm), 'fix' (Roy section 3.2:
+    N(start, init_sigma_m^2 I) around the first position fix of ``init_fix_source``, by default the source
+    of the method's first fix likelihood; Roy starts "around the true starting location obtained from the
+    BLE localization model" with sigma = 0.01 m) or 'groundtruth' (the same around the ground-truth
+    position at the session's start: an oracle start for methods without any absolute measurement, e.g.
+    odometry alone, as inertial-odometry evaluations do); condition: project resampled particles onto
+    edges / shrunk rooms (eqs. 4-5) with jitter ``sigma``; walls: penalise steps through obstacles (weight
+    factor exp(filter.wall_log_penalty)).
+
+    heading: 'motion' (the motion model's own initial frame angle: uniform in [-pi, pi) for
+    :class:`~blenav.filters.motion.OdometryIncrement`, whose odometry frame is arbitrary) or 'groundtruth'
+    (oracle: the rotation from the odometry frame to the world that best maps the odometry displacements
+    onto the ground-truth ones over the first ``align_s`` seconds (least squares, 2 Hz samples; the whole
+    session when the walker moved less than 1 m by then), plus N(0, init_heading_sigma^2); only for
+    motion models with a frame-angle column, others ignore it).
     """
 
     init: str = "uniform"
@@ -47,6 +64,11 @@ class MapSpec:
     shrink: float = 1.0
     walls: bool = False
     index: str = "grid"
+    init_sigma_m: float = 0.01
+    init_fix_source: Optional[str] = None
+    heading: str = "motion"
+    align_s: float = 10.0
+    init_heading_sigma: float = 0.0
 
 
 @dataclass
@@ -58,10 +80,17 @@ class Method:
     map: MapSpec = field(default_factory=MapSpec)
     attitude: AttitudeConfig = field(default_factory=AttitudeConfig)
     steps: StepDetectorConfig = field(default_factory=StepDetectorConfig)
+    #: BLE anchor ids the measurement models may use (None: every BLE anchor of the building); packets of
+    #: other anchors are dropped, as if those beacons were absent (the sparse-beacon rows of Roy, Table 3.7)
+    beacons: Optional[tuple] = None
 
     @property
     def needs_imu(self) -> bool:
         return any(n in getattr(self.motion, "needs", ()) for n in ("acc_w", "heading", "steps"))
+
+    @property
+    def needs_odometry(self) -> bool:
+        return "odo" in getattr(self.motion, "needs", ()) or bool(self.measurements_needing("odo"))
 
     def measurements_needing(self, stream: str) -> list:
         """The measurement models that read ``stream`` ('rssi', 'fixes')."""
@@ -69,10 +98,20 @@ class Method:
 
 
 class _Initializer:
-    """Adapter: the filter's initializer from a map geometry and a :class:`MapSpec`."""
+    """Adapter: the filter's initializer from a map geometry and a :class:`MapSpec`.
 
-    def __init__(self, geom: MapGeometry, spec: MapSpec):
-        self.geom, self.spec = geom, spec
+    For ``init`` 'fix' / 'groundtruth' the start position ``start_xy`` (2,) world m (and, for ``heading:
+    groundtruth``, the frame angle ``start_theta`` rad) must be set before the filter is initialised
+    (:func:`run_session` does it from the session, see :func:`initial_pose`)."""
+
+    def __init__(self, geom: MapGeometry, spec: MapSpec, motion=None):
+        if spec.init not in INIT_MODES:
+            raise ValueError(f"map.init must be one of {INIT_MODES}, got {spec.init!r}")
+        if spec.heading not in HEADING_MODES:
+            raise ValueError(f"map.heading must be one of {HEADING_MODES}, got {spec.heading!r}")
+        self.geom, self.spec, self.motion = geom, spec, motion
+        self.start_xy: np.ndarray | None = None
+        self.start_theta: float | None = None
 
     def sample(self, rng, R, N):
         if self.spec.init == "map":
@@ -80,7 +119,27 @@ class _Initializer:
                                             sigma_rm=self.spec.sigma_rm)
         if self.spec.init == "uniform":
             return self.geom.sample_uniform_free(rng, R, N)
-        raise ValueError(f"map.init must be 'uniform' or 'map', got {self.spec.init!r}")
+        if self.start_xy is None:
+            raise ValueError(f"map.init = {self.spec.init!r} needs a start position (run_session sets it; an "
+                             f"OnlineLocalizer takes start_xy)")
+        return np.asarray(self.start_xy, float) + self.spec.init_sigma_m * rng.standard_normal((R, N, 2))
+
+    def adjust_state(self, x, rng):
+        """Set the odometry frame angle (state column ``motion.frame_angle_col``) to the known start angle."""
+        col = getattr(self.motion, "frame_angle_col", None)
+        if self.spec.heading != "groundtruth" or col is None:
+            return x
+        if self.start_theta is None:
+            raise ValueError("map.heading = 'groundtruth' needs the start frame angle (run_session sets it; an "
+                             "OnlineLocalizer takes start_theta)")
+        x = x.copy()
+        x[..., col] = self.start_theta
+        if self.spec.init_heading_sigma > 0:
+            x[..., col] += self.spec.init_heading_sigma * rng.standard_normal(x.shape[:-1])
+        return x
+
+    def sample_within(self, rng, centres, N, radius):
+        return self.geom.sample_free_within(rng, centres, N, radius)
 
     def snap_free(self, xy):
         return self.geom.snap_free(xy)
@@ -112,30 +171,123 @@ class RunResult:
     map_notes: list[str]
 
 
+def method_anchors(method: Method, session: Session) -> AnchorTable:
+    """The BLE anchors of the session's building that ``method`` may use (all, or ``method.beacons``)."""
+    frame = session.building.anchors
+    if method.beacons is not None:
+        want = [str(b) for b in method.beacons]
+        have = set(frame.loc[frame["kind"] == "ble", "anchor_id"].astype(str)) if len(frame) else set()
+        unknown = [b for b in want if b not in have]
+        if unknown:
+            raise MissingStream(f"building {session.building.id} has no BLE anchor(s) {unknown}, which {method.name} "
+                                f"is restricted to")
+        frame = frame[frame["anchor_id"].astype(str).isin(want)]
+    return AnchorTable.from_frame(frame, "ble")
+
+
 def build_filter(method: Method, session: Session, n_runs: int, rng: np.random.Generator,
                  geom: MapGeometry | None = None) -> tuple[ParticleFilter, AnchorTable, MapGeometry]:
+    """The filter of ``method`` for ``session``: binds the measurement models to the building's anchors
+    (``bind``), floor (``bind_floor``, for models that use the floor plan, e.g. a map prior) and motion model
+    (``bind_motion``, for models that read the motion's state columns); builds a
+    wall test when the method penalises wall crossings (``map.walls``) or uses the obstacle
+    re-initialisation (``filter.reinit_fraction``; walls then do not change the weights unless ``map.walls``)."""
     floor_id = session.meta.get("floor")
     geom = geom or MapGeometry.from_building(session.building, floor_id, derive_missing=True,
                                              index=method.map.index)
-    anchors = AnchorTable.from_frame(session.building.anchors, "ble")
+    anchors = method_anchors(method, session)
     for m in method.measurements:
         m.bind(anchors)
-    walls = WallCrossing.from_floor(session.floor) if method.map.walls else None
+        if hasattr(m, "bind_floor"):
+            m.bind_floor(session.floor)
+        if hasattr(m, "bind_motion"):
+            m.bind_motion(method.motion)
+    use_walls = method.map.walls or method.filter.reinit_fraction is not None
+    walls = WallCrossing.from_floor(session.floor) if use_walls else None
     cond = _Conditioner(geom, method.map) if method.map.condition else None
-    pf = ParticleFilter(method.filter, method.motion, method.measurements, _Initializer(geom, method.map), rng,
-                        n_runs=n_runs, conditioner=cond, walls=walls)
+    pf = ParticleFilter(method.filter, method.motion, method.measurements, _Initializer(geom, method.map, method.motion),
+                        rng, n_runs=n_runs, conditioner=cond, walls=walls, penalise_walls=method.map.walls)
     return pf, anchors, geom
 
 
+def _missing_model(method: Method) -> None:
+    """Raise :class:`MissingStream` when a component of ``method`` is unavailable (e.g. a learned map prior
+    that was not given): models say so by ``missing_reason() -> str | None``."""
+    for m in method.measurements:
+        reason = getattr(m, "missing_reason", None)
+        reason = reason() if callable(reason) else None
+        if reason:
+            raise MissingStream(f"{method.name}: {reason}")
+
+
+def align_heading(odo_t: np.ndarray, odo: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray, t0: float,
+                  align_s: float = 10.0, min_path_m: float = 1.0) -> float:
+    """Rotation (rad) from the odometry frame to the world that best maps odometry displacements onto
+    ground-truth displacements (2-D least squares: theta = atan2(sum do x dg, sum do . dg)) over
+    [t0, t0 + align_s] sampled at 2 Hz; over the whole overlap when the ground truth moves less than
+    ``min_path_m`` in that window. 0 when nothing moves."""
+    t1 = min(float(odo_t[-1]), float(gt_t[-1]))
+    for end in (t0 + align_s, t1):
+        tt = np.arange(max(t0, float(odo_t[0]), float(gt_t[0])), min(end, t1) + 1e-9, 0.5)
+        if len(tt) < 2:
+            continue
+        o = np.stack([np.interp(tt, odo_t, odo[:, 0]), np.interp(tt, odo_t, odo[:, 1])], -1)
+        g = np.stack([np.interp(tt, gt_t, gt_xy[:, 0]), np.interp(tt, gt_t, gt_xy[:, 1])], -1)
+        do, dg = np.diff(o, axis=0), np.diff(g, axis=0)
+        if np.hypot(dg[:, 0], dg[:, 1]).sum() >= min_path_m or end == t1:
+            cross = np.sum(do[:, 0] * dg[:, 1] - do[:, 1] * dg[:, 0])
+            dot = np.sum(do * dg)
+            return float(np.arctan2(cross, dot)) if (cross or dot) else 0.0
+    return 0.0
+
+
+def initial_pose(method: Method, session: Session, arrays: SessionArrays) -> tuple[np.ndarray | None, float | None]:
+    """Start position (2,) world m and odometry frame angle (rad) that ``method.map`` asks for (None when
+    not needed); raises :class:`MissingStream` when the session lacks what they come from."""
+    spec = method.map
+    xy = theta = None
+    needs_gt = spec.init == "groundtruth" or (spec.heading == "groundtruth"
+                                               and getattr(method.motion, "frame_angle_col", None) is not None)
+    gt = session.groundtruth if needs_gt else None
+    if needs_gt and not len(gt):
+        raise MissingStream(f"session {session.id} has no ground truth, which the oracle start (map.init / map.heading "
+                            f"= 'groundtruth') of {method.name} needs")
+    if spec.init == "fix":
+        src = spec.init_fix_source
+        if src is None:
+            fl = method.measurements_needing("fixes")
+            src = getattr(fl[0], "source", None) if fl else None
+        sel = np.ones(len(arrays.fix_t), bool) if src is None else arrays.fix_source == str(src).strip()
+        if not sel.any():
+            raise MissingStream(f"session {session.id} has no position fix of source {src!r} to start {method.name} "
+                                f"at (map.init = 'fix')")
+        xy = arrays.fix_xy[np.flatnonzero(sel)[0]].copy()
+    elif spec.init == "groundtruth":
+        gt_t = gt["t"].to_numpy(float)
+        xy = np.array([np.interp(arrays.t_start, gt_t, gt["x"].to_numpy(float)),
+                       np.interp(arrays.t_start, gt_t, gt["y"].to_numpy(float))])
+    if needs_gt and spec.heading == "groundtruth":
+        if not len(arrays.odo_t):
+            raise MissingStream(f"session {session.id} has no odometry to align with the ground truth "
+                                f"(map.heading = 'groundtruth') for {method.name}")
+        theta = align_heading(arrays.odo_t, arrays.odo, gt["t"].to_numpy(float), gt[["x", "y"]].to_numpy(float),
+                              arrays.t_start, spec.align_s)
+    return xy, theta
+
+
 def run_session(method: Method, session: Session, n_runs: int, seed: int,
-                geom: MapGeometry | None = None, cache: dict | None = None) -> RunResult:
+                geom: MapGeometry | None = None, cache: dict | None = None, fixes=None) -> RunResult:
     """All R runs of ``method`` on ``session`` (batched), seeded by ``seed``.
 
     ``cache``: a dict shared by calls on the same sessions (the evaluation harness passes one), so
     that the floor's map geometry and the session's AHRS and step detection, which do not depend on
     the method's filter, are computed once rather than once per method.
+
+    ``fixes``: extra position fixes (DataFrame t, x, y, std, source) added in memory to the session's
+    ``fixes.csv`` rows (see :class:`~blenav.filters.steps.SessionArrays`).
     """
     t0 = time.perf_counter()
+    _missing_model(method)
     rng = np.random.default_rng(seed)
     if cache is not None and geom is None:
         gkey = ("geom", session.building.id, str(session.meta.get("floor")), method.map.index)
@@ -148,7 +300,7 @@ def run_session(method: Method, session: Session, n_runs: int, seed: int,
     if radio and not len(anchors.ids):
         raise MissingStream(f"building {session.building.id} has no BLE anchors for the measurement models of "
                             f"{method.name}")
-    arrays = SessionArrays.from_session(session, anchors)
+    arrays = SessionArrays.from_session(session, anchors, extra_fixes=fixes)
     if radio and len(arrays.rssi_t) == 0:
         raise MissingStream("no usable BLE readings (rssi.csv absent or empty, or every row names an anchor "
                             "that is not a BLE anchor of the building)")
@@ -156,6 +308,9 @@ def run_session(method: Method, session: Session, n_runs: int, seed: int,
         check_fixes(m, arrays.fix_source, session.id, method.name)
     if method.needs_imu and len(arrays.imu_t) == 0:
         raise MissingStream(f"no IMU data, which the {type(method.motion).__name__} motion model of {method.name} needs")
+    if method.needs_odometry and len(arrays.odo_t) == 0:
+        raise MissingStream(f"no inertial odometry (odometry.csv absent or empty), which {method.name} needs")
+    pf.initializer.start_xy, pf.initializer.start_theta = initial_pose(method, session, arrays)
     offset = magnetometer_offset(arrays, method)
     imu = None
     if method.needs_imu:
@@ -220,10 +375,15 @@ class OnlineLocalizer:
     """
 
     def __init__(self, method: Method, session_meta_building: Session, n_runs: int, seed: int,
-                 t_start: float = 0.0, imu_rate_hz: float = 200.0, mag_offset: np.ndarray | None = None):
+                 t_start: float = 0.0, imu_rate_hz: float = 200.0, mag_offset: np.ndarray | None = None,
+                 start_xy: np.ndarray | None = None, start_theta: float | None = None):
+        """``start_xy`` (2,) world m / ``start_theta`` rad: the known start for ``map.init`` 'fix' or
+        'groundtruth' and ``map.heading`` 'groundtruth' (a live localizer gets them from its caller)."""
         self.method = method
+        _missing_model(method)
         rng = np.random.default_rng(seed)
         self.pf, anchors, self.geom = build_filter(method, session_meta_building, n_runs, rng)
+        self.pf.initializer.start_xy, self.pf.initializer.start_theta = start_xy, start_theta
         self.stream = StepStream(anchors, method.filter.rate_hz, method.attitude, method.steps, t_start, imu_rate_hz,
                                  method.needs_imu, mag_offset)
         self.pf.initialize(t_start)

@@ -19,7 +19,10 @@ window (t_{k-1}, t_k], t_k = t_start + k / rate_hz. Per window (all causal, so t
 * ``fix_xy`` (F, 2), ``fix_std`` (F,), ``fix_source`` (F,): the window's position fixes (``fixes.csv``,
   or :meth:`StepStream.push_fix`): world x, y (m), reported std (m, NaN when unknown) and source
   (str, '' when empty), in time order. All sources are packed; each
-  :class:`~blenav.filters.measurement.FixLikelihood` selects its own.
+  :class:`~blenav.filters.measurement.FixLikelihood` selects its own;
+* ``t`` (float, s): the step's time t_k, and ``odo_xy`` (2,): the inertial-odometry position at t_k (the last
+  odometry sample at or before t_k, odometry frame, m; zeros without odometry). Models that need a history
+  of the odometry (the map prior's window, :mod:`blenav.filters.map_prior`) keep it from these.
 """
 
 from __future__ import annotations
@@ -86,10 +89,10 @@ def pack_fixes(xy, std, source) -> dict:
 
 def window_step(win_acc: np.ndarray, win_q: np.ndarray, steps: int, odo_prev: np.ndarray, odo_now: np.ndarray,
                 rssi_idx: np.ndarray, rssi: np.ndarray, last_heading: float, median_window: int = 5,
-                fixes: dict | None = None) -> tuple[dict, dict, float]:
+                fixes: dict | None = None, t: float = float("nan")) -> tuple[dict, dict, float]:
     """Controls and observations of one window (both paths call this).
 
-    ``fixes``: the window's fixes as :func:`pack_fixes` returns them (None: no fixes)."""
+    ``fixes``: the window's fixes as :func:`pack_fixes` returns them (None: no fixes); ``t``: the step time (s)."""
     if len(win_acc):
         a_t = np.median(win_acc[-median_window:], axis=0)
         acc_w = gravity_compensated_acc(win_q[-1:], a_t[None, :])[0, :2]
@@ -97,7 +100,8 @@ def window_step(win_acc: np.ndarray, win_q: np.ndarray, steps: int, odo_prev: np
     else:
         acc_w, heading = np.zeros(2), last_heading
     ctrl = {"acc_w": acc_w, "heading": heading, "steps": steps, "odo": odo_now - odo_prev}
-    obs = {"rssi_idx": rssi_idx, "rssi": rssi, **(fixes if fixes is not None else pack_fixes([], [], []))}
+    obs = {"rssi_idx": rssi_idx, "rssi": rssi, **(fixes if fixes is not None else pack_fixes([], [], [])),
+           "t": float(t), "odo_xy": np.array(odo_now, dtype=float)}
     return ctrl, obs, heading
 
 
@@ -108,6 +112,10 @@ class SessionArrays:
     Fixes: ``fix_t`` (F,) s, ``fix_xy`` (F, 2) world m, ``fix_std`` (F,) m (NaN when unknown),
     ``fix_source`` (F,) str ('' when empty); all rows of ``fixes.csv``, every source.
     ``t_start``/``t_end`` span the IMU, RSSI, odometry and fixes.
+
+    ``extra_fixes`` (:meth:`from_session`): a DataFrame (t, x, y, std, source) of fixes to add to the
+    session's own, in memory (e.g. fixes computed from ``rssi.csv`` by the evaluation; the dataset is not
+    touched); rows are merged in time order (stable: the session's rows first at equal t).
     """
 
     imu_t: np.ndarray
@@ -128,7 +136,7 @@ class SessionArrays:
     fix_source: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=str))
 
     @classmethod
-    def from_session(cls, session, anchors: AnchorTable) -> "SessionArrays":
+    def from_session(cls, session, anchors: AnchorTable, extra_fixes=None) -> "SessionArrays":
         imu = session.imu
         mag = session.mag
         r = session.rssi
@@ -139,6 +147,12 @@ class SessionArrays:
         keep = idx >= 0
         odo = session.odometry
         fx = session.fixes
+        if extra_fixes is not None and len(extra_fixes):
+            import pandas as pd
+
+            cols = ["t", "x", "y", "std", "source"]
+            fx = pd.concat([fx[cols], extra_fixes[cols]], ignore_index=True) if len(fx) else extra_fixes[cols]
+            fx = fx.sort_values("t", kind="stable").reset_index(drop=True)
         ts = [s["t"].to_numpy() for s in (imu, r, odo, fx) if len(s)]
         if not ts:
             raise ValueError(f"session {session.id} has no IMU, RSSI, odometry or fixes to filter")
@@ -209,7 +223,7 @@ def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det
         f = slice(bounds_fix[k], bounds_fix[k + 1])
         fixes = pack_fixes(a.fix_xy[f], a.fix_std[f], a.fix_source[f]) if f.stop > f.start else None
         ctrl, obs, heading = window_step(wa, wq, n_steps, _odo_at(a.odo_t, a.odo, prev_t), _odo_at(a.odo_t, a.odo, t),
-                                         a.rssi_idx[r], a.rssi[r], heading, att_cfg.median_window, fixes)
+                                         a.rssi_idx[r], a.rssi[r], heading, att_cfg.median_window, fixes, float(t))
         out.append((float(t), ctrl, obs))
         prev_t = t
     return out, q
@@ -250,7 +264,7 @@ class StepStream:
         ctrl, obs, self.heading = window_step(
             np.asarray(w.acc).reshape(-1, 3), np.asarray(w.q).reshape(-1, 4), w.steps, _odo_at(ot, oo, self.prev_t),
             _odo_at(ot, oo, t), np.asarray(w.rssi_idx, dtype=int), np.asarray(w.rssi, dtype=float), self.heading,
-            self.median_window, pack_fixes(w.fix_xy, w.fix_std, w.fix_source) if w.fix_xy else None)
+            self.median_window, pack_fixes(w.fix_xy, w.fix_std, w.fix_source) if w.fix_xy else None, float(t))
         self.win = Window()
         self.prev_t = t
         self.k += 1

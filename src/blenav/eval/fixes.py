@@ -1,0 +1,251 @@
+"""BLE position fixes for Roy's fusion experiments (Table 3.7): named ``fixes.csv`` sources, or computed.
+
+The fused filters of Roy (section 3.2) weigh particles by the output of a BLE localizer (eq. 3.9), and
+the "Dense BLE" / "Sparse BLE" rows of Table 3.7 are that localizer's output itself. An experiment
+names, per role (``dense``, ``sparse``), a ``fixes.csv`` source (``fixes.dense=SOURCE``); a session that
+has no fixes of that source (or every session, when the role is ``null``) gets *simple BLE fixes
+computed from its rssi.csv*:
+
+* the BLE-only localizer is PF-PS of Patel et al. (RSSI-domain likelihood ``ps_002`` with the random-walk
+  motion, uniform start over free space; settings in the experiment's ``fixes.compute``), calibrated
+  like the experiment's other path-loss models, run once (one run, a seed fixed per session and role);
+* ``dense`` uses every BLE anchor of the building; ``sparse`` a subset of ``fixes.sparse_beacons``
+  anchors: an integer k picks k anchors that cover the floor (:func:`spread_beacons`: greedy k-median
+  over the floor's free space, each round adding the anchor that most reduces the mean distance from the
+  walkable area to its nearest chosen anchor; ties by anchor id, so the choice is deterministic and the
+  same for every session of a building), a list names them;
+* the filter's estimates are taken at ``fixes.rate_hz`` (1 Hz: at t_start + 1 s, + 2 s, ...), source names
+  ``ps-dense`` and ``ps-sparse<k>``.
+
+Computed fixes are cached in the evaluation's output folder (``OUT/fixes/<session>/<source>.csv`` with
+a key of the session's rssi.csv, the beacons, the localizer's settings and the seed), never written into
+the dataset unless ``fixes.write: true`` (then with :func:`blenav.data.writer.write_fixes`, which replaces
+only the rows of that source).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import time
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from blenav.filters.measurement import FixLikelihood
+from blenav.filters.runner import Method, MissingStream, RunResult, run_session
+
+log = logging.getLogger("blenav.eval.fixes")
+
+ROLES = ("dense", "sparse")
+
+
+def spread_beacons(anchors: pd.DataFrame, k: int, floor_id=None, floor=None, grid_m: float = 1.0) -> list[str]:
+    """Ids of ``k`` BLE anchors spread over the floor so that they cover it (greedy k-median, deterministic).
+
+    Candidates: ``kind == 'ble'`` anchors on ``floor_id`` (when the table's ``floor`` column has it).
+    Demand points: the centres of the floor's free pixels on a ``grid_m`` grid (``floor``, a
+    :class:`~blenav.data.Floor`; without it, the anchors themselves). Greedy: start from nothing and add,
+    k times, the anchor that most reduces the mean distance from the demand points to their nearest chosen
+    anchor (ties by anchor id). Unlike farthest-point sampling, which starts at the corners of the floor,
+    this places the few beacons where they serve most of the walkable area, as one would install them.
+    Fewer than k candidates: all of them."""
+    a = anchors[anchors["kind"] == "ble"] if len(anchors) else anchors
+    if floor_id is not None and "floor" in a and (a["floor"].astype(str) == str(floor_id)).any():
+        a = a[a["floor"].astype(str) == str(floor_id)]
+    a = a.assign(anchor_id=a["anchor_id"].astype(str)).sort_values("anchor_id", kind="stable")
+    ids = a["anchor_id"].to_numpy()
+    xy = a[["x", "y"]].to_numpy(float)
+    if len(ids) <= k:
+        return list(ids)
+    pts = xy
+    if floor is not None:
+        free = floor.free_points()
+        if len(free):
+            cell = np.floor(free / grid_m).astype(np.int64)
+            _, first = np.unique(cell, axis=0, return_index=True)
+            pts = free[np.sort(first)]
+    d = np.sqrt(np.sum((pts[:, None, :] - xy[None, :, :]) ** 2, axis=-1))  # (P, A)
+    best = np.full(len(pts), np.inf)
+    chosen: list[int] = []
+    for _ in range(k):  # k greedy rounds, vectorised over candidates and points
+        cost = np.minimum(best[:, None], d).mean(axis=0)
+        cost[chosen] = np.inf
+        j = int(np.argmin(cost))
+        chosen.append(j)
+        best = np.minimum(best, d[:, j])
+    return [str(ids[i]) for i in chosen]
+
+
+def ble_fixes(method: Method, session, seed: int, rate_hz: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Fixes (t (F,) s, xy (F, 2) world m) of a BLE-only filter ``method`` (one run) at ``rate_hz``.
+
+    The filter runs at its own rate; its estimates at t_start + j / rate_hz (j >= 1) are kept (every
+    ``round(filter rate / rate_hz)``-th step). Raises :class:`MissingStream` without usable BLE data."""
+    res = run_session(method, session, n_runs=1, seed=seed)
+    stride = max(1, int(round(method.filter.rate_hz / rate_hz)))
+    keep = slice(stride - 1, None, stride)
+    return res.t[keep].copy(), res.position[0, keep].copy()
+
+
+@dataclass
+class FixTrack:
+    """A Table 3.7 BLE-only row: the ``role``'s fixes scored directly as the trajectory (R identical runs)."""
+
+    name: str
+    role: str
+    measurements: tuple = ()  # nothing to calibrate here (the provider's localizer is calibrated)
+
+    def run(self, session, n_runs: int, provider: "FixProvider") -> RunResult:
+        """The fixes as R identical runs; ``wall_s`` is the time the BLE localizer took to compute them
+        (when computed, also if read from the cache), else the time to read them."""
+        t0 = time.perf_counter()
+        t, xy, _ = provider.fixes_for(self.role, session)
+        if not len(t):
+            raise MissingStream(f"no {self.role} fixes for session {session.id}")
+        pos = np.broadcast_to(xy, (n_runs,) + xy.shape).copy()
+        wall = provider.compute_s.get((self.role, session.id), time.perf_counter() - t0)
+        return RunResult(self.name, session.id, t, pos, np.zeros(pos.shape + (2,)), np.ones(pos.shape[:2]), [], None,
+                         None, n_runs * wall, [])
+
+
+class FixProvider:
+    """Per session and role, the fixes an experiment uses (named source, or computed and cached).
+
+    ``roles``: role -> named ``fixes.csv`` source or None; ``localizers``: role -> the BLE-only
+    :class:`Method` that computes fixes (its ``beacons`` are set per building for ``sparse``);
+    ``sparse_beacons``: k or a list of anchor ids; ``out``: the evaluation folder (cache)."""
+
+    def __init__(self, roles: dict, localizers: dict[str, Method], sparse_beacons, out: Path, seed: int = 0,
+                 rate_hz: float = 1.0, write: bool = False):
+        unknown = set(roles) - set(ROLES)
+        if unknown:
+            raise ValueError(f"fixes roles must be among {ROLES}, got {sorted(unknown)}")
+        self.roles = {r: (None if v is None else str(v).strip()) for r, v in roles.items()}
+        self.localizers = localizers
+        self.sparse_beacons = sparse_beacons
+        self.out = Path(out)
+        self.seed = int(seed)
+        self.rate_hz = float(rate_hz)
+        self.write = bool(write)
+        self._mem: dict = {}
+        self._computed: set = set()  # (role, session id) whose fixes were computed (added in memory)
+        self.compute_s: dict = {}  # (role, session id) -> seconds the localizer took (one run)
+        self.beacon_ids: dict[str, list[str]] = {}  # building id -> sparse beacons chosen
+        self.used: dict[str, dict[str, str]] = {r: {} for r in self.roles}  # role -> session -> what was used
+
+    @property
+    def methods(self) -> dict[str, Method]:
+        """The localizers, keyed by their computed source name (for the harness's path-loss calibration)."""
+        return {self.computed_source(r): m for r, m in self.localizers.items()}
+
+    def computed_source(self, role: str) -> str:
+        if role == "sparse":
+            k = len(self.sparse_beacons) if not isinstance(self.sparse_beacons, int) else int(self.sparse_beacons)
+            return f"ps-sparse{k}"
+        return f"ps-{role}"
+
+    def beacons_for(self, role: str, session) -> tuple | None:
+        if role != "sparse":
+            return None
+        if isinstance(self.sparse_beacons, int):
+            return tuple(spread_beacons(session.building.anchors, self.sparse_beacons, session.meta.get("floor"),
+                                        session.floor))
+        return tuple(str(b) for b in self.sparse_beacons)
+
+    # ------------------------------------------------------------------ the fixes of one role
+    def fixes_for(self, role: str, session) -> tuple[np.ndarray, np.ndarray, str]:
+        """(t (F,), xy (F, 2), source) of ``role`` for ``session``: the named source's rows when the session
+        has them, else computed from rssi.csv (cached); :class:`MissingStream` when neither is possible."""
+        if role not in self.roles:
+            raise ValueError(f"unknown fixes role {role!r}; the experiment defines {sorted(self.roles)}")
+        key = (role, session.id)
+        if key in self._mem:
+            return self._mem[key]
+        named = self.roles[role]
+        fx = session.fixes
+        if named is not None and len(fx):
+            sel = fx["source"].fillna("").astype(str).str.strip() == named
+            if sel.any():
+                rows = fx[sel]
+                self.used[role][session.id] = f"fixes.csv source {named!r}"
+                self._mem[key] = (rows["t"].to_numpy(float), rows[["x", "y"]].to_numpy(float), named)
+                return self._mem[key]
+        if role not in self.localizers:
+            raise MissingStream(f"session {session.id} has no fixes of source {named!r} and no localizer is "
+                                f"configured to compute {role} fixes")
+        why = "fixes.%s is null" % role if named is None else f"no fixes of source {named!r} in fixes.csv"
+        if not len(session.rssi):
+            raise MissingStream(f"session {session.id}: {why} and no rssi.csv to compute {role} BLE fixes from")
+        t, xy = self._compute(role, session)
+        src = self.computed_source(role)
+        self._computed.add(key)
+        self.used[role][session.id] = f"computed from rssi.csv as {src!r} ({why})"
+        self._mem[key] = (t, xy, src)
+        return self._mem[key]
+
+    def _compute(self, role: str, session) -> tuple[np.ndarray, np.ndarray]:
+        m = self.localizers[role]
+        m.beacons = self.beacons_for(role, session)
+        if m.beacons is not None:
+            self.beacon_ids[str(session.building.id)] = list(m.beacons)
+        seed = self.seed * 1_000_003 + zlib.crc32(f"{session.id}/{role}".encode())
+        src = self.computed_source(role)
+        rssi_file = Path(session.root) / "rssi.csv"
+        st = rssi_file.stat() if rssi_file.is_file() else None
+        key = hashlib.sha256(json.dumps({
+            "session": str(Path(session.root).resolve()), "rssi": [st.st_size, st.st_mtime_ns] if st else None,
+            "beacons": m.beacons, "filter": repr(m.filter), "motion": repr(m.motion), "map": repr(m.map),
+            "measurements": [repr(x) for x in m.measurements], "seed": seed, "rate_hz": self.rate_hz,
+        }, sort_keys=True).encode()).hexdigest()[:16]
+        path = self.out / "fixes" / session.id / f"{src}.csv"
+        meta = path.with_suffix(".json")
+        if path.is_file() and meta.is_file():
+            info = json.loads(meta.read_text())
+            if info.get("key") == key:
+                self.compute_s[(role, session.id)] = float(info.get("wall_s", 0.0))
+                df = pd.read_csv(path)
+                return df["t"].to_numpy(float), df[["x", "y"]].to_numpy(float)
+        t0 = time.perf_counter()
+        t, xy = ble_fixes(m, session, seed, self.rate_hz)
+        self.compute_s[(role, session.id)] = time.perf_counter() - t0
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1]}).to_csv(path, index=False, float_format="%.4f")
+        meta.write_text(json.dumps({"key": key, "source": src, "beacons": m.beacons, "seed": seed,
+                                    "localizer": m.name, "wall_s": self.compute_s[(role, session.id)]}, indent=1))
+        # read back what was written, so a cached and a fresh run use the very same (rounded) numbers
+        df = pd.read_csv(path)
+        t, xy = df["t"].to_numpy(float), df[["x", "y"]].to_numpy(float)
+        if self.write:
+            from blenav.data.writer import write_fixes
+
+            write_fixes(session.root, t, xy, source=src)
+            log.warning("wrote %d %s fixes into %s/fixes.csv (fixes.write = true)", len(t), src, session.root)
+        return t, xy
+
+    # ------------------------------------------------------------------ per method
+    def prepare(self, method: Method, session) -> pd.DataFrame | None:
+        """Point every fix likelihood of ``method`` that has a ``role`` at that role's fixes for ``session``
+        (sets its ``source``); returns the computed fixes to add in memory (None when all are named
+        sources of the session's fixes.csv)."""
+        extra = []
+        for m in method.measurements:
+            role = getattr(m, "role", None) if isinstance(m, FixLikelihood) else None
+            if role is None:
+                continue
+            t, xy, src = self.fixes_for(role, session)
+            m.source = src
+            if (role, session.id) in self._computed:  # not in the session's fixes.csv: add in memory
+                extra.append(pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1], "std": np.nan, "source": src}))
+        return pd.concat(extra, ignore_index=True) if extra else None
+
+    def describe(self) -> dict:
+        """For results.json: role -> {session: what was used}, plus the sparse beacons chosen per building."""
+        sb = self.sparse_beacons
+        return {"roles": dict(self.roles), "used": self.used,
+                "sparse_beacons": f"{sb} covering the floor (greedy k-median)" if isinstance(sb, int) else list(sb),
+                "sparse_beacon_ids": self.beacon_ids}
