@@ -16,7 +16,7 @@ beacon was heard (a window with no beacon heard gives no fix; how many there wer
      "train_s", "predict_s", "n_windows", "source" ("trained: OUT/runs/KEY" | "model: FILE.onnx" | "fitted")}
 
 A method is named by its label (``LocNet``, ``TransNet+LocNet``, ``TransNet+LocNet+semi``, ``DL-RNN``,
-``KNN``, ``Bayesian``, ``KRR+KF``). ``model=FILE.onnx`` replaces the training of ``TransNet+LocNet`` by an
+``KNN``, ``Bayesian``, ``KRR+KF``). ``model=FILE.onnx`` (read as ``model_path``) replaces the training of ``TransNet+LocNet`` by an
 exported model (its beacon list must match the building).
 """
 
@@ -144,9 +144,11 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
     from blenav.learn.losses import U_SCALE
 
     train_S = train_S * U_SCALE  # baselines read the thesis scale
-    onnx_model = cfg.get("model")
+    onnx_model = cfg.get("model_path")
     predictors, sources, train_s = {}, {}, {}
     for key, spec in (cfg.experiment.get("learned") or {}).items():
+        if spec is None:  # switched off by an experiment (`learned.semi: null`)
+            continue
         label = str(spec.get("label", key))
         if spec.get("needs_unlabelled") and dm.sets.get("unlabelled") is None:
             log.info("%s: no unlabelled devices (data.unlabelled_devices), not run", label)
@@ -162,6 +164,8 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
         train_s[label] = time.perf_counter() - t0
         predictors[label], sources[label] = _predict_module(ck), f"trained: {ck.parent}"
     for key, spec in (cfg.experiment.get("baselines") or {}).items():
+        if spec is None:
+            continue
         kw = OmegaConf.to_container(spec, resolve=True) or {}
         name = str(kw.pop("label", key))
         t0 = time.perf_counter()

@@ -26,6 +26,7 @@ from .windows import WindowConfig, beacon_order, session_windows, split_by_devic
 @dataclass
 class WindowDataConfig:
     path: str = "???"
+    building: str | None = None  # required when the dataset holds several buildings
     train_devices: list | None = None
     test_devices: list | None = None
     unlabelled_devices: list | None = None
@@ -35,6 +36,7 @@ class WindowDataConfig:
     val_fraction: float = 0.2
     history: int = 5
     step_hz: float = 1.0
+    steps: str = "time"  # "scan" for fingerprint surveys: H consecutive scans at one point
     batch_size: int = 256
     seed: int = 0
     extra: dict = field(default_factory=dict)
@@ -79,8 +81,13 @@ class WindowDataModule(L.LightningDataModule):
         ds = Dataset.open(c.path)
         sessions = list(ds.sessions())
         buildings = sorted({s.building.id for s in sessions})
-        if len(buildings) != 1:
-            raise ValueError(f"{c.path}: window training needs sessions of one building, found {buildings}")
+        if c.building is not None:
+            if c.building not in buildings:
+                raise ValueError(f"{c.path}: no session in building {c.building!r}; buildings here: {buildings}")
+            sessions = [s for s in sessions if s.building.id == c.building]
+        elif len(buildings) != 1:
+            raise ValueError(f"{c.path}: window training needs sessions of one building, found {buildings}: "
+                             f"choose one with data.building=ID")
         self.beacons = beacon_order(sessions[0].building)
         self.building = sessions[0].building
         groups = split_by_device(sessions, c.train_devices, c.test_devices, c.unlabelled_devices,
@@ -91,7 +98,7 @@ class WindowDataModule(L.LightningDataModule):
         order = rng.permutation(len(train))
         val = [train[i] for i in order[:n_val]]
         train = [train[i] for i in order[n_val:]]
-        self.window = WindowConfig(history=c.history, step_hz=c.step_hz)
+        self.window = WindowConfig(history=c.history, step_hz=c.step_hz, steps=c.steps)
         wcfg = self.window
         self.groups = {**groups, "train": train, "val": val}
         known = set(c.known_devices) if c.known_devices else {s.device_model for s in train}

@@ -28,6 +28,7 @@ class WindowConfig:
     step_hz: float = 1.0
     offset_db: float = THESIS_OFFSET_DB
     floor_u: float = 0.5  # value of a packet weaker than -offset_db dBm (heard, but barely)
+    steps: str = "time"  # "time": steps of 1 / step_hz s; "scan": one step per scan (distinct RSSI time)
 
 
 @dataclass
@@ -54,7 +55,16 @@ def rssi_to_scale(rssi_dbm: np.ndarray, cfg: WindowConfig) -> np.ndarray:
 
 
 def session_windows(session, beacons: list[str], cfg: WindowConfig = WindowConfig()) -> Windows:
-    """Every complete window of a session (steps from the session's first RSSI time)."""
+    """Every complete window of a session (steps from the session's first RSSI time).
+
+    ``cfg.steps == "scan"`` is for fingerprint surveys (e.g. the UJI set): each distinct RSSI timestamp is
+    one step, and a window is H consecutive scans at one surveyed point (equal ground-truth positions),
+    never spanning the walk between two points; its label is that point.
+    """
+    if cfg.steps == "scan":
+        return _scan_windows(session, beacons, cfg)
+    if cfg.steps != "time":
+        raise ValueError(f"window steps must be 'time' or 'scan', got {cfg.steps!r}")
     r = session.rssi
     B, H = len(beacons), cfg.history
     empty = Windows(np.zeros((0, B, H), np.float32), np.zeros((0, 2)), np.zeros(0), beacons, session.device_model,
@@ -86,6 +96,36 @@ def session_windows(session, beacons: list[str], cfg: WindowConfig = WindowConfi
         inside = (t_end >= gt["t"].iloc[0]) & (t_end <= gt["t"].iloc[-1])
         xy[inside] = session.positions_at(t_end[inside])
     return Windows(np.ascontiguousarray(S), xy, t_end, beacons, session.device_model, session.id)
+
+
+def _scan_windows(session, beacons: list[str], cfg: WindowConfig) -> Windows:
+    r = session.rssi
+    B, H = len(beacons), cfg.history
+    col = {b: i for i, b in enumerate(beacons)}
+    j = r["anchor_id"].astype(str).map(col) if len(r) else r.get("anchor_id")
+    keep = j.notna().to_numpy() if len(r) else np.zeros(0, bool)
+    empty = Windows(np.zeros((0, B, H), np.float32), np.zeros((0, 2)), np.zeros(0), beacons, session.device_model,
+                    session.id)
+    if not keep.any() or not (session.labelled and len(session.groundtruth)):
+        return empty
+    t_all = r["t"].to_numpy(float)[keep]
+    scans, k = np.unique(t_all, return_inverse=True)
+    K = len(scans)
+    sums, counts = np.zeros((K, B)), np.zeros((K, B))
+    jj = j.to_numpy()[keep].astype(int)
+    np.add.at(sums, (k, jj), rssi_to_scale(r["rssi"].to_numpy(float)[keep], cfg))
+    np.add.at(counts, (k, jj), 1.0)
+    steps = np.divide(sums, counts, out=np.zeros_like(sums), where=counts > 0)
+    if K < H:
+        return empty
+    xy = session.positions_at(scans)  # (K, 2)
+    same = np.r_[True, np.linalg.norm(np.diff(xy, axis=0), axis=1) < 1e-3]  # scan k at the point of k-1
+    run_start = np.maximum.accumulate(np.where(~same, np.arange(K), 0))  # first scan of each point's run
+    ends = np.flatnonzero(np.arange(K) - run_start >= H - 1)  # windows ending here stay at one point
+    if len(ends) == 0:
+        return empty
+    S = sliding_window_view(steps, H, axis=0)[ends - (H - 1)].astype(np.float32)
+    return Windows(np.ascontiguousarray(S), xy[ends], scans[ends], beacons, session.device_model, session.id)
 
 
 def split_by_device(sessions, train_devices=None, test_devices=None, unlabelled_devices=None,
