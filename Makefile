@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism paper-tables clean-demo
+.PHONY: install demo test test-slow test-all bench realism paper-tables crossphone-tables clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -39,6 +39,8 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/sim_speed.py
 	$(BIN)/python benchmarks/filter_speed.py
 	$(BIN)/python benchmarks/map_index.py
+	$(BIN)/python benchmarks/onnx_speed.py
+	$(BIN)/python benchmarks/crossphone_train.py
 
 # The README's result tables: per preset, 5 sessions of 384 s with one phone model (as the papers), the
 # first walk calibrates the path-loss model and is not scored, then both experiments with 100 runs.
@@ -53,6 +55,15 @@ paper-tables: $(STAMP)
 	  $(BIN)/blenav-eval experiment=frontend_000 data=data/$${P}_eval runs=100 calibration=[$$CAL] \
 	      out=data/results/$${P}_frontend_000 progress=false || exit 1; \
 	done
+
+# Roy's Tables 3.3-3.5 on the simulated campus (60 ten-minute walks, four per phone profile; trains four
+# networks, about 30 min here) and the real cross-phone test on UJI (train A5 + BQ, test S6).
+crossphone-tables: $(STAMP)
+	$(BIN)/blenav-sim sim=campus_floor seed=3 out=data/campus_crossphone duration_s=600 sessions=60 \
+	    'sim.carriers=[pedestrian]' sim.unlabelled_every=0 overwrite=true progress=false
+	$(BIN)/blenav-eval experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003 progress=false
+	test -e data/uji_ble/dataset.yaml || $(BIN)/blenav-import uji_ble ../shared/data/raw/uji_ble data/uji_ble
+	$(BIN)/blenav-eval experiment=crossphone_uji data=data/uji_ble out=data/results/crossphone_uji progress=false
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md

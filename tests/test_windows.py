@@ -79,3 +79,15 @@ def test_split_holds_out_whole_sessions_and_shares_unlabelled_devices():
     assert {i for i in ids["test"] if i[0] in "de"} == {"d-0", "d-1", "e-0", "e-1", "e-2"}
     again = split_by_device(sessions, train_devices=["a", "b"], unlabelled_devices=["c", "d"], holdout=0.25, seed=1)
     assert [s.id for s in again["test"]] == [s.id for s in g["test"]]  # seeded
+
+
+def test_packets_of_unknown_beacons_are_ignored_counted_and_said(tiny_dataset, caplog):
+    ds = Dataset.open(tiny_dataset)
+    s = ds.session("walk0")
+    beacons = beacon_order(s.building)
+    full = session_windows(s, beacons)
+    fewer = session_windows(s, beacons[:-1])  # a model that never knew b4: its packets are no row of S
+    n_b4 = int((s.rssi["anchor_id"].astype(str) == "b4").sum())
+    assert fewer.unknown == {"b4": n_b4} and full.unknown == {}
+    np.testing.assert_array_equal(fewer.S, full.S[:, :-1])
+    assert "outside the model's beacon list" in caplog.text and "b4" in caplog.text

@@ -14,12 +14,15 @@ that a weak packet is never confused with none.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from blenav.sim.receivers import THESIS_OFFSET_DB
+
+log = logging.getLogger("blenav.learn")
 
 
 @dataclass
@@ -41,6 +44,7 @@ class Windows:
     beacons: list[str]
     device_model: str
     session: str
+    unknown: dict = field(default_factory=dict)  # anchor id -> packets ignored (not in ``beacons``)
 
 
 def beacon_order(building) -> list[str]:
@@ -74,6 +78,7 @@ def session_windows(session, beacons: list[str], cfg: WindowConfig = WindowConfi
     col = {b: i for i, b in enumerate(beacons)}
     j = r["anchor_id"].astype(str).map(col)
     keep = j.notna().to_numpy()
+    empty.unknown = _unknown(r, keep, session.id)
     if not keep.any():
         return empty
     t = r["t"].to_numpy(float)[keep]
@@ -95,7 +100,18 @@ def session_windows(session, beacons: list[str], cfg: WindowConfig = WindowConfi
         gt = session.groundtruth
         inside = (t_end >= gt["t"].iloc[0]) & (t_end <= gt["t"].iloc[-1])
         xy[inside] = session.positions_at(t_end[inside])
-    return Windows(np.ascontiguousarray(S), xy, t_end, beacons, session.device_model, session.id)
+    return Windows(np.ascontiguousarray(S), xy, t_end, beacons, session.device_model, session.id, empty.unknown)
+
+
+def _unknown(r, keep: np.ndarray, session_id: str) -> dict:
+    """Packets of anchors outside the model's beacon list: ignored (they are no row of S), counted, said once."""
+    if keep.all():
+        return {}
+    counts = r.loc[~keep, "anchor_id"].astype(str).value_counts().to_dict()
+    ids = sorted(counts)
+    log.warning("session %s: %d packet(s) from %d beacon(s) outside the model's beacon list ignored (%s%s)",
+                session_id, sum(counts.values()), len(ids), ", ".join(ids[:5]), ", ..." if len(ids) > 5 else "")
+    return counts
 
 
 def _scan_windows(session, beacons: list[str], cfg: WindowConfig) -> Windows:
