@@ -76,6 +76,7 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path) -> Pa
     from blenav.learn.train import train
 
     tcfg = OmegaConf.create({"seed": cfg.seed, "out": str(run_dir), "semi": spec.get("semi"),
+                             "threads": cfg.get("threads"),
                              "data": OmegaConf.to_container(cfg.data, resolve=True),
                              "model": OmegaConf.to_container(spec.model, resolve=True),
                              "trainer": {**OmegaConf.to_container(cfg.trainer, resolve=True),

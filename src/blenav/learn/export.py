@@ -196,10 +196,19 @@ def export_module(module, meta: dict, out: str | Path, opset: int = DEFAULT_OPSE
 
 
 def export(cfg) -> Path:
-    """``cfg.ckpt`` (a ``last.ckpt`` of ``train(cfg)``) -> ``cfg.out`` (an .onnx file), opset ``cfg.opset``
-    (default 17). Returns the output path."""
-    from .checkpoint import load_module
+    """``cfg.ckpt`` (a ``last.ckpt`` of ``train(cfg)``) -> ``cfg.out``, opset ``cfg.opset`` (default 17).
+    Returns the output path. Dispatches on the checkpoint's meta ``kind``: a cross-phone localizer (no kind)
+    gives one .onnx file; a map prior (``kind: mapprior``) a directory with two graphs and meta.json
+    (:mod:`blenav.learn.mapprior_export`)."""
+    from .checkpoint import load_module, read_meta
 
-    module, meta = load_module(cfg.ckpt)
     opset = cfg.get("opset", DEFAULT_OPSET) if hasattr(cfg, "get") else getattr(cfg, "opset", DEFAULT_OPSET)
-    return export_module(module, meta, cfg.out, opset=int(opset if opset is not None else DEFAULT_OPSET))
+    opset = int(opset if opset is not None else DEFAULT_OPSET)
+    if not Path(cfg.ckpt).is_file():
+        raise FileNotFoundError(f"checkpoint {cfg.ckpt} does not exist")
+    if read_meta(cfg.ckpt).get("kind") == "mapprior":
+        from .mapprior_export import export_checkpoint
+
+        return export_checkpoint(cfg.ckpt, cfg.out, opset=opset)
+    module, meta = load_module(cfg.ckpt)
+    return export_module(module, meta, cfg.out, opset=opset)

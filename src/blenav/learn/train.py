@@ -68,8 +68,9 @@ def loggers(out: Path) -> list:
 TASKS = ("crossphone", "mapprior")
 
 
-def train(cfg: DictConfig) -> tuple[dict, dict]:
-    """Returns (metrics, objects) like lightning-hydra-template's train().
+def train(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict, dict]:
+    """Returns (metrics, objects) like lightning-hydra-template's train(); ``callbacks`` are added to the
+    Trainer's (benchmarks time epochs this way; both tasks).
 
     ``cfg.task`` picks what is fitted: ``crossphone`` (default, this module) or ``mapprior`` (the map prior
     network of Roy section 3.2.2, :func:`blenav.learn.mapprior.train_mapprior`; ``experiment=mapprior``)."""
@@ -79,11 +80,13 @@ def train(cfg: DictConfig) -> tuple[dict, dict]:
     if task == "mapprior":
         from .mapprior import train_mapprior
 
-        return train_mapprior(cfg)
+        return train_mapprior(cfg, callbacks=callbacks)
     if (cfg.get("model") or {}).get("kind") == "mapprior":
         raise ValueError("model=mapprior is trained with task=mapprior: use `python train.py experiment=mapprior "
                          "data=DIR out=RUN`")
     L.seed_everything(int(cfg.seed), workers=True)
+    if cfg.get("threads"):  # e.g. threads=1 on a shared machine: oversubscribed cores slow torch down a lot
+        torch.set_num_threads(int(cfg.threads))
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     dm = WindowDataModule(data_config(cfg))
@@ -97,8 +100,9 @@ def train(cfg: DictConfig) -> tuple[dict, dict]:
     if semi:
         trainer_kw["max_epochs"] = int(cfg.trainer.max_epochs) + int(semi.epochs)
         trainer_kw["reload_dataloaders_every_n_epochs"] = 1
-    ckpt = L.pytorch.callbacks.ModelCheckpoint(dirpath=out, save_last=True, save_top_k=0)
-    trainer = L.Trainer(**trainer_kw, default_root_dir=out, callbacks=[ckpt], logger=loggers(out),
+    # always OUT/last.ckpt, also when it was copied in (scenario 3 starting from scenario 2's run)
+    ckpt = L.pytorch.callbacks.ModelCheckpoint(dirpath=out, save_last=True, save_top_k=0, enable_version_counter=False)
+    trainer = L.Trainer(**trainer_kw, default_root_dir=out, callbacks=[ckpt, *(callbacks or [])], logger=loggers(out),
                         enable_model_summary=False)
     resume = out / "last.ckpt"
     trainer.fit(module, datamodule=dm, ckpt_path=str(resume) if resume.is_file() else None)

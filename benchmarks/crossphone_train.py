@@ -1,0 +1,82 @@
+"""Scenario 2 training speed on this CPU: TransNet+LocNet with the losses of eq. 3.6 on about 50k windows.
+
+The issue's budget: scenario 2 training (50 epochs, batch 256, Adam lr 1e-4, Roy section 3.1.4) on 50k
+windows in under 15 min on the 2-core CPU. The benchmark simulates a campus_floor dataset of the six
+labelled phones (skipped when ``--data`` exists), times ``--epochs`` epochs of the real ``train(cfg)``
+(``experiment=crossphone_s2``) and projects 50 epochs from the mean epoch time after the first (every epoch
+is the same work: same windows, same batches). Reference in the same run: LocNet alone (baseline 2) on the
+same windows, so the ratio shows what TransNet and the SSL term cost.
+
+    .venv/bin/python benchmarks/crossphone_train.py [--data data/bench_crossphone] [--epochs 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import lightning as L
+import torch
+
+from blenav.cli.sim import run as sim_run
+from blenav.configs import compose
+from blenav.learn.train import train
+
+BUDGET_S = 15 * 60
+PHONES = "[iphone-7,iphone-8,iphone-xr,galaxy-s10,galaxy-note9,galaxy-a50]"
+
+
+class EpochTimer(L.Callback):
+    def __init__(self):
+        self.times: list[float] = []
+
+    def on_train_epoch_start(self, trainer, module):
+        self._t0 = time.perf_counter()
+
+    def on_train_epoch_end(self, trainer, module):
+        self.times.append(time.perf_counter() - self._t0)
+
+
+def timed(experiment: str, data: Path, epochs: int, *extra: str) -> tuple[int, list[float]]:
+    timer = EpochTimer()
+    with tempfile.TemporaryDirectory() as out:
+        cfg = compose("train", f"experiment={experiment}", f"data={data}", f"out={out}", f"trainer.max_epochs={epochs}",
+                      "trainer.enable_progress_bar=false", "data.holdout=0", *extra)
+        _, objs = train(cfg, callbacks=[timer])
+    return len(objs["datamodule"].sets["train"]), timer.times
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default="data/bench_crossphone")
+    ap.add_argument("--sessions", type=int, default=105, help="10-min walks to simulate (105: about 50k windows)")
+    ap.add_argument("--epochs", type=int, default=3)
+    args = ap.parse_args()
+    data = Path(args.data)
+    if not (data / "dataset.yaml").exists():
+        print(f"simulating {args.sessions} x 600 s on campus_floor with the six labelled phones into {data} ...")
+        sim_run(compose("sim", "sim=campus_floor", "seed=21", f"out={data}", "duration_s=600",
+                        f"sessions={args.sessions}", "progress=false", "sim.carriers=[pedestrian]",
+                        f"sim.receivers={PHONES}", "sim.unlabelled_every=0", "overwrite=true"))
+    print(f"torch threads: {torch.get_num_threads()}")
+    rows = {}
+    for name, exp, extra in (("TransNet+LocNet (scenario 2)", "crossphone_s2", ()),
+                             ("LocNet (baseline 2, reference)", "crossphone_s2", ("model=locnet",))):
+        n, times = timed(exp, data, args.epochs, *extra)
+        steady = times[1:] or times
+        per = sum(steady) / len(steady)
+        rows[name] = per
+        print(f"{name:32s} {n:,} training windows; epochs {', '.join(f'{t:.1f}' for t in times)} s; "
+              f"50 epochs projected {50 * per / 60:.1f} min")
+    s2 = rows["TransNet+LocNet (scenario 2)"]
+    ref = rows["LocNet (baseline 2, reference)"]
+    print(f"ratio TransNet+LocNet / LocNet per epoch: {s2 / ref:.2f}x")
+    verdict = "MEETS" if 50 * s2 <= BUDGET_S else "MISSES"
+    print(f"verdict: {verdict} the 15 min budget: 50 epochs of scenario 2 projected {50 * s2 / 60:.1f} min "
+          f"({50 * s2 / BUDGET_S:.2f}x the budget)")
+
+
+if __name__ == "__main__":
+    main()
