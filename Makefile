@@ -57,11 +57,15 @@ paper-tables: $(STAMP)
 	done
 
 # Roy's Tables 3.3-3.5 on the simulated campus (60 ten-minute walks, four per phone profile; trains four
-# networks, about 30 min here) and the real cross-phone test on UJI (train A5 + BQ, test S6).
+# networks twice, about 20 min here) and the real cross-phone test on UJI (train A5 + BQ, test S6).
 crossphone-tables: $(STAMP)
 	$(BIN)/blenav-sim sim=campus_floor seed=3 out=data/campus_crossphone duration_s=600 sessions=60 \
 	    'sim.carriers=[pedestrian]' sim.unlabelled_every=0 overwrite=true progress=false
 	$(BIN)/blenav-eval experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003 progress=false
+	$(BIN)/blenav-eval experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003_lr1e-3 \
+	    progress=false plots=false '~experiment.baselines' experiment.learned.locnet.model.lr=1e-3 \
+	    experiment.learned.transnet_locnet.model.lr=1e-3 experiment.learned.semi.model.lr=1e-3 \
+	    experiment.learned.dlrnn.model.lr=1e-3
 	test -e data/uji_ble/dataset.yaml || $(BIN)/blenav-import uji_ble ../shared/data/raw/uji_ble data/uji_ble
 	$(BIN)/blenav-eval experiment=crossphone_uji data=data/uji_ble out=data/results/crossphone_uji progress=false
 

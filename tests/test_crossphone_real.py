@@ -10,14 +10,17 @@ from blenav.eval.harness import evaluate
 from blenav.importers import run_import
 from blenav.learn.windows import WindowConfig, beacon_order, session_windows
 from blenav.data import Dataset
+from helpers import RAW
 
 pytestmark = pytest.mark.realdata
 
 
 @pytest.fixture(scope="module")
-def uji(tmp_path_factory, raw_dir):
+def uji(tmp_path_factory):
+    if not RAW.is_dir():
+        pytest.skip(f"public recordings not found at {RAW} (../shared/data/raw is absent)")
     out = tmp_path_factory.mktemp("uji") / "ds"
-    run_import("uji_ble", raw_dir / "uji_ble", out)
+    run_import("uji_ble", RAW / "uji_ble", out)
     return out
 
 
