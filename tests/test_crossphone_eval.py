@@ -58,6 +58,7 @@ def test_every_method_is_scored_per_device_on_the_same_windows(four_phones, tmp_
     # a second evaluation reuses the finished training runs (same data hash) and gives the same numbers
     again = evaluate(cfg(four_phones, tmp_path / "o", "plots=false"))
     assert again["methods"]["LocNet"]["error_m"]["mean"] == pytest.approx(res["methods"]["LocNet"]["error_m"]["mean"])
+    assert res["methods"]["LocNet"]["source"].startswith("trained") and again["methods"]["LocNet"]["source"].startswith("reused")
 
 
 def test_runs_trained_on_other_data_are_refused(four_phones, tmp_path):

@@ -13,7 +13,8 @@ beacon was heard (a window with no beacon heard gives no fix; how many there wer
     {"error_m": {"mean","std","median","p75","p90","max"}, "rmse_m": {summary over sessions},
      "per_device": {device_model: {"mean","std","median","p90","max","n"}},
      "per_brand": {brand: {...}}, "per_session": {SESSION_ID: {"error_m": {...}, "device_model"}},
-     "train_s", "predict_s", "n_windows", "source" ("trained: OUT/runs/KEY" | "model: FILE.onnx" | "fitted")}
+     "train_s" (null when a complete run was reused), "predict_s", "n_windows",
+     "source" ("trained: OUT/runs/KEY" | "reused: OUT/runs/KEY" | "model: FILE.onnx" | "fitted")}
 
 A method is named by its label (``LocNet``, ``TransNet+LocNet``, ``TransNet+LocNet+semi``, ``DL-RNN``,
 ``KNN``, ``Bayesian``, ``KRR+KF``). ``model=FILE.onnx`` (read as ``model_path``) replaces the training of ``TransNet+LocNet`` by an
@@ -87,8 +88,9 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path) -> Pa
         src = run_dir.parent / str(init) / "last.ckpt"
         run_dir.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(src, ck)
-    train(tcfg)
-    return ck
+    before = torch.load(ck, map_location="cpu", weights_only=False)["global_step"] if ck.exists() else None
+    _, objs = train(tcfg)
+    return ck, before == objs["trainer"].global_step  # (checkpoint, reused without a training step)
 
 
 def _check_reuse(ck: Path, dm) -> None:
@@ -161,9 +163,10 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
         t0 = time.perf_counter()
         ck = runs_dir / key / "last.ckpt"
         _check_reuse(ck, dm)
-        ck = _train_run(cfg, key, spec, runs_dir / key)
-        train_s[label] = time.perf_counter() - t0
-        predictors[label], sources[label] = _predict_module(ck), f"trained: {ck.parent}"
+        ck, reused = _train_run(cfg, key, spec, runs_dir / key)
+        train_s[label] = None if reused else time.perf_counter() - t0
+        predictors[label] = _predict_module(ck)
+        sources[label] = f"{'reused' if reused else 'trained'}: {ck.parent}"
     for key, spec in (cfg.experiment.get("baselines") or {}).items():
         if spec is None:
             continue

@@ -126,7 +126,7 @@ def write_crossphone_markdown(path: Path, results: dict, cfg=None) -> None:
         lines.append(f"| {b} | " + " | ".join(
             f"{_f(m['per_brand'][b]['mean'])} / {_f(m['per_brand'][b]['std'])}" if b in m["per_brand"] else "-"
             for m in ms.values()) + " |")
-    lines += ["", "| method | source | train [s] | predict [s] |", "|---|---|---|---|"]
+    lines += ["", "| method | source | train [s] (this call) | predict [s] |", "|---|---|---|---|"]
     lines += [f"| {n} | {m['source']} | {_f(m['train_s'], 1)} | {_f(m['predict_s'], 2)} |" for n, m in ms.items()]
     nofix = sum(results.get("no_fix_windows", {}).values())
     if nofix:
