@@ -63,11 +63,12 @@ def main() -> None:
                         f"sim.receivers={PHONES}", "sim.unlabelled_every=0", "overwrite=true"))
     print(f"cores: {torch.get_num_threads()} (torch default threads)")
     rows = {}
-    # all-core first: train(threads=1) sets torch's process-wide thread count for the runs after it
-    for name, exp, extra in (("TransNet+LocNet, all-core threads", "crossphone_s2", ("threads=null",)),
-                             ("TransNet+LocNet (scenario 2)", "crossphone_s2", ()),
-                             ("LocNet (baseline 2, reference)", "crossphone_s2", ("model=locnet",))):
-        n, times = timed(exp, data, args.epochs, *extra)
+    default_threads = torch.get_num_threads()
+    for name, exp, epochs, extra in (("TransNet+LocNet (scenario 2)", "crossphone_s2", args.epochs, ()),
+                                     ("LocNet (baseline 2, reference)", "crossphone_s2", args.epochs, ("model=locnet",)),
+                                     ("TransNet+LocNet, all-core threads", "crossphone_s2", 2, ("threads=null",))):
+        torch.set_num_threads(default_threads)  # train(threads=1) changed it for the whole process
+        n, times = timed(exp, data, epochs, *extra)
         steady = times[1:] or times
         per = sum(steady) / len(steady)
         rows[name] = per

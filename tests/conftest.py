@@ -19,6 +19,18 @@ def tiny_dataset(_tiny_template, tmp_path):
     return Path(shutil.copytree(_tiny_template, tmp_path / "tiny"))
 
 
+@pytest.fixture(scope="session")
+def two_phones(tmp_path_factory):
+    """A simulated 'small' building, 4 one-minute walks by an iPhone 8 and a Galaxy S10 profile (read-only)."""
+    from blenav.cli.sim import run as sim_run
+    from blenav.configs import compose
+
+    out = tmp_path_factory.mktemp("two_phones") / "d"
+    sim_run(compose("sim", "sim=small", "seed=5", f"out={out}", "duration_s=60", "sessions=4", "progress=false",
+                    "sim.carriers=[pedestrian]", "sim.receivers=[iphone-8,galaxy-s10]"))
+    return out
+
+
 @pytest.fixture
 def raw_dir():
     """../shared/data/raw, or skip with the reason when it is absent."""

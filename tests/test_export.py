@@ -33,11 +33,8 @@ TOL = 1e-4
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    out = tmp_path_factory.mktemp("exp") / "d"
-    sim_run(compose("sim", "sim=small", "seed=5", f"out={out}", "duration_s=60", "sessions=4", "progress=false",
-                    "sim.carriers=[pedestrian]", "sim.receivers=[iphone-8,galaxy-s10]"))
-    return out
+def dataset(two_phones):
+    return two_phones
 
 
 @pytest.fixture(scope="module")

@@ -9,20 +9,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from blenav.cli.sim import run as sim_run
-from blenav.configs import compose
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["trainer.max_epochs=1", "trainer.enable_progress_bar=false", "model.locnet.hidden=16",
         "model.locnet.fc_hidden=8", "data.batch_size=32"]
-
-
-@pytest.fixture(scope="module")
-def two_phones(tmp_path_factory):
-    out = tmp_path_factory.mktemp("so") / "d"
-    sim_run(compose("sim", "sim=small", "seed=5", f"out={out}", "duration_s=60", "sessions=4", "progress=false",
-                    "sim.carriers=[pedestrian]", "sim.receivers=[iphone-8,galaxy-s10]"))
-    return out
 
 
 def _train(*args, cwd):

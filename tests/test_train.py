@@ -6,17 +6,7 @@ import pytest
 import torch
 from blenav.configs import compose
 
-from blenav.cli.sim import run as sim_run
 from blenav.learn.train import train
-
-
-@pytest.fixture(scope="module")
-def two_phones(tmp_path_factory):
-    out = tmp_path_factory.mktemp("tr") / "d"
-    sim_run(compose("sim", *["sim=small", "seed=5", f"out={out}", "duration_s=60", "sessions=4",
-                                                  "progress=false", "sim.carriers=[pedestrian]",
-                                                  "sim.receivers=[iphone-8,galaxy-s10]"]))
-    return out
 
 
 def cfg(*overrides):

@@ -26,9 +26,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         ds = Dataset.open(args.dataset)
         ids = args.sessions.split(",") if args.sessions else None
-        unknown = [i for i in ids or [] if i not in ds.session_ids]
-        if unknown:
-            raise ValueError(f"sessions {unknown} are not in {args.dataset}")
         sessions = [s for s in ds.sessions(ids) if s.labelled]
         fit = fit_sessions(sessions)
     except (DatasetError, ValueError) as exc:

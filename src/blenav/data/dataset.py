@@ -71,7 +71,11 @@ class Dataset:
         return Session(id=session_id, root=root, meta=meta, building=b)
 
     def sessions(self, ids: list[str] | None = None, labelled: bool | None = None):
-        """Iterate sessions (all, or ``ids``), optionally only (un)labelled ones."""
+        """Iterate sessions (all, or ``ids``), optionally only (un)labelled ones. Unknown ids are a
+        ValueError naming them (before any session is read)."""
+        unknown = [i for i in ids or [] if i not in self.session_ids]
+        if unknown:
+            raise ValueError(f"sessions {unknown} are not in {self.root}")
         for sid in ids or self.session_ids:
             s = self.session(sid)
             if labelled is None or s.labelled == labelled:
