@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from blenav.learn.losses import (brand_statistics, localization_loss, position_smoothness_loss, ssl_loss,
@@ -53,3 +54,20 @@ def test_smoothness_and_localization_losses():
     assert position_smoothness_loss(f, x).item() == (1.0 + 25.0) / 2
     terms = {"loc": torch.tensor(2.0), "ts": torch.tensor(3.0)}
     assert total_loss(terms, {"loc": 1.0, "ts": 0.5, "ssl": 9.0}).item() == 3.5
+
+
+def test_ssl_loss_equals_its_dense_form_with_gradients():
+    """The sorted-prefix-sum evaluation of eq. 3.2 gives the direct form's value and gradient."""
+    from blenav.learn.losses import ssl_loss_dense
+
+    gen = torch.Generator().manual_seed(3)
+    S = torch.rand(16, 12, 5, generator=gen) * 0.6 * (torch.rand(16, 12, 5, generator=gen) > 0.5)
+    M = torch.tensor(brand_statistics(_windows(np.random.default_rng(4), n=40, B=12, H=5)))
+    grads = []
+    for f in (ssl_loss, ssl_loss_dense):
+        g = (torch.rand(16, 12, 5, generator=torch.Generator().manual_seed(5)) * 0.6).double().requires_grad_()
+        L = f(g, S.double(), M.double())
+        L.backward()
+        grads.append((L.item(), g.grad))
+    assert grads[0][0] == pytest.approx(grads[1][0], rel=1e-10)
+    torch.testing.assert_close(grads[0][1], grads[1][1], rtol=1e-9, atol=1e-12)
