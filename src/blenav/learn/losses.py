@@ -60,7 +60,7 @@ def ssl_loss(g: torch.Tensor, S: torch.Tensor, M: torch.Tensor, tau: float = 0.1
     if len(bi):
         c = torch.exp((S[bi, ii, ti] - M[ii, ii]) / tau) - w0[ii]  # (K,)
         x = M[ii] - g[bi, :, ti]  # (K, B_j)
-        total = total + (c[:, None] * (torch.relu(-x) + torch.relu(x).square())).sum()
+        total = total + (c[:, None] * torch.where(x < 0, -x, x * x)).sum()
     return total / b
 
 

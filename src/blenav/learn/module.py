@@ -40,14 +40,18 @@ class CrossPhoneModule(L.LightningModule):
 
     def model_step(self, batch: dict) -> dict[str, torch.Tensor]:
         S = batch["S"]
-        g = self.translate(S)
-        f = self.locnet(g)
+        with_prev = bool(self.weights["ps"]) and "S_prev" in batch
+        n = S.shape[0]
+        # the previous windows (position smoothness) go through the networks in the same pass
+        g_all = self.translate(torch.cat([S, batch["S_prev"]]) if with_prev else S)
+        f_all = self.locnet(g_all)
+        g, f = g_all[:n], f_all[:n]
         terms = {}
         labelled = ~torch.isnan(batch["xy"]).any(dim=1)
         if labelled.any() and self.weights["loc"]:
             terms["loc"] = localization_loss(f[labelled], batch["xy"][labelled])
-        if self.weights["ps"] and "S_prev" in batch:
-            terms["ps"] = position_smoothness_loss(f, self.locnet(self.translate(batch["S_prev"])))
+        if with_prev:
+            terms["ps"] = position_smoothness_loss(f, f_all[n:])
         if self.transnet is not None and self.weights["ssl"] and self.M.numel():
             terms["ssl"] = ssl_loss(g, S, self.M, self.tau)
         if self.transnet is not None and self.weights["ts"]:

@@ -77,6 +77,8 @@ def train(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict, dict]:
     task = str(cfg.get("task") or "crossphone")
     if task not in TASKS:
         raise ValueError(f"task={task!r} is not one of {TASKS}")
+    if cfg.get("threads"):  # e.g. threads=1 on a shared machine: oversubscribed cores slow torch down a lot
+        torch.set_num_threads(int(cfg.threads))
     if task == "mapprior":
         from .mapprior import train_mapprior
 
@@ -85,8 +87,6 @@ def train(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict, dict]:
         raise ValueError("model=mapprior is trained with task=mapprior: use `python train.py experiment=mapprior "
                          "data=DIR out=RUN`")
     L.seed_everything(int(cfg.seed), workers=True)
-    if cfg.get("threads"):  # e.g. threads=1 on a shared machine: oversubscribed cores slow torch down a lot
-        torch.set_num_threads(int(cfg.threads))
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     dm = WindowDataModule(data_config(cfg))
