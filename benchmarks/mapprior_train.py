@@ -37,6 +37,7 @@ from blenav.configs import compose
 from blenav.learn.mapprior_data import target_tbar, unique_weights
 from blenav.learn.train import train
 from blenav.runtime.map_prior import MapPrior
+from timing import median_ms
 
 BUDGET_MIN = 60.0
 
@@ -56,15 +57,6 @@ class EpochTimer(L.Callback):
             self.loads.append(os.getloadavg()[0])
 
 
-def median_ms(fn, calls: int, warmup: int = 20) -> float:
-    for _ in range(warmup):
-        fn()
-    t = np.empty(calls)
-    for i in range(calls):
-        t0 = time.perf_counter()
-        fn()
-        t[i] = time.perf_counter() - t0
-    return float(np.median(t) * 1e3)
 
 
 def floor_ranks(prior: MapPrior, dm, n: int) -> tuple[float, float]:

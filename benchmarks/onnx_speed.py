@@ -14,10 +14,8 @@ from __future__ import annotations
 
 import argparse
 import tempfile
-import time
 from pathlib import Path
 
-import numpy as np
 import torch
 from omegaconf import OmegaConf
 
@@ -28,6 +26,7 @@ from blenav.learn.losses import U_SCALE
 from blenav.learn.module import CrossPhoneModule
 from blenav.learn.windows import WindowConfig
 from blenav.runtime import OnnxLocalizer
+from timing import median_ms
 
 TARGET_MS = 1.0
 
@@ -47,15 +46,6 @@ def build(model: str, B: int, H: int):
     return module, meta
 
 
-def median_ms(fn, calls: int, warmup: int) -> float:
-    for _ in range(warmup):
-        fn()
-    t = np.empty(calls)
-    for i in range(calls):
-        t0 = time.perf_counter()
-        fn()
-        t[i] = time.perf_counter() - t0
-    return float(np.median(t) * 1e3)
 
 
 def main() -> None:
