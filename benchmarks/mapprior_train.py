@@ -2,12 +2,12 @@
 
 Simulates office_45x55 (``--sessions`` pedestrian walks of ``--duration`` s with ground truth; or reads
 ``--data``), trains ``python train.py experiment=mapprior`` with the default config (conf/experiment/mapprior.yaml:
-2048 windows per epoch, batch 32, Adam 0.01, early stopping on val/loss with patience 6, at most
-trainer.max_epochs) and prints:
+2048 windows per epoch, batch 32, Adam 0.01, early stopping on val/loss with patience 8, at most 60 epochs
+= trainer.max_epochs) and prints:
 
 - time per epoch (median), epochs run, the convergence epoch, total time vs the 60 min budget. Convergence
   (plateau criterion): the first epoch whose val/loss is within ``--tol`` (2 %) of the best val/loss of the
-  run; training itself stops when val/loss has not improved for 6 epochs (EarlyStopping);
+  run; training itself stops when val/loss has not improved for 8 epochs (EarlyStopping);
 - usefulness on the whole floor (what the filter sees): for ``--windows`` held-out windows (augmented odometry
   as in training), the share of the floor's free pixels whose score beats the score at the true window end
   (median; 0 is perfect, 0.5 knows nothing), and the share where the true window shape fits as well as at the
@@ -17,6 +17,15 @@ trainer.max_epochs) and prints:
   and batch 8 (eight heading hypotheses), median of ``--calls`` calls.
 
     .venv/bin/python benchmarks/mapprior_train.py [--sessions 4] [--duration 600] [--out DIR] [--max-epochs N]
+
+Measured on the shared 2-core VM (other jobs running: mean 1-min load 2.8), 4 walks x 600 s, then-default
+40 epochs: epoch median 10.8 s (min 8.6 s, up to 177 s while other jobs ran), 22.8 min wall in all, i.e.
+about 7 min for 40 epochs on an idle machine; val/loss 0.139 (epoch 1) -> 0.075 (best, epoch 37; within 2 %
+from epoch 35; a cosine-decayed lr, model.lr_decay=cosine, ends at the same 0.075 with a smoother curve).
+Whole floor: true end beaten by a median 14 % of free pixels (the exact shape fits as well on 29 %: the
+network has learnt where walks go). DMT 32 ms PyTorch / 12 ms onnxruntime per 180 x 220 floor; trajectory
+encoder 0.020 ms (onnxruntime) vs 0.128 ms (PyTorch eager) at batch 1, 0.036 vs 0.145 ms at batch 8;
+log_score_at 0.15 ms for 8 x 1000 particles.
 """
 
 from __future__ import annotations
