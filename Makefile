@@ -58,6 +58,7 @@ paper-tables: $(STAMP)
 
 # Roy's Tables 3.3-3.5 on the simulated campus (60 ten-minute walks, four per phone profile; trains four
 # networks twice, about 20 min here) and the real cross-phone test on UJI (train A5 + BQ, test S6).
+FUSED_SESSIONS = s012_mate-20-pro_pedestrian,s023_pixel-3axl_pedestrian,s039_mi-9_pedestrian,s044_honor-view-20_pedestrian
 crossphone-tables: $(STAMP)
 	$(BIN)/blenav-sim sim=campus_floor seed=3 out=data/campus_crossphone duration_s=600 sessions=60 \
 	    'sim.carriers=[pedestrian]' sim.unlabelled_every=0 overwrite=true progress=false
@@ -66,6 +67,10 @@ crossphone-tables: $(STAMP)
 	    progress=false plots=false '~experiment.baselines' experiment.learned.locnet.model.lr=1e-3 \
 	    experiment.learned.transnet_locnet.model.lr=1e-3 experiment.learned.semi.model.lr=1e-3 \
 	    experiment.learned.dlrnn.model.lr=1e-3
+	$(BIN)/python export.py ckpt=data/results/crossphone_003_lr1e-3/runs/transnet_locnet/last.ckpt out=data/runs/campus_tl.onnx
+	$(BIN)/blenav-fixes data/campus_crossphone data/runs/campus_tl.onnx --sessions $(FUSED_SESSIONS)
+	$(BIN)/blenav-eval experiment=fused_003 data=data/campus_crossphone sessions=$(FUSED_SESSIONS) runs=20 \
+	    out=data/results/fused_003 progress=false
 	test -e data/uji_ble/dataset.yaml || $(BIN)/blenav-import uji_ble ../shared/data/raw/uji_ble data/uji_ble
 	$(BIN)/blenav-eval experiment=crossphone_uji data=data/uji_ble out=data/results/crossphone_uji progress=false
 
