@@ -27,3 +27,26 @@ def test_train_leaves_a_checkpoint_and_resumes(two_phones, tmp_path, model):
     assert objs2["trainer"].current_epoch == 3 and objs2["trainer"].global_step == steps * 3 // 2
     state = torch.load(ck, map_location="cpu", weights_only=False)
     assert state["global_step"] == objs2["trainer"].global_step  # last.ckpt now holds the resumed run's end
+
+
+class _Crash(Exception):
+    pass
+
+
+def test_a_run_interrupted_mid_way_resumes_from_its_last_epoch(two_phones, tmp_path):
+    import lightning as L
+
+    class CrashAtEpoch1(L.Callback):
+        def on_train_epoch_start(self, trainer, module):
+            if trainer.current_epoch == 1:
+                raise _Crash()
+
+    common = ["model=locnet", f"data.path={two_phones}", f"out={tmp_path / 'run'}", "data.batch_size=32",
+              "trainer.enable_progress_bar=false", "model.locnet.hidden=16", "model.locnet.fc_hidden=8",
+              "trainer.max_epochs=3"]
+    with pytest.raises(_Crash):
+        train(cfg(*common), callbacks=[CrashAtEpoch1()])
+    state = torch.load(tmp_path / "run" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert state["epoch"] == 0 and state["global_step"] > 0  # epoch 0 finished and was saved
+    _, objs = train(cfg(*common))
+    assert objs["trainer"].current_epoch == 3 and objs["trainer"].global_step == 3 * state["global_step"]

@@ -100,8 +100,10 @@ def train(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict, dict]:
     if semi:
         trainer_kw["max_epochs"] = int(cfg.trainer.max_epochs) + int(semi.epochs)
         trainer_kw["reload_dataloaders_every_n_epochs"] = 1
-    # always OUT/last.ckpt, also when it was copied in (scenario 3 starting from scenario 2's run)
-    ckpt = L.pytorch.callbacks.ModelCheckpoint(dirpath=out, save_last=True, save_top_k=0, enable_version_counter=False)
+    # OUT/last.ckpt after every epoch (an interrupted run resumes from its last finished epoch), never
+    # versioned, also when it was copied in (scenario 3 starting from scenario 2's run)
+    ckpt = L.pytorch.callbacks.ModelCheckpoint(dirpath=out, filename="last", save_top_k=1, monitor=None,
+                                               every_n_epochs=1, enable_version_counter=False)
     trainer = L.Trainer(**trainer_kw, default_root_dir=out, callbacks=[ckpt, *(callbacks or [])], logger=loggers(out),
                         enable_model_summary=False)
     resume = out / "last.ckpt"
