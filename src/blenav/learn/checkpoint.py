@@ -63,6 +63,9 @@ def load_module(path: str | Path) -> tuple[CrossPhoneModule, dict]:
         raise ValueError(f"{path}: not a blenav cross-phone checkpoint (no '{KEY}' entry); "
                          "was it written by train.py?")
     meta = ck[KEY]
+    if meta.get("kind") == "mapprior":
+        raise ValueError(f"{path} is a map prior checkpoint, not a cross-phone localizer: load it with "
+                         "blenav.learn.mapprior.load_mapprior or blenav.runtime.MapPrior")
     locnet, transnet = build_networks(meta["model"], len(meta["beacons"]))
     n_m = ck["state_dict"].get("M", torch.zeros(0, 0))
     module = CrossPhoneModule(locnet, transnet, M=torch.zeros_like(n_m), meta=meta)
