@@ -72,7 +72,7 @@ class TestWindows:
                             "(data.test_devices=[...]) or keep data.holdout > 0")
 
 
-def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path) -> Path:
+def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path, dm) -> tuple[Path, bool]:
     """Train (or resume, or reuse) one learned method; returns its last.ckpt."""
     from blenav.learn.train import train
 
@@ -88,22 +88,23 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path) -> Pa
         src = run_dir.parent / str(init) / "last.ckpt"
         run_dir.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(src, ck)
-    before = torch.load(ck, map_location="cpu", weights_only=False)["global_step"] if ck.exists() else None
+    before = _check_reuse(ck, dm)
     _, objs = train(tcfg)
     return ck, before == objs["trainer"].global_step  # (checkpoint, reused without a training step)
 
 
-def _check_reuse(ck: Path, dm) -> None:
-    from blenav.learn.checkpoint import data_hash, read_meta
+def _check_reuse(ck: Path, dm) -> int | None:
+    """The existing run's global step (None without a checkpoint); refuses one trained on other data."""
+    from blenav.learn.checkpoint import KEY
 
     if not ck.is_file():
-        return
-    meta = read_meta(ck)
-    tr = dm.sets["train"].tensors
-    now = data_hash(tr[0].numpy(), tr[2].numpy())
-    if meta.get("data_hash") not in (None, now):
-        raise EvalError(f"{ck} was trained on other data (hash {meta.get('data_hash')} != {now}); "
+        return None
+    state = torch.load(ck, map_location="cpu", weights_only=False)
+    stored, now = state.get(KEY, {}).get("data_hash"), dm.train_hash()
+    if stored not in (None, now):
+        raise EvalError(f"{ck} was trained on other data (hash {stored} != {now}); "
                         f"delete {ck.parent} or choose another out=")
+    return state["global_step"]
 
 
 def _predict_module(ck: Path):
@@ -161,9 +162,7 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
                 f"model: {onnx_model}", 0.0
             continue
         t0 = time.perf_counter()
-        ck = runs_dir / key / "last.ckpt"
-        _check_reuse(ck, dm)
-        ck, reused = _train_run(cfg, key, spec, runs_dir / key)
+        ck, reused = _train_run(cfg, key, spec, runs_dir / key, dm)
         train_s[label] = None if reused else time.perf_counter() - t0
         predictors[label] = _predict_module(ck)
         sources[label] = f"{'reused' if reused else 'trained'}: {ck.parent}"

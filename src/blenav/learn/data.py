@@ -113,6 +113,13 @@ class WindowDataModule(L.LightningDataModule):
         if self.sets["train"] is None:
             raise ValueError(f"{c.path}: no labelled training windows for devices {c.train_devices or 'all'}")
 
+    def train_hash(self) -> str:
+        """Hash of the labelled training windows and labels (stored with a model; reuse checks compare it)."""
+        from .checkpoint import data_hash
+
+        tr = self.sets["train"].tensors
+        return data_hash(tr[0].numpy(), tr[2].numpy())
+
     def train_labels(self) -> torch.Tensor:
         return self.sets["train"].tensors[2]
 

@@ -164,7 +164,7 @@ def build_meta(model: dict, dm: MapPriorDataModule, net: MapPriorNet) -> dict:
 def train_mapprior(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict, dict]:
     """``task: mapprior``: fit the MPN from a composed ``train`` config; ``callbacks`` are added to the
     Trainer's (e.g. a timer). Returns (metrics, objects)."""
-    from .train import loggers
+    from .train import last_checkpoint, loggers
 
     L.seed_everything(int(cfg.seed), workers=True)
     out = Path(cfg.out)
@@ -178,11 +178,7 @@ def train_mapprior(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict
     net = build_net(model, dcfg.n_points, dcfg.step_hz)
     module = MapPriorModule(net, lr=float(model["lr"]), meta=build_meta(model, dm, net), val_names=dm.val_names,
                             lr_decay=model.get("lr_decay"))
-    # RUN/last.ckpt after *every* epoch, so an interrupted run resumes from its last finished epoch (Lightning
-    # 2.6 writes save_last only together with a top-k checkpoint, i.e. with save_top_k=0 only when fit ends);
-    # no version counter: a resumed run (also one moved to another folder) overwrites it in place
-    callbacks = [L.pytorch.callbacks.ModelCheckpoint(dirpath=out, filename="last", save_top_k=1, monitor=None,
-                                                     every_n_epochs=1, enable_version_counter=False),
+    callbacks = [last_checkpoint(out),
                  *(callbacks or [])]
     es = cfg.get("early_stopping")
     if es:

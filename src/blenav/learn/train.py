@@ -22,7 +22,7 @@ import lightning as L
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from .checkpoint import build_networks, data_hash
+from .checkpoint import build_networks
 from .data import WindowDataConfig, WindowDataModule
 from .losses import U_SCALE, brand_statistics
 from .module import CrossPhoneModule
@@ -41,11 +41,10 @@ def build_module(cfg: DictConfig, dm: WindowDataModule) -> CrossPhoneModule:
     locnet, transnet = build_networks(model, B)
     locnet.set_normalisation(dm.train_labels())
     M = torch.tensor(brand_statistics(dm.sets["known"].tensors[0].numpy())) if transnet is not None else None
-    tr = dm.sets["train"].tensors
     c = dm.cfg
     meta = {"model": model, "beacons": list(dm.beacons), "building": dm.building.id,
             "window": {**dataclasses.asdict(dm.window), "u_scale": U_SCALE},
-            "data_hash": data_hash(tr[0].numpy(), tr[2].numpy()),
+            "data_hash": dm.train_hash(),
             "train_devices": sorted({s.device_model for s in dm.groups["train"]}),
             "known_devices": sorted(c.known_devices or {s.device_model for s in dm.groups["train"]}),
             "unlabelled_devices": list(c.unlabelled_devices or [])}
@@ -56,6 +55,14 @@ def build_module(cfg: DictConfig, dm: WindowDataModule) -> CrossPhoneModule:
         module.semi_from_epoch, module.semi_lr = int(cfg.trainer.max_epochs), float(semi.lr)
         dm.semi_from_epoch = int(cfg.trainer.max_epochs)
     return module
+
+
+def last_checkpoint(out: Path) -> L.Callback:
+    """OUT/last.ckpt after *every* epoch, so an interrupted run resumes from its last finished epoch
+    (Lightning 2.6 writes ``save_last`` only with a top-k checkpoint, i.e. with save_top_k=0 only when fit
+    ends); no version counter: a resumed or copied-in run (scenario 3 from scenario 2) overwrites it."""
+    return L.pytorch.callbacks.ModelCheckpoint(dirpath=out, filename="last", save_top_k=1, monitor=None,
+                                               every_n_epochs=1, enable_version_counter=False)
 
 
 def loggers(out: Path) -> list:
@@ -100,10 +107,7 @@ def train(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict, dict]:
     if semi:
         trainer_kw["max_epochs"] = int(cfg.trainer.max_epochs) + int(semi.epochs)
         trainer_kw["reload_dataloaders_every_n_epochs"] = 1
-    # OUT/last.ckpt after every epoch (an interrupted run resumes from its last finished epoch), never
-    # versioned, also when it was copied in (scenario 3 starting from scenario 2's run)
-    ckpt = L.pytorch.callbacks.ModelCheckpoint(dirpath=out, filename="last", save_top_k=1, monitor=None,
-                                               every_n_epochs=1, enable_version_counter=False)
+    ckpt = last_checkpoint(out)
     trainer = L.Trainer(**trainer_kw, default_root_dir=out, callbacks=[ckpt, *(callbacks or [])], logger=loggers(out),
                         enable_model_summary=False)
     resume = out / "last.ckpt"
