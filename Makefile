@@ -58,7 +58,7 @@ paper-tables: $(STAMP)
 	done
 
 # Roy's Tables 3.3-3.5 on the simulated campus (60 ten-minute walks, four per phone profile; trains four
-# networks twice, about 20 min here) and the real cross-phone test on UJI (train A5 + BQ, test S6).
+# networks twice) and the real cross-phone test on UJI (train A5 + BQ, test S6).
 FUSED_SESSIONS = s012_mate-20-pro_pedestrian,s023_pixel-3axl_pedestrian,s039_mi-9_pedestrian,s044_honor-view-20_pedestrian
 crossphone-tables: $(STAMP)
 	$(BIN)/blenav-sim sim=campus_floor seed=3 out=data/campus_crossphone duration_s=600 sessions=60 \
