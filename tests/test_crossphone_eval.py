@@ -12,7 +12,7 @@ from blenav.configs import compose
 from blenav.eval.harness import EvalError, evaluate
 
 PHONES = ["iphone-8", "galaxy-s10", "mi-9", "pixel-4xl"]
-KEYS = {"LocNet", "TransNet+LocNet", "TransNet+LocNet+semi", "DL-RNN", "KNN", "Bayesian", "KRR+KF"}
+KEYS = {"LocNet", "LocNet+aug", "TransNet+LocNet", "TransNet+LocNet+semi", "DL-RNN", "KNN", "Bayesian", "KRR+KF"}
 
 
 @pytest.fixture(scope="module")
@@ -63,11 +63,14 @@ def test_every_method_is_scored_per_device_on_the_same_windows(four_phones, tmp_
 
 def test_runs_trained_on_other_data_are_refused(four_phones, tmp_path):
     only_locnet = ["plots=false", "~experiment.baselines", "~experiment.learned.semi", "~experiment.learned.dlrnn",
-                   "~experiment.learned.transnet_locnet"]
+                   "~experiment.learned.transnet_locnet", "~experiment.learned.locnet_aug"]
     res = evaluate(cfg(four_phones, tmp_path / "o", *only_locnet))
     assert set(res["methods"]) == {"LocNet"}
     with pytest.raises(EvalError, match="trained on other data"):
         evaluate(cfg(four_phones, tmp_path / "o", *only_locnet, "data.train_devices=[iphone-8]"))
+    # same data, another model config (here the receiver augmentation): refused too, not silently reused
+    with pytest.raises(EvalError, match="another model config.*augment"):
+        evaluate(cfg(four_phones, tmp_path / "o", *only_locnet, "experiment.learned.locnet.model.augment.offset_db_std=3"))
 
 
 def test_unknown_device_is_named(four_phones, tmp_path):

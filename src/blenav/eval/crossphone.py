@@ -84,26 +84,36 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path, dm) -
                                          "enable_progress_bar": bool(cfg.get("progress", False))}})
     init = spec.get("init_from")
     ck = run_dir / "last.ckpt"
+    copied = False
     if init and not ck.exists():  # scenario 3 continues scenario 2's run: start from its checkpoint
         src = run_dir.parent / str(init) / "last.ckpt"
         run_dir.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(src, ck)
-    before = _check_reuse(ck, dm)
-    _, objs = train(tcfg)
+        copied = True
+    before = _check_reuse(ck, dm, None if copied else tcfg.model)
+    _, objs = train(tcfg, datamodule=dm)  # the split windowed once for every method
     return ck, before == objs["trainer"].global_step  # (checkpoint, reused without a training step)
 
 
-def _check_reuse(ck: Path, dm) -> int | None:
-    """The existing run's global step (None without a checkpoint); refuses one trained on other data."""
+def _check_reuse(ck: Path, dm, model: DictConfig | None = None) -> int | None:
+    """The existing run's global step (None without a checkpoint); refuses one trained on other data or,
+    when ``model`` is given, with another model config (sizes, lr, loss weights, augmentation)."""
     from blenav.learn.checkpoint import KEY
 
     if not ck.is_file():
         return None
     state = torch.load(ck, map_location="cpu", weights_only=False)
-    stored, now = state.get(KEY, {}).get("data_hash"), dm.train_hash()
+    meta = state.get(KEY, {})
+    stored, now = meta.get("data_hash"), dm.train_hash()
     if stored not in (None, now):
         raise EvalError(f"{ck} was trained on other data (hash {stored} != {now}); "
                         f"delete {ck.parent} or choose another out=")
+    if model is not None and meta.get("model") is not None:
+        want = OmegaConf.to_container(model, resolve=True)
+        diff = sorted(k for k in set(want) | set(meta["model"]) if want.get(k) != meta["model"].get(k))
+        if diff:
+            raise EvalError(f"{ck} was trained with another model config (differs in {', '.join(diff)}); "
+                            f"delete {ck.parent} or choose another out=")
     return state["global_step"]
 
 

@@ -4,7 +4,8 @@ Batches are dicts: ``S`` (b, B, H) windows on the normalised scale u / 100 (see
 :mod:`blenav.learn.losses`), ``xy`` (b, 2) metres (NaN rows for unlabelled windows), optionally
 ``S_prev`` (b, B, H) the window one step earlier for the position-smoothness loss. With ``transnet`` None
 the module is plain LocNet (scenario 1 and the baselines 1/2 of Roy). Loss weights follow eq. 3.6;
-``M`` (B, B) is the known brand's statistics matrix (eq. 3.1) when the SSL term is used.
+``M`` (B, B) is the known brand's statistics matrix (eq. 3.1) when the SSL term is used. ``augment``
+(:class:`blenav.learn.augment.ReceiverAugment`) re-receives training windows by random phones.
 """
 
 from __future__ import annotations
@@ -14,13 +15,15 @@ from functools import partial
 import lightning as L
 import torch
 
+from .augment import ReceiverAugment
 from .losses import localization_loss, position_smoothness_loss, ssl_loss, temporal_smoothness_loss, total_loss
 
 
 class CrossPhoneModule(L.LightningModule):
     def __init__(self, locnet: torch.nn.Module, transnet: torch.nn.Module | None = None,
                  optimizer=partial(torch.optim.Adam, lr=1e-4), weights: dict | None = None,
-                 M: torch.Tensor | None = None, tau: float = 0.1, meta: dict | None = None):
+                 M: torch.Tensor | None = None, tau: float = 0.1, meta: dict | None = None,
+                 augment: ReceiverAugment | None = None, seed: int = 0):
         super().__init__()
         self.locnet, self.transnet = locnet, transnet
         self.optimizer_factory = optimizer
@@ -29,6 +32,8 @@ class CrossPhoneModule(L.LightningModule):
         self.meta = meta or {}  # stored in checkpoints under "blenav" (see blenav.learn.checkpoint)
         self.semi_from_epoch: int | None = None  # scenario 3: from this epoch on, Adam's lr is semi_lr
         self.semi_lr = 1e-5
+        self.augment = augment if augment is not None and augment.active else None
+        self.aug_generator = torch.Generator().manual_seed(seed)  # its state is saved with the checkpoint
         self.register_buffer("M", M if M is not None else torch.zeros(0, 0), persistent=True)
 
     def translate(self, S: torch.Tensor) -> torch.Tensor:
@@ -72,6 +77,9 @@ class CrossPhoneModule(L.LightningModule):
         return out["loss"]
 
     def training_step(self, batch, batch_idx):
+        if self.augment is not None:  # training windows only: validation and test see the phones as they are
+            keys = [k for k in ("S", "S_prev") if k in batch]
+            batch = {**batch, **dict(zip(keys, self.augment([batch[k] for k in keys], self.aug_generator)))}
         return self._log_step(batch, "train")
 
     def validation_step(self, batch, batch_idx):
@@ -88,6 +96,11 @@ class CrossPhoneModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["blenav"] = self.meta
+        checkpoint["blenav_aug_rng"] = self.aug_generator.get_state()
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        if "blenav_aug_rng" in checkpoint:  # a resumed run continues the augmentation stream
+            self.aug_generator.set_state(checkpoint["blenav_aug_rng"])
 
     def configure_optimizers(self):
         return self.optimizer_factory(self.parameters())

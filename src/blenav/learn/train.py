@@ -23,6 +23,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from .checkpoint import build_networks
+from .augment import ReceiverAugment
 from .data import WindowDataConfig, WindowDataModule
 from .losses import U_SCALE, brand_statistics
 from .module import CrossPhoneModule
@@ -50,7 +51,8 @@ def build_module(cfg: DictConfig, dm: WindowDataModule) -> CrossPhoneModule:
             "unlabelled_devices": list(c.unlabelled_devices or [])}
     semi = cfg.get("semi")
     module = CrossPhoneModule(locnet, transnet, optimizer=partial(torch.optim.Adam, lr=float(model["lr"])),
-                              weights=dict(model.get("weights") or {}), M=M, meta=meta)
+                              weights=dict(model.get("weights") or {}), M=M, meta=meta,
+                              augment=ReceiverAugment(**(model.get("augment") or {})), seed=int(cfg.seed))
     if semi and dm.sets.get("unlabelled") is not None:
         module.semi_from_epoch, module.semi_lr = int(cfg.trainer.max_epochs), float(semi.lr)
         dm.semi_from_epoch = int(cfg.trainer.max_epochs)
@@ -75,9 +77,12 @@ def loggers(out: Path) -> list:
 TASKS = ("crossphone", "mapprior")
 
 
-def train(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict, dict]:
+def train(cfg: DictConfig, callbacks: list | None = None,
+          datamodule: WindowDataModule | None = None) -> tuple[dict, dict]:
     """Returns (metrics, objects) like lightning-hydra-template's train(); ``callbacks`` are added to the
-    Trainer's (benchmarks time epochs this way; both tasks).
+    Trainer's (benchmarks time epochs this way; both tasks). ``datamodule``: an already set-up
+    :class:`WindowDataModule` built from the same ``cfg.data`` (crossphone task; blenav-eval trains several
+    methods on one split without windowing the dataset again); another data config is an error.
 
     ``cfg.task`` picks what is fitted: ``crossphone`` (default, this module) or ``mapprior`` (the map prior
     network of Roy section 3.2.2, :func:`blenav.learn.mapprior.train_mapprior`; ``experiment=mapprior``)."""
@@ -96,8 +101,12 @@ def train(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict, dict]:
     L.seed_everything(int(cfg.seed), workers=True)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    dm = WindowDataModule(data_config(cfg))
+    dcfg = data_config(cfg)
+    if datamodule is not None and datamodule.cfg != dcfg:
+        raise ValueError("train(cfg, datamodule=...): the data module was built from another data config")
+    dm = datamodule if datamodule is not None else WindowDataModule(dcfg)
     dm.setup()
+    dm.semi_from_epoch = None  # set again by build_module for a semi-supervised run
     module = build_module(cfg, dm)
     trainer_kw = OmegaConf.to_container(cfg.trainer, resolve=True)
     semi = cfg.get("semi")
