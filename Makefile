@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism paper-tables crossphone-tables clean-demo
+.PHONY: install demo test test-slow test-all bench realism paper-tables crossphone-tables mapprior-tables clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -66,6 +66,7 @@ crossphone-tables: $(STAMP)
 	$(BIN)/blenav-eval experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003 progress=false
 	$(BIN)/blenav-eval experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003_lr1e-3 \
 	    progress=false plots=false '~experiment.baselines' experiment.learned.locnet.model.lr=1e-3 \
+	    experiment.learned.locnet_aug.model.lr=1e-3 \
 	    experiment.learned.transnet_locnet.model.lr=1e-3 experiment.learned.semi.model.lr=1e-3 \
 	    experiment.learned.dlrnn.model.lr=1e-3
 	$(BIN)/python export.py ckpt=data/results/crossphone_003_lr1e-3/runs/transnet_locnet/last.ckpt out=data/runs/campus_tl.onnx
@@ -74,6 +75,60 @@ crossphone-tables: $(STAMP)
 	    out=data/results/fused_003 progress=false
 	test -e data/uji_ble/dataset.yaml || $(BIN)/blenav-import uji_ble ../shared/data/raw/uji_ble data/uji_ble
 	$(BIN)/blenav-eval experiment=crossphone_uji data=data/uji_ble out=data/results/crossphone_uji progress=false
+	$(BIN)/blenav-eval experiment=crossphone_uji data=data/uji_ble out=data/results/crossphone_uji_noaug progress=false \
+	    plots=false experiment.learned.transnet_locnet.model.augment.offset_db_std=0 \
+	    experiment.learned.transnet_locnet.model.augment.gain_std=0 experiment.learned.transnet_locnet.model.augment.dropout_max=0
+
+# Roy's Tables 3.7 / 3.6 on two procedural buildings the map prior never saw (procedural_006, _007), with
+# learned BLE fixes as the thesis (its per-building BLE model): 64 survey walks of the same 8 buildings
+# (sessions s032..s095 of the same seed, so none repeats a test walk), per held-out building a dense
+# TransNet+LocNet (all beacons) and a sparse one (data.beacons=4: the 4 beacons the eval's
+# fixes.sparse_beacons picks), their fixes written into the test walks (sources locnet-dense /
+# locnet-sparse4), then both experiments. Builds procedural_mp and the map prior only when absent.
+# Model type (TransNet+LocNet over LocNet) and 200 epochs were chosen on building 000 (README, map prior).
+MP_SIM = sim=procedural seed=4 duration_s=300 'sim.carriers=[pedestrian]' sim.unlabelled_every=0 \
+    sim.odometry.drift_deg_per_min_std=6 sim.odometry.heading_rw_deg=0.8 sim.odometry.scale_std=0.1
+MP_TEST_006 = s006_pixel-4xl_pedestrian,s014_honor-view-20_pedestrian,s022_pixel-3xl_pedestrian,s030_iphone-7_pedestrian
+MP_TEST_007 = s007_pixel-3xl_pedestrian,s015_iphone-7_pedestrian,s023_pixel-3axl_pedestrian,s031_iphone-8_pedestrian
+MP_FIX_TRAIN = experiment=crossphone_s1 model=transnet_locnet data=data/procedural_mp_survey data.holdout=0 \
+    model.lr=1e-3 trainer.max_epochs=$(MP_FIX_EPOCHS) threads=1 trainer.enable_progress_bar=false
+MP_FIX_EPOCHS ?= 200
+MP_TEST_A = s006_pixel-4xl_pedestrian,s007_pixel-3xl_pedestrian,s014_honor-view-20_pedestrian,s015_iphone-7_pedestrian
+MP_TEST_B = s022_pixel-3xl_pedestrian,s023_pixel-3axl_pedestrian,s030_iphone-7_pedestrian,s031_iphone-8_pedestrian
+MP_TEST = $(MP_TEST_A),$(MP_TEST_B)
+# the sparse models' 4 beacons must be the ones the eval's fixes.sparse_beacons: 4 picks (spread_beacons)
+MP_CHECK_SPARSE = from blenav.data import Dataset; from blenav.runtime import OnnxLocalizer; \
+    from blenav.learn.windows import spread_beacons; ds = Dataset.open('data/procedural_mp'); \
+    s = [x for x in ds.sessions() if x.building.id == 'procedural_' + B][0]; \
+    m = OnnxLocalizer('data/runs/mapprior_fix/sparse4_%s.onnx' % B, building=s.building); \
+    e = sorted(spread_beacons(s.building.anchors, 4, s.meta.get('floor'), s.floor)); \
+    assert m.beacons == e, (m.beacons, e); print('procedural_%s: sparse model beacons %s = the eval choice' % (B, e))
+mapprior-tables: $(STAMP)
+	test -e data/procedural_mp/dataset.yaml || $(BIN)/blenav-sim $(MP_SIM) out=data/procedural_mp sessions=32 progress=false
+	test -e data/runs/mapprior_proc_onnx/meta.json || { \
+	  $(BIN)/python train.py experiment=mapprior data=data/procedural_mp out=data/runs/mapprior_proc \
+	      'data.val_buildings=[procedural_006,procedural_007]' trainer.max_epochs=20 && \
+	  $(BIN)/python export.py ckpt=data/runs/mapprior_proc/last.ckpt out=data/runs/mapprior_proc_onnx; }
+	$(BIN)/blenav-sim $(MP_SIM) first_session=32 sessions=64 out=data/procedural_mp_survey overwrite=true progress=false
+	diff -r data/procedural_mp/buildings data/procedural_mp_survey/buildings
+	for B in 006 007; do \
+	  rm -rf data/runs/mapprior_fix/dense_$$B data/runs/mapprior_fix/sparse4_$$B && \
+	  $(BIN)/python train.py $(MP_FIX_TRAIN) data.building=procedural_$$B out=data/runs/mapprior_fix/dense_$$B && \
+	  $(BIN)/python train.py $(MP_FIX_TRAIN) data.building=procedural_$$B data.beacons=4 \
+	      out=data/runs/mapprior_fix/sparse4_$$B && \
+	  $(BIN)/python export.py ckpt=data/runs/mapprior_fix/dense_$$B/last.ckpt out=data/runs/mapprior_fix/dense_$$B.onnx && \
+	  $(BIN)/python export.py ckpt=data/runs/mapprior_fix/sparse4_$$B/last.ckpt out=data/runs/mapprior_fix/sparse4_$$B.onnx && \
+	  $(BIN)/python -c "B = '$$B'; $(MP_CHECK_SPARSE)" || exit 1; \
+	done
+	$(BIN)/blenav-fixes data/procedural_mp data/runs/mapprior_fix/dense_006.onnx --source locnet-dense --sessions $(MP_TEST_006)
+	$(BIN)/blenav-fixes data/procedural_mp data/runs/mapprior_fix/sparse4_006.onnx --source locnet-sparse4 --sessions $(MP_TEST_006)
+	$(BIN)/blenav-fixes data/procedural_mp data/runs/mapprior_fix/dense_007.onnx --source locnet-dense --sessions $(MP_TEST_007)
+	$(BIN)/blenav-fixes data/procedural_mp data/runs/mapprior_fix/sparse4_007.onnx --source locnet-sparse4 --sessions $(MP_TEST_007)
+	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp sessions=$(MP_TEST) \
+	    runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	    out=data/results/mapprior_table37_learnedfix progress=false
+	$(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/procedural_mp sessions=$(MP_TEST) \
+	    runs=3 model=data/runs/mapprior_proc_onnx out=data/results/mapprior_table36 progress=false
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md

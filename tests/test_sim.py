@@ -67,6 +67,26 @@ def test_more_sessions_keep_earlier_ones(tmp_path):
     assert tree_digest(tmp_path / "1" / "sessions" / s) == tree_digest(tmp_path / "2" / "sessions" / s)
 
 
+def test_first_session_writes_the_later_sessions_of_a_longer_run(tmp_path):
+    """first_session=1 sessions=1 writes session 1 of a sessions=2 run, byte for byte, in the same building."""
+    run(compose_sim("sim=small", "seed=5", f"out={tmp_path / 'all'}", "duration_s=6", "sessions=2", "progress=false"))
+    run(compose_sim("sim=small", "seed=5", f"out={tmp_path / 'tail'}", "duration_s=6", "sessions=1",
+                    "first_session=1", "progress=false"))
+    tail = sorted(p.name for p in (tmp_path / "tail" / "sessions").iterdir())
+    assert tail == [sorted(p.name for p in (tmp_path / "all" / "sessions").iterdir())[1]]
+    assert tail[0].startswith("s001_")
+    a, b = tmp_path / "all" / "sessions" / tail[0], tmp_path / "tail" / "sessions" / tail[0]
+    csvs = sorted(p.name for p in a.glob("*.csv"))
+    assert csvs and csvs == sorted(p.name for p in b.glob("*.csv"))
+    for name in csvs:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    assert tree_digest(tmp_path / "all" / "buildings") == tree_digest(tmp_path / "tail" / "buildings")
+    assert "first_session=1" in (tmp_path / "tail" / "dataset.yaml").read_text()
+    with pytest.raises(ValueError, match="first_session"):
+        run(compose_sim("sim=small", f"out={tmp_path / 'neg'}", "duration_s=6", "sessions=1", "first_session=-1",
+                        "progress=false"))
+
+
 @pytest.mark.parametrize("preset", ["small", "office_45x55", "campus_floor", "procedural"])
 def test_every_preset_validates(tmp_path, preset):
     out = tmp_path / preset

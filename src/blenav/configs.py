@@ -31,7 +31,8 @@ def cli_overrides(args: list[str], model_is_path: bool = False) -> list[str]:
 
     - ``data=DIR`` -> ``data.path=DIR``: ``data`` is a node (the dataset path plus its device split,
       ``data.train_devices=[...]`` etc.), and the short form names the dataset;
-    - ``sessions=a,b`` -> ``sessions=[a,b]``: Hydra would read a bare comma list as a sweep;
+    - ``sessions=a,b`` -> ``sessions=[a,b]`` (also ``data.sessions=a,b``, train.py's window data): Hydra
+      would read a bare comma list as a sweep;
     - with ``model_is_path`` (blenav-eval): ``model=PATH`` -> ``model_path=PATH``, the trained model to
       evaluate; for train.py ``model=NAME`` stays the choice of a ``conf/model`` network.
     """
@@ -41,8 +42,9 @@ def cli_overrides(args: list[str], model_is_path: bool = False) -> list[str]:
             a = "data.path=" + a.split("=", 1)[1]
         elif model_is_path and a.startswith("model="):
             a = "model_path=" + a.split("=", 1)[1]
-        elif re.match(r"^sessions=[^\[].*,", a):
-            a = f"sessions=[{a.split('=', 1)[1]}]"
+        elif re.match(r"^(data\.)?sessions=[^\[].*,", a):
+            key, value = a.split("=", 1)
+            a = f"{key}=[{value}]"
         out.append(a)
     return out
 

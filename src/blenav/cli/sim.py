@@ -1,4 +1,5 @@
-"""``blenav-sim sim=PRESET seed=N out=DIR [duration_s=S] [sessions=K]``: simulate a dataset (Hydra)."""
+"""``blenav-sim sim=PRESET seed=N out=DIR [duration_s=S] [sessions=K] [first_session=F]``: simulate a
+dataset (Hydra); ``first_session=F`` writes sessions F .. F+K-1 of the same seed (the same buildings)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ def run(cfg: DictConfig):
 
     sim_cfg = make_sim_config(cfg.sim)
     return simulate(sim_cfg, int(cfg.seed), cfg.out, float(cfg.duration_s), int(cfg.sessions),
-                    progress=bool(cfg.get("progress", False)), overwrite=bool(cfg.get("overwrite", False)))
+                    progress=bool(cfg.get("progress", False)), overwrite=bool(cfg.get("overwrite", False)),
+                    first_session=int(cfg.get("first_session", 0)))
 
 
 @hydra.main(config_path=str(conf_dir()), config_name="sim", version_base="1.3")

@@ -38,47 +38,11 @@ import pandas as pd
 
 from blenav.filters.measurement import FixLikelihood
 from blenav.filters.runner import Method, MissingStream, RunResult, run_session
+from blenav.learn.windows import spread_beacons  # moved next to beacon_order; still importable from here
 
 log = logging.getLogger("blenav.eval.fixes")
 
 ROLES = ("dense", "sparse")
-
-
-def spread_beacons(anchors: pd.DataFrame, k: int, floor_id=None, floor=None, grid_m: float = 1.0) -> list[str]:
-    """Ids of ``k`` BLE anchors spread over the floor so that they cover it (greedy k-median, deterministic).
-
-    Candidates: ``kind == 'ble'`` anchors on ``floor_id`` (when the table's ``floor`` column has it).
-    Demand points: the centres of the floor's free pixels on a ``grid_m`` grid (``floor``, a
-    :class:`~blenav.data.Floor`; without it, the anchors themselves). Greedy: start from nothing and add,
-    k times, the anchor that most reduces the mean distance from the demand points to their nearest chosen
-    anchor (ties by anchor id). Unlike farthest-point sampling, which starts at the corners of the floor,
-    this places the few beacons where they serve most of the walkable area, as one would install them.
-    Fewer than k candidates: all of them."""
-    a = anchors[anchors["kind"] == "ble"] if len(anchors) else anchors
-    if floor_id is not None and "floor" in a and (a["floor"].astype(str) == str(floor_id)).any():
-        a = a[a["floor"].astype(str) == str(floor_id)]
-    a = a.assign(anchor_id=a["anchor_id"].astype(str)).sort_values("anchor_id", kind="stable")
-    ids = a["anchor_id"].to_numpy()
-    xy = a[["x", "y"]].to_numpy(float)
-    if len(ids) <= k:
-        return list(ids)
-    pts = xy
-    if floor is not None:
-        free = floor.free_points()
-        if len(free):
-            cell = np.floor(free / grid_m).astype(np.int64)
-            _, first = np.unique(cell, axis=0, return_index=True)
-            pts = free[np.sort(first)]
-    d = np.sqrt(np.sum((pts[:, None, :] - xy[None, :, :]) ** 2, axis=-1))  # (P, A)
-    best = np.full(len(pts), np.inf)
-    chosen: list[int] = []
-    for _ in range(k):  # k greedy rounds, vectorised over candidates and points
-        cost = np.minimum(best[:, None], d).mean(axis=0)
-        cost[chosen] = np.inf
-        j = int(np.argmin(cost))
-        chosen.append(j)
-        best = np.minimum(best, d[:, j])
-    return [str(ids[i]) for i in chosen]
 
 
 def ble_fixes(method: Method, session, seed: int, rate_hz: float = 1.0) -> tuple[np.ndarray, np.ndarray]:

@@ -1,7 +1,8 @@
 """Window data for training: sessions -> normalised RSSI windows, split by device model.
 
 Windows come from :func:`blenav.learn.windows.session_windows` on one building (its BLE beacons in sorted
-order are the model's rows), divided by :data:`blenav.learn.losses.U_SCALE`. Each window carries the
+order are the model's rows; ``beacons`` = k or a list keeps only a subset, see
+:func:`blenav.learn.windows.select_beacons`, and ``sessions`` restricts the sessions used), divided by :data:`blenav.learn.losses.U_SCALE`. Each window carries the
 previous window of its session (``S_prev``) for the position-smoothness loss. Validation sessions are
 a seeded fraction of the training sessions (whole sessions, never windows of one walk on both sides).
 Splits follow :func:`blenav.learn.windows.split_by_device`. For the semi-supervised stage (scenario 3 of
@@ -11,6 +12,7 @@ Roy) the training loader adds the unlabelled windows (labels NaN) from epoch ``s
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import lightning as L
 import numpy as np
@@ -20,13 +22,15 @@ from torch.utils.data import ConcatDataset, DataLoader, TensorDataset
 from blenav.data import Dataset
 
 from .losses import U_SCALE
-from .windows import WindowConfig, beacon_order, session_windows, split_by_device
+from .windows import WindowConfig, select_beacons, session_windows, split_by_device
 
 
 @dataclass
 class WindowDataConfig:
     path: str = "???"
     building: str | None = None  # required when the dataset holds several buildings
+    sessions: list[str] | None = None  # only these session ids (before the device split); None: all
+    beacons: Any = None  # None: every BLE beacon; int k: spread_beacons(k) on the floor; list: those ids
     train_devices: list | None = None
     test_devices: list | None = None
     unlabelled_devices: list | None = None
@@ -79,7 +83,15 @@ class WindowDataModule(L.LightningDataModule):
             return
         c = self.cfg
         ds = Dataset.open(c.path)
-        sessions = list(ds.sessions())
+        if c.sessions is not None:
+            ids = [str(i) for i in c.sessions]
+            unknown = sorted(set(ids) - set(ds.session_ids))
+            if unknown or not ids:
+                raise ValueError(f"{c.path}: data.sessions names sessions not in the dataset: {unknown}"
+                                 if unknown else f"{c.path}: data.sessions is empty (null = every session)")
+            sessions = list(ds.sessions(ids))
+        else:
+            sessions = list(ds.sessions())
         buildings = sorted({s.building.id for s in sessions})
         if c.building is not None:
             if c.building not in buildings:
@@ -88,8 +100,12 @@ class WindowDataModule(L.LightningDataModule):
         elif len(buildings) != 1:
             raise ValueError(f"{c.path}: window training needs sessions of one building, found {buildings}: "
                              f"choose one with data.building=ID")
-        self.beacons = beacon_order(sessions[0].building)
         self.building = sessions[0].building
+        try:  # a subset is chosen on the floor of the building's sessions, as the evaluation chooses it
+            self.beacons, subset = select_beacons(self.building, c.beacons, sessions[0].meta.get("floor"),
+                                                  sessions[0].floor)
+        except ValueError as exc:
+            raise ValueError(f"data.beacons: {exc}") from None
         groups = split_by_device(sessions, c.train_devices, c.test_devices, c.unlabelled_devices,
                                  holdout=c.holdout, unlabelled_share=c.unlabelled_share, seed=c.seed)
         train = [s for s in groups["train"] if s.labelled]
@@ -98,7 +114,7 @@ class WindowDataModule(L.LightningDataModule):
         order = rng.permutation(len(train))
         val = [train[i] for i in order[:n_val]]
         train = [train[i] for i in order[n_val:]]
-        self.window = WindowConfig(history=c.history, step_hz=c.step_hz, steps=c.steps)
+        self.window = WindowConfig(history=c.history, step_hz=c.step_hz, steps=c.steps, beacon_subset=subset)
         wcfg = self.window
         self.groups = {**groups, "train": train, "val": val}
         known = set(c.known_devices) if c.known_devices else {s.device_model for s in train}

@@ -11,7 +11,9 @@ The exported graph, for a model of B beacons and windows of H steps (both fixed;
 The graph divides S by ``u_scale`` itself (the networks are trained on u / u_scale, see
 :mod:`blenav.learn.losses`) and applies TransNet when the model has one, so an app feeds the same numbers it
 would write in a dataset window. ``metadata_props`` of the model carry, as JSON strings: ``beacons``,
-``window`` (history, step_hz, offset_db, floor_u, u_scale), ``building``, ``data_hash``, ``model`` (the
+``beacon_subset`` (null: the building's BLE beacons are all the model's rows; else the rule that chose a
+deliberate subset, ``"spread:k"`` or ``"list"``, see ``data.beacons``), ``window`` (history, step_hz,
+offset_db, floor_u, u_scale), ``building``, ``data_hash``, ``model`` (the
 model node of the training config), ``model_name``, ``train_devices``, ``known_devices``,
 ``unlabelled_devices``, ``blenav_version`` and ``input_transform`` (the text of :data:`INPUT_TRANSFORM`).
 :class:`blenav.runtime.OnnxLocalizer` reads them back.
@@ -40,8 +42,8 @@ INPUT_NAMES = ("S", "h0", "c0")
 OUTPUT_NAMES = ("xy", "h", "c")
 INPUT_TRANSFORM = ("u = rssi_dbm + offset_db, max(u, floor_u) when heard, 0 when not heard; "
                    "S rows in beacons order, columns oldest..newest step")
-META_KEYS = ("beacons", "window", "building", "data_hash", "model", "model_name", "train_devices", "known_devices",
-             "unlabelled_devices", "blenav_version", "input_transform")
+META_KEYS = ("beacons", "beacon_subset", "window", "building", "data_hash", "model", "model_name", "train_devices",
+             "known_devices", "unlabelled_devices", "blenav_version", "input_transform")
 REQUIRED_META = ("model", "beacons", "window")
 _DOCS = {
     "S": "(batch, B, H) float32 RSSI windows on the thesis scale u (see metadata input_transform)",
@@ -148,6 +150,7 @@ def onnx_metadata(meta: dict) -> dict[str, str]:
     model = meta["model"]
     values = {
         "beacons": [str(b) for b in meta["beacons"]],
+        "beacon_subset": meta.get("beacon_subset", (meta["window"] or {}).get("beacon_subset")),
         "window": meta["window"],
         "building": meta.get("building"),
         "data_hash": meta.get("data_hash"),

@@ -18,6 +18,7 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 from numpy.lib.stride_tricks import sliding_window_view
 
 from blenav.sim.receivers import THESIS_OFFSET_DB
@@ -32,6 +33,10 @@ class WindowConfig:
     offset_db: float = THESIS_OFFSET_DB
     floor_u: float = 0.5  # value of a packet weaker than -offset_db dBm (heard, but barely)
     steps: str = "time"  # "time": steps of 1 / step_hz s; "scan": one step per scan (distinct RSSI time)
+    # None: the rows are all of the building's BLE beacons; else the rule that chose a deliberate subset
+    # ("spread:K" = spread_beacons(K), "list" = named ids): the building's other beacons are then left out
+    # on purpose and not reported as unknown
+    beacon_subset: str | None = None
 
 
 @dataclass
@@ -51,6 +56,75 @@ def beacon_order(building) -> list[str]:
     """The building's BLE anchor ids, sorted: the fixed row order of S stored with a model."""
     a = building.anchors
     return sorted(a.loc[a["kind"] == "ble", "anchor_id"].astype(str).tolist())
+
+
+def spread_beacons(anchors: pd.DataFrame, k: int, floor_id=None, floor=None, grid_m: float = 1.0) -> list[str]:
+    """Ids of ``k`` BLE anchors spread over the floor so that they cover it (greedy k-median, deterministic).
+
+    Candidates: ``kind == 'ble'`` anchors on ``floor_id`` (when the table's ``floor`` column has it).
+    Demand points: the centres of the floor's free pixels on a ``grid_m`` grid (``floor``, a
+    :class:`~blenav.data.Floor`; without it, the anchors themselves). Greedy: start from nothing and add,
+    k times, the anchor that most reduces the mean distance from the demand points to their nearest chosen
+    anchor (ties by anchor id). Unlike farthest-point sampling, which starts at the corners of the floor,
+    this places the few beacons where they serve most of the walkable area, as one would install them.
+    Fewer than k candidates: all of them."""
+    a = anchors[anchors["kind"] == "ble"] if len(anchors) else anchors
+    if floor_id is not None and "floor" in a and (a["floor"].astype(str) == str(floor_id)).any():
+        a = a[a["floor"].astype(str) == str(floor_id)]
+    a = a.assign(anchor_id=a["anchor_id"].astype(str)).sort_values("anchor_id", kind="stable")
+    ids = a["anchor_id"].to_numpy()
+    xy = a[["x", "y"]].to_numpy(float)
+    if len(ids) <= k:
+        return list(ids)
+    pts = xy
+    if floor is not None:
+        free = floor.free_points()
+        if len(free):
+            cell = np.floor(free / grid_m).astype(np.int64)
+            _, first = np.unique(cell, axis=0, return_index=True)
+            pts = free[np.sort(first)]
+    d = np.sqrt(np.sum((pts[:, None, :] - xy[None, :, :]) ** 2, axis=-1))  # (P, A)
+    best = np.full(len(pts), np.inf)
+    chosen: list[int] = []
+    for _ in range(k):  # k greedy rounds, vectorised over candidates and points
+        cost = np.minimum(best[:, None], d).mean(axis=0)
+        cost[chosen] = np.inf
+        j = int(np.argmin(cost))
+        chosen.append(j)
+        best = np.minimum(best, d[:, j])
+    return [str(ids[i]) for i in chosen]
+
+
+def select_beacons(building, beacons=None, floor_id=None, floor=None) -> tuple[list[str], str | None]:
+    """(the model's beacon rows, the subset rule for :attr:`WindowConfig.beacon_subset`) of ``building``.
+
+    ``beacons`` None: every BLE beacon (:func:`beacon_order`), rule None; an int k: the k beacons of
+    :func:`spread_beacons` on ``floor_id`` / ``floor`` (exactly the choice of the evaluation's
+    ``fixes.sparse_beacons: k``), rule ``"spread:k"``; a list of ids: those, rule ``"list"``. The rows are
+    sorted by id either way. Unknown ids, duplicates, an empty list or k < 1 are errors."""
+    have = beacon_order(building)
+    if beacons is None:
+        return have, None
+    if isinstance(beacons, bool):
+        raise ValueError(f"beacons must be null, a count or a list of BLE anchor ids, got {beacons!r}")
+    if isinstance(beacons, (int, np.integer)):
+        k = int(beacons)
+        if k < 1:
+            raise ValueError(f"beacons={k}: need at least one beacon")
+        return sorted(spread_beacons(building.anchors, k, floor_id, floor)), f"spread:{k}"
+    if isinstance(beacons, str):
+        raise ValueError(f"beacons must be null, a count or a list of BLE anchor ids, got the string {beacons!r}")
+    ids = [str(b) for b in beacons]
+    if not ids:
+        raise ValueError("beacons is an empty list: name at least one BLE anchor id (null = all beacons)")
+    unknown = sorted(set(ids) - set(have))
+    if unknown:
+        raise ValueError(f"beacons {unknown} are not BLE anchors of building {building.id!r} "
+                         f"(it has {len(have)}: {', '.join(have[:5])}{', ...' if len(have) > 5 else ''})")
+    dup = sorted({b for b in ids if ids.count(b) > 1})
+    if dup:
+        raise ValueError(f"beacons lists {dup} more than once")
+    return sorted(ids), "list"
 
 
 def rssi_to_scale(rssi_dbm: np.ndarray, cfg: WindowConfig) -> np.ndarray:
@@ -78,7 +152,7 @@ def session_windows(session, beacons: list[str], cfg: WindowConfig = WindowConfi
     col = {b: i for i, b in enumerate(beacons)}
     j = r["anchor_id"].astype(str).map(col)
     keep = j.notna().to_numpy()
-    empty.unknown = _unknown(r, keep, session.id)
+    empty.unknown = _unknown(r, keep, session, beacons, cfg)
     if not keep.any():
         return empty
     t = r["t"].to_numpy(float)[keep]
@@ -103,11 +177,20 @@ def session_windows(session, beacons: list[str], cfg: WindowConfig = WindowConfi
     return Windows(np.ascontiguousarray(S), xy, t_end, beacons, session.device_model, session.id, empty.unknown)
 
 
-def _unknown(r, keep: np.ndarray, session_id: str) -> dict:
-    """Packets of anchors outside the model's beacon list: ignored (they are no row of S), counted, said once."""
+def _unknown(r, keep: np.ndarray, session, beacons: list[str], cfg: WindowConfig) -> dict:
+    """Packets of anchors outside the model's beacon list: ignored (they are no row of S), counted, said once.
+    With a beacon subset (``cfg.beacon_subset``) the building's other BLE beacons are left out on purpose:
+    their packets are dropped silently and only anchors the building does not list count as unknown."""
     if keep.all():
         return {}
-    counts = r.loc[~keep, "anchor_id"].astype(str).value_counts().to_dict()
+    other = ~keep
+    if cfg.beacon_subset:
+        left_out = set(beacon_order(session.building)) - set(beacons)
+        other &= ~r["anchor_id"].astype(str).isin(left_out).to_numpy()
+        if not other.any():
+            return {}
+    session_id = session.id
+    counts = r.loc[other, "anchor_id"].astype(str).value_counts().to_dict()
     ids = sorted(counts)
     log.warning("session %s: %d packet(s) from %d beacon(s) outside the model's beacon list ignored (%s%s)",
                 session_id, sum(counts.values()), len(ids), ", ".join(ids[:5]), ", ..." if len(ids) > 5 else "")

@@ -23,7 +23,7 @@ def session_fixes(model: OnnxLocalizer, session) -> tuple[np.ndarray, np.ndarray
     """(t (F,), xy (F, 2), number of windows without any beacon heard) for one session."""
     w = model.meta["window"]
     wcfg = WindowConfig(history=int(w["history"]), step_hz=float(w["step_hz"]), offset_db=float(w["offset_db"]),
-                        floor_u=float(w["floor_u"]))
+                        floor_u=float(w["floor_u"]), beacon_subset=model.beacon_subset)
     win = session_windows(session, model.beacons, wcfg)
     xy = model.predict(win.S)
     ok = np.isfinite(xy).all(axis=1)

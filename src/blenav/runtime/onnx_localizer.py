@@ -13,7 +13,8 @@ No beacon heard -> no fix: a window with every entry 0 gives a NaN row (the netw
 its prior; :meth:`OnnxLocalizer.heard` tells which windows have a reading). In :meth:`~OnnxLocalizer.step`
 such a window still advances the LSTM state, exactly as the network would.
 
-Given a :class:`blenav.data.Building`, the loader refuses a model trained for another building or beacon set.
+Given a :class:`blenav.data.Building`, the loader refuses a model trained for another building or beacon set
+(a model of a beacon subset, metadata ``beacon_subset``, accepts a building with more beacons than its own).
 """
 
 from __future__ import annotations
@@ -86,13 +87,24 @@ class OnnxLocalizer:
     def building(self) -> str | None:
         return self._meta.get("building")
 
+    @property
+    def beacon_subset(self) -> str | None:
+        """None for a model of all its building's BLE beacons; else the rule that chose its subset
+        (``"spread:k"``, ``"list"``): the building's other beacons are left out on purpose."""
+        v = self._meta.get("beacon_subset")
+        if v is None:
+            v = (self._meta.get("window") or {}).get("beacon_subset")
+        return str(v) if v else None
+
     def check_building(self, building) -> None:
-        """ValueError unless ``building`` has exactly the model's BLE beacons (and its id, when recorded)."""
+        """ValueError unless ``building`` has exactly the model's BLE beacons (and its id, when recorded); a
+        subset model (:attr:`beacon_subset`) needs all of its beacons and accepts others beside them."""
         have = beacon_order(building)
         want = self.beacons
         lacks = sorted(set(want) - set(have))
-        unknown = sorted(set(have) - set(want))
-        head = (f"model {self.path} was trained for building {self.building!r} with {len(want)} beacons; "
+        unknown = [] if self.beacon_subset else sorted(set(have) - set(want))
+        subset = f" (a subset: {self.beacon_subset})" if self.beacon_subset else ""
+        head = (f"model {self.path} was trained for building {self.building!r} with {len(want)} beacons{subset}; "
                 f"this building {building.id!r}")
         if lacks or unknown:
             parts = []

@@ -186,14 +186,20 @@ def simulate_session(cfg: SimConfig, w: World, i: int, duration_s: float, ss: np
 
 
 def simulate(cfg: SimConfig, seed: int, out: str | Path, duration_s: float, sessions: int,
-             progress: bool = False, overwrite: bool = False) -> Path:
+             progress: bool = False, overwrite: bool = False, first_session: int = 0) -> Path:
     """Simulate ``sessions`` sessions of ``duration_s`` s and write the dataset to ``out``.
+
+    ``first_session`` = f writes sessions f .. f + sessions - 1: exactly the sessions (and the same
+    buildings) that a run with ``sessions`` = f + sessions would write from that index on, so a second
+    dataset of the same buildings (e.g. survey walks for training) never repeats a session of the first.
 
     An existing non-empty ``out`` is an error unless ``overwrite`` and it holds a dataset (dataset.yaml),
     which is then replaced as a whole (so no session of an earlier run is left behind).
     """
     if sessions < 1 or duration_s <= 0:
         raise ValueError(f"need sessions >= 1 and duration_s > 0 (got {sessions}, {duration_s})")
+    if first_session < 0:
+        raise ValueError(f"need first_session >= 0 (got {first_session})")
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         if not overwrite:
@@ -205,18 +211,21 @@ def simulate(cfg: SimConfig, seed: int, out: str | Path, duration_s: float, sess
     b_ss, s_ss = root_ss.spawn(2)
     b_children = b_ss.spawn(cfg.buildings)
     write_dataset_meta(out, cfg.name, cfg.description or f"blenav-sim preset {cfg.name}", "CC0-1.0",
-                       f"blenav-sim sim={cfg.name} seed={seed} duration_s={duration_s} sessions={sessions}")
+                       f"blenav-sim sim={cfg.name} seed={seed} duration_s={duration_s} sessions={sessions}"
+                       + (f" first_session={first_session}" if first_session else ""))
     worlds = []
     for k in range(cfg.buildings):
         w = build_world(cfg, k, b_children[k])
         write_world(out, cfg, w, np.random.default_rng(b_children[k].spawn(1)[0]))
         worlds.append(w)
-    it = range(sessions)
+    it = range(first_session, first_session + sessions)
     if progress:
         from tqdm import tqdm
 
         it = tqdm(it, desc=f"simulating {cfg.name}", unit="session")
-    for i, ss in zip(it, s_ss.spawn(sessions)):
+    # children are keyed by index: spawning first + sessions and dropping the first ones gives session i
+    # the same SeedSequence as in a run from 0
+    for i, ss in zip(it, s_ss.spawn(first_session + sessions)[first_session:]):
         meta, streams = simulate_session(cfg, worlds[i % len(worlds)], i, duration_s, ss)
         write_session(out, f"s{i:03d}_{meta['device_model']}_{meta['carrier']}", meta, streams)
     return out
