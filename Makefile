@@ -96,6 +96,8 @@ MP_FIX_EPOCHS ?= 200
 MP_TEST_A = s006_pixel-4xl_pedestrian,s007_pixel-3xl_pedestrian,s014_honor-view-20_pedestrian,s015_iphone-7_pedestrian
 MP_TEST_B = s022_pixel-3xl_pedestrian,s023_pixel-3axl_pedestrian,s030_iphone-7_pedestrian,s031_iphone-8_pedestrian
 MP_TEST = $(MP_TEST_A),$(MP_TEST_B)
+MP_LONG_006 = s102_mate-20-pro_pedestrian,s110_galaxy-a50_pedestrian,s118_honor-20-pro_pedestrian,s126_pixel-4xl_pedestrian
+MP_LONG_007 = s103_honor-20-pro_pedestrian,s111_pixel-4xl_pedestrian,s119_honor-view-20_pedestrian,s127_pixel-3xl_pedestrian
 # the sparse models' 4 beacons must be the ones the eval's fixes.sparse_beacons: 4 picks (spread_beacons)
 MP_CHECK_SPARSE = from blenav.data import Dataset; from blenav.runtime import OnnxLocalizer; \
     from blenav.learn.windows import spread_beacons; ds = Dataset.open('data/procedural_mp'); \
@@ -129,6 +131,29 @@ mapprior-tables: $(STAMP)
 	    out=data/results/mapprior_table37_learnedfix progress=false
 	$(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/procedural_mp sessions=$(MP_TEST) \
 	    runs=3 model=data/runs/mapprior_proc_onnx out=data/results/mapprior_table36 progress=false
+	# 15-min walks in the same two buildings (more odometry drift, nearer the thesis' IO error), same models
+	$(BIN)/blenav-sim $(MP_SIM) duration_s=900 first_session=96 sessions=32 out=data/procedural_mp_long overwrite=true progress=false
+	diff -r data/procedural_mp/buildings data/procedural_mp_long/buildings
+	for K in dense:locnet-dense sparse4:locnet-sparse4; do \
+	  $(BIN)/blenav-fixes data/procedural_mp_long data/runs/mapprior_fix/$${K%%:*}_006.onnx --source $${K##*:} --sessions $(MP_LONG_006) && \
+	  $(BIN)/blenav-fixes data/procedural_mp_long data/runs/mapprior_fix/$${K%%:*}_007.onnx --source $${K##*:} --sessions $(MP_LONG_007) || exit 1; \
+	done
+	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_long sessions=$(MP_LONG_006),$(MP_LONG_007) \
+	    runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	    out=data/results/mapprior_table37_long progress=false
+	# the same prior trained on to at most 80 epochs (early stopping; a resumed run draws the same samples
+	# per epoch as an uninterrupted one), on both walk sets
+	test -e data/runs/mapprior_proc80/last.ckpt || { mkdir -p data/runs/mapprior_proc80 && \
+	  cp data/runs/mapprior_proc/last.ckpt data/runs/mapprior_proc80/; }
+	$(BIN)/python train.py experiment=mapprior data=data/procedural_mp out=data/runs/mapprior_proc80 \
+	    'data.val_buildings=[procedural_006,procedural_007]' trainer.max_epochs=80 trainer.enable_progress_bar=false
+	$(BIN)/python export.py ckpt=data/runs/mapprior_proc80/last.ckpt out=data/runs/mapprior_proc80_onnx
+	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp sessions=$(MP_TEST) \
+	    runs=3 model=data/runs/mapprior_proc80_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	    out=data/results/mapprior_table37_e80 progress=false
+	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_long sessions=$(MP_LONG_006),$(MP_LONG_007) \
+	    runs=3 model=data/runs/mapprior_proc80_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	    out=data/results/mapprior_table37_long_e80 progress=false
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md
