@@ -96,6 +96,7 @@ MP_FIX_EPOCHS ?= 200
 MP_TEST_A = s006_pixel-4xl_pedestrian,s007_pixel-3xl_pedestrian,s014_honor-view-20_pedestrian,s015_iphone-7_pedestrian
 MP_TEST_B = s022_pixel-3xl_pedestrian,s023_pixel-3axl_pedestrian,s030_iphone-7_pedestrian,s031_iphone-8_pedestrian
 MP_TEST = $(MP_TEST_A),$(MP_TEST_B)
+MP_CALIB = s000_iphone-7_pedestrian,s008_pixel-3axl_pedestrian,s016_iphone-8_pedestrian,s024_mi-9_pedestrian
 MP_LONG_006 = s102_mate-20-pro_pedestrian,s110_galaxy-a50_pedestrian,s118_honor-20-pro_pedestrian,s126_pixel-4xl_pedestrian
 MP_LONG_007 = s103_honor-20-pro_pedestrian,s111_pixel-4xl_pedestrian,s119_honor-view-20_pedestrian,s127_pixel-3xl_pedestrian
 # the sparse models' 4 beacons must be the ones the eval's fixes.sparse_beacons: 4 picks (spread_beacons)
@@ -141,6 +142,24 @@ mapprior-tables: $(STAMP)
 	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_long sessions=$(MP_LONG_006),$(MP_LONG_007) \
 	    runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_long progress=false
+	# calibrated fix likelihood (ours): a sparse model trained the same way for building 000 (not a test
+	# building), its fixes' error statistics on building 000's walks -> sigma_eff for the sparse rows
+	rm -rf data/runs/mp_calib/sparse4_000
+	$(BIN)/python train.py $(MP_FIX_TRAIN) data.building=procedural_000 data.beacons=4 out=data/runs/mp_calib/sparse4_000
+	$(BIN)/python export.py ckpt=data/runs/mp_calib/sparse4_000/last.ckpt out=data/runs/mp_calib/sparse4_000.onnx
+	SIG=$$($(BIN)/blenav-fixes data/procedural_mp data/runs/mp_calib/sparse4_000.onnx --calibrate \
+	      --sessions $(MP_CALIB) | tail -n 1 | cut -d= -f2) && test -n "$$SIG" && echo "sparse fixes: sigma_eff $$SIG m" && \
+	for W in procedural_mp:$(MP_TEST):calibrated procedural_mp_long:$(MP_LONG_006),$(MP_LONG_007):long_calibrated; do \
+	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$${W%%:*} sessions=$$(echo $$W | cut -d: -f2) \
+	      runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	      methods.sparse_io.measurements.fix.sigma_m=$$SIG methods.sparse_io_map.measurements.fix.sigma_m=$$SIG \
+	      out=data/results/mapprior_table37_$${W##*:} progress=false && \
+	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$${W%%:*} sessions=$$(echo $$W | cut -d: -f2) \
+	      runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	      methods.sparse_io.measurements.fix.sigma_m=$$SIG methods.sparse_io_map.measurements.fix.sigma_m=$$SIG \
+	      methods.sparse_io.map.init=groundtruth methods.sparse_io_map.map.init=groundtruth \
+	      out=data/results/mapprior_table37_$${W##*:}_gtstart progress=false || exit 1; \
+	done
 	# the same prior trained on to at most 80 epochs (early stopping; a resumed run draws the same samples
 	# per epoch as an uninterrupted one), on both walk sets
 	test -e data/runs/mapprior_proc80/last.ckpt || { mkdir -p data/runs/mapprior_proc80 && \

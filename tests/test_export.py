@@ -222,3 +222,17 @@ def test_model_fixes_feed_the_particle_filter(dataset, runs, tmp_path):
     assert {"PF-PS+MAP", "PF-FIX", "PF-FIX+MAP"} <= set(res["methods"])
     assert np.isfinite(res["methods"]["PF-FIX"]["rmse_m"]["mean"])
     assert fixes_main([str(data), str(tmp_path / "missing.onnx")]) == 1  # a clear error, no traceback
+
+
+def test_calibrate_prints_the_error_statistics_and_writes_nothing(dataset, runs, capsys):
+    from blenav.cli.fixes import main as fixes_main
+    from blenav.runtime.fixes import calibrate_model_fixes
+
+    sid = Dataset.open(dataset).session_ids[0]
+    before = sorted(p.name for p in (Path(dataset) / "sessions" / sid).iterdir())
+    assert fixes_main([str(dataset), str(runs["transnet_locnet"][1]), "--sessions", sid, "--calibrate"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    st = calibrate_model_fixes(Dataset.open(dataset), runs["transnet_locnet"][1], [sid])
+    assert last == f"sigma_eff_m={st['sigma_eff_m']:.2f}" and st["sessions"] == [sid]
+    assert st["sigma_eff_m"] >= st["sigma_m"] > 0 and st["rmse_m"] == pytest.approx(np.sqrt(2) * st["sigma_m"])
+    assert sorted(p.name for p in (Path(dataset) / "sessions" / sid).iterdir()) == before  # nothing written

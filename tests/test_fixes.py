@@ -196,3 +196,27 @@ def test_write_fixes_merges_sources_and_validates(small, tmp_path):
     with pytest.raises(ValueError, match="shape"):
         write_fixes(sdir, [1, 2], [[0, 0]], source="a")
     assert path.read_bytes() == before  # nothing written
+
+
+def test_fix_error_stats_recovers_sigma_and_correlation_time():
+    from blenav.runtime.fixes import fix_error_stats
+
+    rng = np.random.default_rng(0)
+    iid = [rng.normal(0.0, 2.0, (4000, 2)) for _ in range(3)]
+    st = fix_error_stats(iid)
+    assert st["sigma_m"] == pytest.approx(2.0, rel=0.03) and st["tau_fixes"] == pytest.approx(1.0, abs=0.1)
+    # AR(1) errors, phi = 0.9: rho(k) = phi^k; summed while rho >= 0.05 (k <= 28): 1 + 2 sum phi^k
+    phi, n, sessions = 0.9, 20000, 8
+    e = np.zeros((n, sessions, 2))
+    w = rng.normal(0.0, np.sqrt(1 - phi**2), (n, sessions, 2))
+    for t in range(1, n):  # the AR recursion is sequential in time (vectorised over sessions)
+        e[t] = phi * e[t - 1] + w[t]
+    k = np.arange(1, 29)
+    want = 1 + 2 * np.sum(phi**k)
+    st = fix_error_stats([e[:, i] for i in range(sessions)])
+    assert st["tau_fixes"] == pytest.approx(want, rel=0.1) and st["last_lag"] in range(24, 34)
+    assert st["sigma_eff_m"] == pytest.approx(st["sigma_m"] * np.sqrt(st["tau_fixes"]))
+    with pytest.raises(ValueError, match="NaN"):
+        fix_error_stats([np.array([[0.0, np.nan]])])
+    with pytest.raises(ValueError, match="no fixes"):
+        fix_error_stats([np.zeros((0, 2))])

@@ -1,9 +1,14 @@
-"""``blenav-fixes DATASET MODEL.onnx [--source NAME] [--sessions ID,ID]``: write a localizer's fixes.
+"""``blenav-fixes DATASET MODEL.onnx [--source NAME] [--sessions ID,ID] [--calibrate]``: write a localizer's fixes.
 
 Runs an exported cross-phone localizer (``python export.py ...``) over the sessions' RSSI and merges its
 position fixes into each session's ``fixes.csv`` under ``--source`` (default: the model's name), keeping
 rows of other sources. A particle filter then uses them through the ``fix_003`` measurement model
 (``blenav-eval experiment=fused_003 ...``).
+
+``--calibrate`` writes nothing: on labelled sessions it prints the fixes' error statistics
+(:func:`blenav.runtime.fixes.calibrate_model_fixes`) and, as its last line, ``sigma_eff_m=VALUE``, the sigma
+to give the fix likelihood (``...measurements.fix.sigma_m=VALUE``) so that correlated fixes are not
+over-counted.
 """
 
 from __future__ import annotations
@@ -18,14 +23,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("model", help="an ONNX file written by export.py")
     p.add_argument("--source", default="TransNet+LocNet", help="the fixes.csv source name (default %(default)s)")
     p.add_argument("--sessions", default=None, help="comma-separated session ids (default: every session)")
+    p.add_argument("--calibrate", action="store_true",
+                   help="write nothing; print the fixes' error statistics against ground truth and sigma_eff_m")
     args = p.parse_args(argv)
 
     from blenav.data import Dataset, DatasetError
-    from blenav.runtime.fixes import write_model_fixes
+    from blenav.runtime.fixes import calibrate_model_fixes, write_model_fixes
 
     try:
         ds = Dataset.open(args.dataset)
         ids = args.sessions.split(",") if args.sessions else None
+        if args.calibrate:
+            st = calibrate_model_fixes(ds, args.model, ids)
+            print(f"{st['fixes']} fixes in {len(st['sessions'])} session(s): RMSE {st['rmse_m']:.2f} m, per-axis sigma "
+                  f"{st['sigma_m']:.2f} m, error correlation time {st['tau_fixes']:.1f} fixes (rho above 0.05 up "
+                  f"to lag {st['last_lag']}), effective sigma {st['sigma_eff_m']:.2f} m")
+            print(f"sigma_eff_m={st['sigma_eff_m']:.2f}")
+            return 0
         report = write_model_fixes(ds, args.model, args.source, ids)
     except (DatasetError, ValueError, FileNotFoundError) as exc:
         print(f"blenav-fixes: error: {exc}", file=sys.stderr)

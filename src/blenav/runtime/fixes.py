@@ -6,6 +6,14 @@ fixes (t s, x y m world) of the windows in which at least one beacon was heard; 
 does so for sessions of a dataset and merges them into each session's ``fixes.csv`` under one
 ``source`` (rows of other sources are kept; see :func:`blenav.data.writer.write_fixes`). The particle
 filter reads them with :class:`blenav.filters.measurement.FixLikelihood` (eq. 3.9, Roy).
+
+:func:`calibrate_model_fixes` measures, on labelled sessions, how much a fix is worth as a measurement:
+eq. 3.9 takes every fix as an independent N(x, sigma^2 I) draw with sigma = 3 m. A learned localizer's errors
+are neither 3 m nor independent: neighbouring windows share 4 of their 5 steps, and a phone standing in a
+bad spot gives the same error for tens of seconds. :func:`fix_error_stats` gives the per-axis RMS error
+sigma, the integrated autocorrelation time tau (in fixes) and sigma_eff = sigma sqrt(tau): n fixes with
+correlation time tau carry the information of n / tau independent ones, so weighting each by sigma_eff
+gives the filter the right total confidence (our calibration, not part of Roy's method).
 """
 
 from __future__ import annotations
@@ -28,6 +36,56 @@ def session_fixes(model: OnnxLocalizer, session) -> tuple[np.ndarray, np.ndarray
     xy = model.predict(win.S)
     ok = np.isfinite(xy).all(axis=1)
     return win.t[ok], xy[ok], int((~ok).sum())
+
+
+def fix_error_stats(errors: list[np.ndarray], rho_stop: float = 0.05, max_lag: int = 600) -> dict:
+    """Error statistics of fixes against ground truth, pooled over sessions.
+
+    ``errors``: per session (F_i, 2) fix errors (fix - truth, m) at consecutive fix times (one per step).
+    sigma: sqrt(mean e^2) per axis (m); rho(k) = sum e_t e_(t+k) / sum e_t^2 pooled over sessions and both
+    axes (uncentred: a persistent bias is correlated error too); tau = 1 + 2 sum_(k=1..K) rho(k) with K the
+    last lag before rho drops below ``rho_stop`` (at most ``max_lag``); sigma_eff = sigma sqrt(tau)."""
+    errs = [np.asarray(e, float) for e in errors if len(e)]
+    if not errs:
+        raise ValueError("no fixes with ground truth to calibrate on")
+    if any(not np.isfinite(e).all() for e in errs):
+        raise ValueError("fix errors contain NaN or inf")
+    sq = sum(float((e * e).sum()) for e in errs)
+    n = sum(e.shape[0] for e in errs)
+    sigma = float(np.sqrt(sq / (2 * n)))
+    tau, lag = 1.0, 0
+    for k in range(1, min(max_lag, max(e.shape[0] for e in errs))):  # lags, vectorised over fixes
+        rho = sum(float((e[k:] * e[:-k]).sum()) for e in errs if e.shape[0] > k) / sq
+        if rho < rho_stop:
+            break
+        tau += 2.0 * rho
+        lag = k
+    return {"sigma_m": sigma, "tau_fixes": tau, "sigma_eff_m": sigma * float(np.sqrt(tau)), "last_lag": lag,
+            "fixes": int(n), "rmse_m": float(np.sqrt(sq / n))}
+
+
+def calibrate_model_fixes(dataset, model_path: str | Path, session_ids=None) -> dict:
+    """:func:`fix_error_stats` of an exported localizer's fixes on labelled sessions of ``dataset`` (every
+    window end with a fix and ground truth); adds ``sessions`` (the ids used)."""
+    errors, used = [], []
+    models: dict[str, OnnxLocalizer] = {}
+    for s in dataset.sessions(session_ids):
+        if not s.labelled:
+            continue
+        if s.building.id not in models:
+            models[s.building.id] = OnnxLocalizer(model_path, building=s.building)
+        m = models[s.building.id]
+        w = m.meta["window"]
+        wcfg = WindowConfig(history=int(w["history"]), step_hz=float(w["step_hz"]), offset_db=float(w["offset_db"]),
+                            floor_u=float(w["floor_u"]), beacon_subset=m.beacon_subset)
+        win = session_windows(s, m.beacons, wcfg)
+        xy = m.predict(win.S)
+        ok = np.isfinite(xy).all(axis=1) & np.isfinite(win.xy).all(axis=1)
+        errors.append(xy[ok] - win.xy[ok])
+        used.append(s.id)
+    if not used:
+        raise ValueError("no labelled session (ground truth) among the chosen sessions: calibration needs truth")
+    return {**fix_error_stats(errors), "sessions": used}
 
 
 def write_model_fixes(dataset, model_path: str | Path, source: str, session_ids=None) -> dict[str, dict]:
