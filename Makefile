@@ -162,11 +162,11 @@ mapprior-tables: $(STAMP)
 	done
 	# the same prior trained on to at most 80 epochs (early stopping; a resumed run draws the same samples
 	# per epoch as an uninterrupted one), on both walk sets
-	test -e data/runs/mapprior_proc80/last.ckpt || { mkdir -p data/runs/mapprior_proc80 && \
-	  cp data/runs/mapprior_proc/last.ckpt data/runs/mapprior_proc80/; }
-	$(BIN)/python train.py experiment=mapprior data=data/procedural_mp out=data/runs/mapprior_proc80 \
-	    'data.val_buildings=[procedural_006,procedural_007]' trainer.max_epochs=80 trainer.enable_progress_bar=false
-	$(BIN)/python export.py ckpt=data/runs/mapprior_proc80/last.ckpt out=data/runs/mapprior_proc80_onnx
+	test -e data/runs/mapprior_proc80_onnx/meta.json || { rm -rf data/runs/mapprior_proc80 && \
+	  mkdir -p data/runs/mapprior_proc80 && cp data/runs/mapprior_proc/last.ckpt data/runs/mapprior_proc80/ && \
+	  $(BIN)/python train.py experiment=mapprior data=data/procedural_mp out=data/runs/mapprior_proc80 \
+	    'data.val_buildings=[procedural_006,procedural_007]' trainer.max_epochs=80 trainer.enable_progress_bar=false && \
+	  $(BIN)/python export.py ckpt=data/runs/mapprior_proc80/last.ckpt out=data/runs/mapprior_proc80_onnx; }
 	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp sessions=$(MP_TEST) \
 	    runs=3 model=data/runs/mapprior_proc80_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_e80 progress=false
