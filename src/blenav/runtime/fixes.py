@@ -27,13 +27,18 @@ from blenav.learn.windows import WindowConfig, session_windows
 from .onnx_localizer import OnnxLocalizer
 
 
-def session_fixes(model: OnnxLocalizer, session) -> tuple[np.ndarray, np.ndarray, int]:
-    """(t (F,), xy (F, 2), number of windows without any beacon heard) for one session."""
+def _predict_windows(model: OnnxLocalizer, session):
+    """(the session's windows with the model's window settings, predicted xy (W, 2); NaN rows: nothing heard)."""
     w = model.meta["window"]
     wcfg = WindowConfig(history=int(w["history"]), step_hz=float(w["step_hz"]), offset_db=float(w["offset_db"]),
                         floor_u=float(w["floor_u"]), beacon_subset=model.beacon_subset)
     win = session_windows(session, model.beacons, wcfg)
-    xy = model.predict(win.S)
+    return win, model.predict(win.S)
+
+
+def session_fixes(model: OnnxLocalizer, session) -> tuple[np.ndarray, np.ndarray, int]:
+    """(t (F,), xy (F, 2), number of windows without any beacon heard) for one session."""
+    win, xy = _predict_windows(model, session)
     ok = np.isfinite(xy).all(axis=1)
     return win.t[ok], xy[ok], int((~ok).sum())
 
@@ -74,12 +79,7 @@ def calibrate_model_fixes(dataset, model_path: str | Path, session_ids=None) -> 
             continue
         if s.building.id not in models:
             models[s.building.id] = OnnxLocalizer(model_path, building=s.building)
-        m = models[s.building.id]
-        w = m.meta["window"]
-        wcfg = WindowConfig(history=int(w["history"]), step_hz=float(w["step_hz"]), offset_db=float(w["offset_db"]),
-                            floor_u=float(w["floor_u"]), beacon_subset=m.beacon_subset)
-        win = session_windows(s, m.beacons, wcfg)
-        xy = m.predict(win.S)
+        win, xy = _predict_windows(models[s.building.id], s)
         ok = np.isfinite(xy).all(axis=1) & np.isfinite(win.xy).all(axis=1)
         errors.append(xy[ok] - win.xy[ok])
         used.append(s.id)
