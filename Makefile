@@ -95,6 +95,8 @@ MP_FIX_TRAIN = experiment=crossphone_s1 model=transnet_locnet data=data/procedur
 MP_FIX_EPOCHS ?= 200
 MP_TEST_A = s006_pixel-4xl_pedestrian,s007_pixel-3xl_pedestrian,s014_honor-view-20_pedestrian,s015_iphone-7_pedestrian
 MP_TEST_B = s022_pixel-3xl_pedestrian,s023_pixel-3axl_pedestrian,s030_iphone-7_pedestrian,s031_iphone-8_pedestrian
+# the same 8 walks as MP_TEST_006/007, in the order the tables were measured (each walk's run seeds follow
+# its position in sessions=)
 MP_TEST = $(MP_TEST_A),$(MP_TEST_B)
 MP_CALIB = s000_iphone-7_pedestrian,s008_pixel-3axl_pedestrian,s016_iphone-8_pedestrian,s024_mi-9_pedestrian
 MP_LONG_006 = s102_mate-20-pro_pedestrian,s110_galaxy-a50_pedestrian,s118_honor-20-pro_pedestrian,s126_pixel-4xl_pedestrian

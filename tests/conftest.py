@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import RAW, make_tiny_dataset
+from helpers import RAW, make_tiny_dataset, simulate_small
 
 
 @pytest.fixture(scope="session")
@@ -22,12 +22,8 @@ def tiny_dataset(_tiny_template, tmp_path):
 @pytest.fixture(scope="session")
 def two_phones(tmp_path_factory):
     """A simulated 'small' building, 4 one-minute walks by an iPhone 8 and a Galaxy S10 profile (read-only)."""
-    from blenav.cli.sim import run as sim_run
-    from blenav.configs import compose
-
     out = tmp_path_factory.mktemp("two_phones") / "d"
-    sim_run(compose("sim", "sim=small", "seed=5", f"out={out}", "duration_s=60", "sessions=4", "progress=false",
-                    "sim.carriers=[pedestrian]", "sim.receivers=[iphone-8,galaxy-s10]"))
+    simulate_small(out, 5, 60, 4, "sim.receivers=[iphone-8,galaxy-s10]")
     return out
 
 

@@ -15,6 +15,16 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 RAW = SHARED / "data" / "raw"
 
 
+def simulate_small(out: Path, seed: int, duration_s: float, sessions: int, *overrides: str) -> Path:
+    """The simulator's ``small`` preset, pedestrian walks only (``overrides``: more ``sim.*`` keys), into ``out``."""
+    from blenav.cli.sim import run as sim_run
+    from blenav.configs import compose
+
+    sim_run(compose("sim", "sim=small", f"seed={seed}", f"out={out}", f"duration_s={duration_s}", f"sessions={sessions}",
+                    "progress=false", "sim.carriers=[pedestrian]", *overrides))
+    return Path(out)
+
+
 def tiny_grid(w_m: float = 10.0, h_m: float = 8.0, res: float = 0.1) -> np.ndarray:
     """Occupancy (H, W) with outer walls and one inner wall with a door (row 0 on top)."""
     h, w = int(round(h_m / res)), int(round(w_m / res))

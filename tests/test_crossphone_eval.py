@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from blenav.cli.sim import run as sim_run
 from blenav.configs import compose
 from blenav.eval.harness import EvalError, evaluate
+from helpers import simulate_small
 
 PHONES = ["iphone-8", "galaxy-s10", "mi-9", "pixel-4xl"]
 KEYS = {"LocNet", "LocNet+aug", "TransNet+LocNet", "TransNet+LocNet+semi", "DL-RNN", "KNN", "Bayesian", "KRR+KF"}
@@ -18,8 +18,7 @@ KEYS = {"LocNet", "LocNet+aug", "TransNet+LocNet", "TransNet+LocNet+semi", "DL-R
 @pytest.fixture(scope="module")
 def four_phones(tmp_path_factory):
     out = tmp_path_factory.mktemp("cp") / "d"
-    sim_run(compose("sim", "sim=small", "seed=11", f"out={out}", "duration_s=60", "sessions=8", "progress=false",
-                    "sim.carriers=[pedestrian]", f"sim.receivers=[{','.join(PHONES)}]", "sim.unlabelled_every=0"))
+    simulate_small(out, 11, 60, 8, f"sim.receivers=[{','.join(PHONES)}]", "sim.unlabelled_every=0")
     return out
 
 

@@ -14,10 +14,10 @@ from blenav.configs import compose
 from PIL import Image
 
 from blenav.configs import cli_overrides
-from blenav.cli.sim import run as sim_run
 from blenav.data import Dataset
 from blenav.eval.harness import EvalError, evaluate
 from blenav.importers import run_import
+from helpers import simulate_small
 
 PAPER_KEYS = {"frontend_000": {"RW", "DR", "IMU"}, "mapfusion_002": {"PF-PL", "PF-PL+MAP", "PF-PS", "PF-PS+MAP"}}
 
@@ -29,8 +29,7 @@ def cfg(*overrides):
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     out = tmp_path_factory.mktemp("ev") / "small"
-    sim_run(compose("sim", *["sim=small", "seed=4", f"out={out}", "duration_s=25", "sessions=2",
-                                                  "progress=false", "sim.carriers=[pedestrian]"]))
+    simulate_small(out, 4, 25, 2)
     return out
 
 

@@ -12,12 +12,12 @@ from blenav.configs import compose
 from omegaconf import open_dict
 from scipy.stats import norm
 
-from blenav.cli.sim import run as sim_run
 from blenav.data import Dataset, validate
 from blenav.data.writer import write_fixes
 from blenav.eval.harness import build_methods, evaluate
 from blenav.filters.measurement import FixLikelihood
 from blenav.filters.runner import MissingStream, OnlineLocalizer, replay, run_session
+from helpers import simulate_small
 
 SOURCE = "gt+noise"
 #: a fixes-only method composed like the experiments compose theirs (package defaults)
@@ -47,8 +47,7 @@ def noisy_fixes(s, rate_hz=1.0, sigma=1.0, seed=0):
 def small(tmp_path_factory):
     """Two 40 s pedestrian sessions of `small`; the first has fixes of source SOURCE, the second none."""
     out = tmp_path_factory.mktemp("fix") / "small"
-    sim_run(compose("sim", "sim=small", "seed=3", f"out={out}", "duration_s=40", "sessions=2", "progress=false",
-                    "sim.carriers=[pedestrian]"))
+    simulate_small(out, 3, 40, 2)
     ds = Dataset.open(out)
     s = ds.session(ds.session_ids[0])
     write_fixes(s.root, *noisy_fixes(s, seed=3), source=SOURCE)

@@ -15,7 +15,6 @@ import pytest
 import torch
 from PIL import Image
 
-from blenav.cli.sim import run as sim_run
 from blenav.configs import compose
 from blenav.data import FREE, OCCUPIED, Floor
 from blenav.learn.mapprior import MapPriorModule, build_net, load_mapprior, mapprior_data_config
@@ -32,6 +31,7 @@ from blenav.learn.mapprior_data import (
 from blenav.learn.train import train
 from blenav.models.mapprior import MapEncoder, MapPriorNet
 from blenav.runtime.map_prior import LOG_FLOOR, MapPrior, net_grid, resample_free
+from helpers import simulate_small
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = ["trainer.enable_progress_bar=false", "data.samples_per_epoch=96", "data.val_samples=32", "data.batch_size=16",
@@ -171,8 +171,7 @@ def test_no_free_space_is_a_clear_error(tmp_path):
 @pytest.fixture(scope="module")
 def small_dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("mp") / "d"
-    sim_run(compose("sim", "sim=small", "seed=3", f"out={out}", "duration_s=60", "sessions=3", "progress=false",
-                    "sim.carriers=[pedestrian]"))
+    simulate_small(out, 3, 60, 3)
     return out
 
 

@@ -11,7 +11,6 @@ import pytest
 from blenav.configs import compose
 
 import blenav.filters.map_prior as map_prior_mod
-from blenav.cli.sim import run as sim_run
 from blenav.data import Dataset
 from blenav.data.writer import write_fixes
 from blenav.eval.fixes import spread_beacons
@@ -23,7 +22,7 @@ from blenav.filters.map_prior import (FeasibilityPrior, MapPriorLikelihood, atta
 from blenav.filters.motion import OdometryIncrement
 from blenav.filters.runner import MapSpec, MissingStream, _Initializer, align_heading, run_session
 
-from helpers import make_tiny_dataset
+from helpers import make_tiny_dataset, simulate_small
 
 T37 = {"dense-BLE", "sparse-BLE", "IO", "sparse-BLE+IO", "IO+map", "sparse-BLE+IO+map", "heuristic-PF", "PDR"}
 T36 = {"PDR", "IO", "heuristic-PF", "learned-map-prior"}
@@ -253,8 +252,7 @@ def test_spread_beacons_cover_the_floor():
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     out = tmp_path_factory.mktemp("mp") / "small"
-    sim_run(compose("sim", "sim=small", "seed=7", f"out={out}", "duration_s=40", "sessions=2", "progress=false",
-                    "sim.carriers=[pedestrian]"))
+    simulate_small(out, 7, 40, 2)
     return out
 
 

@@ -150,7 +150,7 @@ def onnx_metadata(meta: dict) -> dict[str, str]:
     model = meta["model"]
     values = {
         "beacons": [str(b) for b in meta["beacons"]],
-        "beacon_subset": meta.get("beacon_subset", (meta["window"] or {}).get("beacon_subset")),
+        "beacon_subset": (meta["window"] or {}).get("beacon_subset"),  # also at top level: what loaders check
         "window": meta["window"],
         "building": meta.get("building"),
         "data_hash": meta.get("data_hash"),

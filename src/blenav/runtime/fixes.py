@@ -69,17 +69,23 @@ def fix_error_stats(errors: list[np.ndarray], rho_stop: float = 0.05, max_lag: i
             "fixes": int(n), "rmse_m": float(np.sqrt(sq / n))}
 
 
+def _sessions_with_model(dataset, model_path: str | Path, session_ids=None):
+    """(session, the model loaded and checked once per building) for the chosen sessions of ``dataset``."""
+    models: dict[str, OnnxLocalizer] = {}
+    for s in dataset.sessions(session_ids):
+        if s.building.id not in models:
+            models[s.building.id] = OnnxLocalizer(model_path, building=s.building)
+        yield s, models[s.building.id]
+
+
 def calibrate_model_fixes(dataset, model_path: str | Path, session_ids=None) -> dict:
     """:func:`fix_error_stats` of an exported localizer's fixes on labelled sessions of ``dataset`` (every
     window end with a fix and ground truth); adds ``sessions`` (the ids used)."""
     errors, used = [], []
-    models: dict[str, OnnxLocalizer] = {}
-    for s in dataset.sessions(session_ids):
+    for s, model in _sessions_with_model(dataset, model_path, session_ids):
         if not s.labelled:
             continue
-        if s.building.id not in models:
-            models[s.building.id] = OnnxLocalizer(model_path, building=s.building)
-        win, xy = _predict_windows(models[s.building.id], s)
+        win, xy = _predict_windows(model, s)
         ok = np.isfinite(xy).all(axis=1) & np.isfinite(win.xy).all(axis=1)
         errors.append(xy[ok] - win.xy[ok])
         used.append(s.id)
@@ -94,11 +100,8 @@ def write_model_fixes(dataset, model_path: str | Path, source: str, session_ids=
     from blenav.data.writer import write_fixes
 
     report = {}
-    models: dict[str, OnnxLocalizer] = {}
-    for s in dataset.sessions(session_ids):
-        if s.building.id not in models:
-            models[s.building.id] = OnnxLocalizer(model_path, building=s.building)
-        t, xy, silent = session_fixes(models[s.building.id], s)
+    for s, model in _sessions_with_model(dataset, model_path, session_ids):
+        t, xy, silent = session_fixes(model, s)
         if len(t) == 0:
             report[s.id] = {"fixes": 0, "no_beacon_windows": silent, "path": None}
             continue

@@ -92,8 +92,6 @@ class OnnxLocalizer:
         """None for a model of all its building's BLE beacons; else the rule that chose its subset
         (``"spread:k"``, ``"list"``): the building's other beacons are left out on purpose."""
         v = self._meta.get("beacon_subset")
-        if v is None:
-            v = (self._meta.get("window") or {}).get("beacon_subset")
         return str(v) if v else None
 
     def check_building(self, building) -> None:
