@@ -88,9 +88,12 @@ crossphone-tables: $(STAMP)
 # Model type (TransNet+LocNet over LocNet) and 200 epochs were chosen on building 000 (README, map prior).
 MP_SIM = sim=procedural seed=4 duration_s=300 'sim.carriers=[pedestrian]' sim.unlabelled_every=0 \
     sim.odometry.drift_deg_per_min_std=6 sim.odometry.heading_rw_deg=0.8 sim.odometry.scale_std=0.1
+# IDOL-level odometry (ours): an AR(1) velocity error of 0.3 m/s with a 3 s correlation time on top of
+# MP_SIM's scale and heading errors; odometry alone then drifts 8 m ATE over 300 s (the thesis: 4.5-9.9 m)
+MP_IO_NOISE = sim.odometry.vel_noise_mps=0.3 sim.odometry.vel_noise_tau_s=3
 MP_TEST_006 = s006_pixel-4xl_pedestrian,s014_honor-view-20_pedestrian,s022_pixel-3xl_pedestrian,s030_iphone-7_pedestrian
 MP_TEST_007 = s007_pixel-3xl_pedestrian,s015_iphone-7_pedestrian,s023_pixel-3axl_pedestrian,s031_iphone-8_pedestrian
-MP_FIX_TRAIN = experiment=crossphone_s1 model=transnet_locnet data=data/procedural_mp_survey data.holdout=0 \
+MP_FIX_TRAIN = experiment=crossphone_s1 model=transnet_locnet data.holdout=0 \
     model.lr=1e-3 trainer.max_epochs=$(MP_FIX_EPOCHS) threads=1 trainer.enable_progress_bar=false
 MP_FIX_EPOCHS ?= 200
 MP_TEST_A = s006_pixel-4xl_pedestrian,s007_pixel-3xl_pedestrian,s014_honor-view-20_pedestrian,s015_iphone-7_pedestrian
@@ -98,12 +101,17 @@ MP_TEST_B = s022_pixel-3xl_pedestrian,s023_pixel-3axl_pedestrian,s030_iphone-7_p
 # the same 8 walks as MP_TEST_006/007, in the order the tables were measured (each walk's run seeds follow
 # its position in sessions=)
 MP_TEST = $(MP_TEST_A),$(MP_TEST_B)
+MP_LG_SIM = sim=procedural sim.name=procedural_large sim.buildings=2 sim.layout.width_m=60 sim.layout.height_m=40 \
+    sim.layout.n_h=3 sim.layout.n_v=2 sim.n_beacons=22 seed=5 duration_s=300 'sim.carriers=[pedestrian]' \
+    sim.unlabelled_every=0 sim.odometry.drift_deg_per_min_std=6 sim.odometry.heading_rw_deg=0.8 sim.odometry.scale_std=0.1
+MP_LG_000 = s000_iphone-7_pedestrian,s002_iphone-xr_pedestrian,s004_galaxy-note9_pedestrian,s006_pixel-4xl_pedestrian
+MP_LG_001 = s001_iphone-8_pedestrian,s003_galaxy-s10_pedestrian,s005_galaxy-a50_pedestrian,s007_pixel-3xl_pedestrian
 MP_CALIB = s000_iphone-7_pedestrian,s008_pixel-3axl_pedestrian,s016_iphone-8_pedestrian,s024_mi-9_pedestrian
 MP_LONG_006 = s102_mate-20-pro_pedestrian,s110_galaxy-a50_pedestrian,s118_honor-20-pro_pedestrian,s126_pixel-4xl_pedestrian
 MP_LONG_007 = s103_honor-20-pro_pedestrian,s111_pixel-4xl_pedestrian,s119_honor-view-20_pedestrian,s127_pixel-3xl_pedestrian
 # the sparse models' 4 beacons must be the ones the eval's fixes.sparse_beacons: 4 picks (spread_beacons)
 MP_CHECK_SPARSE = from blenav.data import Dataset; from blenav.runtime import OnnxLocalizer; \
-    from blenav.learn.windows import spread_beacons; ds = Dataset.open('data/procedural_mp'); \
+    from blenav.learn.windows import spread_beacons; ds = Dataset.open(D); \
     s = [x for x in ds.sessions() if x.building.id == 'procedural_' + B][0]; \
     m = OnnxLocalizer('data/runs/mapprior_fix/sparse4_%s.onnx' % B, building=s.building); \
     e = sorted(spread_beacons(s.building.anchors, 4, s.meta.get('floor'), s.floor)); \
@@ -118,22 +126,32 @@ mapprior-tables: $(STAMP)
 	diff -r data/procedural_mp/buildings data/procedural_mp_survey/buildings
 	for B in 006 007; do \
 	  rm -rf data/runs/mapprior_fix/dense_$$B data/runs/mapprior_fix/sparse4_$$B && \
-	  $(BIN)/python train.py $(MP_FIX_TRAIN) data.building=procedural_$$B out=data/runs/mapprior_fix/dense_$$B && \
-	  $(BIN)/python train.py $(MP_FIX_TRAIN) data.building=procedural_$$B data.beacons=4 \
+	  $(BIN)/python train.py $(MP_FIX_TRAIN) data=data/procedural_mp_survey data.building=procedural_$$B out=data/runs/mapprior_fix/dense_$$B && \
+	  $(BIN)/python train.py $(MP_FIX_TRAIN) data=data/procedural_mp_survey data.building=procedural_$$B data.beacons=4 \
 	      out=data/runs/mapprior_fix/sparse4_$$B && \
 	  $(BIN)/python export.py ckpt=data/runs/mapprior_fix/dense_$$B/last.ckpt out=data/runs/mapprior_fix/dense_$$B.onnx && \
 	  $(BIN)/python export.py ckpt=data/runs/mapprior_fix/sparse4_$$B/last.ckpt out=data/runs/mapprior_fix/sparse4_$$B.onnx && \
-	  $(BIN)/python -c "B = '$$B'; $(MP_CHECK_SPARSE)" || exit 1; \
+	  $(BIN)/python -c "B = '$$B'; D = 'data/procedural_mp'; $(MP_CHECK_SPARSE)" || exit 1; \
 	done
-	$(BIN)/blenav-fixes data/procedural_mp data/runs/mapprior_fix/dense_006.onnx --source locnet-dense --sessions $(MP_TEST_006)
-	$(BIN)/blenav-fixes data/procedural_mp data/runs/mapprior_fix/sparse4_006.onnx --source locnet-sparse4 --sessions $(MP_TEST_006)
-	$(BIN)/blenav-fixes data/procedural_mp data/runs/mapprior_fix/dense_007.onnx --source locnet-dense --sessions $(MP_TEST_007)
-	$(BIN)/blenav-fixes data/procedural_mp data/runs/mapprior_fix/sparse4_007.onnx --source locnet-sparse4 --sessions $(MP_TEST_007)
+	# the same 8 test walks with odometry as noisy as a learned inertial odometry (IDOL-level; ours, see the
+	# README): only odometry.csv differs from data/procedural_mp (checked below)
+	$(BIN)/blenav-sim $(MP_SIM) $(MP_IO_NOISE) sessions=32 out=data/procedural_mp_io overwrite=true progress=false
+	for S in $$(echo $(MP_TEST) | tr , ' '); do for F in groundtruth.csv rssi.csv; do \
+	  cmp data/procedural_mp/sessions/$$S/$$F data/procedural_mp_io/sessions/$$S/$$F || exit 1; done; done
+	for D in procedural_mp procedural_mp_io; do for K in dense:locnet-dense sparse4:locnet-sparse4; do \
+	  $(BIN)/blenav-fixes data/$$D data/runs/mapprior_fix/$${K%%:*}_006.onnx --source $${K##*:} --sessions $(MP_TEST_006) && \
+	  $(BIN)/blenav-fixes data/$$D data/runs/mapprior_fix/$${K%%:*}_007.onnx --source $${K##*:} --sessions $(MP_TEST_007) || exit 1; \
+	done; done
 	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp sessions=$(MP_TEST) \
 	    runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_learnedfix progress=false
 	$(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/procedural_mp sessions=$(MP_TEST) \
 	    runs=3 model=data/runs/mapprior_proc_onnx out=data/results/mapprior_table36 progress=false
+	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_io sessions=$(MP_TEST) \
+	    runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	    out=data/results/mapprior_table37_io progress=false
+	$(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/procedural_mp_io sessions=$(MP_TEST) \
+	    runs=3 model=data/runs/mapprior_proc_onnx out=data/results/mapprior_table36_io progress=false
 	# 15-min walks in the same two buildings (more odometry drift, nearer the thesis' IO error), same models
 	$(BIN)/blenav-sim $(MP_SIM) duration_s=900 first_session=96 sessions=32 out=data/procedural_mp_long overwrite=true progress=false
 	diff -r data/procedural_mp/buildings data/procedural_mp_long/buildings
@@ -147,7 +165,7 @@ mapprior-tables: $(STAMP)
 	# calibrated fix likelihood (ours): a sparse model trained the same way for building 000 (not a test
 	# building), its fixes' error statistics on building 000's walks -> sigma_eff for the sparse rows
 	rm -rf data/runs/mp_calib/sparse4_000
-	$(BIN)/python train.py $(MP_FIX_TRAIN) data.building=procedural_000 data.beacons=4 out=data/runs/mp_calib/sparse4_000
+	$(BIN)/python train.py $(MP_FIX_TRAIN) data=data/procedural_mp_survey data.building=procedural_000 data.beacons=4 out=data/runs/mp_calib/sparse4_000
 	$(BIN)/python export.py ckpt=data/runs/mp_calib/sparse4_000/last.ckpt out=data/runs/mp_calib/sparse4_000.onnx
 	SIG=$$($(BIN)/blenav-fixes data/procedural_mp data/runs/mp_calib/sparse4_000.onnx --calibrate \
 	      --sessions $(MP_CALIB) | tail -n 1 | cut -d= -f2) && test -n "$$SIG" && echo "sparse fixes: sigma_eff $$SIG m" && \
@@ -175,6 +193,33 @@ mapprior-tables: $(STAMP)
 	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_long sessions=$(MP_LONG_006),$(MP_LONG_007) \
 	    runs=3 model=data/runs/mapprior_proc80_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_long_e80 progress=false
+	# two larger buildings (60 x 40 m, 22 beacons as the thesis' dense set), unlike any the prior saw: 8 test
+	# walks with MP_SIM's odometry and the same walks with IDOL-level odometry, 16 survey walks for the
+	# per-building dense and sparse fix models (trained as above), the same 20-epoch prior
+	$(BIN)/blenav-sim $(MP_LG_SIM) sessions=8 out=data/procedural_large overwrite=true progress=false
+	$(BIN)/blenav-sim $(MP_LG_SIM) $(MP_IO_NOISE) sessions=8 out=data/procedural_large_io overwrite=true progress=false
+	$(BIN)/blenav-sim $(MP_LG_SIM) first_session=8 sessions=16 out=data/procedural_large_survey overwrite=true progress=false
+	diff -r data/procedural_large/buildings data/procedural_large_survey/buildings
+	for BS in 000:$(MP_LG_000) 001:$(MP_LG_001); do B=$${BS%%:*}; \
+	  rm -rf data/runs/mapprior_fix/dense_large_$$B data/runs/mapprior_fix/sparse4_large_$$B && \
+	  $(BIN)/python train.py $(MP_FIX_TRAIN) data=data/procedural_large_survey data.building=procedural_large_$$B \
+	      out=data/runs/mapprior_fix/dense_large_$$B && \
+	  $(BIN)/python train.py $(MP_FIX_TRAIN) data=data/procedural_large_survey data.building=procedural_large_$$B \
+	      data.beacons=4 out=data/runs/mapprior_fix/sparse4_large_$$B && \
+	  $(BIN)/python -c "B = 'large_$$B'; D = 'data/procedural_large'; $(MP_CHECK_SPARSE)" && \
+	  for K in dense sparse4; do \
+	    $(BIN)/python export.py ckpt=data/runs/mapprior_fix/$${K}_large_$$B/last.ckpt out=data/runs/mapprior_fix/$${K}_large_$$B.onnx && \
+	    for D in procedural_large procedural_large_io; do \
+	      $(BIN)/blenav-fixes data/$$D data/runs/mapprior_fix/$${K}_large_$$B.onnx --source locnet-$$K \
+	          --sessions $${BS#*:} || exit 1; \
+	    done; \
+	  done || exit 1; \
+	done
+	for D in procedural_large procedural_large_io; do \
+	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$$D runs=3 model=data/runs/mapprior_proc_onnx \
+	      fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 out=data/results/mapprior_table37_$${D#procedural_} \
+	      progress=false || exit 1; \
+	done
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md

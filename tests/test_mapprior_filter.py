@@ -24,8 +24,9 @@ from blenav.filters.runner import MapSpec, MissingStream, _Initializer, align_he
 
 from helpers import make_tiny_dataset, simulate_small
 
-T37 = {"dense-BLE", "sparse-BLE", "IO", "sparse-BLE+IO", "IO+map", "sparse-BLE+IO+map", "heuristic-PF", "PDR"}
-T36 = {"PDR", "IO", "heuristic-PF", "learned-map-prior"}
+T37 = {"dense-BLE", "sparse-BLE", "IO", "sparse-BLE+IO", "IO+map", "sparse-BLE+IO+map", "heuristic-PF",
+       "heuristic-PF-noreinit", "PDR"}
+T36 = {"PDR", "IO", "heuristic-PF", "heuristic-PF-noreinit", "learned-map-prior"}
 LEARNED = {"IO+map", "sparse-BLE+IO+map", "learned-map-prior"}
 BLE = {"dense-BLE", "sparse-BLE", "sparse-BLE+IO", "sparse-BLE+IO+map"}
 

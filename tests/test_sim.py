@@ -195,3 +195,31 @@ def test_gaussian_field_correlation_length():
     assert abs(f.std() - 1) < 0.02
     rho = np.mean(f[:, :, :-4] * f[:, :, 4:])
     assert abs(rho - np.exp(-0.5)) < 0.05
+
+
+def test_ar1_noise_has_the_requested_std_and_correlation_time():
+    from blenav.sim.inertial import ar1_noise
+
+    e = ar1_noise(np.random.default_rng(0), 200_000, 0.2, std=0.3, tau_s=3.0)
+    assert e.shape == (200_000, 2)
+    assert np.allclose(e.std(axis=0), 0.3, rtol=0.03)
+    lag = 5  # 1 s at 0.2 s steps: correlation exp(-1 / 3)
+    rho = np.mean(e[:-lag] * e[lag:]) / e.var()
+    assert abs(rho - np.exp(-1.0 / 3.0)) < 0.02
+
+
+def test_odometry_velocity_noise_is_off_by_default_and_leaves_the_walk_unchanged(tmp_path):
+    base = ("sim=small", "seed=3", "duration_s=60", "sessions=1", "progress=false")
+    a, b = tmp_path / "a", tmp_path / "b"
+    run(compose_sim(*base, f"out={a}"))
+    run(compose_sim(*base, f"out={b}", "sim.odometry.vel_noise_mps=0.3"))
+    sa, sb = (Dataset.open(p).session(Dataset.open(p).session_ids[0]) for p in (a, b))
+    for stream in ("groundtruth", "rssi", "imu"):  # drawn before the odometry: identical
+        assert getattr(sa, stream).equals(getattr(sb, stream)), stream
+    # the odometry's speed now errs by the AR(1) term: per-step speed differences of about 0.3 m/s
+    va = np.linalg.norm(np.diff(sa.odometry[["x", "y"]].to_numpy(), axis=0), axis=1) / np.diff(sa.odometry.t)
+    vb = np.linalg.norm(np.diff(sb.odometry[["x", "y"]].to_numpy(), axis=0), axis=1) / np.diff(sb.odometry.t)
+    d = vb - va
+    assert 0.1 < d.std() < 0.4
+    c = compose_sim("sim=small")
+    assert make_sim_config(c.sim).odometry.vel_noise_mps == 0.0

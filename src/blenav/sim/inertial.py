@@ -7,8 +7,10 @@ consecutive orientations, omega = log(R_{k-1}^T R_{k+1}) / (2 dt), + b_g + n_g.
 Magnetometer (device frame, uT, at ``mag_rate_hz``): m = R^T (B_earth + D(p)) + h + n, with D a
 smooth indoor disturbance field (per component Gaussian random field) and h the device's hard-iron
 offset. Odometry (arbitrary frame, m, at ``odo_rate_hz``): the true velocity scaled by (1 + s),
-rotated by a heading error that drifts linearly plus a random walk, integrated, in a frame rotated and
-shifted at random.
+rotated by a heading error that drifts linearly plus a random walk, plus (``vel_noise_mps`` > 0) a
+velocity error that is AR(1) in time with correlation time ``vel_noise_tau_s`` -- the seconds-long
+over- and under-shoots of a learned inertial-odometry network, which the other terms lack -- integrated,
+in a frame rotated and shifted at random.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
 from .motion import Trajectory
@@ -52,6 +55,8 @@ class OdometryConfig:
     drift_deg_per_min_std: float = 1.5
     heading_rw_deg: float = 0.3  # deg / sqrt(s)
     noise_m: float = 0.02
+    vel_noise_mps: float = 0.0  # std of the AR(1) velocity error per axis while moving (0: off, no draws)
+    vel_noise_tau_s: float = 3.0  # its correlation time
 
 
 def _random_walk(rng, n: int, dt: float, std0: float, rw: float, dims: int = 3) -> np.ndarray:
@@ -107,6 +112,15 @@ def simulate_mag(rng, cfg: MagConfig, traj: Trajectory, field: DisturbanceField)
     return traj.t[idx], m
 
 
+def ar1_noise(rng, n: int, dt: float, std: float, tau_s: float, dims: int = 2) -> np.ndarray:
+    """(n, dims) stationary AR(1) noise with standard deviation ``std`` and correlation time ``tau_s`` s
+    at step ``dt`` s: e_k = a e_(k-1) + sqrt(1 - a^2) std w_k, a = exp(-dt / tau_s), e_0 ~ N(0, std^2)."""
+    a = float(np.exp(-dt / tau_s)) if tau_s > 0 else 0.0
+    w = rng.standard_normal((n, dims)) * std
+    w[1:] *= np.sqrt(1.0 - a * a)
+    return lfilter([1.0], [1.0, -a], w, axis=0)
+
+
 def simulate_odometry(rng, cfg: OdometryConfig, traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
     """(t, (N, 2) m) inertial-odometry positions in an arbitrary frame fixed at session start."""
     step = max(1, int(round((1.0 / cfg.rate_hz) / (traj.t[1] - traj.t[0]))))
@@ -120,7 +134,10 @@ def simulate_odometry(rng, cfg: OdometryConfig, traj: Trajectory) -> tuple[np.nd
     err = drift * t[1:] + np.cumsum(np.radians(cfg.heading_rw_deg) * np.sqrt(dt) * rng.standard_normal(len(dt)))
     c, s = np.cos(err), np.sin(err)
     vo = scale * np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], axis=1)
-    vo += cfg.noise_m * rng.standard_normal(vo.shape) * (np.linalg.norm(v, axis=1, keepdims=True) > 1e-4)
+    moving = np.linalg.norm(v, axis=1, keepdims=True) > 1e-4
+    vo += cfg.noise_m * rng.standard_normal(vo.shape) * moving
+    if cfg.vel_noise_mps > 0:  # drawn only when on, so datasets simulated without it are unchanged
+        vo += ar1_noise(rng, len(dt), float(np.median(dt)), cfg.vel_noise_mps, cfg.vel_noise_tau_s) * dt[:, None] * moving
     pos = np.vstack([[0.0, 0.0], np.cumsum(vo, axis=0)])
     frame = Rotation.from_euler("z", rng.uniform(-np.pi, np.pi)).as_matrix()[:2, :2]
     return t, pos @ frame.T
