@@ -5,16 +5,18 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 from blenav.configs import compose
 
 import blenav.filters.map_prior as map_prior_mod
 from blenav.data import Dataset
 from blenav.data.writer import write_fixes
 from blenav.eval.fixes import spread_beacons
-from blenav.eval.harness import build_methods, evaluate
+from blenav.eval.harness import EvalError, build_methods, evaluate
 from blenav.filters.engine import FilterConfig, ParticleFilter
 from blenav.filters.map_fusion import MapGeometry, WallCrossing
 from blenav.filters.map_prior import (FeasibilityPrior, MapPriorLikelihood, attach_prior, heading_bins,
@@ -322,3 +324,27 @@ def test_inertial_only_dataset_runs_the_rows_without_radio(small, tmp_path, monk
     monkeypatch.setattr(map_prior_mod, "load_prior", lambda path: FeasibilityPrior())
     res = _eval("mapprior_003_table37", data, tmp_path / "out", model="fake-dir")
     _check_rows(res, T37 - BLE, {k: ["rssi.csv", "BLE"] for k in BLE})
+
+
+def test_wrong_plans_reach_the_map_methods_only(small, tmp_path, monkeypatch):
+    monkeypatch.setattr(map_prior_mod, "load_prior", lambda path: FeasibilityPrior())
+    plans = {p: p.read_bytes() for p in small.rglob("*.png")}
+    truth = _eval("mapprior_003_table36", small, tmp_path / "true", model="fake-dir")
+    res = _eval("mapprior_003_table36", small, tmp_path / "wrong", "plan_error.barriers_per_100m2=3",
+                "plan_error.offset_m=[0.3,0.0]", model="fake-dir")
+    _check_rows(res, T36, {})
+    pe = res["plan_error"]
+    assert pe["barriers_per_100m2"] == 3.0 and pe["offset_m"] == [0.3, 0.0]
+    (info,) = [i for fl in pe["buildings"].values() for i in fl.values()]
+    assert info["barriers"] == info["requested"] > 0
+    img = tmp_path / "wrong" / "plans" / Path(info["image"]).name
+    assert img.is_file() and str(img) == info["image"]
+    assert "Wrong floor plans (plan_error)" in (tmp_path / "wrong" / "results.md").read_text()
+    assert "plan_error" not in truth
+    # rows without the map are untouched by the plan; the dataset's own plan is untouched too
+    for row in ("IO", "PDR"):
+        assert res["methods"][row]["ate_m"] == truth["methods"][row]["ate_m"]
+    assert plans and {p: p.read_bytes() for p in small.rglob("*.png")} == plans
+    assert Image.open(img).size == Image.open(next(iter(plans))).size and img.read_bytes() not in plans.values()
+    with pytest.raises(EvalError, match="plan_error"):
+        _eval("mapprior_003_table36", small, tmp_path / "bad", "+plan_error.barriers=1", model="fake-dir")

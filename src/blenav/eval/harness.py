@@ -18,6 +18,11 @@ reason), ``fixes`` (named ``fixes.csv`` sources or fixes computed from rssi.csv 
 :mod:`blenav.eval.fixes`; ``results.json`` then has a ``fixes`` entry saying what each session used) and
 methods with ``score_fixes: ROLE`` (the role's fixes scored directly, Table 3.7's BLE-only rows).
 
+``plan_error`` (:class:`~blenav.sim.plan_errors.PlanErrorConfig`; all zero by default) gives every method a
+wrong floor plan -- spurious barriers, a registration offset -- while the sessions are still scored against
+their ground truth; the wrong plans are written to ``OUT/plans/`` and ``results.json`` gets a
+``plan_error`` entry (the settings and, per building and floor, the barriers drawn).
+
 All methods are built (and so checked) before the first run: a misconfigured method fails at once.
 """
 
@@ -25,7 +30,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +43,7 @@ from blenav.filters.calibration import apply_fit, fit_sessions
 from blenav.filters.engine import FilterConfig
 from blenav.filters.map_prior import attach_prior
 from blenav.filters.runner import MapSpec, Method, MissingStream, RunResult, run_session
+from blenav.sim.plan_errors import PlanErrorConfig, perturb_building
 
 from .fixes import FixProvider, FixTrack
 
@@ -170,6 +176,30 @@ def calibrate(methods: dict[str, Method], ds: Dataset, sessions: list, spec) -> 
     return {**fit.as_dict(), "note": note}
 
 
+def plan_error_config(cfg: DictConfig) -> PlanErrorConfig:
+    """``cfg.plan_error`` checked against :class:`PlanErrorConfig` (a misspelt key fails here)."""
+    try:
+        return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(PlanErrorConfig), cfg.get("plan_error") or {}))
+    except Exception as exc:  # omegaconf's errors for unknown keys / wrong types, or our ValueError
+        raise EvalError(f"plan_error: {exc}") from exc
+
+
+def with_wrong_plans(sessions: list, pe: PlanErrorConfig, out_dir: Path) -> tuple[list, dict]:
+    """The sessions with their buildings' plans replaced by wrong ones (one per building, shared by its
+    sessions; streams and their caches are kept), and the per-building summaries."""
+    wrong, info = {}, {}
+    for s in sessions:
+        if s.building.id not in wrong:
+            wrong[s.building.id], info[s.building.id] = perturb_building(s.building, pe, out_dir)
+            log.info("plan errors in %s: %s", s.building.id, info[s.building.id])
+    out = []
+    for s in sessions:
+        w = replace(s, building=wrong[s.building.id])
+        w.__dict__["_streams"] = s.__dict__.setdefault("_streams", {})  # read each stream once
+        out.append(w)
+    return out, info
+
+
 @dataclass
 class MethodOutcome:
     results: dict  # session id -> RunResult
@@ -211,10 +241,14 @@ def evaluate(cfg: DictConfig) -> dict:
     sessions = select_sessions(ds, cfg.get("sessions"), exclude=exclude)
     for s in sessions:
         check_session_in_building(s)
+    plan_error = plan_error_config(cfg)
     runs = int(cfg.runs)
     if runs < 1:
         raise EvalError(f"runs must be >= 1, got {runs}")
     out = Path(cfg.out)
+    plan_info = None
+    if plan_error.active:
+        sessions, plan_info = with_wrong_plans(sessions, plan_error, out / "plans")
     provider = build_fix_provider(cfg, methods, out)
     calibration = calibrate({**methods, **(provider.methods if provider else {})}, ds, sessions, cal_spec)
     out.mkdir(parents=True, exist_ok=True)
@@ -226,6 +260,8 @@ def evaluate(cfg: DictConfig) -> dict:
                "calibration": calibration, "methods": {}}
     if reason:
         results["map_prior"] = reason
+    if plan_info is not None:
+        results["plan_error"] = {**asdict(plan_error), "buildings": plan_info}
     for name, method in methods.items():
         per, res_by = {}, {}
         wall = 0.0

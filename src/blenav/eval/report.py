@@ -16,7 +16,7 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
              f"{results['runs']} run(s) per session and method, seed {results.get('seed', 0)}. "
              f"Errors are planar, against ground truth interpolated at the estimate times; the first "
              f"{results['init_s']:g} s of each session (global localization) are reported separately.", "",
-             _calibration_line(results), "",
+             _calibration_line(results), "", *_plan_error_lines(results),
              "| method | RMSE [m] mean +- stderr | RMSE 99% CI | error median | CDF p75 | p90 | max | ATE | EE | "
              "init error mean | orientation RMSE [deg] | recoveries | wall [s] | x real time |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -45,6 +45,18 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
     lines += ["", "Plots: error_cdf.png (median CDF over runs with 5-95 % band), rmse_box.png, "
               "error_over_time.png, trajectories.png (first run, first session)."]
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def _plan_error_lines(results: dict) -> list[str]:
+    """What was wrong with the plans the methods were given (nothing when they had the true plans)."""
+    pe = results.get("plan_error")
+    if not pe:
+        return []
+    per = "; ".join(f"{b} floor {f}: {i['barriers']} barrier(s) closing {i['closed_m2']:.1f} of {i['free_m2']:.0f} m^2 "
+                    f"(`{i['image']}`)" for b, fl in pe["buildings"].items() for f, i in fl.items())
+    return [f"Wrong floor plans (plan_error): {pe['barriers_per_100m2']:g} spurious barrier(s) per 100 m^2 of free "
+            f"space, at most {pe['max_span_m']:g} m wide, plan offset ({pe['offset_m'][0]:g}, {pe['offset_m'][1]:g}) m, "
+            f"seed {pe['seed']}: {per}. Ground truth is unchanged.", ""]
 
 
 def _calibration_line(results: dict) -> str:
