@@ -206,9 +206,12 @@ mapprior-tables: $(STAMP)
 	      out=data/runs/mapprior_fix/dense_large_$$B && \
 	  $(BIN)/python train.py $(MP_FIX_TRAIN) data=data/procedural_large_survey data.building=procedural_large_$$B \
 	      data.beacons=4 out=data/runs/mapprior_fix/sparse4_large_$$B && \
+	  for K in dense sparse4; do \
+	    $(BIN)/python export.py ckpt=data/runs/mapprior_fix/$${K}_large_$$B/last.ckpt \
+	        out=data/runs/mapprior_fix/$${K}_large_$$B.onnx || exit 1; \
+	  done && \
 	  $(BIN)/python -c "B = 'large_$$B'; D = 'data/procedural_large'; $(MP_CHECK_SPARSE)" && \
 	  for K in dense sparse4; do \
-	    $(BIN)/python export.py ckpt=data/runs/mapprior_fix/$${K}_large_$$B/last.ckpt out=data/runs/mapprior_fix/$${K}_large_$$B.onnx && \
 	    for D in procedural_large procedural_large_io; do \
 	      $(BIN)/blenav-fixes data/$$D data/runs/mapprior_fix/$${K}_large_$$B.onnx --source locnet-$$K \
 	          --sessions $${BS#*:} || exit 1; \
