@@ -169,7 +169,7 @@ mapprior-tables: $(STAMP)
 	$(BIN)/python export.py ckpt=data/runs/mp_calib/sparse4_000/last.ckpt out=data/runs/mp_calib/sparse4_000.onnx
 	SIG=$$($(BIN)/blenav-fixes data/procedural_mp data/runs/mp_calib/sparse4_000.onnx --calibrate \
 	      --sessions $(MP_CALIB) | tail -n 1 | cut -d= -f2) && test -n "$$SIG" && echo "sparse fixes: sigma_eff $$SIG m" && \
-	for W in procedural_mp:$(MP_TEST):calibrated procedural_mp_long:$(MP_LONG_006),$(MP_LONG_007):long_calibrated; do \
+	for W in procedural_mp:$(MP_TEST):calibrated procedural_mp_io:$(MP_TEST):io_calibrated procedural_mp_long:$(MP_LONG_006),$(MP_LONG_007):long_calibrated; do \
 	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$${W%%:*} sessions=$$(echo $$W | cut -d: -f2) \
 	      runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	      methods.sparse_io.measurements.fix.sigma_m=$$SIG methods.sparse_io_map.measurements.fix.sigma_m=$$SIG \
