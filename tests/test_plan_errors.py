@@ -3,6 +3,8 @@ offsets shift the plan; the same seed and building give the same plan."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -106,3 +108,14 @@ def test_same_seed_same_plan_other_seed_other_draws():
 def test_bad_settings_fail_with_the_key(bad):
     with pytest.raises(ValueError, match="plan_error"):
         PlanErrorConfig(**bad)
+
+
+def test_a_session_in_its_wrong_plan_shares_streams_and_keeps_its_building_id(tmp_path):
+    ds = Dataset.open(make_tiny_dataset(tmp_path / "tiny"))
+    s = ds.session(ds.session_ids[0])
+    wrong, _ = perturb_building(s.building, PlanErrorConfig(barriers_per_100m2=5), tmp_path / "plans")
+    w = s.with_building(wrong)
+    assert w.building is wrong and s.building is not wrong and w.id == s.id
+    assert w.stream("groundtruth") is s.stream("groundtruth")  # read once, for both
+    with pytest.raises(ValueError, match="is not"):
+        s.with_building(replace(wrong, id="elsewhere"))

@@ -8,7 +8,7 @@ An absent optional stream reads as an empty frame with the right columns.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -181,6 +181,15 @@ class Session:
     @property
     def floor(self) -> Floor:
         return self.building.floor(self.meta.get("floor"))
+
+    def with_building(self, building: Building) -> "Session":
+        """This session seen in another version of its building (same id and anchors, e.g. a wrong floor
+        plan), sharing the streams read so far and those read later."""
+        if building.id != self.building.id:
+            raise ValueError(f"session {self.id}: building {building.id!r} is not {self.building.id!r}")
+        other = replace(self, building=building)
+        other.__dict__["_streams"] = self.__dict__.setdefault("_streams", {})
+        return other
 
     def has(self, name: str) -> bool:
         """Whether the stream has at least one (valid) row."""

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -192,12 +192,7 @@ def with_wrong_plans(sessions: list, pe: PlanErrorConfig, out_dir: Path) -> tupl
         if s.building.id not in wrong:
             wrong[s.building.id], info[s.building.id] = perturb_building(s.building, pe, out_dir)
             log.info("plan errors in %s: %s", s.building.id, info[s.building.id])
-    out = []
-    for s in sessions:
-        w = replace(s, building=wrong[s.building.id])
-        w.__dict__["_streams"] = s.__dict__.setdefault("_streams", {})  # read each stream once
-        out.append(w)
-    return out, info
+    return [s.with_building(wrong[s.building.id]) for s in sessions], info
 
 
 @dataclass
