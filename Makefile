@@ -226,8 +226,10 @@ mapprior-tables: $(STAMP)
 
 # Wrong floor plans (ours, not the thesis'): Table 3.6 on the same 8 test walks, smooth and IDOL-level
 # odometry, when the plan the filters get has K spurious barriers per 100 m^2 of free space across doorways
-# and narrow passages (blenav.sim.plan_errors); uses the prior and walks of `make mapprior-tables`
+# and narrow passages, or is registered MP_PLANOFF m off in x (blenav.sim.plan_errors); uses the prior and
+# walks of `make mapprior-tables`
 MP_PLANERR ?= 1 2
+MP_PLANOFF ?= 0.5
 mapprior-planerr: $(STAMP)
 	@test -e data/runs/mapprior_proc_onnx/meta.json -a -e data/procedural_mp_io/dataset.yaml || \
 	  { echo "mapprior-planerr: run 'make mapprior-tables' first (it trains the prior and simulates the walks)"; exit 1; }
@@ -236,6 +238,11 @@ mapprior-planerr: $(STAMP)
 	      model=data/runs/mapprior_proc_onnx plan_error.barriers_per_100m2=$$K \
 	      out=data/results/mapprior_table36_$${D#procedural_}_planerr$$K progress=false || exit 1; \
 	done; done
+	for D in procedural_mp procedural_mp_io; do \
+	  $(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/$$D sessions=$(MP_TEST) runs=3 \
+	      model=data/runs/mapprior_proc_onnx 'plan_error.offset_m=[$(MP_PLANOFF),0]' \
+	      out=data/results/mapprior_table36_$${D#procedural_}_planoff progress=false || exit 1; \
+	done
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md
