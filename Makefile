@@ -233,16 +233,12 @@ MP_PLANOFF ?= 0.5
 mapprior-planerr: $(STAMP)
 	@test -e data/runs/mapprior_proc_onnx/meta.json -a -e data/procedural_mp_io/dataset.yaml || \
 	  { echo "mapprior-planerr: run 'make mapprior-tables' first (it trains the prior and simulates the walks)"; exit 1; }
-	for K in $(MP_PLANERR); do for D in procedural_mp procedural_mp_io; do \
+	for P in $(foreach K,$(MP_PLANERR),'planerr$(K):plan_error.barriers_per_100m2=$(K)') \
+	    'planoff:plan_error.offset_m=[$(MP_PLANOFF),0]'; do for D in procedural_mp procedural_mp_io; do \
 	  $(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/$$D sessions=$(MP_TEST) runs=3 \
-	      model=data/runs/mapprior_proc_onnx plan_error.barriers_per_100m2=$$K \
-	      out=data/results/mapprior_table36_$${D#procedural_}_planerr$$K progress=false || exit 1; \
+	      model=data/runs/mapprior_proc_onnx "$${P#*:}" \
+	      out=data/results/mapprior_table36_$${D#procedural_}_$${P%%:*} progress=false || exit 1; \
 	done; done
-	for D in procedural_mp procedural_mp_io; do \
-	  $(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/$$D sessions=$(MP_TEST) runs=3 \
-	      model=data/runs/mapprior_proc_onnx 'plan_error.offset_m=[$(MP_PLANOFF),0]' \
-	      out=data/results/mapprior_table36_$${D#procedural_}_planoff progress=false || exit 1; \
-	done
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md

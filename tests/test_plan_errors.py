@@ -17,10 +17,16 @@ from helpers import make_tiny_dataset
 
 
 @pytest.fixture(scope="module")
-def house(tmp_path_factory):
-    """helpers.py's 10 m x 8 m house: inner wall at x in [5.0, 5.2), door y in [3.5, 4.5)."""
+def session(tmp_path_factory):
+    """A session of helpers.py's tiny dataset."""
     ds = Dataset.open(make_tiny_dataset(tmp_path_factory.mktemp("plan") / "tiny"))
-    return ds.session(ds.session_ids[0]).building
+    return ds.session(ds.session_ids[0])
+
+
+@pytest.fixture(scope="module")
+def house(session):
+    """helpers.py's 10 m x 8 m house: inner wall at x in [5.0, 5.2), door y in [3.5, 4.5)."""
+    return session.building
 
 
 def corridor_and_hall() -> np.ndarray:
@@ -110,9 +116,8 @@ def test_bad_settings_fail_with_the_key(bad):
         PlanErrorConfig(**bad)
 
 
-def test_a_session_in_its_wrong_plan_shares_streams_and_keeps_its_building_id(tmp_path):
-    ds = Dataset.open(make_tiny_dataset(tmp_path / "tiny"))
-    s = ds.session(ds.session_ids[0])
+def test_a_session_in_its_wrong_plan_shares_streams_and_keeps_its_building_id(session, tmp_path):
+    s = session
     wrong, _ = perturb_building(s.building, PlanErrorConfig(barriers_per_100m2=5), tmp_path / "plans")
     w = s.with_building(wrong)
     assert w.building is wrong and s.building is not wrong and w.id == s.id
