@@ -1,7 +1,7 @@
 """Map-fusion spatial index: the paper's 1 m grid vs shapely's STRtree (Patel et al., Sec. VI.C).
 
 Simulates the office_45x55 building (2 s, one session: only the building is used), then times
-:meth:`blenav.filters.map_fusion.MapGeometry.condition` on 100 runs x 300 particles (Table I) with each
+:meth:`blenav.filters.map.MapGeometry.condition` on 100 runs x 300 particles (Table I) with each
 index, checks that both give the same result, and prints the times and their ratio. Also times the same
 on the building's derived map (rooms and routes removed, derived from the occupancy grid).
 
@@ -21,7 +21,7 @@ from blenav.configs import compose
 
 from blenav.cli.sim import run  # registers the sim schema
 from blenav.data import Building
-from blenav.filters.map_fusion import INDEX_KINDS, MapGeometry
+from blenav.filters.map import INDEX_KINDS, MapGeometry
 
 
 def simulate_office(out: Path) -> Path:

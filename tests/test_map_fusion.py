@@ -16,7 +16,7 @@ from shapely.geometry import LineString, box
 from blenav.cli.sim import run
 from blenav.data import FREE, OCCUPIED, UNKNOWN, Building
 from blenav.data.writer import write_building
-from blenav.filters.map_fusion import (
+from blenav.filters.map import (
     CASE_FAR,
     CASE_IN_SHRUNK,
     CASE_TO_EDGE,
@@ -176,8 +176,6 @@ def test_uniform_free(given_map):
     pts = fl.free_points()
     expect = (pts[:, 0] < 10).mean()
     assert abs((x[..., 0] < 10).mean() - expect) < 0.02
-    init = m.uniform_initializer()
-    assert init.sample(np.random.default_rng(0), 2, 10).shape == (2, 10, 2)
 
 
 # ----------------------------------------------------------------------------------------- conditioning

@@ -18,7 +18,7 @@ from blenav.data.writer import write_fixes
 from blenav.eval.fixes import spread_beacons
 from blenav.eval.harness import EvalError, build_methods, evaluate
 from blenav.filters.engine import FilterConfig, ParticleFilter
-from blenav.filters.map_fusion import MapGeometry, WallCrossing
+from blenav.filters.map import MapGeometry, WallCrossing
 from blenav.filters.map_prior import (FeasibilityPrior, MapPriorLikelihood, attach_prior, heading_bins,
                                       rotated_windows)
 from blenav.filters.motion import OdometryIncrement

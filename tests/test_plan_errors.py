@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from blenav.data import Dataset
-from blenav.filters.map_fusion import WallCrossing
+from blenav.filters.map import WallCrossing
 from blenav.sim.plan_errors import PlanErrorConfig, building_rng, draw_barriers, perturb_building, run_lengths
 
 from helpers import make_tiny_dataset

@@ -6,7 +6,7 @@
 - :mod:`~blenav.filters.motion`: RW, DR, the IMU proposal (Ghaffari Jadidi et al. eqs. 4-7), odometry
   increment (Roy eq. 3.7), PDR;
 - :mod:`~blenav.filters.measurement`: PF-PL path-loss ranges, PF-PS RSSI-domain likelihood (Patel et al.);
-- :mod:`~blenav.filters.map_fusion`: map-aware initialisation and resampling (Patel et al. section V), wall
+- :mod:`~blenav.filters.map`: map-aware initialisation and resampling (Patel et al. section V), wall
   crossing, rooms and routes derived from the occupancy grid when a building lacks them;
 - :mod:`~blenav.filters.map_prior`: Roy's learned map prior (eq. 3.8) as a measurement, with per-particle
   odometry-frame heading bins and an odometry window; a non-learned reference prior;

@@ -19,7 +19,7 @@ from blenav.data import Session
 
 from .attitude import AttitudeConfig, estimate_hard_iron
 from .engine import Event, FilterConfig, ParticleFilter
-from .map_fusion import MapGeometry, WallCrossing
+from .map import MapGeometry, WallCrossing
 from .measurement import AnchorTable
 from .steps import SessionArrays, StepDetectorConfig, StepStream, imu_features, session_steps
 

@@ -95,9 +95,6 @@ class Layout:
     def edge_lines(self) -> list[LineString]:
         return [LineString([self.nodes[i], self.nodes[j]]) for i, j in self.edges]
 
-    def room_polygons(self):
-        return [box(*r.rect) for r in self.rooms]
-
 
 class _Canvas:
     def __init__(self, w_m: float, h_m: float, res: float):

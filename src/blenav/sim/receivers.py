@@ -116,12 +116,3 @@ def make_profile(name: str, fading_1m: tuple[float, float] = (0.0, 0.0)) -> Rece
     o0, s0, q0 = _split(m0, v0, c0, gain * f_mean, extra)
     o1, s1, q1 = _split(m1, v1, c1, gain * f_mean, extra)
     return ReceiverProfile(name, brand, (o0, o1), (s0, s1), (q0, q1), gain, sens, quant)
-
-
-def all_profiles(fading_1m: tuple[float, float] = (0.0, 0.0)) -> dict[str, ReceiverProfile]:
-    return {n: make_profile(n, fading_1m) for n in TABLE_3_2}
-
-
-def table_stats(u: np.ndarray) -> tuple[float, float]:
-    """Mean and variance on the thesis scale of a per-packet series (0 = not reported)."""
-    return float(np.mean(u)), float(np.var(u))
