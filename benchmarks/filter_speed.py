@@ -47,7 +47,7 @@ def main() -> None:
         print(f"{'method':10s} {'runs':>5s} {'particles':>9s} {'wall [s]':>9s} {'x budget':>9s} {'vs paper 1 run':>15s} {'x real time':>12s}")
         for exp, name in (("frontend_000", "IMU"), ("frontend_000", "RW"), ("mapfusion_002", "PF-PS+MAP")):
             cfg = compose("eval", *[f"experiment={exp}", "data=x", f"filter.n_particles={args.particles}"])
-            m = build_methods(cfg)[name]
+            m = build_methods(cfg)[name].method
             apply_fit(m.measurements, fit_sessions([s]))
             t0 = time.perf_counter()
             run_session(m, s, args.runs, seed=0)
@@ -58,7 +58,7 @@ def main() -> None:
         # streaming: one run, N particles, time each closed step (IMU model)
         cfg = compose("eval", *["experiment=frontend_000", "data=x",
                                                      f"filter.n_particles={args.stream_particles}"])
-        m = build_methods(cfg)["IMU"]
+        m = build_methods(cfg)["IMU"].method
         apply_fit(m.measurements, fit_sessions([s]))
         loc = OnlineLocalizer(m, s, n_runs=1, seed=0)
         lat, push = [], []

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from blenav.filters.engine import FilterConfig, ParticleFilter
-from blenav.filters.measurement import AnchorTable, PathLossRange, RssiDomain
+from blenav.filters.engine import FilterConfig, Initializer, ParticleFilter
+from blenav.filters.measurement import AnchorTable, MeasurementModel, PathLossRange, RssiDomain
 from blenav.filters.motion import DeadReckoning, ImuProposal, OdometryIncrement, Pdr, RandomWalk
 from blenav.filters.resampling import SCHEMES, ess, get_scheme, log_normalise
 
@@ -44,7 +44,7 @@ def test_log_normalise_and_ess():
     np.testing.assert_allclose(w, [[0.0, 1.0, 0.0]])
 
 
-class _GaussianPosition:
+class _GaussianPosition(MeasurementModel):
     """Test measurement: z = p + N(0, sigma^2 I)."""
 
     def __init__(self, sigma):
@@ -58,7 +58,7 @@ class _GaussianPosition:
         return -0.5 * np.sum(d * d, axis=-1)
 
 
-class _GaussianInit:
+class _GaussianInit(Initializer):
     def __init__(self, m, s):
         self.m, self.s = np.asarray(m, float), s
 

@@ -21,7 +21,8 @@ from helpers import simulate_small
 
 SOURCE = "gt+noise"
 #: a fixes-only method composed like the experiments compose theirs (package defaults)
-FIX_METHOD = ["+filter/motion@methods.fix.motion=rw", "+filter/measurement@methods.fix.measurements.fix=fix_003",
+FIX_METHOD = ["+localizer@methods.fix=particle_filter", "+filter/motion@methods.fix.motion=rw",
+              "+filter/measurement@methods.fix.measurements.fix=fix_003",
               "+filter/map@methods.fix.map=uniform", "+methods.fix.label=FIX",
               # a livelier random walk than Table I's: with fixes only, the velocity must follow turns
               "methods.fix.motion.sigma_v=0.2"]
@@ -34,7 +35,7 @@ def eval_cfg(*overrides):
 def fix_method(*overrides, **filter_over):
     cfg = eval_cfg("experiment=mapfusion_002", *FIX_METHOD, *overrides,
                    *[f"filter.{k}={v}" for k, v in filter_over.items()])
-    return build_methods(cfg)["FIX"]
+    return build_methods(cfg)["FIX"].method
 
 
 def noisy_fixes(s, rate_hz=1.0, sigma=1.0, seed=0):

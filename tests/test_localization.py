@@ -39,7 +39,7 @@ def office(tmp_path_factory):
 
 def methods(experiment, ds, **filter_over):
     cfg = eval_cfg(f"experiment={experiment}", *[f"filter.{k}={v}" for k, v in filter_over.items()])
-    ms = build_methods(cfg)
+    ms = {k: v.method for k, v in build_methods(cfg).items()}
     fit = fit_sessions([s for s in ds.sessions(labelled=True) if s.carrier == "static"])
     for m in ms.values():
         apply_fit(m.measurements, fit)
@@ -137,7 +137,7 @@ def test_global_localization_converges_in_the_small_building(tmp_path):
     out = sim(tmp_path / "small", "sim=small", "seed=2", "duration_s=60", "sessions=2", "sim.carriers=[pedestrian]",
               "sim.receivers=[iphone-8]")
     ds = Dataset.open(out)
-    m = build_methods(eval_cfg("experiment=mapfusion_002"))["PF-PL+MAP"]
+    m = build_methods(eval_cfg("experiment=mapfusion_002"))["PF-PL+MAP"].method
     apply_fit(m.measurements, fit_sessions([ds.session(ds.session_ids[0])]))
     s = ds.session(ds.session_ids[1])
     res = run_session(m, s, n_runs=10, seed=1)

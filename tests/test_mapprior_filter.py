@@ -18,10 +18,11 @@ from blenav.data.writer import write_fixes
 from blenav.eval.fixes import spread_beacons
 from blenav.eval.harness import EvalError, build_methods, evaluate
 from blenav.filters.engine import FilterConfig, ParticleFilter
+from blenav.filters.constraints import ObstacleRules
 from blenav.filters.map import MapGeometry, WallCrossing
 from blenav.filters.map_prior import (FeasibilityPrior, MapPriorLikelihood, attach_prior, heading_bins,
                                       rotated_windows)
-from blenav.filters.motion import OdometryIncrement
+from blenav.filters.motion import MotionModel, OdometryIncrement
 from blenav.filters.runner import MapSpec, MissingStream, _Initializer, align_heading, run_session
 
 from helpers import make_tiny_dataset, simulate_small
@@ -41,7 +42,7 @@ def house(tmp_path_factory):
     return MapGeometry.from_building(b, 0)
 
 
-class Shift:
+class Shift(MotionModel):
     """Toy motion: every particle of run r moves by ctrl['shift'][r] (R, 2) m."""
 
     state_dim = 5
@@ -69,8 +70,9 @@ def test_reinit_when_more_than_90_percent_cross_an_obstacle(house):
     free space within r_reinit = 5 m of the last estimate; 90 % exactly does not trigger."""
     cfg = FilterConfig(n_particles=100, rate_hz=1.0, estimate="median", reinit_fraction=0.9, reinit_radius_m=5.0)
     rng = np.random.default_rng(0)
-    pf = ParticleFilter(cfg, Shift(), [], _Initializer(house, MapSpec()), rng, n_runs=3,
-                        walls=WallCrossing.from_floor(house.floor), penalise_walls=False)
+    rules = ObstacleRules(WallCrossing.from_floor(house.floor), penalise=False, reinit_fraction=cfg.reinit_fraction,
+                          reinit_radius_m=cfg.reinit_radius_m)
+    pf = ParticleFilter(cfg, Shift(), [], _Initializer(house, MapSpec()), rng, n_runs=3, constraints=[rules])
     pf.initialize(0.0)
     xy = np.tile([4.0, 2.0], (3, 100, 1)) + 0.05 * rng.standard_normal((3, 100, 2))  # west room, below the door
     xy[1, 90:] = [4.0, 4.0]  # run 1: 10 particles in front of the door -> exactly 90 % cross
@@ -93,7 +95,7 @@ def test_reinit_when_more_than_90_percent_cross_an_obstacle(house):
     # off by default, and a fraction outside [0, 1) is refused
     assert FilterConfig().reinit_fraction is None
     with pytest.raises(ValueError, match="reinit_fraction"):
-        ParticleFilter(FilterConfig(reinit_fraction=1.0), Shift(), [], _Initializer(house, MapSpec()), rng)
+        ObstacleRules(WallCrossing.from_floor(house.floor), reinit_fraction=1.0)
 
 
 def test_sample_free_within_stays_in_free_space_and_radius(house):
@@ -151,7 +153,7 @@ def test_map_prior_gives_each_particle_its_heading_bin():
     ref = np.angle(np.exp(1j * heading_bins(theta, 36) * 2 * np.pi / 36))  # the bin's rotation of +x
     np.testing.assert_allclose(ll, ref, atol=1e-12)
     # without a frame angle the odometry is taken as world-aligned (theta = 0): bin 0 for all
-    m.bind_motion(object())
+    m.bind_motion(MotionModel())
     np.testing.assert_allclose(m.log_likelihood(x, {}), 0.0, atol=1e-12)
     # the window follows the step times (1 s apart) and the buffer is cleared by bind
     m.observe(_obs(t=3.0, odo=(3.0, 1.0)))
@@ -205,7 +207,7 @@ def test_map_prior_pulls_the_filter_into_the_corridor(house, with_prior):
 
 def test_prior_loading_and_missing_prior(house, tmp_path):
     m = MapPriorLikelihood()
-    assert "model=" in attach_prior([m], None) and "model=" in m.missing_reason()
+    assert "model_path=" in attach_prior([m], None) and "model_path=" in m.missing_reason()
 
     def broken(path):
         raise ImportError("No module named 'blenav.runtime.map_prior'")
@@ -216,9 +218,9 @@ def test_prior_loading_and_missing_prior(house, tmp_path):
     assert attach_prior([m3], "x", loader=lambda p: FeasibilityPrior()) is None and m3.missing_reason() is None
     # a method whose prior is missing is skipped by the runner with that reason
     cfg = compose("eval", "experiment=mapprior_003_table36", "data=unused")
-    method = build_methods(cfg)["learned-map-prior"]
+    method = build_methods(cfg)["learned-map-prior"].method
     ds = Dataset.open(make_tiny_dataset(tmp_path / "tiny"))
-    with pytest.raises(MissingStream, match="model="):
+    with pytest.raises(MissingStream, match="model_path="):
         run_session(method, ds.session(ds.session_ids[0]), 1, 0)
 
 
@@ -260,7 +262,7 @@ def small(tmp_path_factory):
 
 
 def _eval(experiment, data, out, *over, model=None):
-    extra = [f"model={model}"] if model is not None else []
+    extra = [f"model_path={model}"] if model is not None else []
     return evaluate(compose("eval", f"experiment={experiment}", f"data={data}", "runs=2", f"out={out}",
                             "progress=false", "plots=false", *over, *extra))
 
@@ -282,9 +284,10 @@ def _check_rows(res, ran, skipped):
 def test_experiments_end_to_end_without_a_model(small, tmp_path):
     before = sorted(p.name for p in small.rglob("*.csv"))
     res = _eval("mapprior_003_table37", small, tmp_path / "t37")
-    _check_rows(res, T37 - LEARNED, {k: ["model="] for k in LEARNED & T37})
+    _check_rows(res, T37 - LEARNED, {k: ["model_path="] for k in LEARNED & T37})
     on_disk = json.loads((tmp_path / "t37" / "results.json").read_text())
-    assert set(on_disk["methods"]) == T37 and "model=" in on_disk["map_prior"]
+    assert set(on_disk["methods"]) == T37 and all("model_path=" in why for why in on_disk["model"]["unavailable"].values())
+    assert set(on_disk["model"]["unavailable"]) == LEARNED & T37
     for role in ("dense", "sparse"):
         assert all("computed from rssi.csv" in v for v in on_disk["fixes"]["used"][role].values())
     assert len(next(iter(on_disk["fixes"]["sparse_beacon_ids"].values()))) == 4
@@ -292,7 +295,7 @@ def test_experiments_end_to_end_without_a_model(small, tmp_path):
     assert sorted(p.name for p in small.rglob("*.csv")) == before  # ... the dataset is untouched
     assert "Paper comparison (Roy, Table 3.7" in (tmp_path / "t37" / "results.md").read_text()
     res36 = _eval("mapprior_003_table36", small, tmp_path / "t36")
-    _check_rows(res36, T36 - LEARNED, {"learned-map-prior": ["model="]})
+    _check_rows(res36, T36 - LEARNED, {"learned-map-prior": ["model_path="]})
 
 
 def test_experiments_end_to_end_with_a_prior_and_a_named_source(small, tmp_path, monkeypatch):

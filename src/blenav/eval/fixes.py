@@ -30,15 +30,14 @@ import json
 import logging
 import time
 import zlib
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from blenav.filters.measurement import FixLikelihood
-from blenav.filters.runner import Method, MissingStream, RunResult, run_session
-from blenav.learn.windows import spread_beacons  # moved next to beacon_order; still importable from here
+from blenav.filters.runner import Method, MissingStream, run_session
+from blenav.features.windows import spread_beacons
 
 log = logging.getLogger("blenav.eval.fixes")
 
@@ -56,35 +55,15 @@ def ble_fixes(method: Method, session, seed: int, rate_hz: float = 1.0) -> tuple
     return res.t[keep].copy(), res.position[0, keep].copy()
 
 
-@dataclass
-class FixTrack:
-    """A Table 3.7 BLE-only row: the ``role``'s fixes scored directly as the trajectory (R identical runs)."""
-
-    name: str
-    role: str
-    measurements: tuple = ()  # nothing to calibrate here (the provider's localizer is calibrated)
-
-    def run(self, session, n_runs: int, provider: "FixProvider") -> RunResult:
-        """The fixes as R identical runs; ``wall_s`` is the time the BLE localizer took to compute them
-        (when computed, also if read from the cache), else the time to read them."""
-        t0 = time.perf_counter()
-        t, xy, _ = provider.fixes_for(self.role, session)
-        if not len(t):
-            raise MissingStream(f"no {self.role} fixes for session {session.id}")
-        pos = np.broadcast_to(xy, (n_runs,) + xy.shape).copy()
-        wall = provider.compute_s.get((self.role, session.id), time.perf_counter() - t0)
-        return RunResult(self.name, session.id, t, pos, np.zeros(pos.shape + (2,)), np.ones(pos.shape[:2]), [], None,
-                         None, n_runs * wall, [])
-
-
 class FixProvider:
     """Per session and role, the fixes an experiment uses (named source, or computed and cached).
 
     ``roles``: role -> named ``fixes.csv`` source or None; ``localizers``: role -> the BLE-only
-    :class:`Method` that computes fixes (its ``beacons`` are set per building for ``sparse``);
+    :class:`~blenav.localizers.ParticleFilterLocalizer` that computes fixes (the ``beacons`` of its method
+    are set per building for ``sparse``);
     ``sparse_beacons``: k or a list of anchor ids; ``out``: the evaluation folder (cache)."""
 
-    def __init__(self, roles: dict, localizers: dict[str, Method], sparse_beacons, out: Path, seed: int = 0,
+    def __init__(self, roles: dict, localizers: dict, sparse_beacons, out: Path, seed: int = 0,
                  rate_hz: float = 1.0, write: bool = False):
         unknown = set(roles) - set(ROLES)
         if unknown:
@@ -103,7 +82,7 @@ class FixProvider:
         self.used: dict[str, dict[str, str]] = {r: {} for r in self.roles}  # role -> session -> what was used
 
     @property
-    def methods(self) -> dict[str, Method]:
+    def methods(self) -> dict:
         """The localizers, keyed by their computed source name (for the harness's path-loss calibration)."""
         return {self.computed_source(r): m for r, m in self.localizers.items()}
 
@@ -153,7 +132,7 @@ class FixProvider:
         return self._mem[key]
 
     def _compute(self, role: str, session) -> tuple[np.ndarray, np.ndarray]:
-        m = self.localizers[role]
+        m = self.localizers[role].method
         m.beacons = self.beacons_for(role, session)
         if m.beacons is not None:
             self.beacon_ids[str(session.building.id)] = list(m.beacons)
@@ -198,7 +177,7 @@ class FixProvider:
         sources of the session's fixes.csv)."""
         extra = []
         for m in method.measurements:
-            role = getattr(m, "role", None) if isinstance(m, FixLikelihood) else None
+            role = m.role if isinstance(m, FixLikelihood) else None
             if role is None:
                 continue
             t, xy, src = self.fixes_for(role, session)

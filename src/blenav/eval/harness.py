@@ -1,5 +1,11 @@
 """``evaluate(cfg)``: every method of an experiment on every selected labelled session, R runs each.
 
+Every method is a :class:`~blenav.localizers.Localizer` built from its config node (``_target_``, see
+``conf/localizer/``); the harness runs it through that interface alone and scores the
+:class:`~blenav.localizers.Estimate` it returns. The steps, each a function: build the methods, select
+the sessions, attach the models and fixes the methods declare they want, calibrate, run, aggregate,
+write.
+
 Writes ``OUT/results.json`` (schema below), ``OUT/results.md`` (a table like the papers') and, unless
 ``plots=false``, PNG plots. ``results.json``::
 
@@ -12,13 +18,16 @@ Writes ``OUT/results.json`` (schema below), ``OUT/results.md`` (a table like the
 
 A method that could run on no session is ``{"skipped": {SESSION_ID: reason}}`` only.
 
-Roy's fusion experiments (``mapprior_003_*``) add: ``model`` (path of a learned map prior, given to every
-:class:`~blenav.filters.map_prior.MapPriorLikelihood`; without it those methods are skipped with the
-reason), ``fixes`` (named ``fixes.csv`` sources or fixes computed from rssi.csv per role, see
-:mod:`blenav.eval.fixes`; ``results.json`` then has a ``fixes`` entry saying what each session used) and
-methods with ``score_fixes: ROLE`` (the role's fixes scored directly, Table 3.7's BLE-only rows).
+Methods that declare they want a trained model (:class:`~blenav.localizers.ModelConsumer`) get
+``model_path`` (``model_path=DIR``; without it they are skipped with the reason, and ``results.json`` has
+``model: {"path", "unavailable": {METHOD: reason}}``). Methods that weigh position fixes
+(:class:`~blenav.localizers.FixConsumer`) get them from the experiment's ``fixes`` block (named
+``fixes.csv`` sources or fixes computed from rssi.csv per role, see :mod:`blenav.eval.fixes`;
+``results.json`` then has a ``fixes`` entry saying what each session used), e.g. the BLE-only rows of
+Roy's Table 3.7 (:class:`~blenav.localizers.FixTrackLocalizer`). Methods with path-loss models that ask
+for calibration (:class:`~blenav.localizers.PathLossCalibrated`) get the fit of ``calibration``.
 
-``plan_error`` (:class:`~blenav.sim.plan_errors.PlanErrorConfig`; all zero by default) gives every method a
+``plan_error`` (:class:`~blenav.eval.plan_errors.PlanErrorConfig`; all zero by default) gives every method a
 wrong floor plan -- spurious barriers, a registration offset -- while the sessions are still scored against
 their ground truth; the wrong plans are written to ``OUT/plans/`` and ``results.json`` gets a
 ``plan_error`` entry (the settings and, per building and floor, the barriers drawn).
@@ -28,86 +37,104 @@ All methods are built (and so checked) before the first run: a misconfigured met
 
 from __future__ import annotations
 
-import json
 import logging
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from blenav.data import Dataset, DatasetError
-from blenav.filters.attitude import AttitudeConfig, misalignment_deg
-from blenav.filters.calibration import apply_fit, fit_sessions
-from blenav.filters.engine import FilterConfig
-from blenav.filters.map_prior import attach_prior
-from blenav.filters.runner import MapSpec, Method, MissingStream, RunResult, run_session
-from blenav.sim.plan_errors import PlanErrorConfig, perturb_building
+from blenav.filters.attitude import misalignment_deg
+from blenav.filters.calibration import fit_sessions
+from blenav.filters.runner import MissingStream
+from blenav.localizers import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext,
+                               build_localizer)
+from blenav.eval.plan_errors import PlanErrorConfig, perturb_building
 
-from .fixes import FixProvider, FixTrack
-
+from .common import EvalError, json_default, write_json
+from .fixes import FixProvider
 from .metrics import cdf_band, pool, session_metrics
 
 log = logging.getLogger("blenav.eval")
 
+__all__ = ["EvalError", "build_methods", "evaluate", "select_sessions", "calibrate", "run_method", "aggregate"]
 
-class EvalError(ValueError):
-    """A bad experiment, dataset or session selection, with a message that says what to fix."""
+_json_default = json_default  # the name other modules used before blenav.eval.common
 
 
-def build_methods(cfg: DictConfig) -> dict[str, Method]:
-    """Instantiate every method of ``cfg.methods`` (fails early on unknown keys or targets)."""
+# ------------------------------------------------------------------------------------------ build
+def shared_settings(cfg: DictConfig) -> DictConfig:
+    """The experiment-wide settings every localizer receives as ``shared``: ``filter`` and ``attitude``."""
+    return OmegaConf.create({"filter": cfg.get("filter") or {}, "attitude": cfg.get("attitude") or {}})
+
+
+def build_methods(cfg: DictConfig) -> dict[str, Localizer]:
+    """Every method of ``cfg.methods``, keyed by its label (fails early on unknown keys or targets)."""
     if "methods" not in cfg or not cfg.methods:
         raise EvalError("the experiment defines no methods")
+    shared = shared_settings(cfg)
     out = {}
-    fcfg = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(FilterConfig), cfg.filter))
-    att = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(AttitudeConfig), cfg.get("attitude", {})))
-    for key, m in cfg.methods.items():
-        label = str(m.get("label", key))
-        if m.get("score_fixes"):  # a BLE-only row: the role's fixes themselves (Roy, Table 3.7)
-            out[label] = FixTrack(label, str(m.score_fixes))
+    for key, node in cfg.methods.items():
+        if node is None:  # switched off by an override (methods.KEY=null)
             continue
-        out[label] = build_method(label, m, fcfg, att)
+        label = str(node.get("label", key))
+        try:
+            out[label] = build_localizer(label, node, shared)
+        except EvalError:
+            raise
+        except Exception as exc:  # hydra/omegaconf/our ValueError: name the method
+            msg = str(exc)
+            raise EvalError(msg if label in msg else f"method {label!r}: {msg}") from exc
     return out
 
 
-def build_method(label: str, m: DictConfig, fcfg: FilterConfig, att: AttitudeConfig) -> Method:
-    """One :class:`Method` from its config node (motion, measurements, map, filter overrides)."""
-    try:
-        motion = instantiate(m.motion)
-        meas = [instantiate(v) for v in (m.get("measurements") or {}).values()]
-        spec = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(MapSpec), m.get("map") or {}))
-        f = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(fcfg), m.get("filter") or {}))
-    except Exception as exc:  # hydra/omegaconf raise many types; name the method and re-raise ours
-        raise EvalError(f"method {label!r}: {exc}") from exc
-    return Method(label, f, motion, meas, spec, att)
-
-
 def model_path(cfg: DictConfig) -> str | None:
-    """The learned model's path, ``model_path`` (``model=DIR`` on the command line, see
+    """The learned model's path, ``model_path`` (``model_path=DIR`` on the command line; ``model=DIR`` is deprecated, see
     :func:`blenav.configs.cli_overrides`: ``model`` names the network config group)."""
     v = cfg.get("model_path")
     return str(v) if v else None
 
 
-def build_fix_provider(cfg: DictConfig, methods: dict, out: Path) -> FixProvider | None:
+def attach_models(methods: dict[str, Localizer], path: str | None) -> dict | None:
+    """Give every :class:`ModelConsumer` the model of ``path`` (each file loaded once); returns
+    ``{"path", "unavailable": {method: reason}}`` when a consumer cannot run, else None."""
+    loaded: dict = {}
+
+    def load(p: str, loader):
+        key = (p, loader)
+        if key not in loaded:
+            loaded[key] = loader(p)
+        return loaded[key]
+
+    unavailable = {}
+    for name, m in methods.items():
+        if isinstance(m, ModelConsumer):
+            reason = m.attach_model(path, load)
+            if reason:
+                unavailable[name] = reason
+    return {"path": path, "unavailable": unavailable} if unavailable else None
+
+
+def build_fix_provider(cfg: DictConfig, methods: dict[str, Localizer], out: Path) -> FixProvider | None:
     """The experiment's :class:`FixProvider` (``cfg.fixes``), or None when it has no ``fixes`` block."""
     fx = cfg.get("fixes")
     if fx is None:
         return None
     roles = {r: fx.get(r) for r in ("dense", "sparse") if r in fx}
-    used = {m.role for m in methods.values() if isinstance(m, FixTrack)}
-    used |= {getattr(x, "role", None) for m in methods.values() for x in m.measurements} - {None}
+    used = set().union(*[m.fix_roles() for m in methods.values() if isinstance(m, FixConsumer)])
     missing = used - set(roles)
     if missing:
         raise EvalError(f"methods use fix role(s) {sorted(missing)} that the experiment's fixes block does not define")
     localizers = {}
     if fx.get("compute") is not None:
-        fcfg = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(FilterConfig), cfg.filter))
-        att = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(AttitudeConfig), cfg.get("attitude", {})))
+        shared = shared_settings(cfg)
         for r in roles:
-            localizers[r] = build_method(f"BLE fixes ({r})", fx.compute, fcfg, att)
+            label = f"BLE fixes ({r})"
+            try:
+                localizers[r] = build_localizer(label, fx.compute, shared)
+            except Exception as exc:
+                raise EvalError(f"fixes.compute: {exc}") from exc
     sb = fx.get("sparse_beacons", 4)
     sb = int(sb) if isinstance(sb, (int, float)) else [str(b) for b in sb]
     try:
@@ -117,6 +144,7 @@ def build_fix_provider(cfg: DictConfig, methods: dict, out: Path) -> FixProvider
         raise EvalError(str(exc)) from exc
 
 
+# ------------------------------------------------------------------------------------------ select
 def check_session_in_building(s) -> None:
     """A session whose ground truth lies mostly off its building's floor plan names the wrong building."""
     gt = s.groundtruth
@@ -130,6 +158,8 @@ def check_session_in_building(s) -> None:
 
 
 def select_sessions(ds: Dataset, ids, exclude: set = frozenset()) -> list:
+    """``ids`` (labelled sessions), or every labelled session not in ``exclude``: the moving ones, or the
+    static surveys when there is nothing else."""
     if ids:
         wanted = [str(i) for i in (ids if not isinstance(ids, str) else ids.split(","))]
         unknown = [i for i in wanted if i not in ds.session_ids]
@@ -145,35 +175,6 @@ def select_sessions(ds: Dataset, ids, exclude: set = frozenset()) -> list:
         raise EvalError(f"{ds.root} has no labelled session to evaluate")
     moving = [s for s in sessions if s.carrier != "static"]
     return moving or sessions  # static surveys are calibration data unless they are all there is
-
-
-def calibrate(methods: dict[str, Method], ds: Dataset, sessions: list, spec) -> dict | None:
-    """Fit a_X and gamma for measurement models with ``calibrated: true``.
-
-    ``spec``: 'none' (keep the configured, paper values), 'auto' (labelled static survey sessions of the
-    dataset that are not evaluated, else the evaluated sessions themselves: two parameters, said in the
-    results), or a list of session ids.
-    """
-    wanted = [m for meth in methods.values() for m in meth.measurements if getattr(m, "calibrated", False)]
-    if not wanted or spec in (None, "none"):
-        return None
-    evaluated = {s.id for s in sessions}
-    if spec == "auto":
-        cal = [s for s in ds.sessions(labelled=True) if s.carrier == "static" and s.id not in evaluated]
-        note = "fitted on the dataset's labelled static survey sessions (not evaluated)"
-        if not cal:
-            cal = sessions
-            note = "no separate survey session: fitted on the evaluated sessions' own readings (2 parameters)"
-    else:
-        cal = select_sessions(ds, [str(i) for i in spec])
-        note = f"fitted on session(s) {', '.join(str(i) for i in spec)} (named by calibration, not evaluated)"
-    if not any(s.has("rssi") for s in cal):  # an inertial-only dataset: the radio methods will be skipped anyway
-        log.warning("no RSSI readings to calibrate the path-loss model on: configured values kept")
-        return None
-    fit = fit_sessions(cal)
-    for meth in methods.values():
-        apply_fit(meth.measurements, fit)
-    return {**fit.as_dict(), "note": note}
 
 
 def plan_error_config(cfg: DictConfig) -> PlanErrorConfig:
@@ -195,24 +196,137 @@ def with_wrong_plans(sessions: list, pe: PlanErrorConfig, out_dir: Path) -> tupl
     return [s.with_building(wrong[s.building.id]) for s in sessions], info
 
 
+def open_dataset(cfg: DictConfig) -> Dataset:
+    try:
+        return Dataset.open(cfg.data.path)
+    except DatasetError as exc:
+        raise EvalError(f"cannot open dataset {cfg.data.path}: {exc}") from exc
+
+
+def scored_sessions(cfg: DictConfig, ds: Dataset) -> tuple[list, object]:
+    """The sessions to score and the calibration spec (``calibration``: its sessions are not scored); every
+    session is checked to lie in its building."""
+    cal_spec = cfg.get("calibration", "auto")
+    exclude = set(cal_spec) if not isinstance(cal_spec, str) and cal_spec is not None else set()
+    sessions = select_sessions(ds, cfg.get("sessions"), exclude=exclude)
+    for s in sessions:
+        check_session_in_building(s)
+    return sessions, cal_spec
+
+
+# ------------------------------------------------------------------------------------------ calibrate
+def calibrate(methods: dict[str, Localizer], ds: Dataset, sessions: list, spec) -> dict | None:
+    """Fit a_X and gamma for the methods that ask for it (:class:`PathLossCalibrated`).
+
+    ``spec``: 'none' (keep the configured, paper values), 'auto' (labelled static survey sessions of the
+    dataset that are not evaluated, else the evaluated sessions themselves: two parameters, said in the
+    results), or a list of session ids.
+    """
+    wanted = [m for m in methods.values() if isinstance(m, PathLossCalibrated) and m.wants_path_loss_fit()]
+    if not wanted or spec in (None, "none"):
+        return None
+    evaluated = {s.id for s in sessions}
+    if spec == "auto":
+        cal = [s for s in ds.sessions(labelled=True) if s.carrier == "static" and s.id not in evaluated]
+        note = "fitted on the dataset's labelled static survey sessions (not evaluated)"
+        if not cal:
+            cal = sessions
+            note = "no separate survey session: fitted on the evaluated sessions' own readings (2 parameters)"
+    else:
+        cal = select_sessions(ds, [str(i) for i in spec])
+        note = f"fitted on session(s) {', '.join(str(i) for i in spec)} (named by calibration, not evaluated)"
+    if not any(s.has("rssi") for s in cal):  # an inertial-only dataset: the radio methods will be skipped anyway
+        log.warning("no RSSI readings to calibrate the path-loss model on: configured values kept")
+        return None
+    fit = fit_sessions(cal)
+    for m in wanted:
+        m.apply_path_loss_fit(fit)
+    return {**fit.as_dict(), "note": note}
+
+
+# ------------------------------------------------------------------------------------------ run
 @dataclass
 class MethodOutcome:
-    results: dict  # session id -> RunResult
-    metrics: dict  # session id -> metrics
+    """One method on every session: its estimates and metrics per session id, and the sessions it could
+    not run on (id -> reason)."""
+
+    results: dict = field(default_factory=dict)  # session id -> Estimate
+    metrics: dict = field(default_factory=dict)  # session id -> metrics
+    skipped: dict = field(default_factory=dict)
 
 
-def orientation_rmse(res: RunResult, session) -> float | None:
+def orientation_rmse(est: Estimate, session) -> float | None:
+    """RMSE (deg) of the method's AHRS orientation (``outputs["attitude"]``) against the ground truth's, or
+    None when either is absent."""
+    att = est.outputs.get("attitude")
     gt = session.groundtruth
-    if res.q_imu is None or gt[["qw", "qx", "qy", "qz"]].isna().all().all():
+    if att is None or gt[["qw", "qx", "qy", "qz"]].isna().all().all():
         return None
+    imu_t, q = np.asarray(att["t"]), np.asarray(att["q"])
     gq = gt[["qw", "qx", "qy", "qz"]].to_numpy()
     gt_t = gt["t"].to_numpy()
-    idx = np.clip(np.searchsorted(res.imu_t, gt_t), 0, len(res.imu_t) - 1)
-    ok = (gt_t >= res.imu_t[0]) & (gt_t <= res.imu_t[-1])
-    ang = misalignment_deg(res.q_imu[idx[ok]], gq[ok])
+    idx = np.clip(np.searchsorted(imu_t, gt_t), 0, len(imu_t) - 1)
+    ok = (gt_t >= imu_t[0]) & (gt_t <= imu_t[-1])
+    ang = misalignment_deg(q[idx[ok]], gq[ok])
     return float(np.sqrt(np.mean(ang**2)))
 
 
+def session_seed(seed: int, index: int) -> int:
+    """The seed of the ``index``-th session: the same random stream for every method."""
+    return int(seed) * 1_000_003 + 1000 * index
+
+
+def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: int, init_s: float, ctx: RunContext,
+               progress) -> MethodOutcome:
+    """``method`` on every session (R runs each), scored against the ground truth; sessions where it cannot
+    run (:class:`MissingStream`) are skipped with the reason, other errors name the method and session."""
+    oc = MethodOutcome()
+    for si, s in enumerate(sessions):
+        try:
+            est = method.run(s, runs, session_seed(seed, si), ctx)
+        except MissingStream as exc:  # e.g. no IMU in a fixed-receiver recording: skip, and say so
+            oc.skipped[s.id] = str(exc)
+            log.warning("skipping %s on %s: %s", name, s.id, exc)
+            progress(f"{name} / {s.id} (skipped)")
+            continue
+        except (ValueError, DatasetError) as exc:
+            raise EvalError(f"method {name}, session {s.id}: {exc}") from exc
+        gt = s.groundtruth
+        m = session_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), init_s)
+        o = orientation_rmse(est, s)
+        if o is not None:
+            m["orientation_rmse_deg"] = o
+        m["wall_s"] = est.wall_s
+        m["recoveries"] = len(est.events)
+        oc.metrics[s.id], oc.results[s.id] = m, est
+        progress(f"{name} / {s.id}")
+    return oc
+
+
+# ------------------------------------------------------------------------------------------ aggregate
+def aggregate(oc: MethodOutcome, runs: int) -> dict:
+    """The results.json entry of one method: pooled metrics, timing, recoveries, notes, per session."""
+    if not oc.metrics:
+        return {"skipped": oc.skipped}
+    agg = pool(oc.metrics)
+    if oc.skipped:
+        agg["skipped"] = oc.skipped
+    ests = list(oc.results.values())
+    wall = sum(e.wall_s for e in ests)
+    duration = sum(float(e.t[-1] - e.t[0]) for e in ests)
+    notes: list[str] = []
+    for e in ests:
+        notes += [n for n in e.notes if n not in notes]
+    agg.update({"wall_s": wall, "realtime_factor": duration * runs / max(wall, 1e-9),
+                "recoveries": sum(len(e.events) for e in ests), "map_notes": notes})
+    orient = [m["orientation_rmse_deg"] for m in oc.metrics.values() if "orientation_rmse_deg" in m]
+    if orient:
+        agg["orientation_rmse_deg"] = float(np.mean(orient))
+    agg["per_session"] = {k: {kk: vv for kk, vv in v.items() if kk != "_runs"} for k, v in oc.metrics.items()}
+    return agg
+
+
+# ------------------------------------------------------------------------------------------ evaluate
 def evaluate(cfg: DictConfig) -> dict:
     """Run the experiment of ``cfg`` and write its outputs; returns the results dictionary.
 
@@ -225,17 +339,10 @@ def evaluate(cfg: DictConfig) -> dict:
         from .crossphone import evaluate_crossphone
 
         return evaluate_crossphone(cfg)
-    try:
-        ds = Dataset.open(cfg.data.path)
-    except DatasetError as exc:
-        raise EvalError(f"cannot open dataset {cfg.data.path}: {exc}") from exc
+    ds = open_dataset(cfg)
     methods = build_methods(cfg)
-    reason = attach_prior([x for m in methods.values() for x in m.measurements], model_path(cfg))
-    cal_spec = cfg.get("calibration", "auto")
-    exclude = set(cal_spec) if not isinstance(cal_spec, str) and cal_spec is not None else set()
-    sessions = select_sessions(ds, cfg.get("sessions"), exclude=exclude)
-    for s in sessions:
-        check_session_in_building(s)
+    model_info = attach_models(methods, model_path(cfg))
+    sessions, cal_spec = scored_sessions(cfg, ds)
     plan_error = plan_error_config(cfg)
     runs = int(cfg.runs)
     if runs < 1:
@@ -247,77 +354,35 @@ def evaluate(cfg: DictConfig) -> dict:
     provider = build_fix_provider(cfg, methods, out)
     calibration = calibrate({**methods, **(provider.methods if provider else {})}, ds, sessions, cal_spec)
     out.mkdir(parents=True, exist_ok=True)
-    progress = _progress(bool(cfg.get("progress", False)), len(methods) * len(sessions))
-    outcomes: dict[str, MethodOutcome] = {}
-    cache: dict = {}  # map geometry per floor, AHRS per session: shared by all methods
     results = {"experiment": cfg.experiment.name, "title": cfg.experiment.get("title", ""), "dataset": str(ds.root),
                "runs": runs, "sessions": [s.id for s in sessions], "init_s": float(cfg.init_s), "seed": int(cfg.seed),
                "calibration": calibration, "methods": {}}
-    if reason:
-        results["map_prior"] = reason
+    if model_info:
+        results["model"] = model_info
     if plan_info is not None:
         results["plan_error"] = {**asdict(plan_error), "buildings": plan_info}
+    ctx = RunContext(cache={}, fixes=provider, out=out)  # map geometry per floor, AHRS per session: shared
+    progress = _progress(bool(cfg.get("progress", False)), len(methods) * len(sessions))
+    outcomes: dict[str, MethodOutcome] = {}
     for name, method in methods.items():
-        per, res_by = {}, {}
-        wall = 0.0
-        duration = 0.0
-        orient = []
-        notes: list[str] = []
-        recoveries = 0
-        skipped = {}
-        for si, s in enumerate(sessions):
-            seed = int(cfg.seed) * 1_000_003 + 1000 * si  # the same random stream for every method
-            try:
-                if isinstance(method, FixTrack):
-                    if provider is None:
-                        raise EvalError(f"method {name} scores fixes but the experiment has no fixes block")
-                    res = method.run(s, runs, provider)
-                else:
-                    extra = provider.prepare(method, s) if provider is not None else None
-                    res = run_session(method, s, runs, seed, cache=cache, fixes=extra)
-            except MissingStream as exc:  # e.g. no IMU in a fixed-receiver recording: skip, and say so
-                skipped[s.id] = str(exc)
-                log.warning("skipping %s on %s: %s", name, s.id, exc)
-                progress(f"{name} / {s.id} (skipped)")
-                continue
-            except (ValueError, DatasetError) as exc:
-                raise EvalError(f"method {name}, session {s.id}: {exc}") from exc
-            gt = s.groundtruth
-            m = session_metrics(res.t, res.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), float(cfg.init_s))
-            o = orientation_rmse(res, s)
-            if o is not None:
-                m["orientation_rmse_deg"] = o
-                orient.append(o)
-            m["wall_s"] = res.wall_s
-            m["recoveries"] = len(res.events)
-            per[s.id], res_by[s.id] = m, res
-            wall += res.wall_s
-            duration += float(res.t[-1] - res.t[0])
-            recoveries += len(res.events)
-            notes += [n for n in res.map_notes if n not in notes]
-            progress(f"{name} / {s.id}")
-        if not per:
-            results["methods"][name] = {"skipped": skipped}
-            continue
-        agg = pool(per)
-        if skipped:
-            agg["skipped"] = skipped
-        agg.update({"wall_s": wall, "realtime_factor": duration * runs / max(wall, 1e-9), "recoveries": recoveries,
-                    "map_notes": notes})
-        if orient:
-            agg["orientation_rmse_deg"] = float(np.mean(orient))
-        agg["per_session"] = {k: {kk: vv for kk, vv in v.items() if kk != "_runs"} for k, v in per.items()}
-        results["methods"][name] = agg
-        outcomes[name] = MethodOutcome(res_by, per)
+        oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress)
+        results["methods"][name] = aggregate(oc, runs)
+        if oc.metrics:
+            outcomes[name] = oc
     if provider is not None:
         results["fixes"] = provider.describe()
-    (out / "results.json").write_text(json.dumps(results, indent=1, default=_json_default), encoding="utf-8")
+    write_outputs(out, results, outcomes, sessions, cfg)
+    return results
+
+
+def write_outputs(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions, cfg: DictConfig) -> None:
+    """results.json, results.md and (unless ``plots=false``) the plots."""
+    write_json(out / "results.json", results)
     from .report import write_markdown
 
     write_markdown(out / "results.md", results, cfg)
     if cfg.get("plots", True):
         _plots(out, results, outcomes, sessions)
-    return results
 
 
 def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions) -> None:
@@ -358,11 +423,3 @@ def _progress(enabled: bool, total: int):
         bar.update(1)
 
     return tick
-
-
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o)}")

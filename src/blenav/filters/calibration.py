@@ -47,6 +47,6 @@ def fit_sessions(sessions) -> PathLossFit:
 def apply_fit(models: list, fit: PathLossFit) -> None:
     """Give every measurement model that asks for calibration (``calibrated=True``) the fitted parameters."""
     for m in models:
-        if getattr(m, "calibrated", False):
+        if m.calibrated:
             m.a_x, m.gamma, m.d0 = fit.a_x, fit.gamma, fit.d0
             m.use_anchor_tx_power = False

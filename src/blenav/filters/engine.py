@@ -4,25 +4,26 @@ One :class:`ParticleFilter` holds R independent runs of N particles each (state 
 them together through one session: all runs see the same observations and draw their own random
 numbers from one explicit ``numpy.random.Generator``. A step:
 
-1. ``propagate``: the motion model moves every particle (proposal); with a ``walls`` component, each
-   step is tested for crossing an obstacle. The obstacle re-initialisation rule of Roy (section 3.2),
-   when enabled (``reinit_fraction`` not None): a run in which more than ``reinit_fraction``
-   (s_reinit = 0.9) of the particles crossed an obstacle on this step is re-initialised uniformly over
-   the free space within ``reinit_radius_m`` (r_reinit = 5 m) of its last estimate (positions only: the
-   other state columns, e.g. the odometry frame angle, are kept), with uniform weights, and recorded as
-   a ``reinit-obstacles`` event; the step's measurements then weigh the new particles;
-2. ``reweight``: log-weights += sum of the measurement models' log-likelihoods (+ wall-crossing
-   penalty, unless the walls only serve the re-initialisation); non-finite log-weights become -inf;
+1. ``propagate``: the motion model moves every particle (proposal); then every ``constraint`` component
+   sees the move (:class:`Constraint`: e.g. :class:`~blenav.filters.constraints.ObstacleRules`, the
+   wall-crossing penalty and Roy's re-initialisation on obstacles) and may re-initialise runs and return
+   a log-weight term for each particle;
+2. ``reweight``: log-weights += sum of the measurement models' log-likelihoods + the constraints' terms;
+   non-finite log-weights become -inf;
 3. ``recover``: a run whose weights all vanished, or whose best particle explains the observations
    worse than ``divergence_sigma`` standard deviations per observation for ``patience_s``, is
    re-initialised around its last estimate (``local_sigma_m``), and globally (the initialiser) if it
    diverges again within ``global_after_s``; each recovery is recorded as an event. Only models with
-   ``divergence_check`` (default True) count: a map-prior score is not a residual;
+   ``divergence_check`` count: a map-prior score is not a residual;
 4. ``estimate``: weighted mean and covariance (and, if asked, the median particle: the particle closest
    to the coordinate-wise weighted median, Roy's estimate, always a particle so never inside an
    obstacle the cloud avoids);
 5. ``resample`` the runs whose effective sample size n_eff = 1 / sum w^2 fell below
    ``ess_threshold * N``, then let the map component condition the new particles (Patel et al. eq. 4-5).
+
+The components' interfaces are declared: :class:`~blenav.filters.motion.MotionModel`,
+:class:`~blenav.filters.measurement.MeasurementModel`, :class:`Initializer`, :class:`Constraint`; the
+engine calls them without probing for optional methods.
 
 Weights stay in log space; normalisation subtracts the row maximum first.
 """
@@ -30,11 +31,29 @@ Weights stay in log space; normalisation subtracts the row maximum first.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Optional
 
 import numpy as np
 
 from .resampling import ess, get_scheme, log_normalise
+
+
+class Resampling(StrEnum):
+    """``filter.resampling``: the schemes of :mod:`blenav.filters.resampling`, by the same names."""
+
+    systematic = "systematic"
+    stratified = "stratified"
+    multinomial = "multinomial"
+    residual = "residual"
+    low_variance = "low_variance"
+
+
+class Estimate(StrEnum):
+    """``filter.estimate``: the weighted mean, or the particle nearest the weighted median (Roy)."""
+
+    mean = "mean"
+    median = "median"
 
 
 @dataclass
@@ -43,17 +62,19 @@ class FilterConfig:
 
     n_particles: int = 300
     rate_hz: float = 10.0
-    resampling: str = "systematic"
+    resampling: Resampling = Resampling.systematic
     ess_threshold: float = 0.2  # fraction of N: 000 uses n_thr = 60 of 300
-    estimate: str = "mean"  # mean | median
+    estimate: Estimate = Estimate.mean
     divergence_sigma: float = 4.0
     patience_s: float = 3.0
     local_sigma_m: float = 3.0
     global_after_s: float = 10.0
-    wall_log_penalty: float = -np.inf  # log-weight added to a particle whose step crossed a wall
+    # Settings of the obstacle rules (blenav.filters.constraints.ObstacleRules, built by the runner when the
+    # method asks for them; the engine itself does not read these three):
+    wall_log_penalty: float = -np.inf  # log-weight added to a particle whose step crossed a wall (map.walls)
     # Roy section 3.2: re-initialise a run when more than reinit_fraction (s_reinit) of its particles crossed an
     # obstacle on one step, uniformly over free space within reinit_radius_m (r_reinit) of the last estimate.
-    # None disables the rule; it needs a walls component (map.walls, or added for the rule alone by the runner).
+    # None disables the rule.
     reinit_fraction: Optional[float] = None
     reinit_radius_m: float = 5.0
 
@@ -77,36 +98,66 @@ class StepResult:
     resampled: np.ndarray
 
 
-class ParticleFilter:
-    """SIR filter over R runs. Components are duck-typed:
+class Initializer:
+    """Where particles start, and where runs restart: the engine's initializer interface.
 
-    * ``motion``: ``init_state(xy, rng)``, ``propagate(x, ctrl, dt, rng)``, ``state_dim``;
-    * ``measurements``: list of objects with ``log_likelihood(xy, obs) -> (R, N)`` and ``n_obs(obs)``;
-      optional attributes: ``observe(obs)`` (called every step before ``n_obs``, for models that keep a
-      history, e.g. an odometry window), ``wants_state = True`` (``log_likelihood`` receives the full
-      state (R, N, D) instead of the positions), ``divergence_check = False`` (not used by the
-      divergence test of ``recover``);
-    * ``initializer``: ``sample(rng, R, N) -> (R, N, 2)`` (uniform over free space, or map-aware);
-      optional ``adjust_state(x, rng) -> x`` applied after ``motion.init_state`` at initialisation (e.g. a
-      known odometry frame angle) and ``sample_within(rng, centres (M, 2), N, radius) -> (M, N, 2)``
-      (free space within a radius, for the obstacle re-initialisation; without it the disc is not
-      restricted to free space);
-    * ``conditioner`` (optional): ``condition(xy, rng, mask) -> xy`` applied to the new copies made by resampling;
-    * ``walls`` (optional): ``crossed(xy_prev, xy_new) -> bool (R, N)``; ``penalise_walls`` (default True)
-      adds ``wall_log_penalty`` to the crossing particles (False: walls only feed the re-initialisation rule).
+    ``sample(rng, R, N) -> (R, N, 2)`` world m must be implemented (uniform over free space, or map-aware);
+    the others have defaults: ``adjust_state(x, rng) -> x`` after ``motion.init_state`` at initialisation
+    (e.g. a known odometry frame angle; default: unchanged), ``sample_within(rng, centres (M, 2), N, radius)
+    -> (M, N, 2)`` (free space within a radius, for the obstacle re-initialisation; default: the disc,
+    free space unknown), ``snap_free(xy) -> xy`` (move points into free space; default: unchanged).
     """
 
-    def __init__(self, cfg: FilterConfig, motion, measurements: list, initializer, rng: np.random.Generator,
-                 n_runs: int = 1, conditioner=None, walls=None, penalise_walls: bool = True):
+    def sample(self, rng: np.random.Generator, R: int, N: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def adjust_state(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return x
+
+    def sample_within(self, rng: np.random.Generator, centres: np.ndarray, N: int, radius: float) -> np.ndarray:
+        """Uniform in the disc of ``radius`` m around each centre (sqrt of a uniform radius)."""
+        M = len(centres)
+        rad = radius * np.sqrt(rng.random((M, N)))
+        ang = rng.uniform(-np.pi, np.pi, (M, N))
+        return centres[:, None, :] + np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=-1)
+
+    def snap_free(self, xy: np.ndarray) -> np.ndarray:
+        return xy
+
+
+class Constraint:
+    """A problem-specific rule the engine applies after every propagation (e.g. walls).
+
+    ``after_propagate(pf, t, xy_prev) -> (R, N) log-weight term or None``: ``xy_prev`` (R, N, 2) are the
+    positions before the move, ``pf.x`` the state after it; the component may re-initialise runs of ``pf``
+    (state, log-weights, ``pf.events``). The term is added to the step's log-likelihood after the
+    measurement models."""
+
+    def after_propagate(self, pf: "ParticleFilter", t: float, xy_prev: np.ndarray) -> np.ndarray | None:
+        raise NotImplementedError
+
+
+class ParticleFilter:
+    """SIR filter over R runs, from declared components:
+
+    * ``motion``: a :class:`~blenav.filters.motion.MotionModel`;
+    * ``measurements``: :class:`~blenav.filters.measurement.MeasurementModel` objects;
+    * ``initializer``: an :class:`Initializer`;
+    * ``conditioner`` (optional): ``condition(xy, rng, mask) -> xy`` applied to the new copies made by resampling;
+    * ``constraints``: :class:`Constraint` components (walls, obstacle re-initialisation).
+
+    Public state for components: ``x`` (R, N, D), ``logw`` (R, N), ``rng``, ``events``, ``last_est`` (R, 2)
+    (the previous step's estimates, NaN before the first), ``R``, ``N``.
+    """
+
+    def __init__(self, cfg: FilterConfig, motion, measurements: list, initializer: Initializer,
+                 rng: np.random.Generator, n_runs: int = 1, conditioner=None, constraints=()):
         self.cfg = cfg
         self.motion = motion
         self.measurements = list(measurements)
         self.initializer = initializer
         self.conditioner = conditioner
-        self.walls = walls
-        self.penalise_walls = bool(penalise_walls)
-        if cfg.reinit_fraction is not None and not 0.0 <= cfg.reinit_fraction < 1.0:
-            raise ValueError(f"filter.reinit_fraction must be in [0, 1) or null, got {cfg.reinit_fraction!r}")
+        self.constraints = list(constraints)
         self.rng = rng
         self.R, self.N = int(n_runs), int(cfg.n_particles)
         self.resample_fn = get_scheme(cfg.resampling)
@@ -118,46 +169,43 @@ class ParticleFilter:
         self.t = 0.0
         self._bad_since = np.full(self.R, np.nan)
         self._last_local = np.full(self.R, -np.inf)
-        self._last_est = np.full((self.R, 2), np.nan)
+        self.last_est = np.full((self.R, 2), np.nan)
 
     # ------------------------------------------------------------------ phases
     def initialize(self, t0: float = 0.0) -> None:
         self.t = t0
         xy = self.initializer.sample(self.rng, self.R, self.N)
-        self.x = self.motion.init_state(xy, self.rng)
-        if hasattr(self.initializer, "adjust_state"):
-            self.x = self.initializer.adjust_state(self.x, self.rng)
+        self.x = self.initializer.adjust_state(self.motion.init_state(xy, self.rng), self.rng)
         self.logw = np.full((self.R, self.N), -np.log(self.N))
 
     def step(self, t: float, ctrl: dict, obs: dict) -> StepResult:
         dt = max(t - self.t, 1e-6)
         xy_prev = self.x[..., :2].copy()
         self.x = self.motion.propagate(self.x, ctrl, dt, self.rng)
-        crossed = None
-        if self.walls is not None:
-            crossed = self.walls.crossed(xy_prev, self.x[..., :2])
-            if self.cfg.reinit_fraction is not None:
-                crossed = self._reinit_obstacles(t, xy_prev, crossed)
+        penalty = None  # the constraints' log-weight terms (R, N)
+        for c in self.constraints:
+            term = c.after_propagate(self, t, xy_prev)
+            if term is not None:
+                penalty = term if penalty is None else penalty + term
         loglik = np.zeros((self.R, self.N))
         loglik_div = None  # the part the divergence test sees (None: all of loglik)
         n_obs = 0
         for m in self.measurements:
-            if hasattr(m, "observe"):
-                m.observe(obs)
+            m.observe(obs)
             k = m.n_obs(obs)
             if k:
-                ll = m.log_likelihood(self.x if getattr(m, "wants_state", False) else self.x[..., :2], obs)
-                if getattr(m, "divergence_check", True):
+                ll = m.log_likelihood(self.x if m.wants_state else self.x[..., :2], obs)
+                if m.divergence_check:
                     n_obs += k
                     if loglik_div is not None:
                         loglik_div = loglik_div + ll
                 elif loglik_div is None:
                     loglik_div = loglik.copy()
                 loglik += ll
-        if crossed is not None and self.penalise_walls:
-            loglik = np.where(crossed, loglik + self.cfg.wall_log_penalty, loglik)
+        if penalty is not None:
+            loglik = loglik + penalty
             if loglik_div is not None:
-                loglik_div = np.where(crossed, loglik_div + self.cfg.wall_log_penalty, loglik_div)
+                loglik_div = loglik_div + penalty
         self.logw = self.logw + loglik
         self.logw[~np.isfinite(self.logw)] = -np.inf
         self.t = t
@@ -168,7 +216,7 @@ class ParticleFilter:
         resample = n_eff < self.cfg.ess_threshold * self.N
         if resample.any():
             self._resample(np.flatnonzero(resample), w)
-        self._last_est = pos
+        self.last_est = pos
         return StepResult(t, pos, cov, n_eff, resample)
 
     # ------------------------------------------------------------------ helpers
@@ -192,37 +240,6 @@ class ParticleFilter:
             # generated around the strong particle and conditioned on the map; one copy of each survivor stays
             self.x[runs, :, :2] = self.conditioner.condition(self.x[runs, :, :2], self.rng, mask=_duplicates(idx))
 
-    def _reinit_obstacles(self, t: float, xy_prev: np.ndarray, crossed: np.ndarray) -> np.ndarray:
-        """Roy's re-initialisation (section 3.2): runs where more than ``reinit_fraction`` of the particles
-        crossed an obstacle on this step get N new positions uniform over the free space within
-        ``reinit_radius_m`` of the run's last estimate (of the previous step; before the first estimate, the
-        mean of the previous positions) and uniform weights. Returns ``crossed`` (R, N) with those runs'
-        rows cleared (the new particles did not move through anything)."""
-        frac = crossed.mean(axis=1)
-        redo = np.flatnonzero(frac > self.cfg.reinit_fraction)
-        if len(redo) == 0:
-            return crossed
-        centre = self._last_est[redo].copy()
-        unknown = ~np.isfinite(centre[:, 0])
-        if unknown.any():
-            centre[unknown] = xy_prev[redo[unknown]].mean(axis=1)
-        r = float(self.cfg.reinit_radius_m)
-        if hasattr(self.initializer, "sample_within"):
-            xy = self.initializer.sample_within(self.rng, centre, self.N, r)
-        else:  # uniform in the disc (sqrt of a uniform radius), free space unknown
-            rad = r * np.sqrt(self.rng.random((len(redo), self.N)))
-            ang = self.rng.uniform(-np.pi, np.pi, (len(redo), self.N))
-            xy = centre[:, None, :] + np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=-1)
-        self.x[redo, :, :2] = xy
-        self.logw[redo] = -np.log(self.N)
-        for run, f in zip(redo, frac[redo]):
-            self.events.append(Event(t, int(run), "reinit-obstacles",
-                                     f"{f:.0%} of the particles crossed an obstacle (> {self.cfg.reinit_fraction:.0%}): "
-                                     f"re-initialised within {r:g} m of the last estimate"))
-        crossed = crossed.copy()
-        crossed[redo] = False
-        return crossed
-
     def _recover(self, t: float, loglik: np.ndarray, n_obs: int) -> None:
         """Re-initialise runs whose weights vanished or whose cloud no longer explains the data."""
         dead = ~np.isfinite(self.logw).any(axis=1)
@@ -234,15 +251,13 @@ class ParticleFilter:
         redo = np.flatnonzero(dead | diverged)
         if len(redo) == 0:
             return
-        go_global = (t - self._last_local[redo] < self.cfg.global_after_s) | ~np.isfinite(self._last_est[redo, 0])
+        go_global = (t - self._last_local[redo] < self.cfg.global_after_s) | ~np.isfinite(self.last_est[redo, 0])
         xy = self.initializer.sample(self.rng, len(redo), self.N)
         local = redo[~go_global]
         if len(local):
-            centre = self._last_est[local][:, None, :]
+            centre = self.last_est[local][:, None, :]
             xy_local = centre + self.cfg.local_sigma_m * self.rng.standard_normal((len(local), self.N, 2))
-            if hasattr(self.initializer, "snap_free"):
-                xy_local = self.initializer.snap_free(xy_local)
-            xy[~go_global] = xy_local
+            xy[~go_global] = self.initializer.snap_free(xy_local)
         self.x[redo] = self.motion.init_state(xy, self.rng)
         self.logw[redo] = -np.log(self.N)
         for r, g, was_dead in zip(redo, go_global, dead[redo]):

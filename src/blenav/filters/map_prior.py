@@ -56,25 +56,15 @@ from __future__ import annotations
 import logging
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Optional, Protocol
+from typing import Any, Optional
 
 import numpy as np
+
+from .measurement import MeasurementModel
 
 log = logging.getLogger("blenav.filters.map_prior")
 
 LOG_1E6 = float(np.log(1e-6))
-
-
-class MapPriorProtocol(Protocol):
-    """What :class:`MapPriorLikelihood` needs from a map prior (see the module docstring)."""
-
-    window_steps: int
-
-    def bind(self, floor) -> None: ...
-
-    def dtv(self, odo: np.ndarray) -> np.ndarray: ...
-
-    def log_score_at(self, xy: np.ndarray, dtv: np.ndarray) -> np.ndarray: ...
 
 
 def heading_bins(theta: np.ndarray, k: int) -> np.ndarray:
@@ -92,11 +82,11 @@ def rotated_windows(window: np.ndarray, k: int) -> np.ndarray:
 
 
 @dataclass
-class MapPriorLikelihood:
+class MapPriorLikelihood(MeasurementModel):
     """Roy's map prior score as a measurement: log-weight += weight * log S(x | M, O) (eq. 3.8, Roy).
 
     ``prior``: an object of the protocol above (None: the method cannot run; :func:`attach_prior` sets it
-    from ``model=``). ``heading_bins``: K. ``window_dt_s``: spacing of the window's samples (s; None: 1 /
+    from ``model_path=``). ``heading_bins``: K. ``window_dt_s``: spacing of the window's samples (s; None: 1 /
     the prior's ``step_hz``, or 1 s).
     ``weight``: exponent on the score (1: the score is the likelihood, as in Roy). ``min_log_score``: the
     floor of log S. ``theta``: frame angle (rad) for motion models without one.
@@ -130,7 +120,7 @@ class MapPriorLikelihood:
         """Why the model cannot run (no prior), or None; the runner turns it into a skipped method."""
         if self.prior is not None:
             return None
-        return self.unavailable or ("no learned map prior was given: pass model=DIR (a trained map prior network, "
+        return self.unavailable or ("no learned map prior was given: pass model_path=DIR (a trained map prior network, "
                                     "loaded by blenav.runtime.map_prior.MapPrior)")
 
     def bind(self, anchors) -> None:
@@ -147,7 +137,7 @@ class MapPriorLikelihood:
 
     def bind_motion(self, motion) -> None:
         """Read the particles' odometry frame angle from the motion model's state column, if it has one."""
-        self.frame_angle_col = getattr(motion, "frame_angle_col", None)
+        self.frame_angle_col = motion.frame_angle_col
 
     @property
     def n(self) -> int:
@@ -219,8 +209,9 @@ class MapPriorLikelihood:
 
 # ------------------------------------------------------------------------------------------ loading
 def load_prior(path: str):
-    """The learned prior of ``path`` (``blenav.runtime.map_prior.MapPrior``); ImportError when that runtime
-    is not installed in this tree."""
+    """The learned prior of the export directory ``path`` (``blenav.runtime.map_prior.MapPrior``, onnxruntime;
+    a checkpoint needs the PyTorch loader from ``blenav.learn``: pass ``loader=`` to :func:`attach_prior`);
+    ImportError when that runtime is not installed in this tree."""
     from blenav.runtime.map_prior import MapPrior  # noqa: PLC0415 (optional: another part of the project)
 
     return MapPrior(str(path))
@@ -240,13 +231,13 @@ def attach_prior(models, path: str | None, loader=None) -> str | None:
     reason = None
     prior = None
     if not path:
-        reason = ("no learned map prior was given: pass model=DIR (a trained map prior network, loaded by "
+        reason = ("no learned map prior was given: pass model_path=DIR (a trained map prior network, loaded by "
                   "blenav.runtime.map_prior.MapPrior)")
     else:
         try:
             prior = (loader or load_prior)(path)
         except ImportError as exc:
-            reason = f"model={path} was given but blenav.runtime.map_prior cannot be imported ({exc})"
+            reason = f"model_path={path} was given but blenav.runtime.map_prior cannot be imported ({exc})"
     for m in todo:
         m.prior, m.unavailable = prior, reason
     if reason:

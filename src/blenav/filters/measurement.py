@@ -23,9 +23,9 @@ the configured value.
 Position fixes (:class:`FixLikelihood`, Roy section 3.2, eq. 3.9): a fix z (world x, y in m) from another
 localizer, e.g. a learned BLE localizer, weighs a particle at x by N(||x - z||; 0, sigma), sigma = 3 m.
 
-Every model names the per-step observations it reads in ``needs`` (``"rssi"``: ``rssi_idx``/``rssi``;
-``"fixes"``: ``fix_xy``/``fix_std``/``fix_source``, see :mod:`blenav.filters.steps`) and has
-``bind(anchors)`` (a no-op for models that do not use the anchors).
+Every model derives from :class:`MeasurementModel`, which declares the interface the engine calls. Each
+names the per-step observations it reads in ``needs`` (``"rssi"``: ``rssi_idx``/``rssi``; ``"fixes"``:
+``fix_xy``/``fix_std``/``fix_source``, see :mod:`blenav.filters.steps`).
 """
 
 from __future__ import annotations
@@ -33,6 +33,51 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+
+class MeasurementModel:
+    """Base of every measurement model: the interface the engine and the runner call, with its defaults.
+
+    Subclasses implement ``n_obs(obs) -> int`` and ``log_likelihood(xy, obs) -> (R, N)``. The rest is
+    declared here, so the engine never probes for optional methods:
+
+    * ``needs``: the per-step observations the model reads (``"rssi"``, ``"fixes"``, ``"odo"``);
+    * ``wants_state``: ``log_likelihood`` receives the full state (R, N, D) instead of positions (R, N, 2);
+    * ``divergence_check``: the model's log-likelihood counts in the engine's divergence test (a prior
+      score is not a residual: False);
+    * ``calibrated``: the evaluation replaces the model's path-loss parameters by a fit on labelled data;
+    * ``bind(anchors)``, ``bind_floor(floor)``, ``bind_motion(motion)``: called when a filter is built for a
+      session (the building's anchors, the session's floor, the method's motion model);
+    * ``observe(obs)``: called every step before ``n_obs`` (models that keep a history);
+    * ``missing_reason()``: why the model cannot run (e.g. a learned prior that was not given), or None.
+    """
+
+    needs: tuple[str, ...] = ()
+    wants_state = False
+    divergence_check = True
+    calibrated = False
+
+    def bind(self, anchors: "AnchorTable") -> None:
+        """Attach the building's anchors (a no-op for models that do not use them)."""
+
+    def bind_floor(self, floor) -> None:
+        """Attach the session's floor (a no-op for models that do not use the floor plan)."""
+
+    def bind_motion(self, motion) -> None:
+        """Attach the method's motion model (a no-op for models that do not read its state columns)."""
+
+    def observe(self, obs: dict) -> None:
+        """See every step's observations before ``n_obs`` (a no-op for memoryless models)."""
+
+    def missing_reason(self) -> str | None:
+        """Why the model cannot run, or None."""
+        return None
+
+    def n_obs(self, obs: dict) -> int:
+        raise NotImplementedError
+
+    def log_likelihood(self, xy: np.ndarray, obs: dict) -> np.ndarray:
+        raise NotImplementedError
 
 
 @dataclass
@@ -59,7 +104,7 @@ class AnchorTable:
 
 
 @dataclass
-class _PathLoss:
+class _PathLoss(MeasurementModel):
     a_x: float = -60.0
     gamma: float = 2.25
     d0: float = 1.0
@@ -143,7 +188,7 @@ class RssiDomain(_PathLoss):
 
 
 @dataclass
-class FixLikelihood:
+class FixLikelihood(MeasurementModel):
     """Position fixes as a measurement: log N(||x - z||; 0, sigma) summed over the step's fixes (eq. 3.9, Roy).
 
     Roy (section 3.2) weighs every particle x by the output z of the BLE localization model,

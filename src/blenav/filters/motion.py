@@ -30,6 +30,8 @@ class MotionModel:
     state_dim = 4
     #: which per-step controls the model reads (the step builder computes only what is needed)
     needs: tuple[str, ...] = ()
+    #: state column of an odometry-to-world frame angle, None when the state has none
+    frame_angle_col: int | None = None
 
     def init_state(self, xy: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Full state (R, N, D) from positions (R, N, 2): zero velocity."""

@@ -18,7 +18,8 @@ import numpy as np
 from blenav.data import Session
 
 from .attitude import AttitudeConfig, estimate_hard_iron
-from .engine import Event, FilterConfig, ParticleFilter
+from .constraints import ObstacleRules
+from .engine import Event, FilterConfig, Initializer, ParticleFilter
 from .map import MapGeometry, WallCrossing
 from .measurement import AnchorTable
 from .steps import SessionArrays, StepDetectorConfig, StepStream, imu_features, session_steps
@@ -86,18 +87,18 @@ class Method:
 
     @property
     def needs_imu(self) -> bool:
-        return any(n in getattr(self.motion, "needs", ()) for n in ("acc_w", "heading", "steps"))
+        return any(n in self.motion.needs for n in ("acc_w", "heading", "steps"))
 
     @property
     def needs_odometry(self) -> bool:
-        return "odo" in getattr(self.motion, "needs", ()) or bool(self.measurements_needing("odo"))
+        return "odo" in self.motion.needs or bool(self.measurements_needing("odo"))
 
     def measurements_needing(self, stream: str) -> list:
         """The measurement models that read ``stream`` ('rssi', 'fixes')."""
-        return [m for m in self.measurements if stream in getattr(m, "needs", ())]
+        return [m for m in self.measurements if stream in m.needs]
 
 
-class _Initializer:
+class _Initializer(Initializer):
     """Adapter: the filter's initializer from a map geometry and a :class:`MapSpec`.
 
     For ``init`` 'fix' / 'groundtruth' the start position ``start_xy`` (2,) world m (and, for ``heading:
@@ -126,7 +127,7 @@ class _Initializer:
 
     def adjust_state(self, x, rng):
         """Set the odometry frame angle (state column ``motion.frame_angle_col``) to the known start angle."""
-        col = getattr(self.motion, "frame_angle_col", None)
+        col = self.motion.frame_angle_col if self.motion is not None else None
         if self.spec.heading != "groundtruth" or col is None:
             return x
         if self.start_theta is None:
@@ -198,24 +199,30 @@ def build_filter(method: Method, session: Session, n_runs: int, rng: np.random.G
     anchors = method_anchors(method, session)
     for m in method.measurements:
         m.bind(anchors)
-        if hasattr(m, "bind_floor"):
-            m.bind_floor(session.floor)
-        if hasattr(m, "bind_motion"):
-            m.bind_motion(method.motion)
-    use_walls = method.map.walls or method.filter.reinit_fraction is not None
-    walls = WallCrossing.from_floor(session.floor) if use_walls else None
+        m.bind_floor(session.floor)
+        m.bind_motion(method.motion)
     cond = _Conditioner(geom, method.map) if method.map.condition else None
     pf = ParticleFilter(method.filter, method.motion, method.measurements, _Initializer(geom, method.map, method.motion),
-                        rng, n_runs=n_runs, conditioner=cond, walls=walls, penalise_walls=method.map.walls)
+                        rng, n_runs=n_runs, conditioner=cond, constraints=obstacle_rules(method, session))
     return pf, anchors, geom
+
+
+def obstacle_rules(method: Method, session: Session) -> list[ObstacleRules]:
+    """The method's obstacle rules on the session's floor: the wall-crossing penalty (``map.walls``,
+    ``filter.wall_log_penalty``) and Roy's re-initialisation (``filter.reinit_fraction``,
+    ``filter.reinit_radius_m``); none when it asks for neither."""
+    f = method.filter
+    if not method.map.walls and f.reinit_fraction is None:
+        return []
+    return [ObstacleRules(WallCrossing.from_floor(session.floor), penalty=f.wall_log_penalty, penalise=method.map.walls,
+                          reinit_fraction=f.reinit_fraction, reinit_radius_m=f.reinit_radius_m)]
 
 
 def _missing_model(method: Method) -> None:
     """Raise :class:`MissingStream` when a component of ``method`` is unavailable (e.g. a learned map prior
     that was not given): models say so by ``missing_reason() -> str | None``."""
     for m in method.measurements:
-        reason = getattr(m, "missing_reason", None)
-        reason = reason() if callable(reason) else None
+        reason = m.missing_reason()
         if reason:
             raise MissingStream(f"{method.name}: {reason}")
 
@@ -247,7 +254,7 @@ def initial_pose(method: Method, session: Session, arrays: SessionArrays) -> tup
     spec = method.map
     xy = theta = None
     needs_gt = spec.init == "groundtruth" or (spec.heading == "groundtruth"
-                                               and getattr(method.motion, "frame_angle_col", None) is not None)
+                                               and method.motion.frame_angle_col is not None)
     gt = session.groundtruth if needs_gt else None
     if needs_gt and not len(gt):
         raise MissingStream(f"session {session.id} has no ground truth, which the oracle start (map.init / map.heading "
@@ -256,7 +263,7 @@ def initial_pose(method: Method, session: Session, arrays: SessionArrays) -> tup
         src = spec.init_fix_source
         if src is None:
             fl = method.measurements_needing("fixes")
-            src = getattr(fl[0], "source", None) if fl else None
+            src = fl[0].source if fl else None
         sel = np.ones(len(arrays.fix_t), bool) if src is None else arrays.fix_source == str(src).strip()
         if not sel.any():
             raise MissingStream(f"session {session.id} has no position fix of source {src!r} to start {method.name} "

@@ -1,0 +1,13 @@
+"""Localization methods behind one interface (:class:`Localizer`, :class:`Estimate`), built from config.
+
+A new method is one class deriving from :class:`Localizer` plus one YAML file in ``conf/localizer/``
+naming it as ``_target_``; the evaluation harness needs no change.
+"""
+
+from .base import (Estimate, FixConsumer, Localizer, MissingStream, ModelConsumer, PathLossCalibrated, RunContext,
+                   build_localizer)
+from .fixtrack import FixTrackLocalizer
+from .particle import ParticleFilterLocalizer
+
+__all__ = ["Estimate", "FixConsumer", "FixTrackLocalizer", "Localizer", "MissingStream", "ModelConsumer",
+           "ParticleFilterLocalizer", "PathLossCalibrated", "RunContext", "build_localizer"]

@@ -1,0 +1,101 @@
+"""The particle filters of 000, 002 and Roy (section 3.2) as one :class:`~blenav.localizers.base.Localizer`.
+
+Config node (``conf/localizer/particle_filter.yaml`` gives the target)::
+
+    _target_: blenav.localizers.ParticleFilterLocalizer
+    motion: {_target_: ..., ...}            # a blenav.filters.motion.MotionModel
+    measurements: {NAME: {_target_: ...}}   # blenav.filters.measurement.MeasurementModel objects
+    map: {...}                              # blenav.filters.runner.MapSpec
+    filter: {...}                           # overrides of the experiment's filter (FilterConfig)
+    attitude: {...}                         # overrides of the experiment's AHRS settings (AttitudeConfig)
+    steps: {...}                            # step detector (StepDetectorConfig)
+    beacons: [ID, ...]                      # BLE anchors the models may use (null: all)
+
+``filter`` and ``attitude`` start from the experiment-wide ``filter`` / ``attitude`` nodes (``shared``);
+``steps`` from :class:`~blenav.filters.steps.StepDetectorConfig`'s defaults. Every node is checked
+against its schema: a misspelt key fails when the method is built, naming the method.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from omegaconf import DictConfig, OmegaConf
+
+from blenav.filters.attitude import AttitudeConfig
+from blenav.filters.calibration import apply_fit
+from blenav.filters.engine import FilterConfig
+from blenav.filters import map_prior
+from blenav.filters.measurement import FixLikelihood
+from blenav.filters.runner import MapSpec, Method, run_session
+from blenav.filters.steps import StepDetectorConfig
+
+from .base import Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext
+
+
+def _schema(cls, *nodes):
+    """``cls`` (a dataclass) from its defaults merged with ``nodes`` (dicts / DictConfigs / None) in order."""
+    merged = OmegaConf.merge(OmegaConf.structured(cls), *[n for n in nodes if n is not None])
+    return OmegaConf.to_object(merged)
+
+
+def _component(node):
+    """A component from its config node (``_target_``), or the object itself when already built."""
+    if isinstance(node, (dict, DictConfig)):
+        from hydra.utils import instantiate
+
+        return instantiate(node)
+    return node
+
+
+class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelConsumer):
+    """A SIR particle filter (:class:`blenav.filters.runner.Method` run by
+    :func:`blenav.filters.runner.run_session`): R runs batched, estimates at every filter step.
+
+    ``outputs``: ``n_eff`` (R, K) and, when the motion model runs an AHRS, ``attitude`` (its orientation)."""
+
+    def __init__(self, name: str, shared=None, motion: Any = None, measurements: Any = None, map: Any = None,
+                 filter: Any = None, attitude: Any = None, steps: Any = None, beacons: Any = None):
+        super().__init__(name, shared)
+        if motion is None:
+            raise ValueError(f"method {name!r}: a particle filter needs a motion model (motion: {{_target_: ...}})")
+        shared = shared or {}
+        try:
+            motion_model = _component(motion)
+            if isinstance(measurements, (dict, DictConfig)):
+                meas = [_component(v) for v in measurements.values()]
+            else:
+                meas = [_component(v) for v in (measurements or [])]
+            spec = _schema(MapSpec, map)
+            fcfg = _schema(FilterConfig, shared.get("filter"), filter)
+            att = _schema(AttitudeConfig, shared.get("attitude"), attitude)
+            step_cfg = _schema(StepDetectorConfig, steps)
+        except Exception as exc:  # hydra/omegaconf raise many types: name the method
+            raise ValueError(f"method {name!r}: {exc}") from exc
+        self.method = Method(self.name, fcfg, motion_model, meas, spec, att, step_cfg,
+                             beacons=None if beacons is None else tuple(str(b) for b in beacons))
+
+    # ------------------------------------------------------------------ capabilities
+    def wants_path_loss_fit(self) -> bool:
+        return any(m.calibrated for m in self.method.measurements)
+
+    def apply_path_loss_fit(self, fit) -> None:
+        apply_fit(self.method.measurements, fit)
+
+    def fix_roles(self) -> set[str]:
+        return {m.role for m in self.method.measurements if isinstance(m, FixLikelihood) and m.role is not None}
+
+    def attach_model(self, path: str | None, load: Callable[[str, Callable], Any]) -> str | None:
+        # the module's loader looked up at call time (tests and other runtimes replace it)
+        return map_prior.attach_prior(self.method.measurements, path, loader=lambda p: load(p, map_prior.load_prior))
+
+    # ------------------------------------------------------------------ run
+    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
+        ctx = ctx or RunContext()
+        extra = ctx.fixes.prepare(self.method, session) if ctx.fixes is not None else None
+        res = run_session(self.method, session, n_runs, seed, cache=ctx.cache, fixes=extra)
+        outputs = {"n_eff": res.n_eff}
+        if res.q_imu is not None:
+            outputs["attitude"] = {"t": res.imu_t, "q": res.q_imu}
+        return Estimate(self.name, session.id, res.t, res.position, res.cov, res.events, outputs, res.wall_s,
+                        res.map_notes)
