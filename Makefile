@@ -226,7 +226,7 @@ mapprior-tables: $(STAMP)
 
 # Wrong floor plans (ours, not the thesis'): Table 3.6 on the same 8 test walks, smooth and IDOL-level
 # odometry, when the plan the filters get has K spurious barriers per 100 m^2 of free space across doorways
-# and narrow passages, or is registered MP_PLANOFF m off in x (blenav.sim.plan_errors); uses the prior and
+# and narrow passages, or is registered MP_PLANOFF m off in x (blenav.eval.plan_errors); uses the prior and
 # walks of `make mapprior-tables`
 MP_PLANERR ?= 1 2
 MP_PLANOFF ?= 0.5

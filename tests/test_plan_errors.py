@@ -1,4 +1,4 @@
-"""Wrong floor plans (blenav.sim.plan_errors): spurious barriers close doorways and corridors, never halls;
+"""Wrong floor plans (blenav.eval.plan_errors): spurious barriers close doorways and corridors, never halls;
 offsets shift the plan; the same seed and building give the same plan."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 from PIL import Image
 
 from blenav.data import Dataset
+from blenav.eval.plan_errors import PlanErrorConfig, building_rng, draw_barriers, perturb_building, run_lengths
 from blenav.filters.map import WallCrossing
-from blenav.sim.plan_errors import PlanErrorConfig, building_rng, draw_barriers, perturb_building, run_lengths
 
 from helpers import make_tiny_dataset
 
