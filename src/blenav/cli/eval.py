@@ -1,4 +1,5 @@
-"""``blenav-eval experiment=NAME data=DIR runs=N out=OUT [sessions=ID,ID]``: compare localization methods."""
+"""``blenav-eval experiment=NAME data=DIR runs=N out=OUT [sessions=ID,ID] [model_path=PATH]``: compare localization
+methods (``model_path``: a trained model the experiment evaluates; ``model=PATH`` is its deprecated spelling)."""
 
 from __future__ import annotations
 
@@ -45,7 +46,7 @@ def _main(cfg: DictConfig) -> None:
 
 
 def main() -> None:
-    sys.argv = [sys.argv[0]] + cli_overrides(sys.argv[1:], model_is_path=True)
+    sys.argv = [sys.argv[0]] + cli_overrides(sys.argv[1:], deprecated_model_path=True)
     _main()
 
 

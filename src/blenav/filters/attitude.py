@@ -68,12 +68,23 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 GRAVITY = 9.80665
-FILTERS = ("madgwick", "mahony", "ekf")
+
+
+class AttitudeFilter(StrEnum):
+    """``attitude.filter``: the ahrs filter (see the module docstring for their frames)."""
+
+    madgwick = "madgwick"
+    mahony = "mahony"
+    ekf = "ekf"
+
+
+FILTERS = tuple(f.value for f in AttitudeFilter)
 
 # earth frame of each ahrs filter -> magnetic ENU (w-first quaternions, left-multiplied)
 _S2 = np.sqrt(0.5)
@@ -112,7 +123,7 @@ class AttitudeConfig:
     - extra: further keyword arguments for the ahrs filter class.
     """
 
-    filter: str = "madgwick"
+    filter: AttitudeFilter = AttitudeFilter.madgwick
     median_window: int = 5
     use_mag: bool = True
     gain: float | None = None
@@ -127,6 +138,7 @@ class AttitudeConfig:
 
     def __post_init__(self):
         _check_filter(self.filter)
+        self.filter = AttitudeFilter(self.filter)
         if int(self.median_window) < 1:
             raise ValueError(f"median_window must be >= 1, got {self.median_window}")
 
