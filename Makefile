@@ -143,15 +143,15 @@ mapprior-tables: $(STAMP)
 	  $(BIN)/blenav-fixes data/$$D data/runs/mapprior_fix/$${K%%:*}_007.onnx --source $${K##*:} --sessions $(MP_TEST_007) || exit 1; \
 	done; done
 	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp sessions=$(MP_TEST) \
-	    runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	    runs=3 model_path=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_learnedfix progress=false
 	$(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/procedural_mp sessions=$(MP_TEST) \
-	    runs=3 model=data/runs/mapprior_proc_onnx out=data/results/mapprior_table36 progress=false
+	    runs=3 model_path=data/runs/mapprior_proc_onnx out=data/results/mapprior_table36 progress=false
 	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_io sessions=$(MP_TEST) \
-	    runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	    runs=3 model_path=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_io progress=false
 	$(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/procedural_mp_io sessions=$(MP_TEST) \
-	    runs=3 model=data/runs/mapprior_proc_onnx out=data/results/mapprior_table36_io progress=false
+	    runs=3 model_path=data/runs/mapprior_proc_onnx out=data/results/mapprior_table36_io progress=false
 	# 15-min walks in the same two buildings (more odometry drift, nearer the thesis' IO error), same models
 	$(BIN)/blenav-sim $(MP_SIM) duration_s=900 first_session=96 sessions=32 out=data/procedural_mp_long overwrite=true progress=false
 	diff -r data/procedural_mp/buildings data/procedural_mp_long/buildings
@@ -160,7 +160,7 @@ mapprior-tables: $(STAMP)
 	  $(BIN)/blenav-fixes data/procedural_mp_long data/runs/mapprior_fix/$${K%%:*}_007.onnx --source $${K##*:} --sessions $(MP_LONG_007) || exit 1; \
 	done
 	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_long sessions=$(MP_LONG_006),$(MP_LONG_007) \
-	    runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	    runs=3 model_path=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_long progress=false
 	# calibrated fix likelihood (ours): a sparse model trained the same way for building 000 (not a test
 	# building), its fixes' error statistics on building 000's walks -> sigma_eff for the sparse rows
@@ -171,11 +171,11 @@ mapprior-tables: $(STAMP)
 	      --sessions $(MP_CALIB) | tail -n 1 | cut -d= -f2) && test -n "$$SIG" && echo "sparse fixes: sigma_eff $$SIG m" && \
 	for W in procedural_mp:$(MP_TEST):calibrated procedural_mp_io:$(MP_TEST):io_calibrated procedural_mp_long:$(MP_LONG_006),$(MP_LONG_007):long_calibrated; do \
 	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$${W%%:*} sessions=$$(echo $$W | cut -d: -f2) \
-	      runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	      runs=3 model_path=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	      methods.sparse_io.measurements.fix.sigma_m=$$SIG methods.sparse_io_map.measurements.fix.sigma_m=$$SIG \
 	      out=data/results/mapprior_table37_$${W##*:} progress=false && \
 	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$${W%%:*} sessions=$$(echo $$W | cut -d: -f2) \
-	      runs=3 model=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	      runs=3 model_path=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	      methods.sparse_io.measurements.fix.sigma_m=$$SIG methods.sparse_io_map.measurements.fix.sigma_m=$$SIG \
 	      methods.sparse_io.map.init=groundtruth methods.sparse_io_map.map.init=groundtruth \
 	      out=data/results/mapprior_table37_$${W##*:}_gtstart progress=false || exit 1; \
@@ -188,10 +188,10 @@ mapprior-tables: $(STAMP)
 	    'data.val_buildings=[procedural_006,procedural_007]' trainer.max_epochs=80 trainer.enable_progress_bar=false && \
 	  $(BIN)/python export.py ckpt=data/runs/mapprior_proc80/last.ckpt out=data/runs/mapprior_proc80_onnx; }
 	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp sessions=$(MP_TEST) \
-	    runs=3 model=data/runs/mapprior_proc80_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	    runs=3 model_path=data/runs/mapprior_proc80_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_e80 progress=false
 	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_long sessions=$(MP_LONG_006),$(MP_LONG_007) \
-	    runs=3 model=data/runs/mapprior_proc80_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
+	    runs=3 model_path=data/runs/mapprior_proc80_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_long_e80 progress=false
 	# two larger buildings (60 x 40 m, 22 beacons as the thesis' dense set), unlike any the prior saw: 8 test
 	# walks with MP_SIM's odometry and the same walks with IDOL-level odometry, 16 survey walks for the
@@ -219,7 +219,7 @@ mapprior-tables: $(STAMP)
 	  done || exit 1; \
 	done
 	for D in procedural_large procedural_large_io; do \
-	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$$D runs=3 model=data/runs/mapprior_proc_onnx \
+	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$$D runs=3 model_path=data/runs/mapprior_proc_onnx \
 	      fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 out=data/results/mapprior_table37_$${D#procedural_} \
 	      progress=false || exit 1; \
 	done
@@ -236,7 +236,7 @@ mapprior-planerr: $(STAMP)
 	for P in $(foreach K,$(MP_PLANERR),'planerr$(K):plan_error.barriers_per_100m2=$(K)') \
 	    'planoff:plan_error.offset_m=[$(MP_PLANOFF),0]'; do for D in procedural_mp procedural_mp_io; do \
 	  $(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/$$D sessions=$(MP_TEST) runs=3 \
-	      model=data/runs/mapprior_proc_onnx "$${P#*:}" \
+	      model_path=data/runs/mapprior_proc_onnx "$${P#*:}" \
 	      out=data/results/mapprior_table36_$${D#procedural_}_$${P%%:*} progress=false || exit 1; \
 	done; done
 
