@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Optional
 
 import numpy as np
@@ -29,8 +30,31 @@ class MissingStream(ValueError):
     """The session lacks a stream the method needs (e.g. IMU for the IMU proposal): skip, do not fail."""
 
 
-INIT_MODES = ("uniform", "map", "fix", "groundtruth")
-HEADING_MODES = ("motion", "groundtruth")
+class InitMode(StrEnum):
+    """``map.init``: where particles start (see :class:`MapSpec`)."""
+
+    uniform = "uniform"
+    map = "map"
+    fix = "fix"
+    groundtruth = "groundtruth"
+
+
+class HeadingMode(StrEnum):
+    """``map.heading``: the odometry frame angle at the start (see :class:`MapSpec`)."""
+
+    motion = "motion"
+    groundtruth = "groundtruth"
+
+
+class MapIndex(StrEnum):
+    """``map.index``: the spatial index of the map conditioning (:mod:`blenav.filters.map.index`)."""
+
+    grid = "grid"
+    strtree = "strtree"
+
+
+INIT_MODES = tuple(m.value for m in InitMode)
+HEADING_MODES = tuple(m.value for m in HeadingMode)
 
 
 @dataclass
@@ -55,7 +79,7 @@ class MapSpec:
     motion models with a frame-angle column, others ignore it).
     """
 
-    init: str = "uniform"
+    init: InitMode = InitMode.uniform
     beta: float = 0.8
     sigma_nav: float = 2.0
     sigma_rm: float = 1.0
@@ -64,10 +88,10 @@ class MapSpec:
     max_edge_dist: float = 3.0
     shrink: float = 1.0
     walls: bool = False
-    index: str = "grid"
+    index: MapIndex = MapIndex.grid
     init_sigma_m: float = 0.01
     init_fix_source: Optional[str] = None
-    heading: str = "motion"
+    heading: HeadingMode = HeadingMode.motion
     align_s: float = 10.0
     init_heading_sigma: float = 0.0
 

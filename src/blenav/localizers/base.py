@@ -153,6 +153,7 @@ def build_localizer(label: str, node, shared=None) -> Localizer:
 
     Nested nodes are handed over unconverted (``_recursive_=False``): a localizer builds its own
     components, so a misspelt key fails inside the method that owns it, with its name."""
+    from hydra.errors import InstantiationException
     from hydra.utils import instantiate
     from omegaconf import DictConfig, OmegaConf
 
@@ -162,7 +163,11 @@ def build_localizer(label: str, node, shared=None) -> Localizer:
     if not target:
         raise ValueError(f"method {label!r} has no _target_ (the class of its localizer, e.g. "
                          f"blenav.localizers.ParticleFilterLocalizer: see conf/localizer/)")
-    loc = instantiate(OmegaConf.create(kw), name=label, shared=shared, _recursive_=False)
+    try:
+        loc = instantiate(OmegaConf.create(kw), name=label, shared=shared, _recursive_=False)
+    except InstantiationException as exc:  # hydra wraps the constructor's own error: keep only that
+        cause = exc.__cause__
+        raise ValueError(str(cause) if cause is not None else f"method {label!r}: {exc}") from exc
     if not isinstance(loc, Localizer):
         raise ValueError(f"method {label!r}: {target} is not a blenav.localizers.Localizer")
     return loc

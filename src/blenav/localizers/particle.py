@@ -48,6 +48,13 @@ def _component(node):
     return node
 
 
+def _reason(exc: Exception) -> str:
+    """The first line of what went wrong: the constructor's own error rather than hydra's wrapper."""
+    while type(exc).__name__ == "InstantiationException" and exc.__cause__ is not None:
+        exc = exc.__cause__
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
 class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelConsumer):
     """A SIR particle filter (:class:`blenav.filters.runner.Method` run by
     :func:`blenav.filters.runner.run_session`): R runs batched, estimates at every filter step.
@@ -60,18 +67,21 @@ class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelC
         if motion is None:
             raise ValueError(f"method {name!r}: a particle filter needs a motion model (motion: {{_target_: ...}})")
         shared = shared or {}
-        try:
-            motion_model = _component(motion)
-            if isinstance(measurements, (dict, DictConfig)):
-                meas = [_component(v) for v in measurements.values()]
-            else:
-                meas = [_component(v) for v in (measurements or [])]
-            spec = _schema(MapSpec, map)
-            fcfg = _schema(FilterConfig, shared.get("filter"), filter)
-            att = _schema(AttitudeConfig, shared.get("attitude"), attitude)
-            step_cfg = _schema(StepDetectorConfig, steps)
-        except Exception as exc:  # hydra/omegaconf raise many types: name the method
-            raise ValueError(f"method {name!r}: {exc}") from exc
+        def build(node: str, make):
+            try:
+                return make()
+            except Exception as exc:  # hydra/omegaconf raise many types: name the method and its node
+                raise ValueError(f"method {name!r}, {node}: {_reason(exc)}") from exc
+
+        motion_model = build("motion", lambda: _component(motion))
+        if isinstance(measurements, (dict, DictConfig)):
+            meas = [build(f"measurements.{k}", lambda v=v: _component(v)) for k, v in measurements.items()]
+        else:
+            meas = [build("measurements", lambda v=v: _component(v)) for v in (measurements or [])]
+        spec = build("map", lambda: _schema(MapSpec, map))
+        fcfg = build("filter", lambda: _schema(FilterConfig, shared.get("filter"), filter))
+        att = build("attitude", lambda: _schema(AttitudeConfig, shared.get("attitude"), attitude))
+        step_cfg = build("steps", lambda: _schema(StepDetectorConfig, steps))
         self.method = Method(self.name, fcfg, motion_model, meas, spec, att, step_cfg,
                              beacons=None if beacons is None else tuple(str(b) for b in beacons))
 
