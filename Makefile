@@ -111,7 +111,7 @@ MP_LONG_006 = s102_mate-20-pro_pedestrian,s110_galaxy-a50_pedestrian,s118_honor-
 MP_LONG_007 = s103_honor-20-pro_pedestrian,s111_pixel-4xl_pedestrian,s119_honor-view-20_pedestrian,s127_pixel-3xl_pedestrian
 # the sparse models' 4 beacons must be the ones the eval's fixes.sparse_beacons: 4 picks (spread_beacons)
 MP_CHECK_SPARSE = from blenav.data import Dataset; from blenav.runtime import OnnxLocalizer; \
-    from blenav.learn.windows import spread_beacons; ds = Dataset.open(D); \
+    from blenav.features.windows import spread_beacons; ds = Dataset.open(D); \
     s = [x for x in ds.sessions() if x.building.id == 'procedural_' + B][0]; \
     m = OnnxLocalizer('data/runs/mapprior_fix/sparse4_%s.onnx' % B, building=s.building); \
     e = sorted(spread_beacons(s.building.anchors, 4, s.meta.get('floor'), s.floor)); \

@@ -20,11 +20,11 @@ import torch
 from omegaconf import OmegaConf
 
 from blenav.configs import compose
+from blenav.features.scale import U_SCALE
+from blenav.features.windows import WindowConfig
 from blenav.learn.checkpoint import build_networks
 from blenav.learn.export import export_module, random_inputs, streaming_net
-from blenav.learn.losses import U_SCALE
 from blenav.learn.module import CrossPhoneModule
-from blenav.learn.windows import WindowConfig
 from blenav.runtime import OnnxLocalizer
 from timing import median_ms
 

@@ -7,8 +7,8 @@ import pytest
 
 from blenav.configs import compose
 from blenav.eval.harness import evaluate
+from blenav.features.windows import WindowConfig, beacon_order, session_windows
 from blenav.importers import run_import
-from blenav.learn.windows import WindowConfig, beacon_order, session_windows
 from blenav.data import Dataset
 from helpers import RAW
 

@@ -18,11 +18,11 @@ import torch
 from blenav.cli.sim import run as sim_run
 from blenav.configs import compose
 from blenav.data import Dataset
+from blenav.features.windows import WindowConfig, session_windows
 from blenav.learn import export as export_mod
 from blenav.learn.checkpoint import load_module
 from blenav.learn.export import INPUT_TRANSFORM, export, random_inputs
 from blenav.learn.train import train
-from blenav.learn.windows import WindowConfig, session_windows
 from blenav.runtime import OnnxLocalizer
 
 pytestmark = pytest.mark.onnx

@@ -17,6 +17,7 @@ from PIL import Image
 
 from blenav.configs import compose
 from blenav.data import FREE, OCCUPIED, Floor
+from blenav.features.mapgrid import net_grid, resample_free
 from blenav.learn.mapprior import MapPriorModule, build_net, load_mapprior, mapprior_data_config
 from blenav.learn.mapprior_data import (
     Collate,
@@ -30,7 +31,7 @@ from blenav.learn.mapprior_data import (
 )
 from blenav.learn.train import train
 from blenav.models.mapprior import MapEncoder, MapPriorNet
-from blenav.runtime.map_prior import LOG_FLOOR, MapPrior, net_grid, resample_free
+from blenav.runtime.map_prior import LOG_FLOOR, MapPrior
 from helpers import simulate_small
 
 REPO = Path(__file__).resolve().parents[1]

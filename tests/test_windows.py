@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from blenav.data import Dataset
-from blenav.learn.windows import WindowConfig, beacon_order, rssi_to_scale, session_windows, split_by_device
+from blenav.features.windows import WindowConfig, beacon_order, rssi_to_scale, session_windows, split_by_device
 
 
 def test_windows_match_a_hand_computation(tiny_dataset):

@@ -1,6 +1,6 @@
 """``evaluate_crossphone(cfg)``: the cross-phone comparison of Roy, section 3.1.4 (Tables 3.3-3.5).
 
-Every method sees the same split (:func:`blenav.learn.windows.split_by_device` with ``cfg.data``): the
+Every method sees the same split (:func:`blenav.features.windows.split_by_device` with ``cfg.data``): the
 learned methods train through :func:`blenav.learn.train.train` into ``OUT/runs/<key>`` (a run that is
 already complete is reused, an interrupted one resumes, one trained on other data is refused), the
 baselines of Table 3.5 fit on the same labelled windows. All are scored on the same test windows: every
@@ -53,7 +53,7 @@ class TestWindows:
     """Windows of the test sessions, scored ones only: S (K, B, H) thesis scale, xy (K, 2), t (K,) per session."""
 
     def __init__(self, dm):
-        from blenav.learn.windows import session_windows
+        from blenav.features.windows import session_windows
 
         self.sessions, self.windows, self.no_fix = [], {}, {}
         for s in dm.groups["test"]:
@@ -118,8 +118,8 @@ def _check_reuse(ck: Path, dm, model: DictConfig | None = None) -> int | None:
 
 
 def _predict_module(ck: Path):
+    from blenav.features.scale import U_SCALE
     from blenav.learn.checkpoint import load_module
-    from blenav.learn.losses import U_SCALE
 
     module, _ = load_module(ck)
 
@@ -155,7 +155,7 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
     test = TestWindows(dm)
     runs_dir = Path(cfg.experiment.get("runs_dir") or out / "runs")
     train_S, train_xy = (t.numpy() for t in (dm.sets["train"].tensors[0], dm.sets["train"].tensors[2]))
-    from blenav.learn.losses import U_SCALE
+    from blenav.features.scale import U_SCALE
 
     train_S = train_S * U_SCALE  # baselines read the thesis scale
     onnx_model = cfg.get("model_path")

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .losses import U_SCALE
+from blenav.features.scale import U_SCALE
 
 
 @dataclass

@@ -6,7 +6,7 @@ regression followed by a Kalman filter (KRR+KF) and DL-RNN (Bai et al. 2020). Th
 model=dlrnn`` like LocNet.
 
 Input: RSSI windows S (N, B, H) on the thesis scale u = rssi_dBm + 100 (0 = not heard), B beacons in the
-model's fixed order by H steps of 1 / ``step_hz`` s (:mod:`blenav.learn.windows`). *Not* the network scale
+model's fixed order by H steps of 1 / ``step_hz`` s (:mod:`blenav.features.windows`). *Not* the network scale
 u / 100. Labels xy (N, 2) in metres (world frame); rows with a NaN label are dropped by ``fit``.
 
 Feature (all three baselines): the **fingerprint** F (N, B) of :func:`fingerprint`: per beacon, the mean

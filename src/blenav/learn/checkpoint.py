@@ -5,7 +5,7 @@
 
 - ``model``: the resolved ``cfg.model`` node (``_target_`` of ``locnet`` / ``transnet``, sizes, lr, weights);
 - ``beacons``: the fixed beacon order of S's rows (sorted BLE anchor ids of the building);
-- ``window``: the :class:`blenav.learn.windows.WindowConfig` fields (history H, step_hz, offset_db, floor_u)
+- ``window``: the :class:`blenav.features.windows.WindowConfig` fields (history H, step_hz, offset_db, floor_u)
   and ``u_scale`` (networks read u / u_scale);
 - ``building``: building id; ``data_hash``: sha256 of the training windows and labels (first 16 hex);
 - ``train_devices`` / ``known_devices`` / ``unlabelled_devices``: device models used.

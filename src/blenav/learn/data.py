@@ -1,11 +1,11 @@
 """Window data for training: sessions -> normalised RSSI windows, split by device model.
 
-Windows come from :func:`blenav.learn.windows.session_windows` on one building (its BLE beacons in sorted
+Windows come from :func:`blenav.features.windows.session_windows` on one building (its BLE beacons in sorted
 order are the model's rows; ``beacons`` = k or a list keeps only a subset, see
-:func:`blenav.learn.windows.select_beacons`, and ``sessions`` restricts the sessions used), divided by :data:`blenav.learn.losses.U_SCALE`. Each window carries the
+:func:`blenav.features.windows.select_beacons`, and ``sessions`` restricts the sessions used), divided by :data:`blenav.features.scale.U_SCALE`. Each window carries the
 previous window of its session (``S_prev``) for the position-smoothness loss. Validation sessions are
 a seeded fraction of the training sessions (whole sessions, never windows of one walk on both sides).
-Splits follow :func:`blenav.learn.windows.split_by_device`. For the semi-supervised stage (scenario 3 of
+Splits follow :func:`blenav.features.windows.split_by_device`. For the semi-supervised stage (scenario 3 of
 Roy) the training loader adds the unlabelled windows (labels NaN) from epoch ``semi_from_epoch`` on.
 """
 
@@ -20,9 +20,8 @@ import torch
 from torch.utils.data import ConcatDataset, DataLoader, TensorDataset
 
 from blenav.data import Dataset
-
-from .losses import U_SCALE
-from .windows import WindowConfig, select_beacons, session_windows, split_by_device
+from blenav.features.scale import U_SCALE
+from blenav.features.windows import WindowConfig, select_beacons, session_windows, split_by_device
 
 
 @dataclass

@@ -4,7 +4,7 @@ Notation: S (batch, B, H) RSSI windows, g = TransNet(S) the translated windows, 
 positions (batch, 2) m, x the labels. The statistic similarity loss weighs deviations by
 w_it = exp((S_it - M_ii) / tau) with tau = 0.1: on the raw thesis scale (readings near 30) that weight
 overflows, so every loss here takes windows on the *normalised* scale u / ``U_SCALE`` (u = rssi + 100,
-so values lie in [0, about 0.7]); the networks are trained on that scale too.
+so values lie in [0, about 0.7]; :mod:`blenav.features.scale`); the networks are trained on that scale too.
 
 Reductions: sums over beacons and steps as in the equations, means over the batch.
 """
@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-
-U_SCALE = 100.0
 
 
 def brand_statistics(S: np.ndarray) -> np.ndarray:

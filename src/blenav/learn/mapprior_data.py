@@ -46,7 +46,7 @@ from scipy import ndimage
 from torch.utils.data import DataLoader, Dataset as TorchDataset, Sampler
 
 from blenav.data import Dataset
-from blenav.runtime.map_prior import NetGrid, net_grid
+from blenav.features.mapgrid import NetGrid, net_grid
 
 SPLITS = {"train": 0, "val_seen": 1, "val_unseen": 2}
 

@@ -34,15 +34,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from blenav.features.mapgrid import pad_to_multiple
 from blenav.models.mapprior import MapPriorNet
-from blenav.runtime.map_prior import (
-    LOG_FLOOR,
-    MAP_ENCODER_ONNX,
-    META_JSON,
-    SCORE_FLOOR,
-    TRAJECTORY_ENCODER_ONNX,
-    pad_to_multiple,
-)
+from blenav.runtime.map_prior import LOG_FLOOR, MAP_ENCODER_ONNX, META_JSON, SCORE_FLOOR, TRAJECTORY_ENCODER_ONNX
 
 from .export import DEFAULT_OPSET, blenav_version
 
@@ -151,7 +145,7 @@ def export_mapprior(net: MapPriorNet, meta: dict, out: str | Path, opset: int = 
                     "dtv": f"(batch, {c}) float32 Deep Trajectory Vector"},
         "resample": ("floor free mask (occupancy == FREE) to resolution_m on a grid with the floor's lower-left "
                      "origin, H2 = round(H * res / resolution_m): coarser -> free only if every covered pixel is free; "
-                     "finer -> nearest pixel centre (blenav.runtime.map_prior.resample_free)"),
+                     "finer -> nearest pixel centre (blenav.features.mapgrid.resample_free)"),
         "score": "S(x) = dmt[:, row(x), col(x)] . dtv (eq. 3.8, Roy); log score = log(max(S, score_floor))",
         "score_floor": SCORE_FLOOR, "log_floor": LOG_FLOOR,
         "model": meta.get("model"), "buildings": meta.get("buildings"), "val_buildings": meta.get("val_buildings"),

@@ -22,10 +22,12 @@ import lightning as L
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from blenav.features.scale import U_SCALE
+
 from .checkpoint import build_networks
 from .augment import ReceiverAugment
 from .data import WindowDataConfig, WindowDataModule
-from .losses import U_SCALE, brand_statistics
+from .losses import brand_statistics
 from .module import CrossPhoneModule
 
 

@@ -1,6 +1,6 @@
 """DL-RNN: the "double RNN" localizer of Bai et al. 2020 (ref. [20] of Roy; a baseline of Roy, Table 3.5).
 
-Input S (batch, B, H) RSSI windows on the *normalised* scale u / 100 (:data:`blenav.learn.losses.U_SCALE`;
+Input S (batch, B, H) RSSI windows on the *normalised* scale u / 100 (:data:`blenav.features.scale.U_SCALE`;
 0 = not heard), B beacons by H steps in time order (oldest first), as LocNet. Two stacked recurrent stages:
 
 1. a first LSTM reads the H step vectors s_t (B,) and gives hidden states h_t (hidden,); a linear head maps

@@ -1,7 +1,7 @@
 """Position fixes from an exported localizer, written to ``fixes.csv`` for other consumers.
 
 :func:`session_fixes` runs an :class:`OnnxLocalizer` over every window of a session (window ends at
-``1 / step_hz`` steps, the windowing of :func:`blenav.learn.windows.session_windows`) and returns the
+``1 / step_hz`` steps, the windowing of :func:`blenav.features.windows.session_windows`) and returns the
 fixes (t s, x y m world) of the windows in which at least one beacon was heard; :func:`write_model_fixes`
 does so for sessions of a dataset and merges them into each session's ``fixes.csv`` under one
 ``source`` (rows of other sources are kept; see :func:`blenav.data.writer.write_fixes`). The particle
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from blenav.learn.windows import WindowConfig, session_windows
+from blenav.features.windows import WindowConfig, session_windows
 
 from .onnx_localizer import OnnxLocalizer
 

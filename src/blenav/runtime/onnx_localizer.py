@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from blenav.learn.windows import beacon_order
+from blenav.features.windows import beacon_order, rssi_to_u
 
 _EXAMPLES = 5
 
@@ -120,8 +120,7 @@ class OnnxLocalizer:
         """dBm (NaN = not heard) -> thesis scale u with the model's window settings, float32."""
         w = self._meta["window"]
         r = np.asarray(rssi_dbm, dtype=float)
-        u = np.maximum(r + float(w["offset_db"]), float(w["floor_u"]))
-        return np.where(np.isnan(r), 0.0, u).astype(np.float32)
+        return np.where(np.isnan(r), 0.0, rssi_to_u(r, w["offset_db"], w["floor_u"])).astype(np.float32)
 
     def _check(self, S, name: str) -> np.ndarray:
         S = np.asarray(S, dtype=np.float32)

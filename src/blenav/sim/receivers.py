@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from blenav.features.scale import THESIS_OFFSET_DB  # the thesis scale, shared with the windows
+
 #: Table 3.2 (Roy): phone -> (M0, V0, M1, V1) on the scale u = rssi + 100; 1 m, 60 s.
 TABLE_3_2: dict[str, tuple[float, float, float, float]] = {
     "iphone-7": (27.61, 7.18, 26.80, 4.07),
@@ -65,8 +67,7 @@ BRAND_RF = {"apple": (-98.0, 1.00), "samsung": (-100.0, 0.92), "google": (-102.0
             "xiaomi": (-97.0, 0.85), "huawei": (-99.0, 1.12)}
 QUANT_DB = {"redmi-note8": 2.0, "honor-view-20": 2.0}
 
-#: thesis scale: u = rssi + THESIS_OFFSET_DB; the 1 m reference level of the table's beacon
-THESIS_OFFSET_DB = 100.0
+#: the 1 m reference level of the table's beacon (thesis scale: u = rssi + THESIS_OFFSET_DB)
 TABLE_REF_1M_DBM = -70.0
 
 

@@ -7,9 +7,13 @@ that step; a beacon not heard in the step is 0 ("not heard = 0"). The label of t
 k is the ground-truth position (x, y, metres, world frame) at the end of step k.
 
 The scale: Table 3.2 of the thesis reports about 30 for a beacon at 1 m; with the -70 dBm 1 m level of
-our receiver model that is u = rssi + 100 (:data:`blenav.sim.receivers.THESIS_OFFSET_DB`). Readings below
+our receiver model that is u = rssi + 100 (:data:`blenav.features.scale.THESIS_OFFSET_DB`). Readings below
 -``offset_db`` dBm would be negative and are clipped to a small positive value (``floor_u``), not 0, so
-that a weak packet is never confused with none.
+that a weak packet is never confused with none (:func:`rssi_to_u`, the transform an exported model's
+metadata describes and :class:`blenav.runtime.OnnxLocalizer` applies).
+
+Torch-free (numpy, pandas): training (:mod:`blenav.learn`), the runtime (:mod:`blenav.runtime`) and the
+evaluation all window sessions with these functions.
 """
 
 from __future__ import annotations
@@ -21,9 +25,9 @@ import numpy as np
 import pandas as pd
 from numpy.lib.stride_tricks import sliding_window_view
 
-from blenav.sim.receivers import THESIS_OFFSET_DB
+from .scale import THESIS_OFFSET_DB
 
-log = logging.getLogger("blenav.learn")
+log = logging.getLogger("blenav.learn")  # the name it logged under before it moved here (log filters keep working)
 
 
 @dataclass
@@ -127,9 +131,15 @@ def select_beacons(building, beacons=None, floor_id=None, floor=None) -> tuple[l
     return sorted(ids), "list"
 
 
+def rssi_to_u(rssi_dbm, offset_db: float, floor_u: float) -> np.ndarray:
+    """dBm -> thesis scale u = rssi + offset_db, at least ``floor_u`` for any received packet (float64; NaN
+    stays NaN: the caller decides what "not heard" is)."""
+    return np.maximum(np.asarray(rssi_dbm, float) + float(offset_db), float(floor_u))
+
+
 def rssi_to_scale(rssi_dbm: np.ndarray, cfg: WindowConfig) -> np.ndarray:
-    """dBm -> thesis scale u = rssi + offset, at least ``floor_u`` for any received packet."""
-    return np.maximum(np.asarray(rssi_dbm, float) + cfg.offset_db, cfg.floor_u)
+    """dBm -> thesis scale u with the window settings ``cfg`` (:func:`rssi_to_u`)."""
+    return rssi_to_u(rssi_dbm, cfg.offset_db, cfg.floor_u)
 
 
 def session_windows(session, beacons: list[str], cfg: WindowConfig = WindowConfig()) -> Windows:
