@@ -18,7 +18,7 @@ from PIL import Image
 from blenav.configs import compose
 from blenav.data import FREE, OCCUPIED, Floor
 from blenav.features.mapgrid import net_grid, resample_free
-from blenav.learn.mapprior import MapPriorModule, build_net, load_mapprior, mapprior_data_config
+from blenav.learn.mapprior_checkpoint import build_net, load_map_prior, load_mapprior
 from blenav.learn.mapprior_data import (
     Collate,
     MapPriorDataModule,
@@ -29,6 +29,8 @@ from blenav.learn.mapprior_data import (
     unique_weights,
     window_ends,
 )
+from blenav.learn.mapprior_module import MapPriorModule
+from blenav.learn.mapprior_train import mapprior_data_config
 from blenav.learn.train import train
 from blenav.models.mapprior import MapEncoder, MapPriorNet
 from blenav.runtime.map_prior import LOG_FLOOR, MapPrior
@@ -145,7 +147,7 @@ def test_resampling_round_trip_and_walls_survive():
 def test_scores_mapped_back_across_floor_resolutions(tmp_path, trained):
     """The same floor at the network's resolution and at half of it gives the same DMT and the same scores."""
     ckpt, _ = trained
-    prior = MapPrior(ckpt)
+    prior = load_map_prior(ckpt)
     res = prior.resolution_m
     occ = two_rooms(48, 64)
     coarse = make_floor(tmp_path, occ, res, "a")
@@ -262,13 +264,13 @@ def test_dmt_cache_hit_on_second_bind(trained, small_dataset, tmp_path):
 
     ckpt, _ = trained
     floor = next(Dataset.open(small_dataset).sessions()).floor
-    prior = MapPrior(ckpt, cache_dir=tmp_path / "cache")
+    prior = load_map_prior(ckpt, cache_dir=tmp_path / "cache")
     prior.bind(floor)
     files = list((tmp_path / "cache").glob("dmt_*.npy"))
     assert prior.encode_calls == 1 and len(files) == 1
     prior.bind(floor)
     assert prior.encode_calls == 1
-    again = MapPrior(ckpt, cache_dir=tmp_path / "cache")  # a new process: from disk
+    again = load_map_prior(ckpt, cache_dir=tmp_path / "cache")  # a new process: from disk
     again.bind(floor)
     assert again.encode_calls == 0 and np.array_equal(again.dmt, prior.dmt)
     # K heading hypotheses x N particles, gathered at particle pixels
@@ -299,7 +301,7 @@ def test_onnx_export_two_graphs_with_parity(trained, small_dataset, tmp_path):
         assert props["resolution_m"] == 0.25 and props["window"]["window_s"] == 5.0
     # the runtime from ONNX agrees with the runtime from the checkpoint (relative to the score scale)
     floor = next(Dataset.open(small_dataset).sessions()).floor
-    a, b = MapPrior(ckpt), MapPrior(out)
+    a, b = load_map_prior(ckpt), MapPrior(out)
     a.bind(floor)
     b.bind(floor)
     odo = np.cumsum(np.random.default_rng(0).normal(0.5, 0.3, (4, 6, 2)), axis=1)

@@ -12,6 +12,10 @@
 
 :func:`load_module` rebuilds the :class:`CrossPhoneModule` from that entry and the state dict, with no
 config file beside the checkpoint.
+
+:func:`read_checkpoint` is the one place a blenav checkpoint of either task is read (the map prior's loader,
+:mod:`blenav.learn.mapprior_checkpoint`, and the evaluation use it too); :func:`data_hash` the one hash of
+training data stored in them.
 """
 
 from __future__ import annotations
@@ -45,27 +49,30 @@ def build_networks(model_cfg: dict, n_beacons: int):
     return locnet, transnet
 
 
-def read_meta(path: str | Path) -> dict:
-    ck = torch.load(path, map_location="cpu", weights_only=False)
-    if KEY not in ck:
-        raise ValueError(f"{path}: not a blenav cross-phone checkpoint (no '{KEY}' entry); "
-                         "was it written by train.py?")
-    return ck[KEY]
-
-
-def load_module(path: str | Path) -> tuple[CrossPhoneModule, dict]:
-    """(module in eval mode, meta) from a checkpoint written by ``train(cfg)``."""
+def read_checkpoint(path: str | Path, what: str = "blenav", require_meta: bool = True) -> dict:
+    """The whole checkpoint dict of ``path`` (state dict, optimizer states, counters, the ``"blenav"`` meta),
+    on the CPU. FileNotFoundError without the file; ValueError when ``require_meta`` and it has no
+    ``"blenav"`` entry (``what`` names the expected kind in the message)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
     ck = torch.load(path, map_location="cpu", weights_only=False)
-    if KEY not in ck:
-        raise ValueError(f"{path}: not a blenav cross-phone checkpoint (no '{KEY}' entry); "
-                         "was it written by train.py?")
+    if require_meta and KEY not in ck:
+        raise ValueError(f"{path}: not a {what} checkpoint (no '{KEY}' entry); was it written by train.py?")
+    return ck
+
+
+def read_meta(path: str | Path) -> dict:
+    return read_checkpoint(path, "blenav cross-phone")[KEY]
+
+
+def load_module(path: str | Path) -> tuple[CrossPhoneModule, dict]:
+    """(module in eval mode, meta) from a checkpoint written by ``train(cfg)``."""
+    ck = read_checkpoint(path, "blenav cross-phone")
     meta = ck[KEY]
     if meta.get("kind") == "mapprior":
         raise ValueError(f"{path} is a map prior checkpoint, not a cross-phone localizer: load it with "
-                         "blenav.learn.mapprior.load_mapprior or blenav.runtime.MapPrior")
+                         "blenav.learn.mapprior_checkpoint.load_mapprior or load_map_prior")
     locnet, transnet = build_networks(meta["model"], len(meta["beacons"]))
     n_m = ck["state_dict"].get("M", torch.zeros(0, 0))
     module = CrossPhoneModule(locnet, transnet, M=torch.zeros_like(n_m), meta=meta)

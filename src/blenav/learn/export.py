@@ -22,22 +22,23 @@ model node of the training config), ``model_name``, ``train_devices``, ``known_d
 ``train(cfg)``; :func:`export_module` does the rest for an already built module (benchmarks use it). Every
 export is checked with ``onnx.checker`` and against PyTorch on random inputs (max abs diff <= ``TOL``).
 The pieces :class:`StreamingLocalizer`, :func:`random_inputs`, :func:`export_onnx` and :func:`onnx_max_diff`
-work for bare networks too.
+work for bare networks too. Tracing, metadata and sessions are shared with the map prior's export
+(:mod:`blenav.learn.onnx_export`, :mod:`blenav.onnx_io`); :func:`export` dispatches a map prior checkpoint to
+:mod:`blenav.learn.mapprior_export`.
 """
 
 from __future__ import annotations
 
-import json
-import warnings
-from importlib import metadata as importlib_metadata
 from pathlib import Path
 
-import numpy as np
 import torch
 from torch import nn
 
+from blenav.onnx_io import blenav_version, json_props, max_diff, session
+
+from .onnx_export import DEFAULT_OPSET, trace_onnx
+
 TOL = 1e-4  # max abs difference between onnxruntime and PyTorch outputs (metres and state units)
-DEFAULT_OPSET = 17
 INPUT_NAMES = ("S", "h0", "c0")
 OUTPUT_NAMES = ("xy", "h", "c")
 INPUT_TRANSFORM = ("u = rssi_dbm + offset_db, max(u, floor_u) when heard, 0 when not heard; "
@@ -89,56 +90,18 @@ def export_onnx(net: nn.Module, inputs: tuple, path: str | Path, opset: int = DE
                 metadata: dict[str, str] | None = None, doc: str = "") -> Path:
     """Trace ``net(S, h0, c0) -> (xy, h, c)`` to ONNX at ``path`` with a dynamic batch, write ``metadata``
     (str -> str) into ``metadata_props``, run ``onnx.checker``. Returns the path."""
-    import onnx
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     dynamic = {"S": {0: "batch"}, "h0": {1: "batch"}, "c0": {1: "batch"}, "xy": {0: "batch"}, "h": {1: "batch"},
                "c": {1: "batch"}}
-    net = net.eval()
-    with warnings.catch_warnings(), torch.no_grad():
-        # the TorchScript exporter (the dynamo one needs onnxscript, not a dependency) warns about shape checks
-        # traced as constants (B, H are fixed by design), its own deprecation, and LSTM batch sizes (h0/c0
-        # are graph inputs here, which is the remedy it suggests)
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)
-        warnings.filterwarnings("ignore", message=".*legacy TorchScript-based ONNX export.*")
-        warnings.filterwarnings("ignore", message=".*batch_size other than 1.*LSTM.*")
-        warnings.filterwarnings("ignore", message="The feature will be removed.*")
-        torch.onnx.export(net, tuple(inputs), str(path), input_names=list(INPUT_NAMES),
-                          output_names=list(OUTPUT_NAMES), dynamic_axes=dynamic, opset_version=int(opset),
-                          dynamo=False)
-    model = onnx.load(str(path))
-    for v in list(model.graph.input) + list(model.graph.output):
-        v.doc_string = _DOCS.get(v.name, "")
-    model.doc_string = doc
-    del model.metadata_props[:]
-    for k, v in (metadata or {}).items():
-        model.metadata_props.add(key=str(k), value=str(v))
-    onnx.checker.check_model(model, full_check=True)
-    onnx.save(model, str(path))
-    return path
+    return trace_onnx(net, inputs, path, INPUT_NAMES, OUTPUT_NAMES, dynamic, opset=opset, metadata=metadata,
+                      doc=doc, io_docs=_DOCS)
 
 
 def onnx_max_diff(path: str | Path, net: nn.Module, inputs: tuple) -> float:
     """Max abs difference over all outputs between onnxruntime (one thread) and ``net`` on ``inputs``."""
-    import onnxruntime as ort
-
-    so = ort.SessionOptions()
-    so.intra_op_num_threads = 1
-    sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
-    got = sess.run(list(OUTPUT_NAMES), {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)})
+    got = session(path, threads=1).run(list(OUTPUT_NAMES), {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)})
     with torch.no_grad():
         ref = net.eval()(*inputs)
-    return max(float(np.max(np.abs(a - b.numpy()))) if a.size else 0.0 for a, b in zip(got, ref))
-
-
-def blenav_version() -> str:
-    try:
-        return importlib_metadata.version("blenav")
-    except importlib_metadata.PackageNotFoundError:
-        from blenav import __version__
-
-        return __version__
+    return max_diff(got, [b.numpy() for b in ref])
 
 
 def onnx_metadata(meta: dict) -> dict[str, str]:
@@ -162,7 +125,7 @@ def onnx_metadata(meta: dict) -> dict[str, str]:
         "blenav_version": blenav_version(),
         "input_transform": INPUT_TRANSFORM,
     }
-    return {k: json.dumps(values[k], sort_keys=True) for k in META_KEYS}
+    return json_props(values, META_KEYS)
 
 
 def streaming_net(module, meta: dict) -> StreamingLocalizer:

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -36,9 +35,11 @@ from torch import nn
 
 from blenav.features.mapgrid import pad_to_multiple
 from blenav.models.mapprior import MapPriorNet
+from blenav.onnx_io import blenav_version, json_props, max_diff, session
 from blenav.runtime.map_prior import LOG_FLOOR, MAP_ENCODER_ONNX, META_JSON, SCORE_FLOOR, TRAJECTORY_ENCODER_ONNX
 
-from .export import DEFAULT_OPSET, blenav_version
+from .mapprior_checkpoint import load_mapprior
+from .onnx_export import DEFAULT_OPSET, trace_onnx
 
 TOL = 1e-4
 
@@ -63,43 +64,11 @@ class _TrajectoryGraph(nn.Module):
         return self.enc(odometry * self.inv_res)
 
 
-def _export(net: nn.Module, example: torch.Tensor, path: Path, inp: str, out: str, dynamic: dict, opset: int,
-            props: dict[str, str], doc: str) -> None:
-    import onnx
-
-    with warnings.catch_warnings(), torch.no_grad():
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)
-        warnings.filterwarnings("ignore", message=".*legacy TorchScript-based ONNX export.*")
-        warnings.filterwarnings("ignore", message=".*batch_size other than 1.*LSTM.*")
-        warnings.filterwarnings("ignore", message="The feature will be removed.*")
-        torch.onnx.export(net.eval(), (example,), str(path), input_names=[inp], output_names=[out],
-                          dynamic_axes=dynamic, opset_version=int(opset), dynamo=False)
-    model = onnx.load(str(path))
-    model.doc_string = doc
-    del model.metadata_props[:]
-    for k, v in props.items():
-        model.metadata_props.add(key=k, value=v)
-    onnx.checker.check_model(model, full_check=True)
-    onnx.save(model, str(path))
-
-
-def _session(path: Path):
-    import onnxruntime as ort
-
-    so = ort.SessionOptions()
-    so.intra_op_num_threads = 1
-    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
-
-
-def _rel(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.max(np.abs(a - b)) / max(1.0, float(np.max(np.abs(b)))))
-
-
 def parity(net: MapPriorNet, out_dir: Path, resolution_m: float, seed: int = 0) -> dict[str, float]:
     """Relative max differences onnxruntime vs PyTorch: ``dmt``, ``dtv``, ``score`` (see module doc)."""
     g = torch.Generator().manual_seed(seed)
     k = net.map_encoder.size_multiple
-    map_sess, traj_sess = _session(out_dir / MAP_ENCODER_ONNX), _session(out_dir / TRAJECTORY_ENCODER_ONNX)
+    map_sess, traj_sess = session(out_dir / MAP_ENCODER_ONNX), session(out_dir / TRAJECTORY_ENCODER_ONNX)
     worst = {"dmt": 0.0, "dtv": 0.0, "score": 0.0}
     for (h, w), batch in zip(((37, 52), (4 * k, 3 * k)), (1, 3)):
         mask = (torch.rand(h, w, generator=g) > 0.3).float()
@@ -113,9 +82,8 @@ def parity(net: MapPriorNet, out_dir: Path, resolution_m: float, seed: int = 0) 
         dtv_o = traj_sess.run(["dtv"], {"odometry": odo_m.numpy()})[0]
         s_t = np.einsum("chw,bc->bhw", dmt_t, dtv_t)
         s_o = np.einsum("chw,bc->bhw", dmt_o, dtv_o)
-        worst["dmt"] = max(worst["dmt"], _rel(dmt_o, dmt_t))
-        worst["dtv"] = max(worst["dtv"], _rel(dtv_o, dtv_t))
-        worst["score"] = max(worst["score"], _rel(s_o, s_t))
+        for key, got, ref in (("dmt", dmt_o, dmt_t), ("dtv", dtv_o, dtv_t), ("score", s_o, s_t)):
+            worst[key] = max(worst[key], max_diff([got], [ref], relative=True))
     return worst
 
 
@@ -151,16 +119,16 @@ def export_mapprior(net: MapPriorNet, meta: dict, out: str | Path, opset: int = 
         "model": meta.get("model"), "buildings": meta.get("buildings"), "val_buildings": meta.get("val_buildings"),
         "data_hash": meta.get("data_hash"), "target": meta.get("target"), "blenav_version": blenav_version(),
     }
-    props = {key: json.dumps(info[key], sort_keys=True) for key in ("kind", "resolution_m", "window", "channels",
-                                                                   "size_multiple", "score", "blenav_version")}
+    props = json_props(info, ("kind", "resolution_m", "window", "channels", "size_multiple", "score",
+                              "blenav_version"))
     paths = [out / MAP_ENCODER_ONNX, out / TRAJECTORY_ENCODER_ONNX, out / META_JSON]
     try:
-        _export(_MapGraph(net), torch.zeros(1, 1, 4 * k, 5 * k), paths[0], "mask", "dmt",
-                {"mask": {0: "batch", 2: "H", 3: "W"}, "dmt": {0: "batch", 2: "H", 3: "W"}}, opset, props,
-                f"blenav map prior: map encoder f(M) at {res:g} m/px -> DMT (c = {c})")
-        _export(_TrajectoryGraph(net, res), torch.zeros(2, int(w["n_points"]), 2), paths[1], "odometry", "dtv",
-                {"odometry": {0: "batch"}, "dtv": {0: "batch"}}, opset, props,
-                f"blenav map prior: trajectory encoder g(O), {w['n_points']} points in metres -> DTV (c = {c})")
+        trace_onnx(_MapGraph(net), (torch.zeros(1, 1, 4 * k, 5 * k),), paths[0], ["mask"], ["dmt"],
+                   {"mask": {0: "batch", 2: "H", 3: "W"}, "dmt": {0: "batch", 2: "H", 3: "W"}}, opset, props,
+                   f"blenav map prior: map encoder f(M) at {res:g} m/px -> DMT (c = {c})")
+        trace_onnx(_TrajectoryGraph(net, res), (torch.zeros(2, int(w["n_points"]), 2),), paths[1], ["odometry"],
+                   ["dtv"], {"odometry": {0: "batch"}, "dtv": {0: "batch"}}, opset, props,
+                   f"blenav map prior: trajectory encoder g(O), {w['n_points']} points in metres -> DTV (c = {c})")
         worst = parity(net, out, res)
         if not all(v <= TOL for v in worst.values()):
             raise RuntimeError(f"{out}: onnxruntime differs from PyTorch ({worst}) beyond {TOL:g}; export rejected")
@@ -176,7 +144,5 @@ def export_mapprior(net: MapPriorNet, meta: dict, out: str | Path, opset: int = 
 
 def export_checkpoint(ckpt: str | Path, out: str | Path, opset: int = DEFAULT_OPSET) -> Path:
     """``last.ckpt`` of ``train.py experiment=mapprior`` -> export directory ``out``."""
-    from .mapprior import load_mapprior
-
     net, meta = load_mapprior(ckpt)
     return export_mapprior(net, meta, out, opset)

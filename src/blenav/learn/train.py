@@ -2,7 +2,8 @@
 
 Leaves ``OUT/last.ckpt`` (and per-epoch metrics in ``OUT/logs/.../metrics.csv`` via Lightning's CSVLogger,
 plus TensorBoard event files when tensorboard is installed). A run interrupted and started again with
-the same ``out`` resumes from ``OUT/last.ckpt``: optimizer state, epoch and step counters included.
+the same ``out`` resumes from ``OUT/last.ckpt``: optimizer state, epoch and step counters included (the run
+itself, shared with the map prior's training, is :mod:`blenav.learn.trainer`).
 Seeding: ``lightning.seed_everything(cfg.seed)`` once, plus the data module's own generators.
 
 Scenario 3 of Roy (``cfg.semi`` set and unlabelled devices given): after ``trainer.max_epochs`` supervised
@@ -15,20 +16,18 @@ from __future__ import annotations
 
 import dataclasses
 from functools import partial
-from importlib.util import find_spec
-from pathlib import Path
 
-import lightning as L
 import torch
 from omegaconf import DictConfig, OmegaConf
 
 from blenav.features.scale import U_SCALE
 
-from .checkpoint import build_networks
 from .augment import ReceiverAugment
+from .checkpoint import build_networks
 from .data import WindowDataConfig, WindowDataModule
 from .losses import brand_statistics
 from .module import CrossPhoneModule
+from .trainer import fit, start_run
 
 
 def data_config(cfg: DictConfig) -> WindowDataConfig:
@@ -61,21 +60,6 @@ def build_module(cfg: DictConfig, dm: WindowDataModule) -> CrossPhoneModule:
     return module
 
 
-def last_checkpoint(out: Path) -> L.Callback:
-    """OUT/last.ckpt after *every* epoch, so an interrupted run resumes from its last finished epoch
-    (Lightning 2.6 writes ``save_last`` only with a top-k checkpoint, i.e. with save_top_k=0 only when fit
-    ends); no version counter: a resumed or copied-in run (scenario 3 from scenario 2) overwrites it."""
-    return L.pytorch.callbacks.ModelCheckpoint(dirpath=out, filename="last", save_top_k=1, monitor=None,
-                                               every_n_epochs=1, enable_version_counter=False)
-
-
-def loggers(out: Path) -> list:
-    log = [L.pytorch.loggers.CSVLogger(out, name="logs")]
-    if find_spec("tensorboard") is not None or find_spec("tensorboardX") is not None:
-        log.append(L.pytorch.loggers.TensorBoardLogger(out, name="tb"))
-    return log
-
-
 TASKS = ("crossphone", "mapprior")
 
 
@@ -87,22 +71,20 @@ def train(cfg: DictConfig, callbacks: list | None = None,
     methods on one split without windowing the dataset again); another data config is an error.
 
     ``cfg.task`` picks what is fitted: ``crossphone`` (default, this module) or ``mapprior`` (the map prior
-    network of Roy section 3.2.2, :func:`blenav.learn.mapprior.train_mapprior`; ``experiment=mapprior``)."""
+    network of Roy section 3.2.2, :func:`blenav.learn.mapprior_train.train_mapprior`; ``experiment=mapprior``)."""
     task = str(cfg.get("task") or "crossphone")
     if task not in TASKS:
         raise ValueError(f"task={task!r} is not one of {TASKS}")
     if cfg.get("threads"):  # e.g. threads=1 on a shared machine: oversubscribed cores slow torch down a lot
         torch.set_num_threads(int(cfg.threads))
     if task == "mapprior":
-        from .mapprior import train_mapprior
+        from .mapprior_train import train_mapprior  # only this task needs the map prior's data stack
 
         return train_mapprior(cfg, callbacks=callbacks)
     if (cfg.get("model") or {}).get("kind") == "mapprior":
         raise ValueError("model=mapprior is trained with task=mapprior: use `python train.py experiment=mapprior "
                          "data=DIR out=RUN`")
-    L.seed_everything(int(cfg.seed), workers=True)
-    out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = start_run(cfg.seed, cfg.out)
     dcfg = data_config(cfg)
     if datamodule is not None and datamodule.cfg != dcfg:
         raise ValueError("train(cfg, datamodule=...): the data module was built from another data config")
@@ -118,11 +100,7 @@ def train(cfg: DictConfig, callbacks: list | None = None,
     if semi:
         trainer_kw["max_epochs"] = int(cfg.trainer.max_epochs) + int(semi.epochs)
         trainer_kw["reload_dataloaders_every_n_epochs"] = 1
-    ckpt = last_checkpoint(out)
-    trainer = L.Trainer(**trainer_kw, default_root_dir=out, callbacks=[ckpt, *(callbacks or [])], logger=loggers(out),
-                        enable_model_summary=False)
-    resume = out / "last.ckpt"
-    trainer.fit(module, datamodule=dm, ckpt_path=str(resume) if resume.is_file() else None)
+    trainer = fit(module, dm, out, trainer_kw, callbacks or [])
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     if dm.sets.get("test") is not None:  # every rank: under DDP the test loop is collective too
         metrics.update({k: float(v) for k, v in trainer.test(module, datamodule=dm, verbose=False)[0].items()})

@@ -6,7 +6,7 @@ DMT f(M) (c, H, W), DTV g(O) (c,), score S(x | M, O) = f(M)_x . g(O) (eq. 3.8, R
 
 Use::
 
-    prior = MapPrior("RUN/last.ckpt")          # or MapPrior("DIR2") with map_encoder.onnx, meta.json, ...
+    prior = MapPrior("DIR2")                   # an export: map_encoder.onnx, trajectory_encoder.onnx, meta.json
     prior.bind(session.floor)                  # DMT once per floor (cached in memory and on disk)
     dtv = prior.dtv(odo)                       # odo (K, n_points, 2) m: one window per heading hypothesis
     logw = prior.log_score_at(xy[None], dtv[:, None, :])   # xy (N, 2) world m -> (K, N)
@@ -27,7 +27,14 @@ the network resolution, the weights' hash); it is kept in memory and, with a ``c
 ``dmt_<key>.npy`` there, so a second bind of the same floor -- in this process or a later one -- does not run
 the U-Net (:attr:`MapPrior.encode_calls` counts the runs).
 
-This module needs numpy (and onnxruntime for an ONNX directory); torch only for a checkpoint.
+Backends. An export directory runs in onnxruntime (:class:`OnnxBackend`). A checkpoint (``RUN/last.ckpt``)
+needs PyTorch, which this layer does not import: the caller hands MapPrior the loader,
+``MapPrior(path, loader=blenav.learn.mapprior_checkpoint.TorchBackend)`` (or calls
+``blenav.learn.mapprior_checkpoint.load_map_prior(path)``). A backend has ``meta`` (the checkpoint's or
+meta.json's), ``weights_hash`` (str, part of the DMT cache key), ``encode_map(mask (H, W) float32) -> (c, H, W)``
+and ``encode_trajectory(odo_px (K, n_points, 2) float32) -> (K, c)``.
+
+This module needs numpy (and onnxruntime for an ONNX directory).
 """
 
 from __future__ import annotations
@@ -36,10 +43,12 @@ import hashlib
 import json
 import os
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from blenav.features.mapgrid import NetGrid, floor_key, net_grid, pad_to_multiple
+from blenav.onnx_io import session
 
 SCORE_FLOOR = 1e-12
 LOG_FLOOR = float(np.log(SCORE_FLOOR))
@@ -50,34 +59,10 @@ META_JSON = "meta.json"
 
 # --- backends --------------------------------------------------------------------------------------------
 
-class _TorchBackend:
-    """A checkpoint of ``train.py experiment=mapprior`` in PyTorch (eval mode, no grad)."""
-
-    def __init__(self, path: Path):
-        from blenav.learn.mapprior import load_mapprior, weights_hash
-
-        self.net, self.meta = load_mapprior(path)
-        self.weights_hash = weights_hash(self.net)
-
-    def encode_map(self, mask: np.ndarray) -> np.ndarray:
-        import torch
-
-        with torch.no_grad():
-            return self.net.encode_map(torch.from_numpy(mask)[None, None]).numpy()[0]
-
-    def encode_trajectory(self, odo_px: np.ndarray) -> np.ndarray:
-        import torch
-
-        with torch.no_grad():
-            return self.net.encode_trajectory(torch.from_numpy(odo_px)).numpy()
-
-
-class _OnnxBackend:
+class OnnxBackend:
     """An export directory (map_encoder.onnx, trajectory_encoder.onnx, meta.json) in onnxruntime."""
 
     def __init__(self, root: Path, threads: int = 1):
-        import onnxruntime as ort
-
         paths = [root / n for n in (MAP_ENCODER_ONNX, TRAJECTORY_ENCODER_ONNX, META_JSON)]
         missing = [p.name for p in paths if not p.is_file()]
         if missing:
@@ -86,12 +71,8 @@ class _OnnxBackend:
         self.meta = json.loads(paths[2].read_text(encoding="utf-8"))
         if self.meta.get("kind") != "mapprior":
             raise ValueError(f"{paths[2]} is not a map prior export (kind {self.meta.get('kind')!r})")
-        so = ort.SessionOptions()
-        so.intra_op_num_threads = int(threads)
-        so.inter_op_num_threads = 1
-        so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        self.map_sess = ort.InferenceSession(str(paths[0]), so, providers=["CPUExecutionProvider"])
-        self.traj_sess = ort.InferenceSession(str(paths[1]), so, providers=["CPUExecutionProvider"])
+        self.map_sess = session(paths[0], threads)
+        self.traj_sess = session(paths[1], threads)
         h = hashlib.sha256(paths[0].read_bytes())
         self.weights_hash = "onnx:" + h.hexdigest()[:16]
         self.resolution_m = float(self.meta["resolution_m"])
@@ -109,18 +90,27 @@ class _OnnxBackend:
 # --- the prior -------------------------------------------------------------------------------------------
 
 class MapPrior:
-    """Learned map prior from a checkpoint (``.ckpt`` file, PyTorch) or an export directory (onnxruntime).
+    """Learned map prior from an export directory (onnxruntime) or, with ``loader``, a checkpoint file.
 
+    ``loader``: a callable that turns a file into a backend (see the module docstring), e.g.
+    ``blenav.learn.mapprior_checkpoint.TorchBackend`` for a ``.ckpt``; not used for a directory.
     ``cache_dir``: where DMTs are stored as ``dmt_<key>.npy`` (None: memory only). ``threads``: onnxruntime
     intra-op threads (PyTorch keeps its own setting).
     """
 
-    def __init__(self, source: str | Path, cache_dir: str | Path | None = None, threads: int = 1):
+    def __init__(self, source: str | Path, cache_dir: str | Path | None = None, threads: int = 1,
+                 loader: Callable[[Path], object] | None = None):
         source = Path(source)
         if source.is_dir():
-            self._backend = _OnnxBackend(source, threads)
+            self._backend = OnnxBackend(source, threads)
         elif source.is_file():
-            self._backend = _TorchBackend(source)
+            if loader is None:
+                raise ValueError(f"map prior {source} is a file (a checkpoint?): MapPrior runs an export directory "
+                                 "in onnxruntime; for a checkpoint pass the PyTorch loader, MapPrior(path, "
+                                 "loader=blenav.learn.mapprior_checkpoint.TorchBackend) or blenav.learn."
+                                 "mapprior_checkpoint.load_map_prior(path), or export it first with `python "
+                                 "export.py ckpt=RUN/last.ckpt out=DIR`")
+            self._backend = loader(source)
         else:
             raise FileNotFoundError(f"map prior {source} does not exist (a last.ckpt or an export directory)")
         meta = self._backend.meta

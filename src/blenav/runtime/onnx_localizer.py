@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from blenav.features.windows import beacon_order, rssi_to_u
+from blenav.onnx_io import read_metadata, session
 
 _EXAMPLES = 5
 
@@ -38,23 +39,11 @@ class OnnxLocalizer:
     """An exported model in an onnxruntime session (``threads`` intra-op threads, sequential execution)."""
 
     def __init__(self, path: str | Path, building=None, threads: int = 1):
-        import onnxruntime as ort
-
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"ONNX model {self.path} does not exist")
-        so = ort.SessionOptions()
-        so.intra_op_num_threads = int(threads)
-        so.inter_op_num_threads = 1
-        so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        self._sess = ort.InferenceSession(str(self.path), so, providers=["CPUExecutionProvider"])
-        props = self._sess.get_modelmeta().custom_metadata_map
-        self._meta = {}
-        for k, v in props.items():
-            try:
-                self._meta[k] = json.loads(v)
-            except json.JSONDecodeError:
-                self._meta[k] = v
+        self._sess = session(self.path, threads)
+        self._meta = read_metadata(self._sess)
         names = [i.name for i in self._sess.get_inputs()]
         if names != ["S", "h0", "c0"] or "beacons" not in self._meta or "window" not in self._meta:
             raise ValueError(f"{self.path} is not a blenav localizer export (inputs {names}, metadata keys "

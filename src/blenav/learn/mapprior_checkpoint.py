@@ -1,0 +1,82 @@
+"""What a map prior checkpoint carries besides weights, how to rebuild its network, and the PyTorch loader the
+runtime's :class:`blenav.runtime.map_prior.MapPrior` is handed for a checkpoint.
+
+Checkpoint meta (``checkpoint["blenav"]``, written by :func:`blenav.learn.mapprior_train.build_meta`):
+``kind: "mapprior"``, ``model`` (the resolved model node), ``resolution_m``, ``window`` {window_s, step_hz,
+n_points}, ``channels`` c, ``size_multiple`` (the U-Net's), ``target`` {scale, gain, feasible_tbar},
+``augment``, ``crop_px``, ``buildings`` / ``val_buildings``, ``data_hash``. :func:`load_mapprior` rebuilds the
+network from it with no config file (reading through :func:`blenav.learn.checkpoint.read_checkpoint`, as the
+cross-phone side does).
+
+The runtime does not import this module (it is below ``learn/`` and torch-free): a caller that wants to run a
+checkpoint hands it the loader, ``MapPrior(path, loader=TorchBackend)``, or calls :func:`load_map_prior`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import torch
+from hydra.utils import instantiate
+
+from blenav.models.mapprior import MapPriorNet
+from blenav.runtime.map_prior import MapPrior
+
+from .checkpoint import KEY, read_checkpoint
+
+KIND = "mapprior"
+
+
+def build_net(model: dict, n_points: int, step_hz: float) -> MapPriorNet:
+    """:class:`MapPriorNet` from a model node's ``net`` (``_target_`` and sizes) for windows of n_points."""
+    net = instantiate(model["net"], n_points=int(n_points), step_hz=float(step_hz))
+    if not isinstance(net, MapPriorNet):
+        raise ValueError(f"model.net must build a MapPriorNet, got {type(net).__name__}")
+    return net
+
+
+def weights_hash(net: torch.nn.Module) -> str:
+    """sha256 (first 16 hex) of the map encoder's parameters and buffers: the DMT cache key part."""
+    h = hashlib.sha256()
+    for k, v in net.map_encoder.state_dict().items():
+        h.update(k.encode())
+        h.update(v.detach().cpu().contiguous().numpy().tobytes())
+    return "pt:" + h.hexdigest()[:16]
+
+
+def load_mapprior(path: str | Path) -> tuple[MapPriorNet, dict]:
+    """(network in eval mode, meta) from a ``last.ckpt`` of ``train.py experiment=mapprior``."""
+    ck = read_checkpoint(path)
+    meta = ck[KEY]
+    if meta.get("kind") != KIND:
+        raise ValueError(f"{path}: a {meta.get('kind', 'crossphone')} checkpoint, not a map prior")
+    w = meta["window"]
+    net = build_net(meta["model"], w["n_points"], w["step_hz"])
+    state = {k[len("net."):]: v for k, v in ck["state_dict"].items() if k.startswith("net.")}
+    net.load_state_dict(state)
+    return net.eval(), meta
+
+
+class TorchBackend:
+    """A checkpoint of ``train.py experiment=mapprior`` in PyTorch (eval mode, no grad), as the backend of a
+    :class:`~blenav.runtime.map_prior.MapPrior` (``MapPrior(path, loader=TorchBackend)``)."""
+
+    def __init__(self, path: str | Path):
+        self.net, self.meta = load_mapprior(path)
+        self.weights_hash = weights_hash(self.net)
+
+    def encode_map(self, mask: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.net.encode_map(torch.from_numpy(mask)[None, None]).numpy()[0]
+
+    def encode_trajectory(self, odo_px: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.net.encode_trajectory(torch.from_numpy(odo_px)).numpy()
+
+
+def load_map_prior(source: str | Path, **kw) -> MapPrior:
+    """A :class:`~blenav.runtime.map_prior.MapPrior` of a checkpoint (PyTorch) or an export directory
+    (onnxruntime); ``kw`` as MapPrior's (``cache_dir``, ``threads``)."""
+    return MapPrior(source, loader=TorchBackend, **kw)

@@ -1,0 +1,181 @@
+"""The layers of blenav import in one direction (issue 13, section 2).
+
+1. Nothing below ``learn/`` loads torch, lightning or hydra: importing every module of ``blenav.data``,
+   ``blenav.features``, ``blenav.filters``, ``blenav.runtime``, ``blenav.sim`` and ``blenav.importers`` (and
+   ``blenav.onnx_io``) in a fresh interpreter leaves them out of ``sys.modules``.
+2. No import cycles between the modules of ``src/blenav``. The graph counts every ``import`` statement of a
+   module, at module level *and* inside functions (a lazy import hides a cycle, it does not remove it); only
+   imports under ``if TYPE_CHECKING:`` are left out (they never run). A justified lazy import that closes a
+   cycle must be listed in :data:`ALLOWED` with the reason.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+LOWER = ("blenav.data", "blenav.features", "blenav.filters", "blenav.runtime", "blenav.sim", "blenav.importers",
+         "blenav.onnx_io")
+HEAVY = ("torch", "lightning", "hydra")
+#: (importer, imported) edges left out of the cycle check, each with its reason; none needed today
+ALLOWED: dict[tuple[str, str], str] = {}
+
+
+def test_lower_layers_import_without_torch_lightning_hydra():
+    code = f"""
+import importlib, json, pkgutil, sys
+names = []
+for top in {LOWER!r}:
+    mod = importlib.import_module(top)
+    names.append(top)
+    if hasattr(mod, "__path__"):
+        for info in pkgutil.walk_packages(mod.__path__, top + "."):
+            importlib.import_module(info.name)
+            names.append(info.name)
+print(json.dumps({{"modules": names, "heavy": sorted(m for m in {HEAVY!r} if m in sys.modules)}}))
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    assert "blenav.runtime.map_prior" in out["modules"] and "blenav.features.windows" in out["modules"]
+    assert out["heavy"] == [], f"importing {LOWER} loads {out['heavy']}"
+
+
+# --- the module graph ------------------------------------------------------------------------------------
+
+def modules(root: Path = SRC) -> dict[str, Path]:
+    """Dotted module name -> file, for every .py below ``root/blenav`` (a package by its ``__init__``)."""
+    out = {}
+    for p in sorted((root / "blenav").rglob("*.py")):
+        parts = p.relative_to(root).with_suffix("").parts
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = p
+    return out
+
+
+def _type_checking_nodes(tree: ast.AST) -> set[int]:
+    """ids of the import nodes under ``if TYPE_CHECKING:`` (or ``typing.TYPE_CHECKING``)."""
+    skip = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If):
+            t = node.test
+            name = t.id if isinstance(t, ast.Name) else t.attr if isinstance(t, ast.Attribute) else None
+            if name == "TYPE_CHECKING":
+                skip |= {id(n) for stmt in node.body for n in ast.walk(stmt)}
+    return skip
+
+
+def import_graph(root: Path = SRC) -> dict[str, set[str]]:
+    """Module -> the blenav modules it imports (module level and inside functions; ``from m import name``
+    counts ``m.name`` when that is a module, else ``m``)."""
+    mods = modules(root)
+    graph: dict[str, set[str]] = {}
+    for name, path in mods.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        skip = _type_checking_nodes(tree)
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        deps: set[str] = set()
+        for node in ast.walk(tree):
+            if id(node) in skip:
+                continue
+            if isinstance(node, ast.Import):
+                for a in node.names:
+                    deps.add(a.name)
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    m = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    m = node.module or ""
+                named = [f"{m}.{a.name}" for a in node.names if f"{m}.{a.name}" in mods]
+                deps |= set(named) if named and len(named) == len(node.names) else {m, *named}
+        graph[name] = {d for d in deps if d in mods and d != name and (name, d) not in ALLOWED}
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle [a, b, ..., a] of ``graph``, or None (iterative depth-first search)."""
+    state: dict[str, int] = {}  # 1 on the stack, 2 done
+    for start in sorted(graph):
+        if state.get(start):
+            continue
+        stack = [(start, iter(sorted(graph[start])))]
+        path = [start]
+        state[start] = 1
+        while stack:
+            node, it = stack[-1]
+            nxt = next(it, None)
+            if nxt is None:
+                state[node] = 2
+                stack.pop()
+                path.pop()
+            elif state.get(nxt) == 1:
+                return path[path.index(nxt):] + [nxt]
+            elif not state.get(nxt):
+                state[nxt] = 1
+                path.append(nxt)
+                stack.append((nxt, iter(sorted(graph.get(nxt, ())))))
+    return None
+
+
+def test_cycle_finder_finds_a_lazy_import_cycle(tmp_path):
+    pkg = tmp_path / "blenav"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from blenav import b\n")
+    (pkg / "b.py").write_text("def f():\n    from .a import x\n")
+    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from blenav import a\n")
+    graph = import_graph(tmp_path)
+    assert graph["blenav.a"] == {"blenav.b"} and graph["blenav.b"] == {"blenav.a"} and graph["blenav.c"] == set()
+    assert find_cycle(graph) in (["blenav.a", "blenav.b", "blenav.a"], ["blenav.b", "blenav.a", "blenav.b"])
+    assert find_cycle({"x": {"y"}, "y": set()}) is None
+
+
+def test_no_import_cycles():
+    graph = import_graph()
+    assert "blenav.learn.train" in graph and "blenav.runtime.map_prior" in graph
+    cycle = find_cycle(graph)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_lower_layers_import_nothing_above_them():
+    """The static view of test 1: no module below learn/ names learn, eval, cli or configs, even lazily."""
+    upper = ("blenav.learn", "blenav.eval", "blenav.cli", "blenav.configs", "blenav.localizers")
+    bad = {(m, d) for m, deps in import_graph().items() if m.startswith(LOWER)
+           for d in deps if d.startswith(upper)}
+    assert not bad, f"lower layers import upper ones: {sorted(bad)}"
+
+
+def test_runtime_map_prior_runs_a_checkpoint_only_with_the_loader_it_is_handed(tmp_path):
+    """runtime.MapPrior imports nothing of learn/: a checkpoint file needs a loader from the caller."""
+    import numpy as np
+    import pytest
+
+    from blenav.runtime import MapPrior
+
+    ck = tmp_path / "last.ckpt"
+    ck.write_bytes(b"not read")
+    with pytest.raises(ValueError, match=r"loader=blenav\.learn\.mapprior_checkpoint\.TorchBackend"):
+        MapPrior(ck)
+
+    class Backend:  # what a loader returns (blenav.learn.mapprior_checkpoint.TorchBackend for a real one)
+        meta = {"resolution_m": 0.5, "window": {"window_s": 5.0, "step_hz": 1.0, "n_points": 6}, "channels": 3}
+        weights_hash = "fake"
+
+        def __init__(self, path):
+            self.path = path
+
+        def encode_map(self, mask):
+            return np.zeros((3, *mask.shape), np.float32)
+
+        def encode_trajectory(self, odo_px):
+            return np.ones((len(odo_px), 3), np.float32)
+
+    prior = MapPrior(ck, loader=Backend)
+    assert prior._backend.path == ck and prior.n_points == 6 and prior.weights_hash == "fake"
+    assert prior.dtv(np.zeros((2, 6, 2))).shape == (2, 3)
