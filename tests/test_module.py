@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from blenav.learn.losses import brand_statistics
+from blenav.learn.losses import brand_statistics, ssl_loss, temporal_smoothness_loss
 from blenav.learn.module import CrossPhoneModule
 from blenav.models import LocNet, TransNet
 
@@ -48,11 +48,58 @@ def test_training_reduces_the_localization_error(transnet):
     assert set(out) >= ({"loc", "ssl", "ts", "loss"} if transnet else {"loc", "loss"})
 
 
+def _grads(loss, params):
+    """d loss / d p for every p (zeros where p is not in the graph)."""
+    gs = torch.autograd.grad(loss, params, retain_graph=True, allow_unused=True)
+    return [torch.zeros_like(p) if g is None else g for g, p in zip(gs, params)]
+
+
 def test_unlabelled_rows_only_feed_the_unsupervised_terms():
+    """Adding unlabelled rows (NaN labels) to a batch leaves the supervised term, its gradient and err_m exactly
+    as on the labelled rows alone, whatever the unlabelled windows contain; the SSL and temporal terms are
+    computed over every row and change with the unlabelled windows."""
     S, xy = _data(n=8)
-    xy[:4] = float("nan")
-    m = _module(True, weights={"loc": 1.0, "ts": 1.0})
-    out = m.model_step({"S": S, "xy": xy})
-    assert torch.isfinite(out["loss"]) and "loc" in out
+    lab = slice(4, 8)
+    xy_mixed = xy.clone()
+    xy_mixed[:4] = float("nan")
+    M = torch.tensor(brand_statistics(S.numpy()))
+    w = {"loc": 1.0, "ssl": 0.5, "ts": 2.0}
+    m = _module(True, weights=w, M=M)
+    m.locnet.set_normalisation(xy[lab])
+    params = list(m.parameters())
+    mixed = m.model_step({"S": S, "xy": xy_mixed})
+    only = m.model_step({"S": S[lab], "xy": xy[lab]})
+    assert set(mixed) == {"loc", "ssl", "ts", "loss", "err_m"}
+    assert mixed["loc"].item() > 0 and torch.isfinite(mixed["loss"])
+    torch.testing.assert_close(mixed["loc"], only["loc"], rtol=1e-6, atol=1e-7)
+    torch.testing.assert_close(mixed["err_m"], only["err_m"], rtol=1e-6, atol=1e-7)
+    g_mixed, g_only = _grads(mixed["loc"], params), _grads(only["loc"], params)
+    assert all(torch.isfinite(g).all() for g in g_mixed)  # the NaN labels do not leak into the gradient
+    assert sum(g.abs().sum() for g in g_mixed) > 0
+    for a, b in zip(g_mixed, g_only):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-8)
+    # other readings in the unlabelled rows: the supervised term does not move, the unsupervised ones do
+    S_other = S.clone()
+    S_other[:4] = torch.rand(4, 6, 5, generator=torch.Generator().manual_seed(1)) * 0.7
+    other = m.model_step({"S": S_other, "xy": xy_mixed})
+    torch.testing.assert_close(other["loc"], mixed["loc"], rtol=1e-6, atol=1e-7)
+    for g_a, g_b in zip(_grads(other["loc"], params), g_mixed):
+        torch.testing.assert_close(g_a, g_b, rtol=1e-5, atol=1e-8)
+    for k in ("ssl", "ts"):
+        assert abs(other[k].item() - mixed[k].item()) > 1e-4 * abs(mixed[k].item()), k
+    # ... because they are the losses of eqs. 3.2-3.5 over all 8 rows, and the total is eq. 3.6
+    with torch.no_grad():
+        g_all = m.transnet(S)
+        torch.testing.assert_close(mixed["ts"], temporal_smoothness_loss(g_all), rtol=1e-6, atol=1e-7)
+        torch.testing.assert_close(mixed["ssl"], ssl_loss(g_all, S, M, m.tau), rtol=1e-5, atol=1e-7)
+        torch.testing.assert_close(mixed["loss"], w["loc"] * mixed["loc"] + w["ssl"] * mixed["ssl"]
+                                   + w["ts"] * mixed["ts"], rtol=1e-6, atol=1e-7)
+    # a batch of unlabelled rows only: no supervised term and no error; the loss trains TransNet, not LocNet
+    none = m.model_step({"S": S, "xy": torch.full_like(xy, float("nan"))})
+    assert set(none) == {"ssl", "ts", "loss"}
+    g_t = _grads(none["loss"], list(m.transnet.parameters()))
+    g_l = _grads(none["loss"], list(m.locnet.parameters()))
+    assert all(torch.isfinite(g).all() for g in g_t) and all(g.abs().sum() > 0 for g in g_t)
+    assert all((g == 0).all() for g in g_l)
     with pytest.raises(ValueError, match="no loss term"):
         _module(False).model_step({"S": S, "xy": torch.full_like(xy, float("nan"))})
