@@ -91,7 +91,7 @@ def floor_ranks(prior: MapPrior, dm, n: int) -> tuple[float, float]:
     return float(np.median(net_r)), float(np.median(ora_r))
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", default=None, help="an existing dataset (default: simulate office_45x55)")
     p.add_argument("--sessions", type=int, default=4)
@@ -102,47 +102,103 @@ def main() -> None:
     p.add_argument("--windows", type=int, default=200)
     p.add_argument("--calls", type=int, default=500)
     p.add_argument("overrides", nargs="*", help="extra train.py overrides, e.g. data.samples_per_epoch=4096")
-    args = p.parse_args()
+    return p.parse_args()
 
+
+def simulate_office(data: Path, sessions: int, duration: float) -> None:
+    """Simulate ``sessions`` pedestrian walks of ``duration`` s in office_45x55 (seed 1) into ``data``."""
+    t0 = time.perf_counter()
+    sim_run(compose("sim", "sim=office_45x55", "seed=1", f"out={data}", f"duration_s={duration}",
+                    f"sessions={sessions}", "progress=false", "sim.carriers=[pedestrian]"))
+    print(f"simulated office_45x55: {sessions} walks x {duration:g} s in {time.perf_counter() - t0:.0f} s")
+
+
+def train_and_report(args: argparse.Namespace, data: Path, out: Path) -> L.LightningDataModule:
+    """Train the map prior on ``data`` into ``out`` and print epoch times, convergence and the budget verdict.
+
+    Returns the datamodule of the run.
+    """
+    over = ["experiment=mapprior", f"data={data}", f"out={out}", "trainer.enable_progress_bar=false",
+            *args.overrides]
+    if args.max_epochs:
+        over.append(f"trainer.max_epochs={args.max_epochs}")
+    cfg = compose("train", *over)
+    timer = EpochTimer()
+    t0, c0 = time.perf_counter(), time.process_time()
+    metrics, objs = train(cfg, callbacks=[timer])
+    total, cpu = time.perf_counter() - t0, time.process_time() - c0
+    dm = objs["datamodule"]
+    logs = sorted(out.glob("logs/version_*/metrics.csv"))[-1]
+    val = pd.read_csv(logs).dropna(subset=["val/loss"]).groupby("epoch")["val/loss"].last()
+    best = float(val.min())
+    conv = int(val.index[np.flatnonzero(val.to_numpy() <= best * (1 + args.tol))[0]]) + 1
+    n_par = sum(p.numel() for p in objs["module"].net.parameters())
+    print(f"\ntraining ({n_par:,d} parameters, {dm.cfg.samples_per_epoch} windows/epoch, batch "
+          f"{dm.cfg.batch_size}, {torch.get_num_threads()} threads; train windows {dm.sets['train'].n_windows}, "
+          f"buildings {dm.train_buildings})")
+    print(f"  time per epoch (median of {len(timer.times)}): {np.median(timer.times):.1f} s "
+          f"(min {np.min(timer.times):.1f}, max {np.max(timer.times):.1f})")
+    print(f"  epochs run: {len(val)}; converged (val/loss within {args.tol:.0%} of its best {best:.4f}) at "
+          f"epoch {conv}; val/gt_pct at the end {metrics.get('val/gt_pct', float('nan')):.3f}")
+    print(f"  val/loss per epoch: {', '.join(f'{v:.4f}' for v in val.to_numpy())}")
+    verdict = "MEETS" if total / 60 < BUDGET_MIN else "MISSES"
+    print(f"  total {total / 60:.1f} min wall (to convergence {conv * np.median(timer.times) / 60:.1f} min): "
+          f"{verdict} the {BUDGET_MIN:g} min budget")
+    print(f"  process CPU time {cpu / 60:.1f} min, i.e. {cpu / 120:.1f} min of wall time on both cores of an "
+          f"otherwise idle machine (mean 1-min load average at epoch ends: {np.mean(timer.loads):.1f} on "
+          f"{os.cpu_count()} cores)")
+    return dm
+
+
+def report_floor_and_encode(pt, ox, floor, dm, windows: int) -> None:
+    """Bind both priors to ``floor`` (timing the DMT encode) and print the whole-floor ranks of ``windows``
+    held-out windows (see floor_ranks)."""
+    enc = {}
+    for name, prior in (("torch", pt), ("onnxruntime", ox)):
+        t0 = time.perf_counter()
+        prior.bind(floor)
+        enc[name] = time.perf_counter() - t0
+    net_rank, oracle_rank = floor_ranks(pt, dm, windows)
+    print(f"\nwhole floor ({floor.shape[1]} x {floor.shape[0]} px at {floor.resolution:g} m -> "
+          f"{pt.grid.shape[1]} x {pt.grid.shape[0]} at {pt.resolution_m:g} m), {windows} held-out windows: "
+          f"free pixels scoring above the true end, median {net_rank:.3f} (no information 0.5); free pixels "
+          f"where the true shape fits as well (T >= T(end)), median {oracle_rank:.3f}")
+    print(f"DMT encode per building, 1 thread: PyTorch {enc['torch'] * 1e3:.0f} ms, onnxruntime "
+          f"{enc['onnxruntime'] * 1e3:.0f} ms (once per floor, then cached)")
+
+
+def report_step_latency(pt, ox, floor, calls: int) -> None:
+    """Print the per-step latency (ms, median of ``calls``) of the trajectory encoder, onnxruntime against
+    PyTorch eager, and of log_score_at, for batch 1 and 8 (odometry (K, n_points, 2) in m)."""
+    net = pt._backend.net
+    for K in (1, 8):
+        odo = np.cumsum(np.full((K, pt.n_points, 2), 0.3, dtype=np.float32), axis=1) - 0.3
+        feed = {"odometry": odo}
+        sess = ox._backend.traj_sess
+        o_ms = median_ms(lambda: sess.run(["dtv"], feed), calls)
+        x = torch.from_numpy(odo / pt.resolution_m)
+
+        def eager():
+            with torch.no_grad():
+                net.encode_trajectory(x)
+
+        t_ms = median_ms(eager, calls)
+        dtv = ox.dtv(odo.astype(np.float64))
+        xy = floor.free_points()[:: max(1, len(floor.free_points()) // 1000)][:1000]
+        s_ms = median_ms(lambda: ox.log_score_at(xy[None], dtv[:, None]), max(50, calls // 5))
+        print(f"trajectory encoder, batch {K}: onnxruntime {o_ms:.3f} ms, PyTorch eager {t_ms:.3f} ms "
+              f"({t_ms / o_ms:.1f}x); log_score_at for {K} x 1000 particles {s_ms:.2f} ms")
+
+
+def main() -> None:
+    args = parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         data = Path(args.data) if args.data else tmp / "office"
         if not args.data:
-            t0 = time.perf_counter()
-            sim_run(compose("sim", "sim=office_45x55", "seed=1", f"out={data}", f"duration_s={args.duration}",
-                            f"sessions={args.sessions}", "progress=false", "sim.carriers=[pedestrian]"))
-            print(f"simulated office_45x55: {args.sessions} walks x {args.duration:g} s in "
-                  f"{time.perf_counter() - t0:.0f} s")
+            simulate_office(data, args.sessions, args.duration)
         out = Path(args.out) if args.out else tmp / "run"
-        over = ["experiment=mapprior", f"data={data}", f"out={out}", "trainer.enable_progress_bar=false",
-                *args.overrides]
-        if args.max_epochs:
-            over.append(f"trainer.max_epochs={args.max_epochs}")
-        cfg = compose("train", *over)
-        timer = EpochTimer()
-        t0, c0 = time.perf_counter(), time.process_time()
-        metrics, objs = train(cfg, callbacks=[timer])
-        total, cpu = time.perf_counter() - t0, time.process_time() - c0
-        dm = objs["datamodule"]
-        logs = sorted(out.glob("logs/version_*/metrics.csv"))[-1]
-        val = pd.read_csv(logs).dropna(subset=["val/loss"]).groupby("epoch")["val/loss"].last()
-        best = float(val.min())
-        conv = int(val.index[np.flatnonzero(val.to_numpy() <= best * (1 + args.tol))[0]]) + 1
-        n_par = sum(p.numel() for p in objs["module"].net.parameters())
-        print(f"\ntraining ({n_par:,d} parameters, {dm.cfg.samples_per_epoch} windows/epoch, batch "
-              f"{dm.cfg.batch_size}, {torch.get_num_threads()} threads; train windows {dm.sets['train'].n_windows}, "
-              f"buildings {dm.train_buildings})")
-        print(f"  time per epoch (median of {len(timer.times)}): {np.median(timer.times):.1f} s "
-              f"(min {np.min(timer.times):.1f}, max {np.max(timer.times):.1f})")
-        print(f"  epochs run: {len(val)}; converged (val/loss within {args.tol:.0%} of its best {best:.4f}) at "
-              f"epoch {conv}; val/gt_pct at the end {metrics.get('val/gt_pct', float('nan')):.3f}")
-        print(f"  val/loss per epoch: {', '.join(f'{v:.4f}' for v in val.to_numpy())}")
-        verdict = "MEETS" if total / 60 < BUDGET_MIN else "MISSES"
-        print(f"  total {total / 60:.1f} min wall (to convergence {conv * np.median(timer.times) / 60:.1f} min): "
-              f"{verdict} the {BUDGET_MIN:g} min budget")
-        print(f"  process CPU time {cpu / 60:.1f} min, i.e. {cpu / 120:.1f} min of wall time on both cores of an "
-              f"otherwise idle machine (mean 1-min load average at epoch ends: {np.mean(timer.loads):.1f} on "
-              f"{os.cpu_count()} cores)")
+        dm = train_and_report(args, data, out)
 
         # run time: DMT per building, trajectory encoder per step
         ckpt = out / "last.ckpt"
@@ -153,36 +209,8 @@ def main() -> None:
         export_dir = Path(export(compose("export", f"ckpt={ckpt}", f"out={tmp / 'onnx'}")))
         torch.set_num_threads(1)
         pt, ox = load_map_prior(ckpt), MapPrior(export_dir, threads=1)
-        enc = {}
-        for name, prior in (("torch", pt), ("onnxruntime", ox)):
-            t0 = time.perf_counter()
-            prior.bind(floor)
-            enc[name] = time.perf_counter() - t0
-        net_rank, oracle_rank = floor_ranks(pt, dm, args.windows)
-        print(f"\nwhole floor ({floor.shape[1]} x {floor.shape[0]} px at {floor.resolution:g} m -> "
-              f"{pt.grid.shape[1]} x {pt.grid.shape[0]} at {pt.resolution_m:g} m), {args.windows} held-out windows: "
-              f"free pixels scoring above the true end, median {net_rank:.3f} (no information 0.5); free pixels "
-              f"where the true shape fits as well (T >= T(end)), median {oracle_rank:.3f}")
-        print(f"DMT encode per building, 1 thread: PyTorch {enc['torch'] * 1e3:.0f} ms, onnxruntime "
-              f"{enc['onnxruntime'] * 1e3:.0f} ms (once per floor, then cached)")
-        net = pt._backend.net
-        for K in (1, 8):
-            odo = np.cumsum(np.full((K, pt.n_points, 2), 0.3, dtype=np.float32), axis=1) - 0.3
-            feed = {"odometry": odo}
-            sess = ox._backend.traj_sess
-            o_ms = median_ms(lambda: sess.run(["dtv"], feed), args.calls)
-            x = torch.from_numpy(odo / pt.resolution_m)
-
-            def eager():
-                with torch.no_grad():
-                    net.encode_trajectory(x)
-
-            t_ms = median_ms(eager, args.calls)
-            dtv = ox.dtv(odo.astype(np.float64))
-            xy = floor.free_points()[:: max(1, len(floor.free_points()) // 1000)][:1000]
-            s_ms = median_ms(lambda: ox.log_score_at(xy[None], dtv[:, None]), max(50, args.calls // 5))
-            print(f"trajectory encoder, batch {K}: onnxruntime {o_ms:.3f} ms, PyTorch eager {t_ms:.3f} ms "
-                  f"({t_ms / o_ms:.1f}x); log_score_at for {K} x 1000 particles {s_ms:.2f} ms")
+        report_floor_and_encode(pt, ox, floor, dm, args.windows)
+        report_step_latency(pt, ox, floor, args.calls)
 
 
 if __name__ == "__main__":

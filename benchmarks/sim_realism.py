@@ -88,69 +88,81 @@ def table_3_2(seed: int, repeats: int) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="docs/sim_realism.md")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--duration", type=float, default=300.0)
-    ap.add_argument("--repeats", type=int, default=20, help="60 s runs per phone and condition")
-    args = ap.parse_args()
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+def office_ble() -> BleConfig:
+    """The radio channel configured in conf/sim/office_45x55.yaml (dBm, path-loss exponent)."""
+    return BleConfig(tx_power_dbm=-52.0, path_loss_exponent=2.1)
 
-    with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
-        cfg_full = BleConfig(tx_power_dbm=-52.0, path_loss_exponent=2.1)  # conf/sim/office_45x55.yaml
-        full = pairs_of(simulate(tmp / "office", "office_45x55", args.seed, args.duration, 3))
-        clean = pairs_of(simulate(tmp / "office_clean", "office_45x55", args.seed, args.duration, 3,
-                                  "sim.ble.wall_db=0", "sim.ble.shadow_std_db=0", "sim.ble.body_db=0",
-                                  "sim.ble.k_factor_per_wall_db=0", "sim.ble.k_factor_slope_db=0",
-                                  f"sim.receivers=[{CLEAN_PHONE}]"))
-        campus = pairs_of(simulate(tmp / "campus", "campus_floor", args.seed, args.duration, 4))
-        pl = pd.DataFrame([
-            fit_row("office_45x55, full channel", full),
-            fit_row("office_45x55, full channel, d <= 10 m", full, 10.0),
-            fit_row(f"office_45x55, LOS channel (no walls/shadowing/body, constant K), {CLEAN_PHONE}, d <= 10 m",
-                    clean, 10.0),
-            fit_row("campus_floor, full channel", campus),
-        ])
-        real_rows, real_pairs, notes = [], {}, []
-        for kind in REAL_BLE:
-            src = RAW / kind
-            if not src.is_dir():
-                notes.append(f"- {kind}: not found at {src}; skipped")
-                continue
-            try:
-                run_import(kind, src, tmp / kind)
-                p = pairs_of(tmp / kind)
-            except Exception as exc:  # report, do not hide: a broken importer is a finding
-                notes.append(f"- {kind}: import failed: {exc}")
-                continue
-            if len(p) < 2:
-                notes.append(f"- {kind}: no labelled RSSI with ground truth")
-                continue
-            real_pairs[kind] = p
-            real_rows.append(fit_row(f"real: {kind}", p))
-        t32 = table_3_2(args.seed, args.repeats)
-        clean_lo, clean_hi = profile_for(CLEAN_PHONE, cfg_full).offset_db
 
+def simulated_fits(tmp: Path, seed: int, duration: float) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """Simulate the presets below ``tmp`` (``duration`` s sessions) and fit the log-distance model.
+
+    Returns ``(fit table, one row per fit (see fit_row); rssi/distance pairs of office_45x55 with the full
+    channel; pairs of campus_floor)``; pairs have ``distance_m`` (m) and ``rssi`` (dBm).
+    """
+    full = pairs_of(simulate(tmp / "office", "office_45x55", seed, duration, 3))
+    clean = pairs_of(simulate(tmp / "office_clean", "office_45x55", seed, duration, 3,
+                              "sim.ble.wall_db=0", "sim.ble.shadow_std_db=0", "sim.ble.body_db=0",
+                              "sim.ble.k_factor_per_wall_db=0", "sim.ble.k_factor_slope_db=0",
+                              f"sim.receivers=[{CLEAN_PHONE}]"))
+    campus = pairs_of(simulate(tmp / "campus", "campus_floor", seed, duration, 4))
+    pl = pd.DataFrame([
+        fit_row("office_45x55, full channel", full),
+        fit_row("office_45x55, full channel, d <= 10 m", full, 10.0),
+        fit_row(f"office_45x55, LOS channel (no walls/shadowing/body, constant K), {CLEAN_PHONE}, d <= 10 m",
+                clean, 10.0),
+        fit_row("campus_floor, full channel", campus),
+    ])
+    return pl, full, campus
+
+
+def real_fits(tmp: Path) -> tuple[list[dict], dict[str, pd.DataFrame], list[str]]:
+    """Import each of REAL_BLE from RAW below ``tmp`` and fit it.
+
+    Returns ``(fit rows, rssi/distance pairs per kind, markdown notes on the sets that were skipped)``.
+    """
+    real_rows, real_pairs, notes = [], {}, []
+    for kind in REAL_BLE:
+        src = RAW / kind
+        if not src.is_dir():
+            notes.append(f"- {kind}: not found at {src}; skipped")
+            continue
         try:
-            from blenav.plotting import figure_rssi_vs_distance, save_figure
+            run_import(kind, src, tmp / kind)
+            p = pairs_of(tmp / kind)
+        except Exception as exc:  # report, do not hide: a broken importer is a finding
+            notes.append(f"- {kind}: import failed: {exc}")
+            continue
+        if len(p) < 2:
+            notes.append(f"- {kind}: no labelled RSSI with ground truth")
+            continue
+        real_pairs[kind] = p
+        real_rows.append(fit_row(f"real: {kind}", p))
+    return real_rows, real_pairs, notes
 
-            panels = {"sim office_45x55": full, "sim campus_floor": campus, **{f"real {k}": v for k, v in real_pairs.items()}}
-            png = save_figure(figure_rssi_vs_distance(panels), out.with_suffix(".png"))
-        except ImportError:
-            png = None
 
+def rssi_figure(panels: dict[str, pd.DataFrame], png: Path) -> Path | None:
+    """RSSI against distance, one panel per data set, saved to ``png``; None without the plotting extra."""
+    try:
+        from blenav.plotting import figure_rssi_vs_distance, save_figure
+
+        return save_figure(figure_rssi_vs_distance(panels), png)
+    except ImportError:
+        return None
+
+
+def _header(args: argparse.Namespace, png: Path | None) -> str:
     cmd = "python benchmarks/sim_realism.py " + " ".join(sys.argv[1:])
-    err = t32.assign(**{"|dM0|": (t32["M0 sim"] - t32["M0 table"]).abs(), "|dM1|": (t32["M1 sim"] - t32["M1 table"]).abs(),
-                        "V0 ratio": t32["V0 sim"] / t32["V0 table"], "V1 ratio": t32["V1 sim"] / t32["V1 table"]})
-    text = f"""# Simulator realism report
+    return f"""# Simulator realism report
 
 Produced by `{cmd.strip()}` (seed {args.seed}, {args.duration:.0f} s sessions). Every number below is
 computed by that command; rerun it to regenerate this file{' and `' + png.name + '`' if png else ''}.
+"""
 
-## 1. Path loss: fitted against configured
+
+def _path_loss_section(pl: pd.DataFrame) -> str:
+    cfg_full = office_ble()
+    clean_lo, clean_hi = profile_for(CLEAN_PHONE, cfg_full).offset_db
+    return f"""## 1. Path loss: fitted against configured
 
 Configured channel for office_45x55: 1 m level {cfg_full.tx_power_dbm:.1f} dBm, exponent {cfg_full.path_loss_exponent:.2f};
 per-beacon 1 m level spread {cfg_full.tx_spread_db} dB, walls {cfg_full.wall_db} dB each, shadowing {cfg_full.shadow_std_db} dB, body up to
@@ -170,8 +182,11 @@ noise and quantisation. With the full channel, walls, body shadowing and receive
 fitted level below the channel's own 1 m level; within 10 m the exponent steepens (wall loss grows with
 distance), over all distances receiver sensitivity censors the weak far packets and flattens it. The
 residual spread is the 5-7 dB typical of offices (Patel et al. measure "about 5 dB").
+"""
 
-## 2. Simulated beside real recordings
+
+def _real_section(real_rows: list[dict], notes: list[str]) -> str:
+    return f"""## 2. Simulated beside real recordings
 
 {md_table(pd.DataFrame(real_rows)) if real_rows else '(no real data available)'}
 {chr(10).join(notes)}
@@ -180,10 +195,15 @@ Real sets differ in hardware and geometry (UJI: phones at surveyed points, beaco
 a library; Danis: fixed USB receivers and a moving beacon; Kolakowski: fixed anchors receiving a mobile
 tag), so their 1 m levels differ; what to compare is the exponent, the residual spread and the
 distance range, which the simulated presets should bracket.
+"""
 
-## 3. Receiver profiles beside Table 3.2 (Roy, thesis)
 
-One beacon at 1 m, 60 s per run, {args.repeats} runs per phone and condition, thesis scale u = rssi + 100
+def _table_3_2_section(t32: pd.DataFrame, repeats: int) -> str:
+    err = t32.assign(**{"|dM0|": (t32["M0 sim"] - t32["M0 table"]).abs(), "|dM1|": (t32["M1 sim"] - t32["M1 table"]).abs(),
+                        "V0 ratio": t32["V0 sim"] / t32["V0 table"], "V1 ratio": t32["V1 sim"] / t32["V1 table"]})
+    return f"""## 3. Receiver profiles beside Table 3.2 (Roy, thesis)
+
+One beacon at 1 m, 60 s per run, {repeats} runs per phone and condition, thesis scale u = rssi + 100
 (0 = packet not reported); M = mean, V = variance, drop = fraction of zeros; 0 = no interference,
 1 = with interference.
 
@@ -195,6 +215,32 @@ Where the table's variance is below about 0.5 (iPhone XR with interference, Pixe
 simulated variance stays above it: 1 dB quantisation (0.083 dB^2) and Rician fading at 1 m (K = 20 dB,
 about 0.38 dB^2) set a floor the receiver noise cannot go below.
 """
+
+
+def parse_args() -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="docs/sim_realism.md")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--duration", type=float, default=300.0)
+    ap.add_argument("--repeats", type=int, default=20, help="60 s runs per phone and condition")
+    return ap.parse_args()
+
+
+def main() -> int:
+    args = parse_args()
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        pl, full, campus = simulated_fits(tmp, args.seed, args.duration)
+        real_rows, real_pairs, notes = real_fits(tmp)
+        t32 = table_3_2(args.seed, args.repeats)
+        panels = {"sim office_45x55": full, "sim campus_floor": campus, **{f"real {k}": v for k, v in real_pairs.items()}}
+        png = rssi_figure(panels, out.with_suffix(".png"))
+
+    text = "\n".join([_header(args, png), _path_loss_section(pl), _real_section(real_rows, notes),
+                      _table_3_2_section(t32, args.repeats)])
     out.write_text(text, encoding="utf-8")
     print(text)
     return 0

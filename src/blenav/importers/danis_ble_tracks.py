@@ -281,78 +281,105 @@ def proper_rotation_mask(m: np.ndarray) -> np.ndarray:
 # import
 
 
-def import_danis_ble_tracks(src: Path, out: Path) -> ImportReport:
-    """Convert ``src`` (the raw folder described in the module docstring) to a dataset at ``out``."""
-    src, out = Path(src), Path(out)
-    check_out(out)
-    report = ImportReport(out=out)
+@dataclass
+class _Session:
+    """One converted track, ready to write."""
 
-    dev = read_devices(src / "cnf" / "tetam.dev")
-    receivers = set(dev.table["anchor_id"])
-    beacon = dev.beacons[0]
-    grid = read_occupancy(src / "occ" / OCC_FILE)
-    track_paths = sorted((src / "trk").glob(TRACK_GLOB))
-    if not track_paths:
-        raise ImportError_(src / "trk", None, f"no track files matching {TRACK_GLOB}")
+    sid: str
+    meta: dict
+    rssi: pd.DataFrame       # t (s), anchor_id (receiver MAC), rssi (dBm)
+    gt: pd.DataFrame         # t (s), x, y, z (m), qw..qz (empty)
+    n_raw: int               # rows in the raw track file
+    proper: float            # fraction of ground-truth rows whose 3x3 matrix is a proper rotation
 
-    sessions = []
-    all_gt_xy = []
-    for path in track_paths:
-        raw = read_track(path)
-        sid = path.name[: -len("_all_sensors.mbd")]
-        n_raw = len(raw)
-        other_tx = (raw["transmitter"] != beacon).to_numpy()
-        report.drop("rows from a transmitter other than the beacon in cnf/tetam.dev", int(other_tx.sum()))
-        raw = raw[~other_tx]
-        unix = raw["unix_s"].to_numpy()
-        order = np.argsort(unix, kind="stable")
-        n_moved = int((order != np.arange(len(order))).sum())
-        back_ms = 1000 * max(0.0, float(-np.diff(unix).min(initial=0.0)))
-        raw = raw.iloc[order].reset_index(drop=True)
-        # seconds since the first packet, on the writer's 0.1 ms grid (so "distinct time" means distinct on disk)
-        t = np.round(raw["unix_s"].to_numpy() - raw["unix_s"].min(), 4)
 
-        unknown_rx = ~raw["receiver"].isin(receivers).to_numpy()
-        rssi_v = raw["rssi"].to_numpy()
-        keep = drop_rssi(report, rssi_v, unknown_rx, "rssi rows from a receiver not in cnf/tetam.dev",
-                         f"rssi rows with an invalid RSSI (>= {RSSI_MAX_DBM:g} dBm or <= {RSSI_MIN_DBM:g} dBm)")
-        invalid = ~unknown_rx & ~keep
-        rssi_out = rssi_v[keep]
-        if np.all(rssi_out == np.round(rssi_out)):
-            rssi_out = rssi_out.astype(np.int64)  # integer dBm as logged
-        rssi = pd.DataFrame({"t": t[keep], "anchor_id": raw["receiver"].to_numpy()[keep], "rssi": rssi_out})
-        if invalid.any():
-            bad = ", ".join(f"{int(r)} dBm at line {int(ln)}" for r, ln in
-                            zip(rssi_v[invalid][:5], raw["line"].to_numpy()[invalid][:5]))
-            report.notes.append(f"{sid}: dropped invalid RSSI {bad}")
+def _time_sorted(raw: pd.DataFrame, beacon: str, report: ImportReport) -> tuple[pd.DataFrame, int, float]:
+    """Rows of ``beacon`` only, stably sorted by unix time.
 
-        first = ~pd.Series(t).duplicated().to_numpy()
-        g = raw[first]
-        gt = pd.DataFrame({"t": t[first], "x": g["x"].to_numpy(), "y": g["y"].to_numpy(), "z": g["z"].to_numpy(),
-                           "qw": np.nan, "qx": np.nan, "qy": np.nan, "qz": np.nan})
-        m = g[list(TRACK_COLUMNS[7:])].to_numpy().reshape(-1, 3, 3)
-        proper = float(proper_rotation_mask(m).mean())
-        same_t = raw[~first]
-        prev = raw.loc[first].set_index(pd.Series(t[first]))
-        conflict = 0
-        if len(same_t):
-            ref = prev.loc[t[~first], ["x", "y", "z"]].to_numpy()
-            conflict = int((np.abs(ref - same_t[["x", "y", "z"]].to_numpy()).max(axis=1) > SAME_POSITION_M).sum())
-        all_gt_xy.append(gt[["x", "y"]].to_numpy())
-        notes = (f"Danis et al. track {path.name}: one BLE beacon ({beacon}) carried on a camera rig and "
-                 f"heard by {len(receivers)} fixed receivers (the anchors; reciprocal link). t = unix time - first "
-                 f"packet ({raw['unix_s'].min():.6f}); {n_moved} rows were out of time order in the raw file (by "
-                 f"up to {back_ms:.2f} ms) and were sorted. Ground truth: AR-marker camera positions, one row per "
-                 f"distinct packet time ({int((~first).sum())} same-time rows merged, {conflict} of them > 1 mm "
-                 f"from the kept position). Orientation left empty: only {100 * proper:.0f}% of the raw 3x3 "
-                 f"matrices are proper rotations, the rest are blends of two orientations 180 deg apart in yaw "
-                 f"(see importer docstring). No IMU.")
-        meta = {"building": BUILDING_ID, "floor": 0, "device_model": DEVICE_MODEL, "carrier": "pedestrian",
-                "labelled": True, "notes": notes, "source_file": f"trk/{path.name}", "beacon_mac": beacon}
-        sessions.append((sid, meta, rssi, gt, n_raw, proper))
+    Returns ``(rows, number of rows that moved, largest step back in time in the file (ms))``.
+    """
+    other_tx = (raw["transmitter"] != beacon).to_numpy()
+    report.drop("rows from a transmitter other than the beacon in cnf/tetam.dev", int(other_tx.sum()))
+    raw = raw[~other_tx]
+    unix = raw["unix_s"].to_numpy()
+    order = np.argsort(unix, kind="stable")
+    n_moved = int((order != np.arange(len(order))).sum())
+    back_ms = 1000 * max(0.0, float(-np.diff(unix).min(initial=0.0)))
+    return raw.iloc[order].reset_index(drop=True), n_moved, back_ms
 
-    # floor: decide the value convention from where the ground truth lies
-    xy = np.vstack(all_gt_xy)
+
+def _track_rssi(raw: pd.DataFrame, t: np.ndarray, receivers: set[str], sid: str,
+                report: ImportReport) -> pd.DataFrame:
+    """``rssi.csv`` rows (t (s), anchor_id, rssi (dBm)) of a time-sorted track; ``t`` (N,) per raw row.
+
+    Rows from unknown receivers and invalid RSSI values are dropped and counted in ``report``.
+    """
+    unknown_rx = ~raw["receiver"].isin(receivers).to_numpy()
+    rssi_v = raw["rssi"].to_numpy()
+    keep = drop_rssi(report, rssi_v, unknown_rx, "rssi rows from a receiver not in cnf/tetam.dev",
+                     f"rssi rows with an invalid RSSI (>= {RSSI_MAX_DBM:g} dBm or <= {RSSI_MIN_DBM:g} dBm)")
+    invalid = ~unknown_rx & ~keep
+    rssi_out = rssi_v[keep]
+    if np.all(rssi_out == np.round(rssi_out)):
+        rssi_out = rssi_out.astype(np.int64)  # integer dBm as logged
+    rssi = pd.DataFrame({"t": t[keep], "anchor_id": raw["receiver"].to_numpy()[keep], "rssi": rssi_out})
+    if invalid.any():
+        bad = ", ".join(f"{int(r)} dBm at line {int(ln)}" for r, ln in
+                        zip(rssi_v[invalid][:5], raw["line"].to_numpy()[invalid][:5]))
+        report.notes.append(f"{sid}: dropped invalid RSSI {bad}")
+    return rssi
+
+
+def _track_groundtruth(raw: pd.DataFrame, t: np.ndarray) -> tuple[pd.DataFrame, np.ndarray, float, int]:
+    """Ground truth of a time-sorted track: the first row of each distinct ``t`` (N,) (s).
+
+    Returns ``(groundtruth frame (t, x, y, z in m, empty quaternion), (N,) mask of the kept rows,
+    fraction of kept rows with a proper rotation matrix, number of merged rows whose position differs
+    from the kept one by more than SAME_POSITION_M)``.
+    """
+    first = ~pd.Series(t).duplicated().to_numpy()
+    g = raw[first]
+    gt = pd.DataFrame({"t": t[first], "x": g["x"].to_numpy(), "y": g["y"].to_numpy(), "z": g["z"].to_numpy(),
+                       "qw": np.nan, "qx": np.nan, "qy": np.nan, "qz": np.nan})
+    m = g[list(TRACK_COLUMNS[7:])].to_numpy().reshape(-1, 3, 3)
+    proper = float(proper_rotation_mask(m).mean())
+    same_t = raw[~first]
+    prev = raw.loc[first].set_index(pd.Series(t[first]))
+    conflict = 0
+    if len(same_t):
+        ref = prev.loc[t[~first], ["x", "y", "z"]].to_numpy()
+        conflict = int((np.abs(ref - same_t[["x", "y", "z"]].to_numpy()).max(axis=1) > SAME_POSITION_M).sum())
+    return gt, first, proper, conflict
+
+
+def _convert_track(path: Path, beacon: str, receivers: set[str], report: ImportReport) -> _Session:
+    """One ``trk/*_all_sensors.mbd`` file as a session (rssi + position-only ground truth, t in s)."""
+    raw = read_track(path)
+    sid = path.name[: -len("_all_sensors.mbd")]
+    n_raw = len(raw)
+    raw, n_moved, back_ms = _time_sorted(raw, beacon, report)
+    # seconds since the first packet, on the writer's 0.1 ms grid (so "distinct time" means distinct on disk)
+    t = np.round(raw["unix_s"].to_numpy() - raw["unix_s"].min(), 4)
+    rssi = _track_rssi(raw, t, receivers, sid, report)
+    gt, first, proper, conflict = _track_groundtruth(raw, t)
+    notes = (f"Danis et al. track {path.name}: one BLE beacon ({beacon}) carried on a camera rig and "
+             f"heard by {len(receivers)} fixed receivers (the anchors; reciprocal link). t = unix time - first "
+             f"packet ({raw['unix_s'].min():.6f}); {n_moved} rows were out of time order in the raw file (by "
+             f"up to {back_ms:.2f} ms) and were sorted. Ground truth: AR-marker camera positions, one row per "
+             f"distinct packet time ({int((~first).sum())} same-time rows merged, {conflict} of them > 1 mm "
+             f"from the kept position). Orientation left empty: only {100 * proper:.0f}% of the raw 3x3 "
+             f"matrices are proper rotations, the rest are blends of two orientations 180 deg apart in yaw "
+             f"(see importer docstring). No IMU.")
+    meta = {"building": BUILDING_ID, "floor": 0, "device_model": DEVICE_MODEL, "carrier": "pedestrian",
+            "labelled": True, "notes": notes, "source_file": f"trk/{path.name}", "beacon_mac": beacon}
+    return _Session(sid, meta, rssi, gt, n_raw, proper)
+
+
+def _free_value_convention(grid: _OccGrid, xy: np.ndarray, report: ImportReport) -> int:
+    """The raw occupancy value (0 or 1) that means FREE: the one holding most ground-truth points (N, 2) (m).
+
+    The decision and both fractions are noted in ``report``.
+    """
     raw_at = _raw_values_at(grid, xy)
     frac1, frac0 = float((raw_at == 1).mean()), float((raw_at == 0).mean())
     free_value = 1 if frac1 >= frac0 else 0
@@ -361,22 +388,48 @@ def import_danis_ble_tracks(src: Path, out: Path) -> ImportReport:
         f"{100 * frac0:.1f}%, off the grid {100 * (1 - frac0 - frac1):.1f}%; the authors' README says 1 = "
         f"traversable; this import treats {free_value} as FREE and {1 - free_value} as OCCUPIED"
         + ("" if free_value == 1 else " (the data contradicts the README)"))
-    occ, origin = floor_image(grid, free_value)
+    return free_value
 
+
+def _write(src: Path, out: Path, dev: _Receivers, grid: _OccGrid, free_value: int, sessions: list[_Session],
+           report: ImportReport) -> Path:
+    """Write dataset meta, the building (floor image, anchors) and every session; return the building root."""
+    occ, origin = floor_image(grid, free_value)
     anchors = dev.table.assign(kind="ble", floor=0, tx_power_dbm=np.nan, channel_model=CHANNEL_MODEL)
     write_dataset_meta(out, "danis_ble_tracks", "Danis et al. position-annotated BLE RSSI tracks (TETAM area, "
-                       f"Bogazici University): 1 moving beacon, {len(receivers)} fixed receivers, "
+                       f"Bogazici University): 1 moving beacon, {dev.table['anchor_id'].nunique()} fixed receivers, "
                        f"{len(sessions)} tracks",
                        "CC0-1.0", source_line(src, SOURCE_DEFAULT))
     broot = write_building(out, BUILDING_ID, "TETAM test area (Danis et al.)",
                            [{"id": 0, "occupancy": occ, "resolution": grid.cell, "origin": origin, "z": 0.0}],
                            anchors, source_occupancy=f"occ/{OCC_FILE}", occupancy_free_value=free_value)
-    for sid, meta, rssi, gt, n_raw, proper in sessions:
-        write_session(out, sid, meta, {"rssi": rssi, "groundtruth": gt})
+    for s in sessions:
+        write_session(out, s.sid, s.meta, {"rssi": s.rssi, "groundtruth": s.gt})
         report.sessions += 1
-        report.notes.append(f"{sid}: {n_raw} raw rows -> {len(rssi)} rssi rows, {len(gt)} ground-truth rows; "
-                            f"{100 * proper:.0f}% proper rotation matrices")
+        report.notes.append(f"{s.sid}: {s.n_raw} raw rows -> {len(s.rssi)} rssi rows, {len(s.gt)} ground-truth rows; "
+                            f"{100 * s.proper:.0f}% proper rotation matrices")
     report.buildings = 1
+    return broot
+
+
+def import_danis_ble_tracks(src: Path, out: Path) -> ImportReport:
+    """Convert ``src`` (the raw folder described in the module docstring) to a dataset at ``out``."""
+    src, out = Path(src), Path(out)
+    check_out(out)
+    report = ImportReport(out=out)
+
+    dev = read_devices(src / "cnf" / "tetam.dev")
+    receivers = set(dev.table["anchor_id"])
+    grid = read_occupancy(src / "occ" / OCC_FILE)
+    track_paths = sorted((src / "trk").glob(TRACK_GLOB))
+    if not track_paths:
+        raise ImportError_(src / "trk", None, f"no track files matching {TRACK_GLOB}")
+    sessions = [_convert_track(path, dev.beacons[0], receivers, report) for path in track_paths]
+
+    # floor: decide the value convention from where the ground truth lies
+    xy = np.vstack([s.gt[["x", "y"]].to_numpy() for s in sessions])
+    free_value = _free_value_convention(grid, xy, report)
+    broot = _write(src, out, dev, grid, free_value, sessions, report)
 
     floor = Building.load(broot).floor(0)
     free = floor.is_free(xy)
@@ -384,4 +437,3 @@ def import_danis_ble_tracks(src: Path, out: Path) -> ImportReport:
                         f"({int(free.sum())} of {len(xy)} positions)")
     validate_or_raise(out, report)
     return report
-

@@ -371,41 +371,59 @@ def _gt(df: _Df, sel: np.ndarray, t0: float) -> pd.DataFrame:
                          "heading": df.cols["heading"][sel], "raw_line": df.lines[sel]})
 
 
-def import_kolakowski_ble_calib(src: Path, out: Path) -> ImportReport:
-    """Convert ``src`` (the raw folder described in the module docstring) to a dataset at ``out``."""
-    src, out = Path(src), Path(out)
-    check_out(out)
-    report = ImportReport(out=out)
+@dataclass
+class _Raw:
+    """Every raw input of the import, read and checked (nothing written yet)."""
 
-    anchors = read_anchors(src / "anchors.csv")
-    poly = read_layout(src / "layout.csv")
-    ref_path = read_reference_path(src / "tests" / "path_reference.csv")
-    robot_pk = read_system_log(src / "tests" / "test_robot_ble.txt", report)
-    walk_pk = read_system_log(src / "tests" / "test_walk_ble.txt", report)
-    robot_df = read_df(src / "tests" / "test_robot_df.csv", ("x", "heading", "y"))
-    walk_df = read_df(src / "tests" / "test_walk_df.csv", ())
-    calib = read_df(src / "calibration" / "calibration_df.csv", ("x", "heading", "y"))
-    old = read_df(src / "calibration" / "calib_df.csv", ("x", "y"))
+    anchors: pd.DataFrame        # anchor_id "1".."6", x, y, z (m), system_id
+    poly: Polygon                # wall polygon of the flat (m)
+    ref_path: MultiLineString    # walked reference path (m)
+    robot_pk: pd.DataFrame       # packets of tests/test_robot_ble.txt (see read_system_log)
+    walk_pk: pd.DataFrame        # packets of tests/test_walk_ble.txt
+    robot_df: _Df
+    walk_df: _Df
+    calib: _Df                   # calibration/calibration_df.csv (four runs)
+    old: _Df                     # calibration/calib_df.csv (unaligned frame)
 
-    for name, pk, df in (("test_robot", robot_pk, robot_df), ("test_walk", walk_pk, walk_df)):
+
+def _read_raw(src: Path, report: ImportReport) -> _Raw:
+    """Read all raw files of ``src``; packets dropped while reading the logs are counted in ``report``."""
+    return _Raw(
+        anchors=read_anchors(src / "anchors.csv"),
+        poly=read_layout(src / "layout.csv"),
+        ref_path=read_reference_path(src / "tests" / "path_reference.csv"),
+        robot_pk=read_system_log(src / "tests" / "test_robot_ble.txt", report),
+        walk_pk=read_system_log(src / "tests" / "test_walk_ble.txt", report),
+        robot_df=read_df(src / "tests" / "test_robot_df.csv", ("x", "heading", "y")),
+        walk_df=read_df(src / "tests" / "test_walk_df.csv", ()),
+        calib=read_df(src / "calibration" / "calibration_df.csv", ("x", "heading", "y")),
+        old=read_df(src / "calibration" / "calib_df.csv", ("x", "y")),
+    )
+
+
+def _note_mapping_checks(raw: _Raw, report: ImportReport) -> None:
+    """Check the system-id -> anchor-id mapping on both tests (see :func:`mapping_check`); note the result."""
+    for name, pk, df in (("test_robot", raw.robot_pk, raw.robot_df), ("test_walk", raw.walk_pk, raw.walk_df)):
         ok, worst = mapping_check(pk, df)
         report.notes.append(f"anchor-id mapping {dict(zip(SYSTEM_IDS, range(1, 7)))} checked on {name}: "
                             + (f"every system id correlates best with its mapped df column (r >= {worst:.2f})" if ok
                                else f"WARNING: the mapping does not give the best correlation (smallest r "
                                     f"{worst:.2f})"))
 
-    sessions: list[tuple[str, dict, dict]] = []
-    gt_xy = []
 
-    # robot test: packets within the ground-truth span
-    t0, t1 = robot_df.t_s[0], robot_df.t_s[-1]
-    tt = robot_pk["t_s"].to_numpy()
+#: a session to write: (id, meta without building/floor/device_model, streams by name)
+_Session = tuple[str, dict, dict]
+
+
+def _robot_test_session(pk: pd.DataFrame, df: _Df, report: ImportReport) -> _Session:
+    """``test_robot``: packets within the ground-truth time span (t in s since the first ground-truth row)."""
+    t0, t1 = df.t_s[0], df.t_s[-1]
+    tt = pk["t_s"].to_numpy()
     inside = (tt >= t0) & (tt <= t1)
     report.drop("BLE packets of test_robot_ble.txt outside the ground-truth time span", int((~inside).sum()))
-    gt = _gt(robot_df, np.arange(len(robot_df.t_s)), t0)
-    gt_xy.append(gt[["x", "y"]].to_numpy())
-    gaps = np.diff(robot_df.t_s)
-    sessions.append(("test_robot", {
+    gt = _gt(df, np.arange(len(df.t_s)), t0)
+    gaps = np.diff(df.t_s)
+    return ("test_robot", {
         "carrier": "robot", "labelled": True,
         "notes": (f"Kolakowski robot test: rssi = single BLE packets per receiving module from "
                   f"tests/test_robot_ble.txt "
@@ -415,29 +433,31 @@ def import_kolakowski_ble_calib(src: Path, out: Path) -> ImportReport:
                   f"largest ground-truth gap {gaps.max():.1f} s. {int((~inside).sum())} packets outside the "
                   f"ground-truth span dropped. No IMU."),
         "source_file": "tests/test_robot_ble.txt, tests/test_robot_df.csv"},
-        {"rssi": _packet_rssi(robot_pk[inside], t0), "groundtruth": gt}))
+        {"rssi": _packet_rssi(pk[inside], t0), "groundtruth": gt})
 
-    # walk test: no time-aligned ground truth
-    w0 = float(walk_pk["t_s"].min())
-    sessions.append(("test_walk", {
+
+def _walk_test_session(pk: pd.DataFrame) -> _Session:
+    """``test_walk``: packets only, no time-aligned ground truth (t in s since the first packet)."""
+    w0 = float(pk["t_s"].min())
+    return ("test_walk", {
         "carrier": "pedestrian", "labelled": False,
         "notes": (f"Kolakowski walk test: rssi = single BLE packets per receiving module from tests/test_walk_ble.txt "
                   f"(t = arrival unix ms / 1000 - {w0:.3f}). The walked path is the MultiLineString "
                   f"'test_walk_reference_path' in the building's navgraph.geojson (tests/path_reference.csv); it has "
                   f"no times, so there is no ground truth. No IMU."),
         "source_file": "tests/test_walk_ble.txt"},
-        {"rssi": _packet_rssi(walk_pk, w0)}))
+        {"rssi": _packet_rssi(pk, w0)})
 
-    # calibration runs
+
+def _calibration_sessions(calib: _Df, report: ImportReport) -> list[_Session]:
+    """``calibration_run1``..: ``calibration_df.csv`` split where its index restarts or time jumps (RUN_GAP_S)."""
     new_run = np.r_[True, (np.diff(calib.index) <= 0) | (np.diff(calib.t_s) > RUN_GAP_S)]
     run = np.cumsum(new_run)
+    sessions = []
     for k in range(1, int(run.max()) + 1):
         sel = np.flatnonzero(run == k)
         c0 = calib.t_s[sel[0]]
-        sid = f"calibration_run{k}"
-        gt = _gt(calib, sel, c0)
-        gt_xy.append(gt[["x", "y"]].to_numpy())
-        sessions.append((sid, {
+        sessions.append((f"calibration_run{k}", {
             "carrier": "robot", "labelled": True,
             "notes": (f"Kolakowski radio-map calibration run {k} of calibration/calibration_df.csv (lines "
                       f"{calib.lines[sel[0]]}..{calib.lines[sel[-1]]}): the robot drives continuously with stops; "
@@ -445,14 +465,18 @@ def import_kolakowski_ble_calib(src: Path, out: Path) -> ImportReport:
                       f"single packets), empty cells (not received) have no row; ground truth = LiDAR-SLAM positions, "
                       f"z = tag height 1.3 m, heading = SLAM heading. t = ts (unix ns) / 1e9 - {c0:.3f}. No IMU."),
             "source_file": "calibration/calibration_df.csv"},
-            {"rssi": _df_rssi(calib, sel, c0, report, "calibration/calibration_df.csv"), "groundtruth": gt}))
+            {"rssi": _df_rssi(calib, sel, c0, report, "calibration/calibration_df.csv"),
+             "groundtruth": _gt(calib, sel, c0)}))
+    return sessions
 
-    # the earlier calibration run, in an unaligned SLAM frame
+
+def _unaligned_session(old: _Df, report: ImportReport) -> _Session:
+    """``calib_df_unaligned``: positions (m) relative to the first one as odometry, not as ground truth."""
     sel = np.arange(len(old.t_s))
     o0 = old.t_s[0]
     odo = pd.DataFrame({"t": old.t_s - o0, "x": old.cols["x"] - old.cols["x"][0],
                         "y": old.cols["y"] - old.cols["y"][0], "raw_line": old.lines})
-    sessions.append(("calib_df_unaligned", {
+    return ("calib_df_unaligned", {
         "carrier": "robot", "labelled": False,
         "notes": ("Kolakowski calibration/calib_df.csv, an earlier run (2021-06-30) whose SLAM positions are in an "
                   "unaligned frame (about 180 deg rotated and shifted; the shift is not determined to better than "
@@ -460,15 +484,20 @@ def import_kolakowski_ble_calib(src: Path, out: Path) -> ImportReport:
                   "not as ground truth. rssi = 1/3 s log-means, columns rssi_<system id> mapped to anchors.csv ids. "
                   f"t = ts (unix ns) / 1e9 - {o0:.3f}. No IMU."),
         "source_file": "calibration/calib_df.csv"},
-        {"rssi": _df_rssi(old, sel, o0, report, "calibration/calib_df.csv"), "odometry": odo}))
+        {"rssi": _df_rssi(old, sel, o0, report, "calibration/calib_df.csv"), "odometry": odo})
 
-    # write
-    occ, origin = rasterise(poly)
+
+def _write(src: Path, out: Path, raw: _Raw, sessions: list[_Session], report: ImportReport) -> Path:
+    """Write dataset meta, the building (rasterised layout, anchors, reference path) and every session.
+
+    Returns the building root.
+    """
+    occ, origin = rasterise(raw.poly)
     write_dataset_meta(out, "kolakowski_ble_calib", "Kolakowski BLE RSS dataset for fingerprinting radio map "
                        "calibration: furnished flat, 6 fixed receivers, 1 mobile tag on a robot or a person",
                        "CC-BY-4.0", source_line(src, SOURCE_DEFAULT))
-    anc = anchors.assign(kind="ble", floor=0, tx_power_dbm=np.nan, channel_model=CHANNEL_MODEL)
-    nav = [{"id": "test_walk_reference_path", "floor": 0, "geometry": ref_path,
+    anc = raw.anchors.assign(kind="ble", floor=0, tx_power_dbm=np.nan, channel_model=CHANNEL_MODEL)
+    nav = [{"id": "test_walk_reference_path", "floor": 0, "geometry": raw.ref_path,
             "properties": {"source": "tests/path_reference.csv", "session": "test_walk"}}]
     broot = write_building(out, BUILDING_ID, "Kolakowski test flat", [{"id": 0, "occupancy": occ,
                            "resolution": RESOLUTION_M, "origin": origin, "z": 0.0}], anc, navgraph=nav,
@@ -479,15 +508,29 @@ def import_kolakowski_ble_calib(src: Path, out: Path) -> ImportReport:
         write_session(out, sid, full, streams)
         report.sessions += 1
         report.notes.append(f"{sid}: " + ", ".join(f"{len(df)} {name} rows" for name, df in streams.items()))
+    return broot
 
-    xy = np.vstack(gt_xy)
+
+def import_kolakowski_ble_calib(src: Path, out: Path) -> ImportReport:
+    """Convert ``src`` (the raw folder described in the module docstring) to a dataset at ``out``."""
+    src, out = Path(src), Path(out)
+    check_out(out)
+    report = ImportReport(out=out)
+
+    raw = _read_raw(src, report)
+    _note_mapping_checks(raw, report)
+    sessions = [_robot_test_session(raw.robot_pk, raw.robot_df, report), _walk_test_session(raw.walk_pk),
+                *_calibration_sessions(raw.calib, report), _unaligned_session(raw.old, report)]
+    broot = _write(src, out, raw, sessions, report)
+
+    xy = np.vstack([streams["groundtruth"][["x", "y"]].to_numpy() for _, _, streams in sessions
+                    if "groundtruth" in streams])
     floor = Building.load(broot).floor(0)
     free = floor.is_free(xy)
     report.notes.append(f"ground truth in FREE pixels of the rasterised layout: {100 * free.mean():.1f}% "
                         f"({int(free.sum())} of {len(xy)} positions; inside the layout polygon: "
-                        f"{100 * shapely.contains_xy(poly, xy[:, 0], xy[:, 1]).mean():.1f}%)")
+                        f"{100 * shapely.contains_xy(raw.poly, xy[:, 0], xy[:, 1]).mean():.1f}%)")
     report.notes.append("not imported: tests/test_robot_motion.txt (teleoperation commands, not odometry), "
                         "tests/test_walk_df.csv (derived from test_walk_ble.txt)")
     validate_or_raise(out, report)
     return report
-
