@@ -1,22 +1,25 @@
-"""Export a trained localizer to ONNX: ``python export.py ckpt=RUN/last.ckpt out=MODEL.onnx`` (see conf/export.yaml)."""
+"""Export a trained localizer to ONNX: ``python export.py ckpt=RUN/last.ckpt out=MODEL.onnx`` (see conf/export.yaml).
+Errors the user can fix print one line (``--debug`` shows the traceback)."""
 
 import sys
 
-import hydra
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
-from blenav.learn.export import export
-from blenav.paths import conf_dir
+from blenav.cli.common import run_hydra
 
 
-@hydra.main(config_path=str(conf_dir()), config_name="export", version_base="1.3")
-def main(cfg: DictConfig) -> None:
-    try:
-        path = export(cfg)
-    except (FileNotFoundError, ValueError) as exc:  # wrong checkpoint: say what, without a traceback
-        print(f"export: error: {exc}", file=sys.stderr)
-        sys.exit(1)
-    print(f"wrote {path}")
+def task(cfg: DictConfig) -> None:
+    from blenav.learn.export import export
+
+    for key, what in (("ckpt", "the checkpoint to export: ckpt=RUN/last.ckpt"),
+                      ("out", "where to write: out=MODEL.onnx (a directory for a map prior)")):
+        if OmegaConf.is_missing(cfg, key):
+            raise ValueError(f"name {what}")
+    print(f"wrote {export(cfg)}")
+
+
+def main() -> None:
+    run_hydra("export.py", "export", task, sys.argv[1:])
 
 
 if __name__ == "__main__":

@@ -1,24 +1,27 @@
 """Train a learned localizer from a Hydra config: ``python train.py [overrides]`` (see conf/train.yaml);
-``model=NAME`` chooses the network config (conf/model/NAME.yaml), as everywhere."""
+``model=NAME`` chooses the network config (conf/model/NAME.yaml), as everywhere. Errors the user can fix
+print one line (``--debug`` shows the traceback); an interrupted run resumes from OUT/last.ckpt."""
 
 import sys
 
-import hydra
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
-from blenav.configs import cli_overrides, register_configs
-from blenav.learn.train import train
-from blenav.paths import conf_dir
-
-register_configs()  # the data node's schema (windows/schema): a misspelt key fails at composition
+from blenav.cli.common import run_hydra
+from blenav.configs import cli_overrides
 
 
-@hydra.main(config_path=str(conf_dir()), config_name="train", version_base="1.3")
-def main(cfg: DictConfig) -> None:
+def task(cfg: DictConfig) -> None:
+    from blenav.learn.train import train
+
+    if OmegaConf.is_missing(cfg.data, "path") or not cfg.data.get("path"):
+        raise ValueError("name the dataset to train on: data=DIR (a format-v1 dataset folder)")
     metrics, _ = train(cfg)
     print({k: round(v, 4) for k, v in metrics.items()})
 
 
+def main() -> None:
+    run_hydra("train.py", "train", task, sys.argv[1:], convert=cli_overrides)  # data=DIR -> data.path=DIR
+
+
 if __name__ == "__main__":
-    sys.argv = [sys.argv[0]] + cli_overrides(sys.argv[1:])  # data=DIR -> data.path=DIR
     main()

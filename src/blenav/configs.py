@@ -106,3 +106,101 @@ def compose(config_name: str, *overrides: str) -> DictConfig:
     over = cli_overrides(list(overrides), deprecated_model_path=config_name == "eval")
     with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
         return hydra_compose(config_name=config_name, overrides=over)
+
+
+# ------------------------------------------------------------------------------------------ strict overrides
+class ConfigError(ValueError):
+    """A command-line override the config does not accept, with what to write instead."""
+
+
+#: config groups of conf/ (an override ``GROUP=NAME`` chooses a file; ``GROUP.key=value`` sets a value)
+def _groups() -> set[str]:
+    return {p.name for p in conf_dir().iterdir() if p.is_dir()} | {"hydra"}
+
+
+def _nearest(word: str, choices, prefix: str = "") -> str:
+    import difflib
+
+    close = difflib.get_close_matches(word, [str(c) for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean '{prefix}{close[0]}'?)" if close else ""
+
+
+def _hydra_message(exc: Exception) -> str:
+    """Hydra's error in one line, without its search-path listing; a missing group option names the nearest."""
+    msg = " ".join(str(exc).split())
+    msg = msg.split(" Config search path:")[0]
+    m = re.search(r"Could not find '([^']+)/([^'/]+)' Available options in '[^']+': (.*)$", msg)
+    if m:
+        group, name, options = m.group(1), m.group(2), m.group(3).split()
+        options = [o for o in options if not o.startswith("_")]
+        msg = (f"no {group} named '{name}'{_nearest(name, options)}; {group} options: {', '.join(options)}")
+    return msg
+
+
+def _value_overrides(overrides: list[str]) -> list[tuple[str, str, str]]:
+    """(prefix '', '+', '++' or '~'; key path; the whole override) of the overrides that set values, not groups."""
+    out = []
+    groups = _groups()
+    for o in overrides:
+        m = re.match(r"^(\+\+|\+|~)?([A-Za-z0-9_.\-]+)(=|$)", o)
+        if not m:
+            continue  # a group with a package (GROUP@PKG=NAME, a/b=c): Hydra checks those itself
+        prefix, key = m.group(1) or "", m.group(2)
+        if key.split(".")[0] == "hydra" or ("." not in key and key in groups):
+            continue
+        out.append((prefix, key, o))
+    return out
+
+
+def _check_key(cfg: DictConfig, key: str, override: str) -> None:
+    """Raise :class:`ConfigError` when ``key`` may not be set in ``cfg``: it must exist at the top level and
+    inside typed (schema) nodes; open nodes (methods, experiment settings) take new keys."""
+    from omegaconf import OmegaConf
+
+    parts = key.split(".")
+    node = cfg
+    for depth, part in enumerate(parts):
+        if not isinstance(node, DictConfig):
+            return  # a list or value: Hydra reports it
+        typed = depth == 0 or OmegaConf.get_type(node) not in (dict, None)
+        if part not in node:
+            if typed:
+                where = ".".join(parts[:depth]) or "the top level"
+                prefix = ".".join(parts[:depth]) + "." if depth else ""
+                raise ConfigError(f"unknown key '{key}' in {override!r}{_nearest(part, node.keys(), prefix)}: "
+                                  f"{where} has {', '.join(sorted(str(k) for k in node.keys()))}")
+            return
+        node = node._get_node(part)
+
+
+def check_overrides(config_name: str, overrides: list[str]) -> DictConfig:
+    """Compose ``conf/<config_name>.yaml`` with ``overrides`` the way the entry point will, and refuse what
+    Hydra would accept silently or explain in a traceback: an unknown key, with or without ``+``, at the top
+    level or in a typed node, names the nearest known key. Returns the composed config.
+
+    Raises :class:`ConfigError` (one message; the entry points print it as one line)."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    values = _value_overrides(overrides)
+    base_over = [o for p, _, o in values if p in ("+", "++", "~")]
+    base = [o for o in overrides if o not in base_over]
+    try:
+        cfg = compose(config_name, *base)
+    except (HydraException, OmegaConfBaseException) as exc:
+        for p, key, o in values:  # the usual cause: a misspelt key; find it and suggest the nearest
+            if p == "":
+                try:
+                    _check_key(compose(config_name, *[x for x in base if x != o]), key, o)
+                except ConfigError:
+                    raise
+                except (HydraException, OmegaConfBaseException):
+                    continue
+        raise ConfigError(_hydra_message(exc)) from exc
+    for p, key, o in values:
+        if p in ("+", "++"):
+            _check_key(cfg, key, o)
+    try:
+        return compose(config_name, *overrides)
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise ConfigError(_hydra_message(exc)) from exc

@@ -10,8 +10,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .common import guarded, pop_debug
 
-def main(argv: list[str] | None = None) -> int:
+
+def _main(argv: list[str] | None) -> int:
     p = argparse.ArgumentParser(prog="blenav-calibrate", description=__doc__.splitlines()[0])
     p.add_argument("dataset")
     p.add_argument("--sessions", default=None, help="comma-separated session ids (default: every labelled session)")
@@ -38,6 +40,12 @@ def main(argv: list[str] | None = None) -> int:
             yaml.safe_dump(fit.as_dict(), f, sort_keys=False)
         print(f"wrote {args.out}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``blenav-calibrate``: errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
+    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
+    return guarded("blenav-calibrate", lambda: _main(argv), debug)
 
 
 if __name__ == "__main__":

@@ -16,8 +16,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .common import guarded, pop_debug
 
-def main(argv: list[str] | None = None) -> int:
+
+def _main(argv: list[str] | None) -> int:
     p = argparse.ArgumentParser(prog="blenav-fixes", description=__doc__.splitlines()[0])
     p.add_argument("dataset")
     p.add_argument("model", help="an ONNX file written by export.py")
@@ -49,6 +51,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {total} fixes (source {args.source!r}) to {len(report)} session(s); "
           f"{silent} window(s) without any beacon heard gave no fix")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``blenav-fixes``: errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
+    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
+    return guarded("blenav-fixes", lambda: _main(argv), debug)
 
 
 if __name__ == "__main__":

@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .common import guarded, pop_debug
 
-def main(argv: list[str] | None = None) -> int:
+
+def _main(argv: list[str] | None) -> int:
     from blenav.importers import KINDS
 
     p = argparse.ArgumentParser(prog="blenav-import", description=__doc__.splitlines()[0])
@@ -25,6 +27,12 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     print(report)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``blenav-import``: errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
+    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
+    return guarded("blenav-import", lambda: _main(argv), debug)
 
 
 if __name__ == "__main__":

@@ -11,8 +11,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from .common import guarded, pop_debug
 
-def main(argv: list[str] | None = None) -> int:
+
+def _main(argv: list[str] | None) -> int:
     p = argparse.ArgumentParser(prog="blenav-plot", description=__doc__.splitlines()[0])
     p.add_argument("dataset", type=Path, help="dataset folder (contains dataset.yaml)")
     p.add_argument("-s", "--session", dest="sessions", metavar="S", action="extend", nargs="+",
@@ -43,6 +45,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"blenav-plot: {args.dataset} is not a valid blenav/1 dataset:\n{exc}", file=sys.stderr)
         return 1
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``blenav-plot``: errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
+    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
+    return guarded("blenav-plot", lambda: _main(argv), debug)
 
 
 if __name__ == "__main__":

@@ -5,13 +5,9 @@ from __future__ import annotations
 
 import sys
 
-import hydra
 from omegaconf import DictConfig
 
-from blenav.paths import conf_dir
-from blenav.configs import register_configs
-
-register_configs()
+from .common import run_hydra
 
 
 def run(cfg: DictConfig):
@@ -25,14 +21,12 @@ def run(cfg: DictConfig):
                     first_session=int(cfg.get("first_session", 0)))
 
 
-@hydra.main(config_path=str(conf_dir()), config_name="sim", version_base="1.3")
-def main(cfg: DictConfig) -> None:
-    try:
-        out = run(cfg)
-    except (ValueError, KeyError) as exc:  # bad settings: say what, without a traceback
-        print(f"blenav-sim: error: {exc}", file=sys.stderr)
-        sys.exit(1)
-    print(f"wrote {out}")
+def _task(cfg: DictConfig) -> None:
+    print(f"wrote {run(cfg)}")
+
+
+def main() -> None:
+    run_hydra("blenav-sim", "sim", _task, sys.argv[1:])
 
 
 if __name__ == "__main__":

@@ -8,8 +8,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .common import guarded, pop_debug
 
-def main(argv: list[str] | None = None) -> int:
+
+def _main(argv: list[str] | None) -> int:
     p = argparse.ArgumentParser(prog="blenav-validate", description=__doc__.splitlines()[0])
     p.add_argument("dataset", help="dataset folder (contains dataset.yaml)")
     p.add_argument("-q", "--quiet", action="store_true", help="print violations only, not warnings")
@@ -28,6 +30,12 @@ def main(argv: list[str] | None = None) -> int:
     status = "INVALID" if errors else "OK"
     print(f"{status}: {args.dataset}: {len(errors)} violation(s), {len(warnings)} warning(s)", file=sys.stderr)
     return 1 if errors else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``blenav-validate``: errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
+    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
+    return guarded("blenav-validate", lambda: _main(argv), debug)
 
 
 if __name__ == "__main__":

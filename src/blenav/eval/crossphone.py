@@ -17,13 +17,12 @@ beacon was heard (a window with no beacon heard gives no fix; how many there wer
      "source" ("trained: OUT/runs/KEY" | "reused: OUT/runs/KEY" | "model: FILE.onnx" | "fitted")}
 
 A method is named by its label (``LocNet``, ``TransNet+LocNet``, ``TransNet+LocNet+semi``, ``DL-RNN``,
-``KNN``, ``Bayesian``, ``KRR+KF``). ``model=FILE.onnx`` (read as ``model_path``) replaces the training of ``TransNet+LocNet`` by an
+``KNN``, ``Bayesian``, ``KRR+KF``). ``model_path=FILE.onnx`` replaces the training of ``TransNet+LocNet`` by an
 exported model (its beacon list must match the building).
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import shutil
 import time
@@ -35,7 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from blenav.data import DatasetError
 
-from .harness import EvalError, _json_default
+from .common import EvalError, write_json
 
 log = logging.getLogger("blenav.eval")
 
@@ -98,11 +97,11 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path, dm) -
 def _check_reuse(ck: Path, dm, model: DictConfig | None = None) -> int | None:
     """The existing run's global step (None without a checkpoint); refuses one trained on other data or,
     when ``model`` is given, with another model config (sizes, lr, loss weights, augmentation)."""
-    from blenav.learn.checkpoint import KEY
+    from blenav.learn.checkpoint import KEY, read_checkpoint
 
     if not ck.is_file():
         return None
-    state = torch.load(ck, map_location="cpu", weights_only=False)
+    state = read_checkpoint(ck, require_meta=False)
     meta = state.get(KEY, {})
     stored, now = meta.get("data_hash"), dm.train_hash()
     if stored not in (None, now):
@@ -205,7 +204,7 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
         results["methods"][name] = _method_result(errs, test.sessions, time.perf_counter() - t0, train_s[name],
                                                   sources[name])
     out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps(results, indent=1, default=_json_default), encoding="utf-8")
+    write_json(out / "results.json", results)
     from .report import write_crossphone_markdown
 
     write_crossphone_markdown(out / "results.md", results, cfg)

@@ -362,13 +362,13 @@ def evaluate(cfg: DictConfig) -> dict:
     if plan_info is not None:
         results["plan_error"] = {**asdict(plan_error), "buildings": plan_info}
     ctx = RunContext(cache={}, fixes=provider, out=out)  # map geometry per floor, AHRS per session: shared
-    progress = _progress(bool(cfg.get("progress", False)), len(methods) * len(sessions))
     outcomes: dict[str, MethodOutcome] = {}
-    for name, method in methods.items():
-        oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress)
-        results["methods"][name] = aggregate(oc, runs)
-        if oc.metrics:
-            outcomes[name] = oc
+    with _Progress(bool(cfg.get("progress", False)), len(methods) * len(sessions)) as progress:
+        for name, method in methods.items():
+            oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress)
+            results["methods"][name] = aggregate(oc, runs)
+            if oc.metrics:
+                outcomes[name] = oc
     if provider is not None:
         results["fixes"] = provider.describe()
     write_outputs(out, results, outcomes, sessions, cfg)
@@ -411,15 +411,25 @@ def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], session
     plotting.save_figure(plotting.figure_trajectories(s, tracks), out / "trajectories.png")
 
 
-def _progress(enabled: bool, total: int):
-    if not enabled:
-        return lambda msg: None
-    from tqdm import tqdm
+class _Progress:
+    """A tqdm bar over method x session (or nothing); closed before any error is printed, so the error line
+    is never drawn over by the bar."""
 
-    bar = tqdm(total=total, desc="evaluating", unit="method-session")
+    def __init__(self, enabled: bool, total: int):
+        self.bar = None
+        if enabled:
+            from tqdm import tqdm
 
-    def tick(msg: str) -> None:
-        bar.set_postfix_str(msg)
-        bar.update(1)
+            self.bar = tqdm(total=total, desc="evaluating", unit="method-session")
 
-    return tick
+    def __call__(self, msg: str) -> None:
+        if self.bar is not None:
+            self.bar.set_postfix_str(msg)
+            self.bar.update(1)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.bar is not None:
+            self.bar.close()

@@ -11,9 +11,6 @@ Roy) the training loader adds the unlabelled windows (labels NaN) from epoch ``s
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
-
 import lightning as L
 import numpy as np
 import torch
@@ -23,26 +20,7 @@ from blenav.data import Dataset
 from blenav.features.scale import U_SCALE
 from blenav.features.windows import WindowConfig, select_beacons, session_windows, split_by_device
 
-
-@dataclass
-class WindowDataConfig:
-    path: str = "???"
-    building: str | None = None  # required when the dataset holds several buildings
-    sessions: list[str] | None = None  # only these session ids (before the device split); None: all
-    beacons: Any = None  # None: every BLE beacon; int k: spread_beacons(k) on the floor; list: those ids
-    train_devices: list | None = None
-    test_devices: list | None = None
-    unlabelled_devices: list | None = None
-    known_devices: list | None = None  # brand J of eq. 3.1 (statistics M); None: the train devices
-    holdout: float = 0.25  # share of a trained-and-tested device's labelled sessions kept for testing
-    unlabelled_share: float = 0.5
-    val_fraction: float = 0.2
-    history: int = 5
-    step_hz: float = 1.0
-    steps: str = "time"  # "scan" for fingerprint surveys: H consecutive scans at one point
-    batch_size: int = 256
-    seed: int = 0
-    extra: dict = field(default_factory=dict)
+from .data_config import WindowDataConfig  # the schema of the data node (torch-free)
 
 
 def _tensors(sessions, beacons, wcfg: WindowConfig, labelled: bool):
@@ -113,7 +91,7 @@ class WindowDataModule(L.LightningDataModule):
         order = rng.permutation(len(train))
         val = [train[i] for i in order[:n_val]]
         train = [train[i] for i in order[n_val:]]
-        self.window = WindowConfig(history=c.history, step_hz=c.step_hz, steps=c.steps, beacon_subset=subset)
+        self.window = WindowConfig(history=c.history, step_hz=c.step_hz, steps=str(c.steps), beacon_subset=subset)
         wcfg = self.window
         self.groups = {**groups, "train": train, "val": val}
         known = set(c.known_devices) if c.known_devices else {s.device_model for s in train}

@@ -36,7 +36,7 @@ time validates instead (:func:`split_sessions`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import lightning as L
 import numpy as np
@@ -48,45 +48,9 @@ from torch.utils.data import DataLoader, Dataset as TorchDataset, Sampler
 from blenav.data import Dataset
 from blenav.features.mapgrid import NetGrid, net_grid
 
+from .data_config import AugmentConfig, MapPriorDataConfig  # noqa: F401  (schemas, torch-free; AugmentConfig re-exported)
+
 SPLITS = {"train": 0, "val_seen": 1, "val_unseen": 2}
-
-
-@dataclass
-class AugmentConfig:
-    bias_std: float = 0.5  # multiplicative velocity bias ~ N(1, bias_std) per window (Roy)
-    bias_min: float = 0.1  # the bias is clipped to at least this (a window never runs backwards)
-    noise_px: float = 0.25  # N(0, noise_px) pixels added to each point (Roy)
-    rot_std_deg: float = 0.0  # heading error ~ N(0, rot_std_deg) per window (0: none, as Roy)
-
-
-@dataclass
-class MapPriorDataConfig:
-    path: str = "???"
-    val_fraction: float = 0.2  # whole sessions of the training buildings held out for val_seen
-    val_buildings: list | None = None  # building ids held out entirely (val_unseen); None: none
-    window_s: float = 5.0  # n of Roy: seconds of odometry per window
-    step_hz: float = 1.0  # odometry samples per second in a window
-    kernel_hz: float = 10.0  # ground truth densified at this rate for the target kernel
-    max_gap_s: float = 1.0  # a window must not span a ground-truth gap longer than this
-    crop_px: int = 64
-    crop_jitter: float = 0.25  # window end within +- crop_jitter * crop_px of the crop centre
-    samples_per_epoch: int = 2048
-    val_samples: int = 512  # per validation split, fixed for the run
-    batch_size: int = 32
-    feasible_tbar: float = 0.93  # T_bar threshold of a "feasible region" (T >= T_max / e at 14 * 0.93 = 13)
-    target_scale: float = 1.0e-6  # T = target_scale * exp(target_gain * T_bar) (Roy)
-    target_gain: float = 14.0
-    augment: AugmentConfig = field(default_factory=AugmentConfig)
-    num_workers: int = 0
-    seed: int = 0
-
-    @property
-    def n_points(self) -> int:
-        return int(round(self.window_s * self.step_hz)) + 1
-
-    @property
-    def n_kernel(self) -> int:
-        return int(round(self.window_s * self.kernel_hz)) + 1
 
 
 # --- targets (vectorised over the batch) -----------------------------------------------------------------

@@ -106,7 +106,7 @@ def make_profile(name: str, fading_1m: tuple[float, float] = (0.0, 0.0)) -> Rece
     table's numbers already contain, so the receiver's own offset and noise exclude it.
     """
     if name not in TABLE_3_2:
-        raise KeyError(f"unknown receiver profile {name!r}; profiles are {sorted(TABLE_3_2)}")
+        raise ValueError(f"unknown receiver profile {name!r}; profiles are {sorted(TABLE_3_2)}")
     brand = BRAND[name]
     m0, v0, m1, v1 = TABLE_3_2[name]
     quant = QUANT_DB.get(name, 1.0)
