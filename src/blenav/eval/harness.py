@@ -178,7 +178,18 @@ def select_sessions(ds: Dataset, ids, exclude: set = frozenset()) -> list:
 
 
 def plan_error_config(cfg: DictConfig) -> PlanErrorConfig:
-    """``cfg.plan_error`` checked against :class:`PlanErrorConfig` (a misspelt key fails here)."""
+    """``cfg.plan_error`` checked against :class:`PlanErrorConfig` (a misspelt key fails here, also one added
+    with Hydra's ``+``, which bypasses the schema)."""
+    import difflib
+    from dataclasses import fields
+
+    node = cfg.get("plan_error") or {}
+    known = [f.name for f in fields(PlanErrorConfig)]
+    for key in node:
+        if key not in known:
+            near = difflib.get_close_matches(str(key), known, n=1)
+            hint = f" (did you mean plan_error.{near[0]}?)" if near else ""
+            raise EvalError(f"plan_error: unknown key {key!r}{hint}; known: {', '.join(known)}")
     try:
         return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(PlanErrorConfig), cfg.get("plan_error") or {}))
     except Exception as exc:  # omegaconf's errors for unknown keys / wrong types, or our ValueError
