@@ -126,16 +126,29 @@ class _PathLoss(MeasurementModel):
         return np.full(len(tx), self.a_x)
 
     def _distances(self, xy: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """(R, N, M) 3-D distances (m) from particles to the anchors of the step's packets.
+        """(M, P) 3-D distances (m) from the particles (P = R * N, flattened) to the anchors of the step's M
+        packets, anchor-major.
 
-        float32: the (R, N, M) arrays are the filter's largest; centimetre resolution is plenty for
-        residuals of metres (PF-PL) or dB (PF-PS), and it halves their time."""
+        float32: these arrays are the filter's largest; centimetre resolution is plenty for residuals of
+        metres (PF-PL) or dB (PF-PS), and it halves their time. Anchor-major with in-place arithmetic:
+        every elementwise loop runs over all P particles at once (a particle-major (R, N, M) layout makes
+        numpy loop over M ~ 20 packets P times, 4x slower); the values are the same operations in the same
+        order, so bit for bit those of the (R, N, M) layout."""
         l = self.anchors.xyz[idx].astype(np.float32)  # (M, 3)
-        xy32 = xy.astype(np.float32)
-        dx = xy32[..., 0:1] - l[:, 0]
-        dy = xy32[..., 1:2] - l[:, 1]
-        dz2 = (np.float32(self.device_z) - l[:, 2]) ** 2
-        return np.sqrt(dx * dx + dy * dy + dz2)
+        d = xy[..., 0].astype(np.float32).reshape(1, -1) - l[:, 0:1]  # dx (M, P); contiguous rows: 4x faster
+        d *= d
+        dy = xy[..., 1].astype(np.float32).reshape(1, -1) - l[:, 1:2]
+        dy *= dy
+        d += dy
+        d += ((np.float32(self.device_z) - l[:, 2]) ** 2)[:, None]
+        return np.sqrt(d, out=d)
+
+    @staticmethod
+    def _sum_squares(res: np.ndarray, lead: tuple) -> np.ndarray:
+        """-0.5 sum over packets of res^2: (M, P) float32 residuals -> ``lead`` (R, N) float64. Summed over a
+        particle-major copy by the same einsum as before (its float32 summation order is einsum's own)."""
+        r = np.ascontiguousarray(res.T).reshape(*lead, res.shape[0])
+        return -0.5 * np.einsum("rnm,rnm->rn", r, r).astype(np.float64)
 
     def n_obs(self, obs: dict) -> int:
         return int(len(obs["rssi_idx"]))
@@ -164,8 +177,10 @@ class PathLossRange(_PathLoss):
         idx, r = self.ranges(obs)
         if len(idx) == 0:
             return np.zeros(xy.shape[:-1])
-        res = (self._distances(xy, idx) - r.astype(np.float32)) * np.float32(1.0 / self.sigma_n)
-        return -0.5 * np.einsum("rnm,rnm->rn", res, res).astype(np.float64)
+        res = self._distances(xy, idx)
+        res -= r.astype(np.float32)[:, None]
+        res *= np.float32(1.0 / self.sigma_n)
+        return self._sum_squares(res, xy.shape[:-1])
 
 
 @dataclass
@@ -179,11 +194,15 @@ class RssiDomain(_PathLoss):
         idx, rssi = obs["rssi_idx"], obs["rssi"]
         if len(idx) == 0:
             return np.zeros(xy.shape[:-1])
-        d = np.maximum(self._distances(xy, idx), np.float32(self.d_min))
+        d = self._distances(xy, idx)
+        np.maximum(d, np.float32(self.d_min), out=d)
         # residual rssi - (a_X - 10 gamma log10(d / d0)), rearranged to one log per element
         base = (rssi - self._ax()[idx] - 10.0 * self.gamma * np.log10(self.d0)).astype(np.float32)
-        res = (base + np.float32(10.0 * self.gamma) * np.log10(d)) * np.float32(1.0 / self.sigma_s)
-        return -0.5 * np.einsum("rnm,rnm->rn", res, res).astype(np.float64)
+        res = np.log10(d, out=d)
+        res *= np.float32(10.0 * self.gamma)
+        res += base[:, None]
+        res *= np.float32(1.0 / self.sigma_s)
+        return self._sum_squares(res, xy.shape[:-1])
 
 
 
