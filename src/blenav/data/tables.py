@@ -32,6 +32,30 @@ def read_header(path: Path) -> list[str]:
     return [c.strip() for c in first.rstrip("\r\n").split(",")] if first.strip() else []
 
 
+def ends_without_newline(path: Path) -> bool:
+    """Whether a non-empty file's last byte is not a line end: its last line may be cut short."""
+    with open(path, "rb") as f:
+        f.seek(0, 2)
+        if f.tell() == 0:
+            return False
+        f.seek(-1, 2)
+        return f.read(1) not in (b"\n", b"\r")
+
+
+def truncation_issue(path: Path, header: list[str]) -> Issue:
+    """The error for a file without a final newline, at its last line (see docs/dataset-format.md)."""
+    text = Path(path).read_bytes().decode("utf-8", errors="replace")
+    ls = text.splitlines()
+    n = len(ls)
+    what = "the header" if n == 1 else "its last line"
+    nf = len(ls[-1].split(",")) if ls else 0
+    if n > 1 and header and nf < len(header):
+        what += f" ({nf} field(s), the header has {len(header)})"
+    return error(path, "truncated", f"the file does not end with a newline, so {what} may be cut short (a number "
+                 "missing digits, a lost field): add a newline at the end if the line is complete, or remove the "
+                 "line", line=max(n, 1))
+
+
 def read_table(
     path: Path,
     required: tuple[str, ...],
@@ -45,10 +69,20 @@ def read_table(
     columns, unparsable values). Numeric columns are float64; ``string`` columns are ``str``; extra
     columns are kept as pandas parsed them. An empty file (zero bytes or header only) gives an empty
     frame with the expected columns and no issue: whether emptiness is allowed is the caller's rule.
+    A non-empty file whose last byte is not a line end is an error ('truncated') at its last line, which
+    replaces that line's other issues (it is also skipped by later row checks, as a reported row).
     """
+    header = read_header(path)
+    cut = truncation_issue(path, header) if ends_without_newline(path) else None
+    df, issues = _read_table(path, header, required, nullable, string, time_column)
+    if cut is not None:  # the cut line's own problems are this one problem
+        issues = [cut] + [i for i in issues if i.line != cut.line or cut.line == 1]
+    return df, issues
+
+
+def _read_table(path, header, required, nullable, string, time_column):
     issues: list[Issue] = []
     columns = required + nullable
-    header = read_header(path)
     if not header:
         return pd.DataFrame({c: pd.Series(dtype=str if c in string else float) for c in columns}), issues
     missing = [c for c in columns if c not in header]
