@@ -4,8 +4,8 @@ from .building import FREE, OCCUPIED, UNKNOWN, Building, Floor, Region
 from .dataset import Dataset
 from .issues import DatasetError, Issue
 from .schema import FORMAT, STREAMS
-from .session import Session
+from .session import Session, check_session_in_building, sum_dropped
 from .validate import validate
 
 __all__ = ["FORMAT", "STREAMS", "Building", "Dataset", "DatasetError", "Floor", "FREE", "Issue", "OCCUPIED",
-           "Region", "Session", "UNKNOWN", "validate"]
+           "Region", "Session", "UNKNOWN", "check_session_in_building", "sum_dropped", "validate"]

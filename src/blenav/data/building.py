@@ -33,6 +33,15 @@ from .tables import read_table
 
 FREE, OCCUPIED, UNKNOWN = 0, 1, -1
 
+#: An anchor further than max(ANCHOR_OFF_FLOOR_MIN_M, ANCHOR_OFF_FLOOR_FRAC x the plan's larger side) outside
+#: its floor's plan is an error: the plan's resolution (or origin) disagrees with the anchors' positions.
+ANCHOR_OFF_FLOOR_MIN_M = 5.0
+ANCHOR_OFF_FLOOR_FRAC = 0.5
+#: At least this many anchors on a floor spanning less than ANCHOR_SPAN_MIN_FRAC of its plan in both x and y
+#: is a warning (a resolution too large, e.g. cm/pixel written as m/pixel).
+ANCHOR_SPAN_MIN_COUNT = 3
+ANCHOR_SPAN_MIN_FRAC = 0.1
+
 
 def load_yaml(path: Path) -> tuple[dict | None, list[Issue]]:
     """Parse a YAML mapping; syntax errors name the line."""
@@ -219,6 +228,8 @@ def load_building(root: Path, check_images: bool = True) -> tuple[Building | Non
     declared = {**{f["id"]: None for f in raw_floors if isinstance(f, dict) and "id" in f}, **floors}
     anchors, ai = _load_anchors(root / "anchors.csv", declared)
     issues += ai
+    if check_images and not any(i.is_error for i in ai):
+        issues += check_anchors_on_floors(root / "anchors.csv", anchors, floors)
     rooms, ri = _load_geojson(root / "rooms.geojson", declared, ("Polygon", "MultiPolygon"))
     issues += ri
     routes, ni = _load_geojson(root / "navgraph.geojson", declared, ("LineString", "MultiLineString"))
@@ -264,7 +275,61 @@ def _parse_floor(root: Path, ypath: Path, i: int, f, check_images: bool) -> tupl
         return None, issues
     fl = Floor(id=f["id"], image_path=img, resolution=res, origin=(origin[0], origin[1]), z=z,
                occupied_thresh=occ, free_thresh=free, negate=bool(f.get("negate", False)))
+    if check_images:
+        issues += check_free_space(ypath, fl, where)
+        if any(i.is_error for i in issues):
+            return None, issues
     return fl, issues
+
+
+def check_free_space(ypath: Path, floor: Floor, where: str) -> list[Issue]:
+    """A floor whose image has no FREE pixel under its thresholds is an error: nothing can be localized on it."""
+    if floor.free_mask.any():
+        return []
+    h, w = floor.shape
+    return [error(ypath, "floor-no-free-space",
+                  f"building '{ypath.parent.name}' floor {floor.id!r} has no free space: no pixel of "
+                  f"{floor.image_path.name} ({w}x{h}) is free (darkness below free_thresh {floor.free_thresh:g}"
+                  f"{', negate: 1' if floor.negate else ''}): an all-black or "
+                  "all-unknown image, an inverted one (negate), or wrong thresholds", where=where)]
+
+
+def check_anchors_on_floors(path: Path, anchors: pd.DataFrame, floors: dict) -> list[Issue]:
+    """Anchors against their floor's plan (image size x resolution from the origin): an anchor far outside it
+    is an error at its line (the plan's scale or origin, or the anchor's position, is wrong); anchors that
+    span a tiny part of a large plan are a warning (a resolution too large)."""
+    issues: list[Issue] = []
+    if len(anchors) == 0 or not floors:
+        return issues
+    xy = anchors[["x", "y"]].to_numpy(dtype=float)
+    fl_col = anchors["floor"].astype(str).str.strip().to_numpy()
+    for key, floor in floors.items():
+        on = np.flatnonzero((fl_col == str(key)) & np.isfinite(xy).all(axis=1))
+        if not len(on):
+            continue
+        x0, x1, y0, y1 = floor.extent
+        h, w = floor.shape
+        plan = (f"floor {floor.id!r}'s plan x {x0:.1f}..{x1:.1f}, y {y0:.1f}..{y1:.1f} m ({w}x{h} px at "
+                f"{floor.resolution:g} m/px)")
+        margin = max(ANCHOR_OFF_FLOOR_MIN_M, ANCHOR_OFF_FLOOR_FRAC * max(x1 - x0, y1 - y0))
+        p = xy[on]
+        dist = np.maximum.reduce([x0 - p[:, 0], p[:, 0] - x1, y0 - p[:, 1], p[:, 1] - y1, np.zeros(len(p))])
+        far = np.flatnonzero(dist > margin)
+        for k in far[:20]:
+            r = int(on[k])
+            issues.append(error(path, "anchor-off-floor",
+                                f"anchor {anchors['anchor_id'].iloc[r]!r} at ({p[k, 0]:g}, {p[k, 1]:g}) m lies "
+                                f"{dist[k]:.1f} m outside {plan}: is the floor's resolution (m/pixel) or origin in "
+                                "building.yaml right, or the anchor's position?", line=r + 2))
+        if len(far) > 20:
+            issues.append(error(path, "anchor-off-floor", f"{len(far) - 20} more anchors outside {plan}"))
+        if not len(far) and len(on) >= ANCHOR_SPAN_MIN_COUNT:
+            span = p.max(axis=0) - p.min(axis=0)
+            if span[0] < ANCHOR_SPAN_MIN_FRAC * (x1 - x0) and span[1] < ANCHOR_SPAN_MIN_FRAC * (y1 - y0):
+                issues.append(warning(path, "anchor-span",
+                                      f"the {len(on)} anchors of floor {floor.id!r} span only {span[0]:.1f} x "
+                                      f"{span[1]:.1f} m of {plan}: is the resolution (m/pixel) right?"))
+    return issues
 
 
 def _check_image(img: Path) -> list[Issue]:

@@ -12,7 +12,7 @@ from pathlib import Path
 from .building import Building, load_yaml
 from .issues import DatasetError, error, raise_or_log
 from .schema import FORMAT
-from .session import Session, check_session_meta
+from .session import Session, check_session_files, check_session_meta
 
 
 class Dataset:
@@ -64,6 +64,7 @@ class Dataset:
             raise_or_log(issues)
         known = {b: None for b in self.building_ids}
         issues += check_session_meta(ypath, meta, known)
+        issues += check_session_files(root, meta)
         raise_or_log(issues)
         b = self.building(str(meta["building"]))
         issues += check_session_meta(ypath, meta, {b.id: b})

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 FORMAT = "blenav/1"
 
 CARRIERS = ("pedestrian", "robot", "static")
@@ -26,6 +28,74 @@ DEFAULT_FREE_THRESH = 0.196
 #: RSSI outside (RSSI_MIN_DBM, RSSI_MAX_DBM) is a sentinel or a corrupt value, never a reading.
 RSSI_MIN_DBM = -150.0
 RSSI_MAX_DBM = 0.0
+
+#: Largest time stamp (s since the session's start) a reader accepts: about 11.6 days. Larger values are
+#: milliseconds written as seconds, or absolute (Unix) times (docs/dataset-format.md, "Plausible ranges").
+T_MAX_S = 1e6
+
+#: An imu.csv with at least IMU_RATE_MIN_ROWS rows whose mean interval exceeds IMU_MAX_MEAN_DT_S is refused:
+#: no inertial sensor samples below 1 Hz; 100 Hz samples with t in milliseconds look like this.
+IMU_MAX_MEAN_DT_S = 1.0
+IMU_RATE_MIN_ROWS = 10
+
+
+@dataclass(frozen=True)
+class Plausible:
+    """Values a receiver or sensor can report for one column; a value outside is an error naming its line.
+
+    ``lo``/``hi`` are inclusive unless ``open_`` (then both bounds are excluded); ``hint`` says what a value
+    outside usually means. Empty cells of nullable columns are not checked.
+    """
+
+    lo: float
+    hi: float
+    unit: str
+    rule: str
+    hint: str
+    open_: bool = False
+
+    def outside(self, v):
+        """Bool mask of values outside the range (NaN -> False: reported by the finiteness checks)."""
+        v = np.asarray(v, dtype=float)
+        with np.errstate(invalid="ignore"):
+            bad = (v <= self.lo) | (v >= self.hi) if self.open_ else (v < self.lo) | (v > self.hi)
+        return bad & ~np.isnan(v)
+
+    def describe(self) -> str:
+        lo, hi = ("(", ")") if self.open_ else ("[", "]")
+        return f"{lo}{self.lo:g}, {self.hi:g}{hi} {self.unit}".rstrip()
+
+
+_ACC = Plausible(-160.0, 160.0, "m/s^2", "imu-range",
+                 "beyond 16 g, a phone accelerometer's full scale: is it in m/s^2 (not mg or cm/s^2)?")
+_GYR = Plausible(-35.0, 35.0, "rad/s", "imu-range",
+                 "beyond 2000 deg/s, a phone gyroscope's full scale: is it in rad/s (not deg/s)?")
+_MAG = Plausible(-5000.0, 5000.0, "uT", "mag-range",
+                 "beyond a phone magnetometer's full scale (about 4900 uT): is it in microtesla (not nT)?")
+_T = Plausible(0.0, T_MAX_S, "s", "time-range",
+               "t is seconds since the session's start: a negative time is before the start, a time above "
+               f"{T_MAX_S:g} s ({T_MAX_S / 86400:.1f} days) is milliseconds or an absolute (Unix) time")
+
+#: Plausible ranges per (stream, column); every stream's ``t`` is checked against ``_T`` as well.
+PLAUSIBLE: dict[tuple[str, str], Plausible] = {
+    **{("imu", c): _ACC for c in ("ax", "ay", "az")},
+    **{("imu", c): _GYR for c in ("gx", "gy", "gz")},
+    **{("mag", c): _MAG for c in ("mx", "my", "mz")},
+    ("rssi", "rssi"): Plausible(RSSI_MIN_DBM, RSSI_MAX_DBM, "dBm", "rssi-range",
+                                "a sentinel or corrupt value (a beacon not heard has no row)", open_=True),
+    ("rtt", "range_m"): Plausible(-50.0, 1000.0, "m", "rtt-range",
+                                  "is it in metres (not mm or cm)? (Android reports small negative ranges)"),
+    ("rtt", "range_std_m"): Plausible(0.0, 1000.0, "m", "rtt-range", "a standard deviation in metres"),
+    ("fixes", "std"): Plausible(0.0, float("inf"), "m", "fixes-range",
+                                "a standard deviation is >= 0 (empty when unknown)"),
+}
+
+
+def plausible(stream: str, column: str) -> Plausible | None:
+    """The plausible range of ``column`` of ``stream`` (``t`` of every stream: :data:`T_MAX_S`), or None."""
+    if column == "t":
+        return _T
+    return PLAUSIBLE.get((stream, column))
 
 #: Quaternions with a norm below this are rejected; others are normalised on read.
 QUAT_MIN_NORM = 0.5

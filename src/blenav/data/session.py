@@ -16,17 +16,21 @@ import numpy as np
 import pandas as pd
 
 from .building import Building, Floor, _floor_key
-from .issues import Issue, error, raise_or_log, warning
+from .issues import MAX_ROWS_PER_RULE, Issue, error, raise_or_log, warning
 from .schema import (
     ANCHORED_STREAMS,
     CARRIERS,
+    IMU_MAX_MEAN_DT_S,
+    IMU_RATE_MIN_ROWS,
     QUAT_MIN_NORM,
-    RSSI_MAX_DBM,
-    RSSI_MIN_DBM,
     SESSION_KEYS,
     STREAMS,
+    plausible,
 )
 from .tables import _rows_issue, read_stream
+
+#: More than this fraction of a labelled session's ground truth outside its floor's plan is an error.
+GT_OFF_FLOOR_MAX = 0.5
 
 
 def check_session_meta(path: Path, doc: dict, buildings: dict) -> list[Issue]:
@@ -53,48 +57,113 @@ def check_session_meta(path: Path, doc: dict, buildings: dict) -> list[Issue]:
     return issues
 
 
-def load_stream(root: Path, name: str, building: Building | None, labelled: bool) -> tuple[pd.DataFrame, list[Issue]]:
+def check_session_files(root: Path, meta: dict) -> list[Issue]:
+    """Rules on which files a session folder holds: at least one data file; groundtruth.csv when labelled."""
+    issues = []
+    if not any((root / spec.filename).is_file() for spec in STREAMS.values()):
+        issues.append(error(root, "session-empty", "session has no data file besides session.yaml"))
+    if meta.get("labelled") is True and not (root / STREAMS["groundtruth"].filename).is_file():
+        issues.append(error(root / STREAMS["groundtruth"].filename, "groundtruth-missing",
+                            "labelled: true but groundtruth.csv is absent"))
+    return issues
+
+
+def load_stream(root: Path, name: str, building: Building | None, labelled: bool, floor_id=None
+                ) -> tuple[pd.DataFrame, list[Issue], dict[str, int]]:
     """Read and check one stream of a session folder; applies every per-stream rule of the spec.
 
-    Rows for unknown anchors are dropped and reported as one warning (count and first ids).
+    Returns ``(frame, issues, dropped)``. Rows for unknown anchors are dropped and reported as one warning
+    (count and first ids); ``dropped`` counts the rows the reader left out, per reason (the rule's name:
+    ``unknown-anchor``, ``groundtruth-unlabelled``). ``floor_id`` (the session's floor) enables the
+    ground-truth-on-floor rule.
     """
     spec = STREAMS[name]
     path = root / spec.filename
     empty = pd.DataFrame({c: pd.Series(dtype=str if c in spec.string else float) for c in spec.columns})
     if not path.is_file():
         if name == "groundtruth" and labelled:
-            return empty, [error(path, "groundtruth-missing", "labelled: true but groundtruth.csv is absent")]
-        return empty, []
+            return empty, [error(path, "groundtruth-missing", "labelled: true but groundtruth.csv is absent")], {}
+        return empty, [], {}
     df, issues = read_stream(path, spec)
     if df is None:
-        return empty, issues
+        return empty, issues, {}
     if len(df) == 0:
         if name == "imu":
             issues.append(error(path, "empty-required", "imu.csv is present but has no rows"))
         if name == "groundtruth" and labelled:
             issues.append(error(path, "empty-required", "labelled: true but groundtruth.csv has no rows"))
-        return empty, issues
+        return empty, issues, {}
     if name == "groundtruth" and not labelled:
         issues.append(warning(path, "groundtruth-unlabelled",
                               f"labelled: false but groundtruth.csv has {len(df)} rows; they are ignored"))
-        return empty, issues
+        return empty, issues, {"groundtruth-unlabelled": len(df)}
     # Row checks run before unknown-anchor rows are dropped (row index = line - 2) and skip rows whose
     # cells were already reported, so one bad cell is one violation.
     reported = _reported_rows(df, spec, issues)
-    if name == "rssi":
-        v = df["rssi"].to_numpy(float)
-        bad = np.flatnonzero(~reported & ((v <= RSSI_MIN_DBM) | (v >= RSSI_MAX_DBM)))
-        if len(bad):
-            issues += _rows_issue(path, "rssi-range", bad,
-                                  f"rssi outside ({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm: a sentinel or corrupt "
-                                  "value (a beacon not heard has no row)")
+    more = check_ranges(path, df, name, reported)
+    issues += more
+    if name == "imu" and not any(i.rule == "time-range" for i in more):
+        issues += _check_imu_rate(path, df, reported)
+    dropped: dict[str, int] = {}
     if name == "groundtruth":
         df, more = _check_quaternions(path, df, reported)
         issues += more
+        if building is not None and _floor_key(floor_id, building.floors) is not None:
+            issues += groundtruth_off_floor(path, df[~reported], building.floor(floor_id), building.id)
     if name in ANCHORED_STREAMS:
+        n = len(df)
         df, more = _check_anchored(path, df, building, name)
         issues += more
-    return df, issues
+        if len(df) < n:
+            dropped["unknown-anchor"] = n - len(df)
+    return df, issues, dropped
+
+
+def check_ranges(path: Path, df: pd.DataFrame, name: str, skip: np.ndarray) -> list[Issue]:
+    """Values outside the plausible range of their column (:func:`blenav.data.schema.plausible`): one error
+    per row and column (capped per column), naming the value; rows in ``skip`` were already reported."""
+    spec = STREAMS[name]
+    issues: list[Issue] = []
+    for c in spec.columns:
+        p = plausible(name, c)
+        if p is None or c in spec.string:
+            continue
+        v = df[c].to_numpy(dtype=float)
+        bad = np.flatnonzero(p.outside(v) & ~skip)
+        for r in bad[:MAX_ROWS_PER_RULE]:
+            issues.append(error(path, p.rule, f"{c} {v[r]:g} {p.unit} is outside {p.describe()}: {p.hint}",
+                                line=int(r) + 2))
+        if len(bad) > MAX_ROWS_PER_RULE:
+            issues.append(error(path, p.rule, f"{c}: {len(bad) - MAX_ROWS_PER_RULE} more rows outside "
+                                f"{p.describe()} (lines {int(bad[MAX_ROWS_PER_RULE]) + 2}..{int(bad[-1]) + 2})"))
+    return issues
+
+
+def _check_imu_rate(path: Path, df: pd.DataFrame, skip: np.ndarray) -> list[Issue]:
+    t = df["t"].to_numpy(dtype=float)[~skip]
+    if len(t) < IMU_RATE_MIN_ROWS:
+        return []
+    dt = (t[-1] - t[0]) / (len(t) - 1)
+    if dt <= IMU_MAX_MEAN_DT_S:
+        return []
+    return [error(path, "imu-rate", f"{len(t)} rows over {t[-1] - t[0]:g} s, one every {dt:g} s on average: an "
+                  f"inertial sensor samples far faster than every {IMU_MAX_MEAN_DT_S:g} s; is t in milliseconds?")]
+
+
+def groundtruth_off_floor(path: Path, gt: pd.DataFrame, floor: Floor, building_id: str) -> list[Issue]:
+    """A labelled session whose ground truth lies mostly (> :data:`GT_OFF_FLOOR_MAX`) outside its floor's plan
+    (the image's extent) names the wrong building or floor, or the plan's resolution/origin is wrong."""
+    xy = gt[["x", "y"]].to_numpy(dtype=float)
+    if len(xy) == 0:
+        return []
+    x0, x1, y0, y1 = floor.extent
+    off = float(np.mean((xy[:, 0] < x0) | (xy[:, 0] > x1) | (xy[:, 1] < y0) | (xy[:, 1] > y1)))
+    if off <= GT_OFF_FLOOR_MAX:
+        return []
+    return [error(path, "groundtruth-off-floor",
+                  f"{off:.0%} of the ground truth lies outside the floor plan of building {building_id} floor "
+                  f"{floor.id!r} (x {x0:.1f}..{x1:.1f}, y {y0:.1f}..{y1:.1f} m); are 'building' and 'floor' in "
+                  "session.yaml right, and the floor's resolution and origin in building.yaml?")]
 
 
 def _reported_rows(df: pd.DataFrame, spec, issues: list[Issue]) -> np.ndarray:
@@ -157,7 +226,8 @@ class Session:
     """A session folder. Streams are read, checked and cached on first access.
 
     Reading a stream that breaks a rule raises :class:`blenav.data.DatasetError`; warnings (e.g.
-    dropped unknown-anchor rows) are logged and kept in :attr:`issues`.
+    dropped unknown-anchor rows) are logged and kept in :attr:`issues`, and the rows the reader left out
+    are counted in :attr:`dropped` (every stream: :meth:`load_all`).
     """
 
     id: str
@@ -189,6 +259,9 @@ class Session:
             raise ValueError(f"session {self.id}: building {building.id!r} is not {self.building.id!r}")
         other = replace(self, building=building)
         other.__dict__["_streams"] = self.__dict__.setdefault("_streams", {})
+        other.__dict__["_dropped"] = self.__dict__.setdefault("_dropped", {})
+        # streams read later are checked against the dataset's own building (its plan), not this version
+        other.__dict__["_home"] = self.__dict__.get("_home", self.building)
         return other
 
     def has(self, name: str) -> bool:
@@ -200,11 +273,29 @@ class Session:
             raise KeyError(f"unknown stream {name!r}; streams are {list(STREAMS)}")
         cache = self.__dict__.setdefault("_streams", {})
         if name not in cache:
-            df, issues = load_stream(self.root, name, self.building, self.labelled)
+            home = self.__dict__.get("_home", self.building)
+            df, issues, dropped = load_stream(self.root, name, home, self.labelled, self.meta.get("floor"))
             raise_or_log(issues)
             self.issues += issues
+            self.__dict__.setdefault("_dropped", {})[name] = dropped
             cache[name] = df
         return cache[name]
+
+    @property
+    def dropped(self) -> dict[str, dict[str, int]]:
+        """Rows the reader left out of the streams read so far: ``{stream: {reason: rows}}``, only streams
+        with at least one dropped row (a copy). Reasons are the rules' names: ``unknown-anchor`` (rssi/rtt
+        rows naming an anchor not in anchors.csv), ``groundtruth-unlabelled`` (ground truth of a session
+        with ``labelled: false``). Every stream's count: :meth:`load_all` first."""
+        return {k: dict(v) for k, v in self.__dict__.get("_dropped", {}).items() if v}
+
+    def load_all(self) -> "Session":
+        """Read (and check) every stream present; raises :class:`DatasetError` on the first one that breaks a
+        rule. Returns the session, so ``s.load_all().dropped`` is the session's full drop count."""
+        for name, spec in STREAMS.items():
+            if (self.root / spec.filename).is_file() or (name == "groundtruth" and self.labelled):
+                self.stream(name)
+        return self
 
     imu = property(lambda self: self.stream("imu"), doc="t, ax, ay, az (m/s^2), gx, gy, gz (rad/s)")
     mag = property(lambda self: self.stream("mag"), doc="t, mx, my, mz (uT)")
@@ -230,3 +321,22 @@ class Session:
             raise ValueError(f"session {self.id} has no ground truth")
         tt = gt["t"].to_numpy()
         return np.stack([np.interp(t, tt, gt["x"].to_numpy()), np.interp(t, tt, gt["y"].to_numpy())], axis=-1)
+
+
+def check_session_in_building(session: Session) -> None:
+    """Raise :class:`DatasetError` ('groundtruth-off-floor') when a labelled session's ground truth lies mostly
+    outside its floor's plan: the session names the wrong building or floor, or the plan's resolution or
+    origin is wrong. The rule is applied whenever ground truth is read (:func:`load_stream`); this reads it.
+    Unlabelled sessions pass."""
+    if session.labelled:
+        session.stream("groundtruth")
+
+
+def sum_dropped(counts) -> dict[str, dict[str, int]]:
+    """Add up :attr:`Session.dropped` dicts (e.g. over the sessions of an evaluation): ``{stream: {reason: n}}``."""
+    out: dict[str, dict[str, int]] = {}
+    for c in counts:
+        for stream, reasons in c.items():
+            for reason, n in reasons.items():
+                out.setdefault(stream, {})[reason] = out.get(stream, {}).get(reason, 0) + int(n)
+    return out

@@ -7,7 +7,7 @@ from pathlib import Path
 from .building import load_building, load_yaml
 from .issues import Issue, error
 from .schema import FORMAT, STREAMS
-from .session import check_session_meta, load_stream
+from .session import check_session_files, check_session_meta, load_stream
 
 
 def validate(root: str | Path) -> list[Issue]:
@@ -45,13 +45,11 @@ def validate_session(root: Path, buildings: dict) -> list[Issue]:
     if meta is None:
         return issues
     issues += check_session_meta(ypath, meta, buildings)
+    issues += check_session_files(root, meta)
     building = buildings.get(str(meta.get("building")))
     labelled = meta.get("labelled") is True
-    present = [n for n, spec in STREAMS.items() if (root / spec.filename).is_file()]
-    if not present:
-        issues.append(error(root, "session-empty", "session has no data file besides session.yaml"))
-    for name in STREAMS:
-        if name in present or (name == "groundtruth" and labelled):
-            _, si = load_stream(root, name, building, labelled)
+    for name, spec in STREAMS.items():
+        if (root / spec.filename).is_file():
+            _, si, _ = load_stream(root, name, building, labelled, meta.get("floor"))
             issues += si
     return issues
