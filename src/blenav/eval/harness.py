@@ -44,12 +44,13 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from blenav.data import Dataset, DatasetError
+from blenav.data import Dataset, DatasetError, check_session_in_building
 from blenav.filters.attitude import misalignment_deg
 from blenav.filters.calibration import fit_sessions
 from blenav.filters.runner import MissingStream
 from blenav.localizers import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext,
                                build_localizer)
+from blenav.localizers.confine import confine
 from blenav.eval.plan_errors import PlanErrorConfig, perturb_building
 
 from .common import EvalError, json_default, write_json
@@ -145,18 +146,6 @@ def build_fix_provider(cfg: DictConfig, methods: dict[str, Localizer], out: Path
 
 
 # ------------------------------------------------------------------------------------------ select
-def check_session_in_building(s) -> None:
-    """A session whose ground truth lies mostly off its building's floor plan names the wrong building."""
-    gt = s.groundtruth
-    x0, x1, y0, y1 = s.floor.extent
-    xy = gt[["x", "y"]].to_numpy()
-    off = np.mean((xy[:, 0] < x0) | (xy[:, 0] > x1) | (xy[:, 1] < y0) | (xy[:, 1] > y1))
-    if off > 0.5:
-        raise EvalError(f"session {s.id}: {off:.0%} of its ground truth lies outside the floor plan of building "
-                        f"{s.building.id} (x {x0:.1f}..{x1:.1f}, y {y0:.1f}..{y1:.1f} m); is 'building' in its "
-                        f"session.yaml right?")
-
-
 def select_sessions(ds: Dataset, ids, exclude: set = frozenset()) -> list:
     """``ids`` (labelled sessions), or every labelled session not in ``exclude``: the moving ones, or the
     static surveys when there is nothing else."""
@@ -219,9 +208,12 @@ def scored_sessions(cfg: DictConfig, ds: Dataset) -> tuple[list, object]:
     session is checked to lie in its building."""
     cal_spec = cfg.get("calibration", "auto")
     exclude = set(cal_spec) if not isinstance(cal_spec, str) and cal_spec is not None else set()
-    sessions = select_sessions(ds, cfg.get("sessions"), exclude=exclude)
-    for s in sessions:
-        check_session_in_building(s)
+    try:  # the data layer's rules (a floor without free space, ground truth off the plan, ...) are the readers'
+        sessions = select_sessions(ds, cfg.get("sessions"), exclude=exclude)
+        for s in sessions:
+            check_session_in_building(s)
+    except DatasetError as exc:
+        raise EvalError(str(exc)) from exc
     return sessions, cal_spec
 
 
@@ -244,7 +236,10 @@ def calibrate(methods: dict[str, Localizer], ds: Dataset, sessions: list, spec) 
             cal = sessions
             note = "no separate survey session: fitted on the evaluated sessions' own readings (2 parameters)"
     else:
-        cal = select_sessions(ds, [str(i) for i in spec])
+        try:
+            cal = select_sessions(ds, [str(i) for i in spec])
+        except DatasetError as exc:
+            raise EvalError(f"calibration: {exc}") from exc
         note = f"fitted on session(s) {', '.join(str(i) for i in spec)} (named by calibration, not evaluated)"
     if not any(s.has("rssi") for s in cal):  # an inertial-only dataset: the radio methods will be skipped anyway
         log.warning("no RSSI readings to calibrate the path-loss model on: configured values kept")
@@ -302,8 +297,10 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
             continue
         except (ValueError, DatasetError) as exc:
             raise EvalError(f"method {name}, session {s.id}: {exc}") from exc
+        est, moved = confine(est, s.floor, snap_free=method.uses_floor_plan, cache=ctx.cache)  # stay on the floor
         gt = s.groundtruth
         m = session_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), init_s)
+        m["confined"] = moved
         o = orientation_rmse(est, s)
         if o is not None:
             m["orientation_rmse_deg"] = o
@@ -329,7 +326,9 @@ def aggregate(oc: MethodOutcome, runs: int) -> dict:
     for e in ests:
         notes += [n for n in e.notes if n not in notes]
     agg.update({"wall_s": wall, "realtime_factor": duration * runs / max(wall, 1e-9),
-                "recoveries": sum(len(e.events) for e in ests), "map_notes": notes})
+                "recoveries": sum(len(e.events) for e in ests), "map_notes": notes,
+                "confined": {k: sum(m["confined"][k] for m in oc.metrics.values())
+                             for k in ("bbox", "off_free", "free", "estimates")}})
     orient = [m["orientation_rmse_deg"] for m in oc.metrics.values() if "orientation_rmse_deg" in m]
     if orient:
         agg["orientation_rmse_deg"] = float(np.mean(orient))
@@ -382,8 +381,26 @@ def evaluate(cfg: DictConfig) -> dict:
                 outcomes[name] = oc
     if provider is not None:
         results["fixes"] = provider.describe()
+    dropped = dropped_rows(sessions)
+    if dropped:
+        results["dropped"] = dropped
     write_outputs(out, results, outcomes, sessions, cfg)
     return results
+
+
+def dropped_rows(sessions: list) -> dict:
+    """``{session id: {stream: {reason: rows}}}`` of the rows the readers dropped (e.g. RSSI of an anchor
+    that anchors.csv lacks), for the sessions that dropped any: every stream is read, so nothing a method
+    did not happen to read goes unreported."""
+    out = {}
+    for s in sessions:
+        try:
+            d = s.load_all().dropped
+        except DatasetError as exc:  # a stream no method read is broken: say so, do not hide it
+            raise EvalError(f"session {s.id}: {exc}") from exc
+        if d:
+            out[s.id] = d
+    return out
 
 
 def write_outputs(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions, cfg: DictConfig) -> None:

@@ -41,10 +41,39 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
     notes = sorted({n for m in ms.values() for n in m.get("map_notes", [])})
     if notes:
         lines += ["", "Map notes:", ""] + [f"- {n}" for n in notes]
+    lines += _confined_lines(ms) + _dropped_lines(results)
     lines += _paper_comparison(results, ms, cfg)
     lines += ["", "Plots: error_cdf.png (median CDF over runs with 5-95 % band), rmse_box.png, "
               "error_over_time.png, trajectories.png (first run, first session)."]
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def _confined_lines(ms: dict) -> list[str]:
+    """Which methods' estimates the evaluation kept on the floor (blenav.localizers.confine), and how many."""
+    rows = []
+    for name, m in ms.items():
+        c = m.get("confined")
+        if c and (c["bbox"] or c["off_free"]):
+            moved = f", {c['free']} moved into free space" if c["free"] else " (a map-free method: not moved)"
+            rows.append(f"- {name}: {c['bbox']} of {c['estimates']} estimates clamped to the plan's bounding box; "
+                        f"{c['off_free']} off free space by more than 2 sigma{moved}")
+    if not rows:
+        return []
+    return ["", "Estimates kept on the floor (every method's estimates are clamped to the floor plan's bounding box, "
+            "and moved into free space when farther from it than twice their standard deviation, unless the "
+            "method is map-free):", ""] + rows
+
+
+def _dropped_lines(results: dict) -> list[str]:
+    """The rows the readers dropped, per session and stream."""
+    dropped = results.get("dropped") or {}
+    if not dropped:
+        return []
+    out = ["", "Rows dropped while reading (not used by any method):", ""]
+    for sid, streams in dropped.items():
+        for stream, reasons in streams.items():
+            out.append(f"- {sid}, {stream}.csv: " + ", ".join(f"{n} rows ({why})" for why, n in reasons.items()))
+    return out
 
 
 def _plan_error_lines(results: dict) -> list[str]:

@@ -107,6 +107,10 @@ class Localizer:
     ``filter``, ``attitude``, which a method may use as its defaults and is free to ignore), then the
     method's own settings from its config node."""
 
+    #: whether the method uses the floor plan (free space, walls); a map-free method's estimates are not
+    #: moved into free space by the evaluation (see :mod:`blenav.localizers.confine`)
+    uses_floor_plan: bool = True
+
     def __init__(self, name: str, shared=None):
         self.name = str(name)
 

@@ -35,6 +35,8 @@ class WeightedCentroidLocalizer(Localizer, PathLossCalibrated):
     Deterministic: every run gets the same trajectory. Estimates at each window's end (s); positions
     in world m (the anchors' frame); no covariance."""
 
+    uses_floor_plan = False  # anchors only
+
     def __init__(self, name: str, shared=None, k: int = 3, window_s: float = 1.0, min_rssi_dbm: float = -90.0,
                  a_x: float = -60.0, gamma: float = 2.25, d0: float = 1.0, use_anchor_tx_power: bool = True,
                  calibrated: bool = True, device_z: float = 1.2):

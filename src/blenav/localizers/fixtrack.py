@@ -23,6 +23,8 @@ class FixTrackLocalizer(Localizer, FixConsumer):
     to compute them (when computed, also if read from the evaluation's cache) times R, else the time to read
     them."""
 
+    uses_floor_plan = False  # the fixes as they are
+
     def __init__(self, name: str, shared=None, role: str = "dense"):
         super().__init__(name, shared)
         self.role = str(role)

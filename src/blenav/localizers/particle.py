@@ -26,7 +26,7 @@ from blenav.filters.attitude import AttitudeConfig
 from blenav.filters.calibration import apply_fit
 from blenav.filters.engine import FilterConfig
 from blenav.filters import map_prior
-from blenav.filters.measurement import FixLikelihood
+from blenav.filters.measurement import FixLikelihood, MeasurementModel
 from blenav.filters.runner import MapSpec, Method, run_session
 from blenav.filters.steps import StepDetectorConfig
 
@@ -84,6 +84,14 @@ class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelC
         step_cfg = build("steps", lambda: _schema(StepDetectorConfig, steps))
         self.method = Method(self.name, fcfg, motion_model, meas, spec, att, step_cfg,
                              beacons=None if beacons is None else tuple(str(b) for b in beacons))
+
+    @property
+    def uses_floor_plan(self) -> bool:
+        """Whether the filter uses the floor plan: free space at the start (``map.init`` uniform or map),
+        map conditioning, walls, or Roy's obstacle re-initialisation; the map-prior likelihood counts too."""
+        spec, f = self.method.map, self.method.filter
+        return (spec.init in ("uniform", "map") or spec.condition or spec.walls or f.reinit_fraction is not None
+                or any(m.bind_floor.__func__ is not MeasurementModel.bind_floor for m in self.method.measurements))
 
     # ------------------------------------------------------------------ capabilities
     def wants_path_loss_fit(self) -> bool:
