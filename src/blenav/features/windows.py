@@ -66,8 +66,9 @@ def spread_beacons(anchors: pd.DataFrame, k: int, floor_id=None, floor=None, gri
     """Ids of ``k`` BLE anchors spread over the floor so that they cover it (greedy k-median, deterministic).
 
     Candidates: ``kind == 'ble'`` anchors on ``floor_id`` (when the table's ``floor`` column has it).
-    Demand points: the centres of the floor's free pixels on a ``grid_m`` grid (``floor``, a
-    :class:`~blenav.data.Floor`; without it, the anchors themselves). Greedy: start from nothing and add,
+    Demand points: one free pixel centre per ``grid_m`` cell of the floor (``floor``, a
+    :class:`~blenav.data.Floor`), the cell's first free pixel in image row order (its top-most row, so a
+    slight northward bias within each cell); without ``floor``, the anchors themselves. Greedy: start from nothing and add,
     k times, the anchor that most reduces the mean distance from the demand points to their nearest chosen
     anchor (ties by anchor id). Unlike farthest-point sampling, which starts at the corners of the floor,
     this places the few beacons where they serve most of the walkable area, as one would install them.
