@@ -13,5 +13,10 @@
 - :mod:`~blenav.filters.attitude`: AHRS (Madgwick, Mahony, EKF from the ``ahrs`` package) after a median prefilter;
 - :mod:`~blenav.filters.steps`: sensor streams -> per-step controls and observations (batch and streaming);
 - :mod:`~blenav.filters.runner`: one method on one session for R runs, and the streaming ``OnlineLocalizer``;
-- :mod:`~blenav.filters.calibration`: path-loss fit from labelled sessions (``blenav-calibrate``).
+- :mod:`~blenav.filters.calibration`: path-loss fit from labelled sessions (``blenav-calibrate``);
+- :mod:`~blenav.filters.memory`: malloc settings that keep the filter's per-step temporaries off fresh pages.
 """
+
+from .memory import keep_freed_memory
+
+keep_freed_memory()  # applied once, on import of the filters (see blenav.filters.memory)

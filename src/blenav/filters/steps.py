@@ -27,6 +27,7 @@ window (t_{k-1}, t_k], t_k = t_start + k / rate_hz. Per window (all causal, so t
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,14 +50,12 @@ class StepDetector:
     def __init__(self, cfg: StepDetectorConfig, rate_hz: float):
         self.cfg = cfg
         self.w = max(1, int(round(cfg.smooth_s * rate_hz)))
-        self.buf: list[float] = []
+        self.buf: deque[float] = deque(maxlen=self.w)  # the last w norms: O(1) per sample
         self.prev_above = False
         self.last_step = -np.inf
 
     def update(self, t: float, acc: np.ndarray) -> bool:
         self.buf.append(float(np.sqrt(acc[0] ** 2 + acc[1] ** 2 + acc[2] ** 2)))
-        if len(self.buf) > self.w:
-            self.buf.pop(0)
         above = (sum(self.buf) / len(self.buf) - 9.80665) > self.cfg.threshold
         step = above and not self.prev_above and t - self.last_step >= self.cfg.min_interval_s
         self.prev_above = above
@@ -178,6 +177,29 @@ def _odo_at(odo_t: np.ndarray, odo: np.ndarray, t: float) -> np.ndarray:
     return odo[i] if i >= 0 else (odo[0] if len(odo) else np.zeros(2))
 
 
+class OdometryTrack:
+    """A stream's odometry samples so far: times (n,) s and positions (n, 2) in arrays grown by doubling
+    (amortised O(1) per sample, no list turned into an array per step); :meth:`at` is :func:`_odo_at` on
+    them (O(log n)), so a streaming step costs the same after an hour as after a second."""
+
+    def __init__(self, capacity: int = 256):
+        self._t = np.empty(capacity)
+        self._xy = np.empty((capacity, 2))
+        self.n = 0
+
+    def append(self, t: float, xy: np.ndarray) -> None:
+        if self.n == len(self._t):
+            self._t = np.concatenate([self._t, np.empty_like(self._t)])
+            self._xy = np.concatenate([self._xy, np.empty_like(self._xy)])
+        self._t[self.n] = t
+        self._xy[self.n] = xy
+        self.n += 1
+
+    def at(self, t: float) -> np.ndarray:
+        """The last sample at or before ``t`` (the first when none is; zeros without samples)."""
+        return _odo_at(self._t[: self.n], self._xy[: self.n], t)
+
+
 def imu_features(a: SessionArrays, att_cfg: AttitudeConfig, det_cfg: StepDetectorConfig,
                  mag_offset: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray]:
     """AHRS quaternions (T, 4) and PDR step flags (T,) at the IMU times of a session (batch path).
@@ -247,8 +269,7 @@ class StepStream:
         self.det = StepDetector(det_cfg, imu_rate_hz)
         self.win = Window()
         self.heading = 0.0
-        self.odo_t: list[float] = []
-        self.odo: list[np.ndarray] = []
+        self.odo = OdometryTrack()
         self.prev_t = t_start
 
     def _due(self, t: float) -> list:
@@ -259,11 +280,10 @@ class StepStream:
 
     def _close(self):
         t = self.t_start + self.k / self.rate
-        ot, oo = np.asarray(self.odo_t), np.asarray(self.odo).reshape(-1, 2)
         w = self.win
         ctrl, obs, self.heading = window_step(
-            np.asarray(w.acc).reshape(-1, 3), np.asarray(w.q).reshape(-1, 4), w.steps, _odo_at(ot, oo, self.prev_t),
-            _odo_at(ot, oo, t), np.asarray(w.rssi_idx, dtype=int), np.asarray(w.rssi, dtype=float), self.heading,
+            np.asarray(w.acc).reshape(-1, 3), np.asarray(w.q).reshape(-1, 4), w.steps, self.odo.at(self.prev_t),
+            self.odo.at(t), np.asarray(w.rssi_idx, dtype=int), np.asarray(w.rssi, dtype=float), self.heading,
             self.median_window, pack_fixes(w.fix_xy, w.fix_std, w.fix_source) if w.fix_xy else None, float(t))
         self.win = Window()
         self.prev_t = t
@@ -303,8 +323,7 @@ class StepStream:
 
     def push_odometry(self, t: float, xy: np.ndarray) -> list:
         out = self._due(t)
-        self.odo_t.append(t)
-        self.odo.append(np.asarray(xy, float))
+        self.odo.append(t, np.asarray(xy, float))
         return out
 
     def close(self, t_end: float) -> list:
