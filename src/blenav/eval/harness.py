@@ -13,8 +13,10 @@ Writes ``OUT/results.json`` (schema below), ``OUT/results.md`` (a table like the
      "methods": {NAME: {"rmse_m": {"mean","std","stderr","ci99"}, "error_m": {"mean","median","p75","p90","max"},
                         "ate_m", "ee_m", "init_error_m", "orientation_rmse_deg" (when the method runs an AHRS
                         and the ground truth has orientation), "wall_s", "realtime_factor", "recoveries",
-                        "map_notes", "skipped" (sessions the method could not run, with the reason),
-                        "per_session": {SESSION_ID: {the same metrics for that session}}}}}
+                        "map_notes", "confined": {"bbox", "off_free", "free", "estimates"} (estimates kept on
+                        the floor, :mod:`blenav.localizers.confine`), "skipped" (sessions the method could
+                        not run, with the reason), "per_session": {SESSION_ID: {the same metrics}}}},
+     "dropped": {SESSION_ID: {STREAM: {REASON: rows}}} (rows the readers dropped; only when any were)}
 
 A method that could run on no session is ``{"skipped": {SESSION_ID: reason}}`` only.
 
