@@ -44,8 +44,8 @@ def test_every_method_is_scored_per_device_on_the_same_windows(four_phones, tmp_
     assert not set(res["train_sessions"]) & set(res["sessions"])  # no session on both sides
     import torch
 
-    semi = torch.load(tmp_path / "o" / "runs" / "semi" / "last.ckpt", map_location="cpu", weights_only=False)
-    base = torch.load(tmp_path / "o" / "runs" / "transnet_locnet" / "last.ckpt", map_location="cpu", weights_only=False)
+    semi = torch.load(tmp_path / "o" / "runs" / "semi" / "last.ckpt", map_location="cpu", weights_only=True)
+    base = torch.load(tmp_path / "o" / "runs" / "transnet_locnet" / "last.ckpt", map_location="cpu", weights_only=True)
     assert semi["epoch"] == base["epoch"] + 1  # scenario 3 continued scenario 2's run into last.ckpt
     assert not torch.equal(semi["state_dict"]["locnet.head.2.weight"], base["state_dict"]["locnet.head.2.weight"])
     on_disk = json.loads((tmp_path / "o" / "results.json").read_text())

@@ -191,7 +191,7 @@ def test_training_leaves_checkpoint_resumes_and_learns(small_dataset, trained, t
     ckpt, objs = trained
     trainer = objs["trainer"]
     assert ckpt.is_file() and trainer.current_epoch == 2
-    meta = torch.load(ckpt, map_location="cpu", weights_only=False)["blenav"]
+    meta = torch.load(ckpt, map_location="cpu", weights_only=True)["blenav"]
     assert meta["kind"] == "mapprior" and meta["window"] == {"window_s": 5.0, "step_hz": 1.0, "n_points": 6}
     assert meta["resolution_m"] == 0.25 and meta["channels"] == 8
     # the loss on fixed validation batches falls from the untrained network's (same seed, same init)
@@ -212,7 +212,7 @@ def test_training_leaves_checkpoint_resumes_and_learns(small_dataset, trained, t
     _, objs2 = train(compose("train", "experiment=mapprior", f"data={small_dataset}", f"out={run}", *TINY,
                              "trainer.max_epochs=3"))
     assert objs2["trainer"].current_epoch == 3 and objs2["trainer"].global_step == steps * 3 // 2
-    assert torch.load(run / "last.ckpt", map_location="cpu", weights_only=False)["global_step"] == steps * 3 // 2
+    assert torch.load(run / "last.ckpt", map_location="cpu", weights_only=True)["global_step"] == steps * 3 // 2
 
 
 class _Interrupt(L.Callback):
@@ -225,7 +225,7 @@ def test_interrupted_run_resumes_from_its_last_epoch(small_dataset, tmp_path):
     over = ["experiment=mapprior", f"data={small_dataset}", f"out={tmp_path / 'run'}", *TINY, "trainer.max_epochs=2"]
     with pytest.raises(RuntimeError, match="interrupted"):
         train(compose("train", *over), callbacks=[_Interrupt()])
-    ck = torch.load(tmp_path / "run" / "last.ckpt", map_location="cpu", weights_only=False)
+    ck = torch.load(tmp_path / "run" / "last.ckpt", map_location="cpu", weights_only=True)
     assert ck["global_step"] == 6  # written after epoch 0 (96 windows / 16), before the interruption
     _, objs = train(compose("train", *over))
     assert objs["trainer"].current_epoch == 2 and objs["trainer"].global_step == 12

@@ -26,7 +26,7 @@ def test_two_process_ddp_on_cpu_with_gloo(two_phones, tmp_path):
     assert p.returncode == 0, p.stderr[-3000:]
     log = p.stdout + p.stderr
     assert "distributed_backend=gloo" in log and "MEMBER: 2/2" in log
-    state = torch.load(tmp_path / "run" / "last.ckpt", map_location="cpu", weights_only=False)
+    state = torch.load(tmp_path / "run" / "last.ckpt", map_location="cpu", weights_only=True)
     assert state["global_step"] > 0 and state["blenav"]["beacons"]
 
 
@@ -35,6 +35,6 @@ def test_multirun_sweep_with_the_joblib_launcher(two_phones, tmp_path):
     p = _train("-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path / 'sweep'}",
                f"data={two_phones}", f"out={tmp_path}/s${{seed}}", "seed=0,1", *TINY, cwd=tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
-    a, b = (torch.load(tmp_path / f"s{k}" / "last.ckpt", map_location="cpu", weights_only=False) for k in (0, 1))
+    a, b = (torch.load(tmp_path / f"s{k}" / "last.ckpt", map_location="cpu", weights_only=True) for k in (0, 1))
     wa, wb = a["state_dict"]["locnet.head.2.weight"], b["state_dict"]["locnet.head.2.weight"]
     assert not torch.equal(wa, wb)  # two seeds, two different runs

@@ -23,7 +23,7 @@ def _finite_metrics(metrics):
 
 def _finite_checkpoint(path):
     """The checkpoint's weights and buffers are all finite floats; returns the loaded state."""
-    state = torch.load(path, map_location="cpu", weights_only=False)
+    state = torch.load(path, map_location="cpu", weights_only=True)
     tensors = {k: v for k, v in state["state_dict"].items() if torch.is_tensor(v) and v.is_floating_point()}
     assert tensors
     for k, v in tensors.items():

@@ -16,11 +16,22 @@ config file beside the checkpoint.
 :func:`read_checkpoint` is the one place a blenav checkpoint of either task is read (the map prior's loader,
 :mod:`blenav.learn.mapprior_checkpoint`, and the evaluation use it too); :func:`data_hash` the one hash of
 training data stored in them.
+
+Files from strangers. A checkpoint is a pickle, and unpickling runs whatever callables the file names.
+:func:`load_file` therefore reads with ``torch.load(..., weights_only=True)``: torch's restricted unpickler
+builds tensors, dicts, lists, tuples, str, numbers, bool and None and nothing else, plus the types in
+:data:`SAFE_GLOBALS` (handed to ``torch.serialization.safe_globals``). A file that names anything else is
+refused with :class:`UnsafeCheckpointError` (naming the file and the callables it asks for) before any of
+them runs. Resuming a run (:func:`blenav.learn.trainer.fit`) reads the file with it first.
 """
 
 from __future__ import annotations
 
 import hashlib
+import pickle
+import pickletools
+import re
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +41,19 @@ from hydra.utils import instantiate
 from .module import CrossPhoneModule
 
 KEY = "blenav"
+
+#: Types a blenav checkpoint may hold beyond what ``torch.load(weights_only=True)`` accepts by itself, for
+#: ``torch.serialization.safe_globals`` (a class or function, or ``(obj, "module.Name")``). Measured with
+#: ``torch.serialization.get_unsafe_globals_in_checkpoint`` on every kind of checkpoint train.py writes
+#: (LocNet, TransNet+LocNet, DL-RNN, scenario 3 with its semi-supervised stage, the map prior with early
+#: stopping; Lightning 2.6, torch 2.13): they hold tensors, dicts, lists, str, numbers, bool and None only,
+#: so nothing needs allowing and the list is empty (tests/test_checkpoint_safety.py keeps it that way: a
+#: type added to a checkpoint fails there first). Add a type only if rebuilding it cannot run code.
+SAFE_GLOBALS: tuple = ()
+
+
+class UnsafeCheckpointError(ValueError):
+    """A checkpoint that would run code (or build objects blenav never writes) when unpickled: refused."""
 
 
 def data_hash(*arrays: np.ndarray) -> str:
@@ -49,14 +73,100 @@ def build_networks(model_cfg: dict, n_beacons: int):
     return locnet, transnet
 
 
-def read_checkpoint(path: str | Path, what: str = "blenav", require_meta: bool = True) -> dict:
-    """The whole checkpoint dict of ``path`` (state dict, optimizer states, counters, the ``"blenav"`` meta),
-    on the CPU. FileNotFoundError without the file; ValueError when ``require_meta`` and it has no
-    ``"blenav"`` entry (``what`` names the expected kind in the message)."""
+def _unsafe_globals(path: Path) -> list[str] | None:
+    """The callables the pickle of ``path`` names outside torch's allow-list and :data:`SAFE_GLOBALS`, read from
+    its opcodes (nothing is executed): torch's own scan for a zip checkpoint, :mod:`pickletools` for a bare
+    (legacy) pickle. None when ``path`` is not a pickle at all."""
+    if zipfile.is_zipfile(path):
+        try:
+            names = list(torch.serialization.get_unsafe_globals_in_checkpoint(path))
+        except Exception:  # a damaged archive: the message does without the names
+            return []
+    else:
+        names = _legacy_globals(path)
+        if names is None:
+            return None
+        try:  # torch's default allow-list (private, hence the guard): only what it would refuse is named
+            from torch._weights_only_unpickler import _get_allowed_globals
+
+            allowed = set(_get_allowed_globals())
+        except Exception:
+            allowed = set()
+        names = [n for n in names if n not in allowed]
+    mine = {g[1] if isinstance(g, tuple) else f"{g.__module__}.{g.__qualname__}" for g in SAFE_GLOBALS}
+    return list(dict.fromkeys(n for n in names if n not in mine))
+
+
+def _legacy_globals(path: Path) -> list[str] | None:
+    """``module.name`` of every GLOBAL / STACK_GLOBAL in the pickles at the start of ``path`` (torch's legacy
+    format is several pickles, then raw storage bytes); None when not even the first one parses."""
+    names: list[str] = []
+    parsed = False
+    with open(path, "rb") as f:
+        while True:
+            strings: list[str] = []
+            try:
+                for op, arg, _ in pickletools.genops(f):
+                    if op.name == "GLOBAL":
+                        names.append(str(arg).replace(" ", "."))
+                    elif op.name == "STACK_GLOBAL" and len(strings) >= 2:
+                        names.append(f"{strings[-2]}.{strings[-1]}")
+                    if isinstance(arg, str):
+                        strings.append(arg)
+            except Exception:  # not a pickle (or the raw storage bytes after the pickles)
+                break
+            parsed = True
+            if not f.read(1):
+                break
+            f.seek(-1, 1)
+    return names if parsed else None
+
+
+def _refusal(path: Path, names: list[str], detail: str = "") -> UnsafeCheckpointError:
+    what = f"it asks the unpickler to call {', '.join(names[:5])}{', ...' if len(names) > 5 else ''}" if names \
+        else f"it holds objects other than tensors, numbers, strings, lists and dicts ({detail})"
+    return UnsafeCheckpointError(
+        f"{path}: refused to load this checkpoint: {what}, which blenav's checkpoints never contain; unpickling "
+        "it could run code of whoever made the file. Load only checkpoints written by `python train.py` (from a "
+        "source you trust, ask for the exported .onnx model instead: it carries no code)")
+
+
+def load_file(path: str | Path) -> dict:
+    """``torch.load(path, map_location="cpu", weights_only=True)`` with :data:`SAFE_GLOBALS` allowed.
+    FileNotFoundError without the file; :class:`UnsafeCheckpointError` for a pickle that would build
+    anything else (nothing of it runs); ValueError for a file that is not a PyTorch checkpoint."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
-    ck = torch.load(path, map_location="cpu", weights_only=False)
+    try:
+        with torch.serialization.safe_globals(list(SAFE_GLOBALS)):
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:  # the restricted unpickler stopped before building the object
+        m = re.search(r"WeightsUnpickler error:\s*(.+?)(\n\n|$)", str(exc), re.S)
+        detail = " ".join((m.group(1) if m else str(exc).split("\n")[0]).split())[:200]
+        names = _unsafe_globals(path)
+        if names is None:  # not a pickle: junk, not a threat
+            raise _unreadable(path, detail) from None
+        raise _refusal(path, names, detail) from None
+    except Exception as exc:  # not a zip/pickle, truncated, ... (torch raises RuntimeError, KeyError, EOFError)
+        raise _unreadable(path, f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}") from None
+
+
+def _unreadable(path: Path, detail: str) -> ValueError:
+    return ValueError(f"{path} is not a PyTorch checkpoint torch can read (damaged, truncated, or another kind of "
+                      f"file; write it with `python train.py`): {detail}")
+
+
+def read_checkpoint(path: str | Path, what: str = "blenav", require_meta: bool = True) -> dict:
+    """The whole checkpoint dict of ``path`` (state dict, optimizer states, counters, the ``"blenav"`` meta),
+    on the CPU, read by :func:`load_file` (weights only: a file that would run code is refused).
+    FileNotFoundError without the file; ValueError when ``require_meta`` and it has no ``"blenav"`` entry
+    (``what`` names the expected kind in the message)."""
+    path = Path(path)
+    ck = load_file(path)
+    if not isinstance(ck, dict):
+        raise ValueError(f"{path}: not a {what} checkpoint (a {type(ck).__name__}, not a dict); was it written by "
+                         "train.py?")
     if require_meta and KEY not in ck:
         raise ValueError(f"{path}: not a {what} checkpoint (no '{KEY}' entry); was it written by train.py?")
     return ck

@@ -12,6 +12,9 @@ from importlib.util import find_spec
 from pathlib import Path
 
 import lightning as L
+import torch
+
+from .checkpoint import SAFE_GLOBALS, load_file
 
 LAST = "last.ckpt"
 
@@ -47,5 +50,9 @@ def fit(module: L.LightningModule, datamodule: L.LightningDataModule, out: Path,
     trainer = L.Trainer(**trainer_kw, default_root_dir=out, callbacks=[last_checkpoint(out), *callbacks],
                         logger=loggers(out), enable_model_summary=False)
     resume = out / LAST
-    trainer.fit(module, datamodule=datamodule, ckpt_path=str(resume) if resume.is_file() else None)
+    if resume.is_file():
+        load_file(resume)  # a last.ckpt that would run code is refused here, before Lightning unpickles it
+    with torch.serialization.safe_globals(list(SAFE_GLOBALS)):
+        trainer.fit(module, datamodule=datamodule, ckpt_path=str(resume) if resume.is_file() else None,
+                    weights_only=True)
     return trainer

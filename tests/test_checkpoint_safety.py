@@ -1,0 +1,158 @@
+"""Files from strangers (issue 19, section 3): checkpoints are read with ``torch.load(weights_only=True)``.
+
+- every kind of checkpoint train.py writes loads that way with the allow-list
+  :data:`blenav.learn.checkpoint.SAFE_GLOBALS` (and names nothing outside torch's own allow-list, so the
+  list can stay empty; a type added to a checkpoint later fails here first);
+- a checkpoint whose pickle would run code (a callable that writes a marker file) is refused by every
+  loader -- the cross-phone loader, the map prior loader, ``export.py`` and a resumed ``train.py`` run --
+  with a message naming the file and the callable, and the marker is never written;
+- a file that is not a checkpoint is one clear ValueError naming it.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from blenav.configs import compose
+from blenav.learn.checkpoint import SAFE_GLOBALS, UnsafeCheckpointError, load_file, load_module, read_checkpoint
+from blenav.learn.mapprior_checkpoint import load_map_prior, load_mapprior
+from blenav.learn.train import train
+from helpers import simulate_small
+
+REPO = Path(__file__).resolve().parents[1]
+TINY_CP = ["data.batch_size=32", "trainer.enable_progress_bar=false", "trainer.max_epochs=1",
+           "model.locnet.hidden=16", "model.locnet.fc_hidden=8"]
+TINY_MP = ["trainer.enable_progress_bar=false", "data.samples_per_epoch=64", "data.val_samples=32",
+           "data.batch_size=16", "data.crop_px=32", "model.net.unet_channels=[4,8]", "model.net.channels=8",
+           "trainer.max_epochs=1", "model.lr_decay=cosine"]
+
+
+def _write_marker(path: str) -> dict:
+    """The 'code' a malicious checkpoint runs when unpickled: it leaves a file behind."""
+    Path(path).write_text("this ran while a checkpoint was loaded\n")
+    return {}
+
+
+class _Payload:
+    """Pickles as a call of :func:`_write_marker` (what ``__reduce__`` returns is called by the unpickler)."""
+
+    def __init__(self, marker: Path):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (_write_marker, (self.marker,))
+
+
+@pytest.fixture(scope="module")
+def checkpoints(two_phones, tmp_path_factory):
+    """kind -> last.ckpt of tiny real runs: scenario 3 (TransNet+LocNet, semi-supervised stage, augmentation
+    generator state), DL-RNN, and the map prior with early stopping and the cosine schedule."""
+    root = tmp_path_factory.mktemp("ckpts")
+    train(compose("train", "experiment=crossphone_s3", f"data={two_phones}", f"out={root / 's3'}", *TINY_CP,
+                  "data.train_devices=[iphone-8]", "data.unlabelled_devices=[galaxy-s10]", "semi.epochs=1"))
+    train(compose("train", "model=dlrnn", f"data={two_phones}", f"out={root / 'dlrnn'}", "data.batch_size=32",
+                  "trainer.enable_progress_bar=false", "trainer.max_epochs=1", "model.locnet.hidden=8"))
+    mp_data = simulate_small(root / "mpdata", 3, 60, 3)
+    train(compose("train", "experiment=mapprior", f"data={mp_data}", f"out={root / 'mp'}", *TINY_MP))
+    return {k: root / k / "last.ckpt" for k in ("s3", "dlrnn", "mp")}
+
+
+def _poisoned(src: Path, dst: Path, marker: Path) -> Path:
+    """A copy of the real checkpoint ``src`` whose blenav meta carries the payload."""
+    ck = torch.load(src, map_location="cpu", weights_only=True)
+    ck["blenav"]["model"] = _Payload(marker)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(ck, dst)
+    return dst
+
+
+def test_real_checkpoints_need_nothing_beyond_the_allow_list(checkpoints):
+    assert SAFE_GLOBALS == ()
+    for kind, path in checkpoints.items():
+        assert torch.serialization.get_unsafe_globals_in_checkpoint(path) == [], kind
+        ck = load_file(path)
+        assert "blenav" in ck and ck["state_dict"], kind
+        assert torch.equal(ck["state_dict"][next(iter(ck["state_dict"]))],
+                           torch.load(path, map_location="cpu", weights_only=True)["state_dict"][
+                               next(iter(ck["state_dict"]))])
+    module, meta = load_module(checkpoints["s3"])
+    assert module.transnet is not None and meta["unlabelled_devices"] == ["galaxy-s10"]
+    assert "blenav_aug_rng" in load_file(checkpoints["s3"])
+    net, meta = load_mapprior(checkpoints["mp"])
+    assert meta["kind"] == "mapprior"
+    assert any(k.startswith("EarlyStopping") for k in load_file(checkpoints["mp"])["callbacks"])
+
+
+def test_the_payload_is_live(checkpoints, tmp_path):
+    """Control: without weights_only the poisoned file does run its code (so the refusals below mean something)."""
+    marker = tmp_path / "ran.txt"
+    path = _poisoned(checkpoints["s3"], tmp_path / "evil.ckpt", marker)
+    torch.load(path, map_location="cpu", weights_only=False)
+    assert marker.is_file()
+
+
+@pytest.mark.parametrize("kind", ["s3", "mp"])
+def test_a_checkpoint_that_would_run_code_is_refused_by_every_loader(checkpoints, tmp_path, kind):
+    marker = tmp_path / "ran.txt"
+    path = _poisoned(checkpoints[kind], tmp_path / "evil" / "last.ckpt", marker)
+    loaders = [read_checkpoint, load_file]
+    loaders += [load_module] if kind == "s3" else [load_mapprior, load_map_prior]
+    for load in loaders:
+        with pytest.raises(UnsafeCheckpointError) as e:
+            load(path)
+        msg = str(e.value)
+        assert str(path) in msg and "_write_marker" in msg and "refused" in msg and "train.py" in msg
+        assert not marker.exists(), load.__name__
+    # export.py: one line naming the file, exit 1, nothing written, no code run
+    out = tmp_path / ("m.onnx" if kind == "s3" else "mp_export")
+    r = subprocess.run([sys.executable, "export.py", f"ckpt={path}", f"out={out}"], cwd=REPO, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 1, r.stderr[-2000:]
+    line = r.stderr.strip().splitlines()[-1]
+    assert line.startswith("export.py: error:") and str(path) in line and "Traceback" not in r.stderr
+    assert not marker.exists() and not out.exists()
+
+
+@pytest.mark.parametrize("fmt", ["legacy-torch", "bare-pickle"])
+def test_older_formats_with_a_payload_are_refused_too(tmp_path, fmt):
+    import pickle
+
+    marker = tmp_path / "ran.txt"
+    path = tmp_path / "evil.ckpt"
+    obj = {"state_dict": {"w": torch.zeros(2)}, "blenav": {"model": _Payload(marker)}}
+    if fmt == "legacy-torch":
+        torch.save(obj, path, _use_new_zipfile_serialization=False)
+    else:
+        path.write_bytes(pickle.dumps(obj, protocol=4))
+    with pytest.raises(UnsafeCheckpointError, match=r"_write_marker"):
+        read_checkpoint(path)
+    assert not marker.exists()
+
+
+def test_resuming_from_a_poisoned_last_ckpt_is_refused(checkpoints, two_phones, tmp_path):
+    marker = tmp_path / "ran.txt"
+    run = tmp_path / "run"
+    path = _poisoned(checkpoints["s3"], run / "last.ckpt", marker)
+    with pytest.raises(UnsafeCheckpointError, match="_write_marker"):
+        train(compose("train", "model=locnet", f"data={two_phones}", f"out={run}", *TINY_CP))
+    assert not marker.exists()
+    assert path.is_file()  # left as it was for the user to inspect
+
+
+def test_a_file_that_is_no_checkpoint_is_one_clear_error(tmp_path):
+    junk = tmp_path / "junk.ckpt"
+    junk.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(ValueError, match="junk.ckpt is not a PyTorch checkpoint") as e:
+        read_checkpoint(junk)
+    assert not isinstance(e.value, UnsafeCheckpointError)
+    with pytest.raises(FileNotFoundError):
+        read_checkpoint(tmp_path / "missing.ckpt")
+    plain = tmp_path / "list.ckpt"
+    torch.save([1, 2, 3], plain)
+    with pytest.raises(ValueError, match="not a blenav checkpoint"):
+        read_checkpoint(plain)
