@@ -36,10 +36,12 @@ class LocNet(nn.Module):
         out, (h, c) = self.lstm(S.transpose(1, 2), (h0, c0))
         return self.head(out[:, -1]) * self.xy_scale + self.xy_mean, h, c
 
-    def initial_state(self, batch: int, device=None) -> tuple[torch.Tensor, torch.Tensor]:
-        z = torch.zeros(self.layers, batch, self.hidden, device=device)
+    def initial_state(self, batch: int, device=None, dtype=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Zero LSTM state (layers, batch, hidden), in ``dtype`` (default: the network's own)."""
+        dtype = dtype if dtype is not None else next(self.parameters()).dtype
+        z = torch.zeros(self.layers, batch, self.hidden, device=device, dtype=dtype)
         return z, z.clone()
 
     def forward(self, S: torch.Tensor) -> torch.Tensor:
-        h0, c0 = self.initial_state(S.shape[0], S.device)
+        h0, c0 = self.initial_state(S.shape[0], S.device, S.dtype)
         return self.forward_state(S, h0, c0)[0]
