@@ -10,7 +10,20 @@
   ``onnx.checker`` (full check) and save it;
 - :func:`max_diff`: the largest difference between an export's outputs and the reference's (absolute, or
   relative to the reference's scale when that exceeds 1);
-- :func:`blenav_version`: the version written into every export.
+- :func:`blenav_version`: the version written into every export;
+- :func:`weights_digest` / :func:`check_weights`: the hash of an export's weights that :func:`finish_model`
+  writes into its metadata and every loader checks (below).
+
+Weights hash. Every export carries ``weights_sha256`` (JSON string: hex) and ``weights_sha256_tensors``
+(JSON object: tensor name -> first 16 hex of the sha256 of its data) in ``metadata_props``. The weight
+tensors are the graph's initializers in graph order, then the ``value`` tensor of each ``Constant`` node in
+node order (named by the node's output; the exporter folds small constants such as the input scale into
+such nodes). A tensor's data is its values as little-endian bytes in row-major (C) order, i.e.
+``onnx.numpy_helper.to_array(t).astype("<" + dtype).tobytes()``, whatever the protobuf field it is stored
+in. ``weights_sha256`` is the sha256 of, for every weight tensor in that order, its name in UTF-8, one 0 byte
+and its data. :func:`check_weights` recomputes both and refuses a file whose weights differ, naming the
+tensors that changed, appeared or disappeared: a corrupted or edited file is caught before it localizes
+anything. It is a check of integrity, not of origin: whoever can edit the weights can rewrite the hash.
 
 Writers live in :mod:`blenav.learn.onnx_export` (tracing needs PyTorch); readers in :mod:`blenav.runtime`.
 Needs numpy; ``onnx`` and ``onnxruntime`` are imported only by the functions that use them.
@@ -18,7 +31,9 @@ Needs numpy; ``onnx`` and ``onnxruntime`` are imported only by the functions tha
 
 from __future__ import annotations
 
+import hashlib
 import json
+import warnings
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Sequence
@@ -62,8 +77,8 @@ def read_metadata(sess) -> dict:
 def finish_model(path: str | Path, metadata: dict[str, str] | None = None, doc: str = "",
                  io_docs: dict[str, str] | None = None) -> Path:
     """Load the ONNX file ``path``, set its doc string, the inputs' and outputs' doc strings (``io_docs``: name
-    -> text; None leaves them alone) and ``metadata_props`` (replacing any), check it (``onnx.checker``, full)
-    and save it in place. Returns the path."""
+    -> text; None leaves them alone) and ``metadata_props`` (replacing any; plus the weights hash of
+    :func:`weights_props`), check it (``onnx.checker``, full) and save it in place. Returns the path."""
     import onnx
 
     path = Path(path)
@@ -73,7 +88,7 @@ def finish_model(path: str | Path, metadata: dict[str, str] | None = None, doc: 
             v.doc_string = io_docs.get(v.name, "")
     model.doc_string = doc
     del model.metadata_props[:]
-    for k, v in (metadata or {}).items():
+    for k, v in {**(metadata or {}), **weights_props(model)}.items():
         model.metadata_props.add(key=str(k), value=str(v))
     onnx.checker.check_model(model, full_check=True)
     onnx.save(model, str(path))
@@ -103,3 +118,88 @@ def blenav_version() -> str:
         from blenav import __version__
 
         return __version__
+
+
+WEIGHTS_KEY = "weights_sha256"
+WEIGHT_TENSORS_KEY = "weights_sha256_tensors"
+
+
+def _weight_tensors(model):
+    """(name, TensorProto) of every weight of ``model``'s graph: initializers in graph order, then the ``value``
+    of each Constant node in node order (named by its output)."""
+    import onnx
+
+    out = [(t.name, t) for t in model.graph.initializer]
+    for node in model.graph.node:
+        if node.op_type == "Constant":
+            for a in node.attribute:
+                if a.type == onnx.AttributeProto.TENSOR:
+                    out.append((node.output[0], a.t))
+    return out
+
+
+def _tensor_bytes(t) -> bytes:
+    from onnx import numpy_helper
+
+    a = numpy_helper.to_array(t)
+    return np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<")).tobytes()
+
+
+def weights_digest(model) -> tuple[str, dict[str, str]]:
+    """(``weights_sha256`` hex, {tensor name: first 16 hex of the sha256 of its data}) of an ``onnx.ModelProto``
+    (see the module docstring for the exact bytes hashed)."""
+    total, per = hashlib.sha256(), {}
+    for name, t in _weight_tensors(model):
+        data = _tensor_bytes(t)
+        total.update(name.encode("utf-8") + b"\0")
+        total.update(data)
+        per[name] = hashlib.sha256(data).hexdigest()[:16]
+    return total.hexdigest(), per
+
+
+def weights_props(model) -> dict[str, str]:
+    """The two ``metadata_props`` entries (JSON strings) of :func:`weights_digest`."""
+    digest, per = weights_digest(model)
+    return json_props({WEIGHTS_KEY: digest, WEIGHT_TENSORS_KEY: per})
+
+
+def check_weights(path: str | Path) -> str | None:
+    """Recompute the weights hash of the ONNX file ``path`` and compare it with its metadata; returns the hash.
+    ValueError naming the tensors that differ (changed, missing, unexpected) when they do not match; a
+    UserWarning and None for a file without a recorded hash (exported before blenav recorded one)."""
+    import onnx
+
+    path = Path(path)
+    try:
+        model = onnx.load(str(path))
+    except Exception as exc:
+        raise ValueError(f"{path} is not an ONNX model (written by export.py?): {str(exc)[:200]}") from exc
+    props = {p.key: p.value for p in model.metadata_props}
+    if WEIGHTS_KEY not in props:
+        warnings.warn(f"{path} records no hash of its weights (exported before blenav wrote one): its integrity "
+                      "cannot be checked; export it again with `python export.py`", UserWarning, stacklevel=2)
+        return None
+    try:
+        want = json.loads(props[WEIGHTS_KEY])
+        want_per = json.loads(props.get(WEIGHT_TENSORS_KEY, "{}"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: metadata {WEIGHTS_KEY!r} is not the JSON blenav writes: {exc}") from None
+    digest, per = weights_digest(model)
+    if digest == want:
+        return digest
+    changed = [n for n in per if n in want_per and per[n] != want_per[n]]
+    missing = [n for n in want_per if n not in per]
+    extra = [n for n in per if n not in want_per]
+
+    def few(names):
+        return ", ".join(names[:5]) + (f", ... ({len(names) - 5} more)" if len(names) > 5 else "")
+
+    parts = [f"{len(changed)} of {len(want_per)} weight tensors changed ({few(changed)})"] if changed else []
+    parts += [f"tensors missing: {few(missing)}"] if missing else []
+    parts += [f"tensors not in the export: {few(extra)}"] if extra else []
+    if not parts:
+        parts = ["the tensors' names or order differ"]
+    raise ValueError(f"{path}: its weights are not the ones it was exported with ({'; '.join(parts)}; "
+                     f"{WEIGHTS_KEY} recorded {str(want)[:16]}..., computed {digest[:16]}...): the file was "
+                     "corrupted or edited after export; export it again from its checkpoint (python export.py "
+                     "ckpt=RUN/last.ckpt out=...) or get an intact copy")

@@ -11,8 +11,11 @@
   ``n_points`` samples at ``step_hz`` (the graph divides by ``resolution_m`` itself) -> ``dtv`` (batch, c).
 - ``meta.json``: kind, resolution_m, window {window_s, step_hz, n_points}, channels, size_multiple, how to
   resample a floor and score (eq. 3.8: S = dmt[:, row, col] . dtv, log floor), the model node, buildings,
-  data_hash, weights sha256, blenav_version and the parity numbers. The same entries, as JSON strings, are in
-  each graph's ``metadata_props``.
+  data_hash, blenav_version, the parity numbers, ``sha256`` (of each .onnx file) and ``weights_sha256`` (of
+  each graph's weights, :mod:`blenav.onnx_io`). The same entries but the hashes and parity, as JSON strings,
+  are in each graph's ``metadata_props``, with the graph's own ``weights_sha256`` and
+  ``weights_sha256_tensors``. :class:`blenav.runtime.map_prior.MapPrior` checks both hashes on load and
+  refuses a directory whose files were changed after export.
 
 The dot product of eq. 3.8 is not a graph: it is c multiply-adds per particle, done where the DMT lives
 (:class:`blenav.runtime.map_prior.MapPrior` with the export directory does it in numpy).
@@ -35,7 +38,7 @@ from torch import nn
 
 from blenav.features.mapgrid import pad_to_multiple
 from blenav.models.mapprior import MapPriorNet
-from blenav.onnx_io import blenav_version, json_props, max_diff, session
+from blenav.onnx_io import blenav_version, check_weights, json_props, max_diff, session
 from blenav.runtime.map_prior import LOG_FLOOR, MAP_ENCODER_ONNX, META_JSON, SCORE_FLOOR, TRAJECTORY_ENCODER_ONNX
 
 from .mapprior_checkpoint import load_mapprior
@@ -138,6 +141,7 @@ def export_mapprior(net: MapPriorNet, meta: dict, out: str | Path, opset: int = 
         raise
     info["parity"] = {"tolerance_rel": TOL, **worst}
     info["sha256"] = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in paths[:2]}
+    info["weights_sha256"] = {p.name: check_weights(p) for p in paths[:2]}
     paths[2].write_text(json.dumps(info, indent=2, sort_keys=True) + "\n", encoding="utf-8")
     return out
 

@@ -27,7 +27,8 @@ the network resolution, the weights' hash); it is kept in memory and, with a ``c
 ``dmt_<key>.npy`` there, so a second bind of the same floor -- in this process or a later one -- does not run
 the U-Net (:attr:`MapPrior.encode_calls` counts the runs).
 
-Backends. An export directory runs in onnxruntime (:class:`OnnxBackend`). A checkpoint (``RUN/last.ckpt``)
+Backends. An export directory runs in onnxruntime (:class:`OnnxBackend`), after :func:`check_export` found
+each graph's weights equal to the hash recorded at export and each file equal to meta.json's sha256. A checkpoint (``RUN/last.ckpt``)
 needs PyTorch, which this layer does not import: the caller hands MapPrior the loader,
 ``MapPrior(path, loader=blenav.learn.mapprior_checkpoint.TorchBackend)`` (or calls
 ``blenav.learn.mapprior_checkpoint.load_map_prior(path)``). A backend has ``meta`` (the checkpoint's or
@@ -48,7 +49,7 @@ from typing import Callable
 import numpy as np
 
 from blenav.features.mapgrid import NetGrid, floor_key, net_grid, pad_to_multiple
-from blenav.onnx_io import session
+from blenav.onnx_io import check_weights, session
 
 SCORE_FLOOR = 1e-12
 LOG_FLOOR = float(np.log(SCORE_FLOOR))
@@ -73,6 +74,7 @@ class OnnxBackend:
             raise ValueError(f"{paths[2]} is not a map prior export (kind {self.meta.get('kind')!r})")
         self.map_sess = session(paths[0], threads)
         self.traj_sess = session(paths[1], threads)
+        check_export(root, self.meta)
         h = hashlib.sha256(paths[0].read_bytes())
         self.weights_hash = "onnx:" + h.hexdigest()[:16]
         self.resolution_m = float(self.meta["resolution_m"])
@@ -85,6 +87,26 @@ class OnnxBackend:
     def encode_trajectory(self, odo_px: np.ndarray) -> np.ndarray:
         odo_m = (odo_px * self.resolution_m).astype(np.float32)  # the graph takes metres
         return self.traj_sess.run(["dtv"], {"odometry": odo_m})[0]
+
+
+def check_export(root: Path, meta: dict) -> None:
+    """Refuse an export directory whose graphs are not the ones written with its meta.json: each graph's weights
+    against the hash in its own metadata (:func:`blenav.onnx_io.check_weights`, naming the tensors that
+    changed), then each file against the sha256 meta.json records for it (any other change: graph, metadata).
+    An export without recorded hashes (older blenav) only warns."""
+    recorded = meta.get("sha256") or {}
+    for name in (MAP_ENCODER_ONNX, TRAJECTORY_ENCODER_ONNX):
+        path = root / name
+        check_weights(path)
+        want = recorded.get(name)
+        if want is None:
+            continue
+        got = hashlib.sha256(path.read_bytes()).hexdigest()
+        if got != want:
+            raise ValueError(f"{path} is not the file exported with {root / META_JSON} (sha256 recorded "
+                             f"{want[:16]}..., file {got[:16]}...; its weights are intact, so its graph or metadata "
+                             "was changed after export): export the directory again with `python export.py "
+                             "ckpt=RUN/last.ckpt out=DIR`")
 
 
 # --- the prior -------------------------------------------------------------------------------------------

@@ -15,6 +15,8 @@ such a window still advances the LSTM state, exactly as the network would.
 
 Given a :class:`blenav.data.Building`, the loader refuses a model trained for another building or beacon set
 (a model of a beacon subset, metadata ``beacon_subset``, accepts a building with more beacons than its own).
+It refuses a file whose weights differ from the hash recorded at export (``weights_sha256``, see
+:mod:`blenav.onnx_io`), naming the tensors that changed.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from blenav.features.windows import beacon_order, rssi_to_u
-from blenav.onnx_io import read_metadata, session
+from blenav.onnx_io import check_weights, read_metadata, session
 
 _EXAMPLES = 5
 
@@ -43,6 +45,7 @@ class OnnxLocalizer:
         if not self.path.is_file():
             raise FileNotFoundError(f"ONNX model {self.path} does not exist")
         self._sess = session(self.path, threads)
+        self.weights_sha256 = check_weights(self.path)  # a corrupted or edited file is refused here
         self._meta = read_metadata(self._sess)
         names = [i.name for i in self._sess.get_inputs()]
         if names != ["S", "h0", "c0"] or "beacons" not in self._meta or "window" not in self._meta:
