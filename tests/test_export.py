@@ -75,9 +75,11 @@ def test_metadata_round_trip_and_graph(runs, model):
     ckpt, path = runs[model]
     _, meta = load_module(ckpt)
     props = {p.key: json.loads(p.value) for p in onnx.load(str(path)).metadata_props}
-    for k in ("beacons", "window", "building", "data_hash", "model", "train_devices", "known_devices",
-              "unlabelled_devices"):
+    for k in ("beacons", "building", "data_hash", "model", "train_devices", "known_devices", "unlabelled_devices"):
         assert props[k] == meta[k], k
+    # the graph divides by u_scale itself: the export's window leaves it out (input_units says so)
+    assert props["window"] == {k: v for k, v in meta["window"].items() if k != "u_scale"}
+    assert props["input_units"]["graph_divides_by"] == meta["window"]["u_scale"]
     assert props["model_name"] == model and props["input_transform"] == INPUT_TRANSFORM
     assert props["blenav_version"] == importlib_metadata.version("blenav")
     loc = OnnxLocalizer(path)
