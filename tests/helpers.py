@@ -63,3 +63,17 @@ def make_tiny_dataset(root: Path, seed: int = 0, duration_s: float = 20.0) -> Pa
                                   "carrier": "pedestrian", "labelled": True},
                   {"imu": imu, "rssi": rssi, "groundtruth": gt})
     return root
+
+
+# ------------------------------------------------------------------ validator issues (test_validate, test_data_errors)
+def rel(root: Path, issue) -> str:
+    """The issue's file relative to the dataset root (posix), or its path as given."""
+    p = Path(issue.path)
+    try:
+        return p.relative_to(root).as_posix()
+    except ValueError:
+        return p.as_posix()
+
+
+def errors(issues):
+    return [i for i in issues if i.is_error]

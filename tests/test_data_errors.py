@@ -22,24 +22,13 @@ from blenav.cli.validate import main as validate_main
 from blenav.data import Dataset, DatasetError, check_session_in_building, sum_dropped, validate
 from blenav.data.schema import PLAUSIBLE, T_MAX_S
 from blenav.data.writer import write_csv, write_fixes
+from helpers import errors, rel
 
 S = "sessions/walk0"
 B = "buildings/house"
 
 
 # --------------------------------------------------------------------------- helpers
-
-
-def rel(root: Path, issue) -> str:
-    p = Path(issue.path)
-    try:
-        return p.relative_to(root).as_posix()
-    except ValueError:
-        return p.as_posix()
-
-
-def errors(issues):
-    return [i for i in issues if i.is_error]
 
 
 def found(root, issues) -> set:

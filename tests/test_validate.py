@@ -24,6 +24,7 @@ from PIL import Image
 from blenav.cli.validate import main as validate_main
 from blenav.data import validate
 from blenav.data.schema import SESSION_KEYS
+from helpers import errors, rel
 
 
 S = "sessions/walk0"
@@ -33,18 +34,6 @@ B = "buildings/house"
 # --------------------------------------------------------------------------- helpers
 
 
-
-
-def rel(root: Path, issue) -> str:
-    p = Path(issue.path)
-    try:
-        return p.relative_to(root).as_posix()
-    except ValueError:
-        return p.as_posix()
-
-
-def errors(issues):
-    return [i for i in issues if i.is_error]
 
 
 def warnings_(issues):
