@@ -234,6 +234,8 @@ class ParticleFilter:
     def _resample(self, runs: np.ndarray, w: np.ndarray) -> None:
         idx = self.resample_fn(w[runs], self.rng)
         self.x[runs] = np.take_along_axis(self.x[runs], idx[..., None], axis=1)
+        for m in self.measurements:
+            m.on_resample(runs, idx)
         self.logw[runs] = -np.log(self.N)
         if self.conditioner is not None:
             # Patel et al. eq. 4: the *new* particles (the extra copies that replace the dropped ones) are

@@ -49,7 +49,8 @@ class MeasurementModel:
     * ``bind(anchors)``, ``bind_floor(floor)``, ``bind_motion(motion)``: called when a filter is built for a
       session (the building's anchors, the session's floor, the method's motion model);
     * ``observe(obs)``: called every step before ``n_obs`` (models that keep a history);
-    * ``missing_reason()``: why the model cannot run (e.g. a learned prior that was not given), or None.
+    * ``missing_reason()``: why the model cannot run (e.g. a learned prior that was not given), or None;
+    * ``on_resample(runs, idx)``: called after resampling (models with per-particle state).
     """
 
     needs: tuple[str, ...] = ()
@@ -72,6 +73,10 @@ class MeasurementModel:
     def missing_reason(self) -> str | None:
         """Why the model cannot run, or None."""
         return None
+
+    def on_resample(self, runs: np.ndarray, idx: np.ndarray) -> None:
+        """The engine resampled runs ``runs`` (Q,) with ancestor indices ``idx`` (Q, N): a model that keeps
+        per-particle state (e.g. a receiver offset's posterior) reorders it the same way (default: none)."""
 
     def n_obs(self, obs: dict) -> int:
         raise NotImplementedError
