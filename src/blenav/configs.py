@@ -31,7 +31,8 @@ def register_configs() -> None:
     ========================  ======================================================  =====================
 
     None of these modules imports torch: registering costs the entry points nothing. Also registers the
-    resolver ``blenav.if_train_devices`` (:func:`if_train_devices`).
+    resolvers ``blenav.if_train_devices`` (:func:`if_train_devices`) and ``blenav.dataset_devices``
+    (:func:`dataset_devices`).
     """
     from hydra.core.config_store import ConfigStore
 
@@ -60,8 +61,31 @@ def if_train_devices(preset_train, value, *, _root_):
     train devices (another dataset's receivers) gets the derived defaults (known = the train devices, no
     unlabelled devices) instead of phone names the dataset does not have, unless it names them too."""
     now = _root_.data.get("train_devices")
-    same = now is not None and [str(d) for d in now] == [str(d) for d in preset_train]
+    same = now is not None and preset_train is not None and [str(d) for d in now] == [str(d) for d in preset_train]
     return value if same else None
+
+
+def dataset_devices(devices, *, _root_):
+    """Resolver ``${blenav.dataset_devices:LIST}``: the device models of ``LIST`` that sessions of the dataset
+    ``data.path`` (of ``data.sessions``, when given) have, in LIST's order; None when it has none of them (or
+    LIST is None). LIST unchanged when ``data.path`` is not a readable dataset (the data module then says why).
+
+    The cross-phone experiments name the simulator's phones (conf/experiment/crossphone_s2.yaml); on a dataset
+    simulated with another preset (``blenav-sim sim=small``: other receivers) they train on the named phones it
+    has, or on every device when it has none of them, instead of failing on phones it lacks."""
+    if devices is None:
+        return None
+    try:
+        from blenav.data import Dataset
+
+        data = _root_.data
+        ds = Dataset.open(str(data.get("path")))
+        ids = data.get("sessions")
+        have = {s.device_model for s in ds.sessions([str(i) for i in ids] if ids else None)}
+    except Exception:  # no dataset (yet): leave the list to the data module's checks and messages
+        return devices
+    here = [d for d in devices if str(d) in have]
+    return here or None
 
 
 def _register_resolvers() -> None:
@@ -69,6 +93,8 @@ def _register_resolvers() -> None:
 
     if not OmegaConf.has_resolver("blenav.if_train_devices"):
         OmegaConf.register_new_resolver("blenav.if_train_devices", if_train_devices)
+    if not OmegaConf.has_resolver("blenav.dataset_devices"):
+        OmegaConf.register_new_resolver("blenav.dataset_devices", dataset_devices)
 
 
 def cli_overrides(args: list[str], deprecated_model_path: bool = False) -> list[str]:

@@ -95,8 +95,9 @@ def train(cfg: DictConfig, callbacks: list | None = None,
     trainer_kw = OmegaConf.to_container(cfg.trainer, resolve=True)
     semi = cfg.get("semi")
     if semi and dm.sets.get("unlabelled") is None:
+        here = sorted({s.device_model for group in dm.groups.values() for s in group})
         raise ValueError("semi-supervised stage requested but no unlabelled windows: set "
-                         "data.unlabelled_devices=[...] to device models of this dataset")
+                         f"data.unlabelled_devices=[...] to device models of this dataset (here: {here})")
     if semi:
         trainer_kw["max_epochs"] = int(cfg.trainer.max_epochs) + int(semi.epochs)
         trainer_kw["reload_dataloaders_every_n_epochs"] = 1

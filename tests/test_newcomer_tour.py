@@ -1,0 +1,87 @@
+"""The five-minute tour on the ``small`` preset works as written (issue 19, section 4): simulate, train the
+scenario-2 localizer, export it, write its fixes -- four commands, no error. And the devices of the
+cross-phone experiments follow the dataset (conf/experiment/crossphone_s2.yaml, resolver
+``blenav.dataset_devices``)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from blenav.configs import compose
+
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+
+def _run(args: list, timeout: int = 600) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
+    r = subprocess.run([str(a) for a in args], cwd=REPO, capture_output=True, text=True, timeout=timeout, env=env)
+    assert r.returncode == 0, f"{args}\n{r.stdout[-2000:]}\n{r.stderr[-3000:]}"
+    return r
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory) -> Path:
+    """`blenav-sim sim=small seed=0 out=DIR`, exactly as the tour says (2 sessions of 120 s)."""
+    out = tmp_path_factory.mktemp("tour") / "small"
+    r = _run([BIN / "blenav-sim", "sim=small", "seed=0", f"out={out}", "progress=false"])
+    assert f"wrote {out}" in r.stdout
+    return out
+
+
+def _devices(root: Path) -> list[str]:
+    return sorted(yaml.safe_load(p.read_text())["device_model"] for p in root.glob("sessions/*/session.yaml"))
+
+
+@pytest.mark.onnx
+def test_the_tour_runs_on_the_small_preset(small, tmp_path):
+    run = tmp_path / "run"
+    r = _run([sys.executable, "train.py", "experiment=crossphone_s2", f"data={small}", f"out={run}",
+              "trainer.max_epochs=1", "trainer.enable_progress_bar=false"])
+    assert "test/err_m" in r.stdout.strip().splitlines()[-1]
+    r = _run([sys.executable, "export.py", f"ckpt={run / 'last.ckpt'}", f"out={run / 'model.onnx'}"])
+    assert r.stdout.strip() == f"wrote {run / 'model.onnx'}"
+    data = Path(shutil.copytree(small, tmp_path / "small"))  # fixes.csv goes into the dataset
+    r = _run([BIN / "blenav-fixes", data, run / "model.onnx"])
+    assert r.stdout.startswith("wrote ") and "to 2 session(s)" in r.stdout and not r.stderr.strip()
+    assert len(list(data.glob("sessions/*/fixes.csv"))) == 2
+
+
+def test_experiment_devices_follow_the_dataset(small, two_phones, tmp_path):
+    assert _devices(small) == ["iphone-8", "pixel-3xl"]
+    d = compose("train", "experiment=crossphone_s2", f"data={small}").data
+    assert (list(d.train_devices), list(d.known_devices), d.unlabelled_devices) == (["iphone-8"], ["iphone-8"], None)
+    d = compose("train", "experiment=crossphone_s3", f"data={two_phones}").data
+    assert list(d.train_devices) == ["iphone-8", "galaxy-s10"] and list(d.known_devices) == ["iphone-8"]
+    assert d.unlabelled_devices is None  # no Xiaomi-like phone here: the semi stage asks for data.unlabelled_devices
+    # none of the named phones: every device (null), known = the train devices
+    other = Path(shutil.copytree(small, tmp_path / "other"))
+    for p in other.glob("sessions/*/session.yaml"):
+        doc = yaml.safe_load(p.read_text())
+        doc["device_model"] = "phone-" + doc["device_model"]
+        p.write_text(yaml.safe_dump(doc))
+    d = compose("train", "experiment=crossphone_s2", f"data={other}").data
+    assert d.train_devices is None and d.known_devices is None and d.unlabelled_devices is None
+    # devices named on the command line are taken as named; the known devices follow them
+    d = compose("train", "experiment=crossphone_s2", f"data={small}", "data.train_devices=[pixel-3xl]").data
+    assert list(d.train_devices) == ["pixel-3xl"] and d.known_devices is None
+    # no dataset (yet): the lists are the experiment's, for the data module to check
+    d = compose("train", "experiment=crossphone_s2", f"data={tmp_path / 'none'}").data
+    assert list(d.known_devices) == ["iphone-7", "iphone-8", "iphone-xr"]
+
+
+def test_named_devices_the_dataset_lacks_are_one_line_naming_its_devices(small, tmp_path):
+    r = subprocess.run([sys.executable, "train.py", "experiment=crossphone_s2", f"data={small}",
+                        f"out={tmp_path / 'run'}", "data.train_devices=[galaxy-s10]"], cwd=REPO, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 1
+    line = r.stderr.strip().splitlines()[-1]
+    assert line == ("train.py: error: train devices ['galaxy-s10'] have no session; device models here: "
+                    "['iphone-8', 'pixel-3xl']"), r.stderr[-2000:]
