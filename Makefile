@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism paper-tables crossphone-tables mapprior-tables mapprior-planerr clean-demo
+.PHONY: install demo test test-slow test-all bench realism paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -240,6 +240,24 @@ mapprior-planerr: $(STAMP)
 	      model_path=data/runs/mapprior_proc_onnx "$${P#*:}" \
 	      out=data/results/mapprior_table36_$${D#procedural_}_$${P%%:*} progress=false || exit 1; \
 	done; done
+
+# Receivers that calibrate themselves (issue 14 sec. 4): the mixed-phone office of the README (five phones,
+# path loss fitted on the iPhone 7 walk), mapfusion_002 with PF-PL+offset and PF-PS+MAP+offset, against
+# PF-PS+MAP calibrated on each test walk itself (the best a per-phone calibration can do)
+SELFCAL_RUNS ?= 30
+selfcal-tables: $(STAMP)
+	test -e data/office_mixed/dataset.yaml || $(BIN)/blenav-sim sim=office_45x55 seed=1 out=data/office_mixed \
+	    duration_s=384 sessions=5 'sim.carriers=[pedestrian,pedestrian,robot,pedestrian,robot]' progress=false
+	$(BIN)/blenav-eval experiment=mapfusion_002 data=data/office_mixed runs=$(SELFCAL_RUNS) \
+	    calibration=[s000_iphone-7_pedestrian] out=data/results/office_mixed_selfcal progress=false plots=false
+	for S in $$(ls data/office_mixed/sessions | tail -n +2); do \
+	  $(BIN)/blenav-eval experiment=mapfusion_002 data=data/office_mixed runs=$(SELFCAL_RUNS) sessions=$$S \
+	      calibration=[$$S] methods.pf_pl=null methods.pf_pl_map=null methods.pf_ps=null methods.pf_pl_offset=null \
+	      methods.pf_ps_map_offset=null out=data/results/office_mixed_owncal/$$S progress=false plots=false || exit 1; \
+	done
+	$(BIN)/python -m blenav.eval.merge docs/results/office_mixed_selfcal.md \
+	    "Self-calibrating receivers on the mixed-phone office (calibrated on the iPhone 7 walk)" \
+	    data/results/office_mixed_selfcal $$(ls -d data/results/office_mixed_owncal/*/ | sed 's|/$$|:own-calibration |')
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md

@@ -75,3 +75,29 @@ def test_fixes_refuses_a_file_that_is_not_onnx(tiny, tmp_path):
     bad.write_bytes(b"\x00not a model")
     _one_line_error(_run(BIN / "blenav-fixes", str(tiny), str(bad)), "blenav-fixes", "garbage.onnx",
                     "not an ONNX model")
+
+
+@pytest.mark.parametrize("fault", ["no-building-yaml", "unknown-building", "labelled-without-groundtruth"])
+def test_eval_on_a_broken_dataset_is_one_line_naming_the_file(tiny, tmp_path, fault):
+    """Issue 19: these printed a ~20-line Hydra traceback ending in the clear message."""
+    import shutil
+
+    import yaml
+
+    data = tmp_path / "d"
+    shutil.copytree(tiny, data)
+    if fault == "no-building-yaml":
+        (data / "buildings" / "house" / "building.yaml").unlink()
+        words = ["building.yaml"]
+    elif fault == "unknown-building":
+        meta = data / "sessions" / "walk0" / "session.yaml"
+        doc = yaml.safe_load(meta.read_text())
+        doc["building"] = "castle"
+        meta.write_text(yaml.safe_dump(doc))
+        words = ["session.yaml", "castle"]
+    else:
+        (data / "sessions" / "walk0" / "groundtruth.csv").unlink()
+        words = ["walk0", "groundtruth"]
+    p = _run(BIN / "blenav-eval", "experiment=mapfusion_002", f"data={data}", f"out={tmp_path / 'o'}", "runs=1")
+    _one_line_error(p, "blenav-eval", *words)
+    assert not (tmp_path / "o").exists()
