@@ -52,6 +52,17 @@ def test_the_tour_runs_on_the_small_preset(small, tmp_path):
     r = _run([BIN / "blenav-fixes", data, run / "model.onnx"])
     assert r.stdout.startswith("wrote ") and "to 2 session(s)" in r.stdout and not r.stderr.strip()
     assert len(list(data.glob("sessions/*/fixes.csv"))) == 2
+    # --calibrate on a walk the model trained on warns (issue 19); on a walk it never saw, it does not
+    from blenav.runtime import OnnxLocalizer
+
+    seen = OnnxLocalizer(run / "model.onnx").meta.get("train_sessions")
+    assert seen, "the export records the sessions the model saw"
+    r = _run([BIN / "blenav-fixes", data, run / "model.onnx", "--calibrate", "--sessions", seen[0]])
+    assert f"warning: session(s) {seen[0]} trained the model" in r.stderr
+    unseen = [p.parent.name for p in data.glob("sessions/*/session.yaml") if p.parent.name not in seen]
+    if unseen:
+        r = _run([BIN / "blenav-fixes", data, run / "model.onnx", "--calibrate", "--sessions", unseen[0]])
+        assert "warning" not in r.stderr
 
 
 def test_experiment_devices_follow_the_dataset(small, two_phones, tmp_path):

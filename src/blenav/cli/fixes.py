@@ -40,6 +40,9 @@ def _main(argv: list[str] | None) -> int:
             print(f"{st['fixes']} fixes in {len(st['sessions'])} session(s): RMSE {st['rmse_m']:.2f} m, per-axis sigma "
                   f"{st['sigma_m']:.2f} m, error correlation time {st['tau_fixes']:.1f} fixes (rho above 0.05 up "
                   f"to lag {st['last_lag']}), effective sigma {st['sigma_eff_m']:.2f} m")
+            if st.get("trained_on"):
+                print(f"blenav-fixes: warning: session(s) {', '.join(st['trained_on'])} trained the model: their "
+                      f"errors understate what unseen walks give; calibrate on walks it never saw", file=sys.stderr)
             print(f"sigma_eff_m={st['sigma_eff_m']:.2f}")
             return 0
         report = write_model_fixes(ds, args.model, args.source, ids)

@@ -63,7 +63,7 @@ INPUT_TRANSFORM = ("per packet u = max(rssi_dbm + offset_db, floor_u); per step 
                    "is (the graph divides by u_scale itself)")
 META_KEYS = ("input_units", "window_recipe", "not_heard", "lstm_state", "output_frame", "beacons", "beacon_subset",
              "window", "input_transform", "building", "data_hash", "model", "model_name", "train_devices",
-             "known_devices", "unlabelled_devices", "blenav_version")
+             "known_devices", "unlabelled_devices", "train_sessions", "blenav_version")
 REQUIRED_META = ("model", "beacons", "window")
 _DOCS = {
     "S": "(batch, B, H) float32 RSSI windows on the thesis scale u, not scaled (metadata input_units, window_recipe)",
@@ -143,6 +143,7 @@ def onnx_metadata(meta: dict) -> dict[str, str]:
         "train_devices": meta.get("train_devices"),
         "known_devices": meta.get("known_devices"),
         "unlabelled_devices": meta.get("unlabelled_devices"),
+        "train_sessions": meta.get("train_sessions"),  # None for a checkpoint written before it was recorded
         "blenav_version": blenav_version(),
         "input_transform": INPUT_TRANSFORM,
     }

@@ -49,7 +49,10 @@ def build_module(cfg: DictConfig, dm: WindowDataModule) -> CrossPhoneModule:
             "data_hash": dm.train_hash(),
             "train_devices": sorted({s.device_model for s in dm.groups["train"]}),
             "known_devices": sorted(c.known_devices or {s.device_model for s in dm.groups["train"]}),
-            "unlabelled_devices": list(c.unlabelled_devices or [])}
+            "unlabelled_devices": list(c.unlabelled_devices or []),
+            # every session whose windows the model saw (trained on, validated on, or unlabelled for the
+            # semi-supervised stage): scoring on them overstates accuracy (blenav-fixes --calibrate warns)
+            "train_sessions": sorted({s.id for g in ("train", "val", "unlabelled") for s in dm.groups.get(g) or []})}
     semi = cfg.get("semi")
     module = CrossPhoneModule(locnet, transnet, optimizer=partial(torch.optim.Adam, lr=float(model["lr"])),
                               weights=dict(model.get("weights") or {}), M=M, meta=meta,

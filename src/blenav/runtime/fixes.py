@@ -18,6 +18,7 @@ gives the filter the right total confidence (our calibration, not part of Roy's 
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,8 @@ import numpy as np
 from blenav.features.windows import WindowConfig, session_windows
 
 from .onnx_localizer import OnnxLocalizer
+
+log = logging.getLogger("blenav.runtime.fixes")
 
 
 def _predict_windows(model: OnnxLocalizer, session):
@@ -80,9 +83,14 @@ def _sessions_with_model(dataset, model_path: str | Path, session_ids=None):
 
 def calibrate_model_fixes(dataset, model_path: str | Path, session_ids=None) -> dict:
     """:func:`fix_error_stats` of an exported localizer's fixes on labelled sessions of ``dataset`` (every
-    window end with a fix and ground truth); adds ``sessions`` (the ids used)."""
-    errors, used = [], []
+    window end with a fix and ground truth); adds ``sessions`` (the ids used) and ``trained_on`` (those of
+    them whose windows the model saw in training, by its ``train_sessions`` metadata: their errors
+    understate what unseen walks give; None when the model does not record its sessions)."""
+    errors, used, trained = [], [], None
     for s, model in _sessions_with_model(dataset, model_path, session_ids):
+        if trained is None:
+            seen = model.meta.get("train_sessions")
+            trained = set(seen) if seen is not None else None
         if not s.labelled:
             continue
         win, xy = _predict_windows(model, s)
@@ -91,7 +99,10 @@ def calibrate_model_fixes(dataset, model_path: str | Path, session_ids=None) -> 
         used.append(s.id)
     if not used:
         raise ValueError("no labelled session (ground truth) among the chosen sessions: calibration needs truth")
-    return {**fix_error_stats(errors), "sessions": used}
+    overlap = sorted(set(used) & trained) if trained is not None else None
+    if overlap:
+        log.warning("sessions %s trained the model: their fix errors understate what unseen walks give", overlap)
+    return {**fix_error_stats(errors), "sessions": used, "trained_on": overlap}
 
 
 def write_model_fixes(dataset, model_path: str | Path, source: str, session_ids=None) -> dict[str, dict]:
