@@ -96,7 +96,7 @@ class _OffsetPosterior:
 def _expected_rssi(model, xy: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """(M, R*N) float32 expected RSSI (dBm) at the particles for the step's packets (Patel et al. eq. 1)."""
     d = model._distances(xy, idx)
-    np.maximum(d, np.float32(getattr(model, "d_min", 0.5)), out=d)
+    np.maximum(d, np.float32(model.d_min), out=d)
     ax = model._ax()[idx].astype(np.float32)[:, None]
     return ax - np.float32(10.0 * model.gamma) * np.log10(d / np.float32(model.d0))
 
