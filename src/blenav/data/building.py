@@ -28,8 +28,9 @@ from .schema import (
     DEFAULT_FREE_THRESH,
     DEFAULT_OCCUPIED_THRESH,
     FLOOR_KEYS,
+    PLAUSIBLE,
 )
-from .tables import read_table
+from .tables import read_table, read_text
 
 FREE, OCCUPIED, UNKNOWN = 0, 1, -1
 
@@ -41,14 +42,26 @@ ANCHOR_OFF_FLOOR_FRAC = 0.5
 #: is a warning (a resolution too large, e.g. cm/pixel written as m/pixel).
 ANCHOR_SPAN_MIN_COUNT = 3
 ANCHOR_SPAN_MIN_FRAC = 0.1
+#: A floor plan (image size x resolution) larger than this on a side is an error: no building floor is; the
+#: resolution is in cm or mm per pixel, not m (and maps of such a size would not fit in memory).
+FLOOR_MAX_SIDE_M = 2000.0
 
 
 def load_yaml(path: Path) -> tuple[dict | None, list[Issue]]:
-    """Parse a YAML mapping; syntax errors name the line."""
+    """Parse a YAML mapping; syntax errors name the line. UTF-8 only (a byte-order mark is fine). Like a CSV file,
+    a YAML file whose last byte is not a line end is refused ('truncated'): its last value may have been cut and
+    still parse, to another value (``free_thresh: 0.19`` from ``0.196``)."""
     if not path.is_file():
         return None, [error(path, "missing-file", "file does not exist")]
+    text, issues = read_text(path)
+    if text is None:
+        return None, issues
+    if text and not text.endswith(("\n", "\r")):
+        return None, [error(path, "truncated", "the file does not end with a newline, so its last line may be cut "
+                            "short (a number missing digits): add a newline at the end if the line is complete, or "
+                            "fix the line", line=len(text.splitlines()))]
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
@@ -276,7 +289,7 @@ def _parse_floor(root: Path, ypath: Path, i: int, f, check_images: bool) -> tupl
     fl = Floor(id=f["id"], image_path=img, resolution=res, origin=(origin[0], origin[1]), z=z,
                occupied_thresh=occ, free_thresh=free, negate=bool(f.get("negate", False)))
     if check_images:
-        issues += check_free_space(ypath, fl, where)
+        issues += check_floor_size(ypath, fl, where) or check_free_space(ypath, fl, where)
         if any(i.is_error for i in issues):
             return None, issues
     return fl, issues
@@ -294,6 +307,18 @@ def check_free_space(ypath: Path, floor: Floor, where: str) -> list[Issue]:
                   "all-unknown image, an inverted one (negate), or wrong thresholds", where=where)]
 
 
+def check_floor_size(ypath: Path, floor: Floor, where: str) -> list[Issue]:
+    """A floor plan larger than :data:`FLOOR_MAX_SIDE_M` on a side is an error (its resolution is not in m/pixel)."""
+    x0, x1, y0, y1 = floor.extent
+    side = max(x1 - x0, y1 - y0)
+    if side <= FLOOR_MAX_SIDE_M:
+        return []
+    h, w = floor.shape
+    return [error(ypath, "floor-size", f"building '{ypath.parent.name}' floor {floor.id!r}: {w}x{h} px at resolution "
+                  f"{floor.resolution:g} m/pixel is a plan of {x1 - x0:g} x {y1 - y0:g} m, larger than any floor "
+                  f"({FLOOR_MAX_SIDE_M:g} m): is the resolution in metres per pixel (not cm or mm)?", where=where)]
+
+
 def check_anchors_on_floors(path: Path, anchors: pd.DataFrame, floors: dict) -> list[Issue]:
     """Anchors against their floor's plan (image size x resolution from the origin): an anchor far outside it
     is an error at its line (the plan's scale or origin, or the anchor's position, is wrong); anchors that
@@ -302,9 +327,10 @@ def check_anchors_on_floors(path: Path, anchors: pd.DataFrame, floors: dict) -> 
     if len(anchors) == 0 or not floors:
         return issues
     xy = anchors[["x", "y"]].to_numpy(dtype=float)
+    z = anchors["z"].to_numpy(dtype=float)
     fl_col = anchors["floor"].astype(str).str.strip().to_numpy()
     for key, floor in floors.items():
-        on = np.flatnonzero((fl_col == str(key)) & np.isfinite(xy).all(axis=1))
+        on = np.flatnonzero((fl_col == str(key)) & np.isfinite(xy).all(axis=1) & np.isfinite(z))
         if not len(on):
             continue
         x0, x1, y0, y1 = floor.extent
@@ -314,13 +340,16 @@ def check_anchors_on_floors(path: Path, anchors: pd.DataFrame, floors: dict) -> 
         margin = max(ANCHOR_OFF_FLOOR_MIN_M, ANCHOR_OFF_FLOOR_FRAC * max(x1 - x0, y1 - y0))
         p = xy[on]
         dist = np.maximum.reduce([x0 - p[:, 0], p[:, 0] - x1, y0 - p[:, 1], p[:, 1] - y1, np.zeros(len(p))])
-        far = np.flatnonzero(dist > margin)
+        dz = z[on] - floor.z  # the same margin above or below the floor's height
+        far = np.flatnonzero((dist > margin) | (np.abs(dz) > margin))
         for k in far[:20]:
             r = int(on[k])
-            issues.append(error(path, "anchor-off-floor",
-                                f"anchor {anchors['anchor_id'].iloc[r]!r} at ({p[k, 0]:g}, {p[k, 1]:g}) m lies "
-                                f"{dist[k]:.1f} m outside {plan}: is the floor's resolution (m/pixel) or origin in "
-                                "building.yaml right, or the anchor's position?", line=r + 2))
+            where = (f"at ({p[k, 0]:g}, {p[k, 1]:g}) m lies {dist[k]:.1f} m outside {plan}: is the floor's resolution "
+                     "(m/pixel) or origin in building.yaml right, or the anchor's position?" if dist[k] > margin else
+                     f"at z {z[on][k]:g} m lies {abs(dz[k]):g} m {'above' if dz[k] > 0 else 'below'} floor "
+                     f"{floor.id!r} (z {floor.z:g} m): is its z in metres, in the building's frame?")
+            issues.append(error(path, "anchor-off-floor", f"anchor {anchors['anchor_id'].iloc[r]!r} {where}",
+                                line=r + 2))
         if len(far) > 20:
             issues.append(error(path, "anchor-off-floor", f"{len(far) - 20} more anchors outside {plan}"))
         if not len(far) and len(on) >= ANCHOR_SPAN_MIN_COUNT:
@@ -361,6 +390,7 @@ def _load_anchors(path: Path, floors: dict) -> tuple[pd.DataFrame, list[Issue]]:
         issues.append(error(path, "anchor-kind", f"kind {df['kind'].iloc[r]!r} is not one of {ANCHOR_KINDS}",
                             line=int(r) + 2))
     df["kind"] = kinds
+    issues += _anchor_ranges(path, df)
     dup = df["anchor_id"].duplicated(keep="first").to_numpy()
     for r in np.flatnonzero(dup)[:20]:
         issues.append(error(path, "anchor-unique", f"anchor_id {df['anchor_id'].iloc[r]!r} appears twice",
@@ -377,10 +407,25 @@ def _load_anchors(path: Path, floors: dict) -> tuple[pd.DataFrame, list[Issue]]:
     return df.reset_index(drop=True), issues
 
 
+def _anchor_ranges(path: Path, df: pd.DataFrame) -> list[Issue]:
+    """Values of anchors.csv outside their plausible range (:data:`blenav.data.schema.PLAUSIBLE`); empty cells pass."""
+    issues: list[Issue] = []
+    for (stream, c), p in PLAUSIBLE.items():
+        if stream != "anchors" or c not in df:
+            continue
+        v = df[c].to_numpy(dtype=float)
+        for r in np.flatnonzero(p.outside(v))[:20]:
+            issues.append(error(path, p.rule, f"{c} {v[r]:g} {p.unit} is outside {p.describe()}: {p.hint}",
+                                line=int(r) + 2))
+    return issues
+
+
 def _load_geojson(path: Path, floors: dict, kinds: tuple[str, ...]) -> tuple[list[Region], list[Issue]]:
     if not path.is_file():
         return [], []
-    text = path.read_text(encoding="utf-8")
+    text, issues = read_text(path)  # a byte-order mark is not JSON, but is no reason to refuse a file
+    if text is None:
+        return [], issues
     if not text.strip():
         return [], []
     try:

@@ -88,6 +88,10 @@ PLAUSIBLE: dict[tuple[str, str], Plausible] = {
     ("rtt", "range_std_m"): Plausible(0.0, 1000.0, "m", "rtt-range", "a standard deviation in metres"),
     ("fixes", "std"): Plausible(0.0, float("inf"), "m", "fixes-range",
                                 "a standard deviation is >= 0 (empty when unknown)"),
+    # anchors.csv: the calibrated RSSI at 1 m is an RSSI (empty when unknown)
+    ("anchors", "tx_power_dbm"): Plausible(RSSI_MIN_DBM, RSSI_MAX_DBM, "dBm", "anchor-range",
+                                           "tx_power_dbm is the RSSI at 1 m in dBm (a transmitter's output power "
+                                           "such as +4 dBm, or a sentinel, is not): empty when unknown", open_=True),
 }
 
 

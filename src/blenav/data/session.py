@@ -8,6 +8,7 @@ An absent optional stream reads as an empty frame with the right columns.
 
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -25,12 +26,20 @@ from .schema import (
     QUAT_MIN_NORM,
     SESSION_KEYS,
     STREAMS,
+    T_MAX_S,
     plausible,
 )
-from .tables import _rows_issue, read_stream
+from .tables import _rows_issue, read_header, read_stream
 
 #: More than this fraction of a labelled session's ground truth outside its floor's plan is an error.
 GT_OFF_FLOOR_MAX = 0.5
+
+#: The files of one session share one clock: a stream whose last time is more than CLOCK_RATIO times another
+#: stream's last time is an error ('time-clock'), when both end after CLOCK_MIN_S and have CLOCK_MIN_ROWS rows or
+#: more (a short or sparse stream may well stop early). Milliseconds for seconds give a ratio of about 1000.
+CLOCK_RATIO = 100.0
+CLOCK_MIN_S = 1.0
+CLOCK_MIN_ROWS = 10
 
 
 def check_session_meta(path: Path, doc: dict, buildings: dict) -> list[Issue]:
@@ -65,7 +74,60 @@ def check_session_files(root: Path, meta: dict) -> list[Issue]:
     if meta.get("labelled") is True and not (root / STREAMS["groundtruth"].filename).is_file():
         issues.append(error(root / STREAMS["groundtruth"].filename, "groundtruth-missing",
                             "labelled: true but groundtruth.csv is absent"))
-    return issues
+    return issues + check_session_clock(root, meta.get("labelled") is True)
+
+
+def _stream_end(path: Path) -> tuple[float, int] | None:
+    """(last ``t``, number of rows) of a stream file from its header and its last line (the count is estimated
+    from the file's size for files over 4 MB); None when either does not parse (reported by the stream's own
+    checks)."""
+    header = read_header(path)
+    if "t" not in header:
+        return None
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        f.seek(max(0, size - 65536))
+        tail = f.read()
+        if size <= 4 << 20:
+            f.seek(0)
+            rows = f.read().count(b"\n") - 1
+    lines = [ln for ln in tail.decode("utf-8", errors="replace").splitlines() if ln.strip()]
+    if not lines:
+        return None
+    if size > 4 << 20:
+        rows = int(size / (len(tail) / max(len(lines), 1)))
+    try:
+        t = float(next(csv.reader([lines[-1]]))[header.index("t")])
+    except (ValueError, IndexError, StopIteration):
+        return None
+    return (t, rows) if np.isfinite(t) else None
+
+
+def check_session_clock(root: Path, labelled: bool = True) -> list[Issue]:
+    """The session's streams share one clock: the last time of a stream is at most :data:`CLOCK_RATIO` times the
+    last time of another (see the constants). Catches one file in milliseconds, or on another clock (absolute
+    time with another offset), which the plausible range of ``t`` alone cannot (both stay below ``T_MAX_S``).
+    Reads the header and the last line of each stream; the ground truth of an unlabelled session is ignored."""
+    ends, rows = {}, {}
+    for name, spec in STREAMS.items():
+        path = root / spec.filename
+        if not path.is_file() or (name == "groundtruth" and not labelled):
+            continue
+        end = _stream_end(path)
+        # a time beyond T_MAX_S is already an error of its own ('time-range')
+        if end is not None and CLOCK_MIN_S <= end[0] <= T_MAX_S and end[1] >= CLOCK_MIN_ROWS:
+            ends[spec.filename], rows[spec.filename] = end
+    if len(ends) < 2:
+        return []
+    last = max(ends, key=ends.get)
+    first = min(ends, key=ends.get)
+    if ends[last] <= CLOCK_RATIO * ends[first]:
+        return []
+    if last == STREAMS["imu"].filename and ends[last] / max(rows[last] - 1, 1) > IMU_MAX_MEAN_DT_S:
+        return []  # an IMU that slow is an error of its own ('imu-rate', which says: milliseconds?)
+    return [error(root / last, "time-clock", f"{last} runs to t = {ends[last]:g} s, but {first} ends at "
+                  f"{ends[first]:g} s ({ends[last] / ends[first]:.0f} times earlier): the files of a session share "
+                  f"one clock, in seconds since its start; is {last} in milliseconds, or on another clock?")]
 
 
 def load_stream(root: Path, name: str, building: Building | None, labelled: bool, floor_id=None
