@@ -255,9 +255,10 @@ selfcal-tables: $(STAMP)
 	      calibration=[$$S] methods.pf_pl=null methods.pf_pl_map=null methods.pf_ps=null methods.pf_pl_offset=null \
 	      methods.pf_ps_map_offset=null out=data/results/office_mixed_owncal/$$S progress=false plots=false || exit 1; \
 	done
+	cp data/results/office_mixed_selfcal/results.md docs/results/office_mixed_selfcal_mapfusion_002.md
 	$(BIN)/python -m blenav.eval.merge docs/results/office_mixed_selfcal.md \
 	    "Self-calibrating receivers on the mixed-phone office (calibrated on the iPhone 7 walk)" \
-	    data/results/office_mixed_selfcal $$(ls -d data/results/office_mixed_owncal/*/ | sed 's|/$$|:own-calibration |')
+	    data/results/office_mixed_selfcal $$(ls -d data/results/office_mixed_owncal/*/ | sed 's|/$$|:own-calibration/|')
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md
