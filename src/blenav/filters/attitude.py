@@ -12,7 +12,9 @@ Pipeline, per IMU sample k (identical in :func:`estimate_attitude` and :class:`S
 3. Zero-order hold of the magnetometer: IMU sample k uses the latest (median-filtered) magnetometer
    sample with ``mag_t <= t[k]``; none yet: an IMU-only (gyro + accelerometer) update.
 4. One per-sample update (``updateIMU``/``updateMARG``, EKF ``update``) of the selected ``ahrs``
-   (0.4.0) filter with ``dt = t[k] - t[k-1]``; optionally a reset (``AttitudeConfig.reset_deg``).
+   (0.4.0) filter with ``dt = t[k] - t[k-1]``; optionally a reset (``AttitudeConfig.reset_deg``). Madgwick
+   runs compiled by default (:mod:`blenav.filters.ahrs_jit`, ``AttitudeConfig.backend``: the ahrs
+   package's quaternions to ~1e-15, ~250x faster).
    ahrs' own batch mode (data given to the constructor, result in the (N, 4) attribute ``Q``) is not
    used: it assumes a fixed rate and same-length magnetometer samples.
 
@@ -85,6 +87,7 @@ class AttitudeFilter(StrEnum):
 
 
 FILTERS = tuple(f.value for f in AttitudeFilter)
+BACKENDS = ("numba", "ahrs")  # ``AttitudeConfig.backend``: compiled Madgwick, or the ahrs package per sample
 
 # earth frame of each ahrs filter -> magnetic ENU (w-first quaternions, left-multiplied)
 _S2 = np.sqrt(0.5)
@@ -121,6 +124,9 @@ class AttitudeConfig:
       corrects at most ``gain`` rad/s). None (default): never. Indoor magnetic anomalies can trigger it
       too, so it is off unless the data needs it.
     - extra: further keyword arguments for the ahrs filter class.
+    - backend: ``numba`` (default) runs Madgwick compiled (:mod:`blenav.filters.ahrs_jit`: the ahrs package's
+      numbers to ~1e-15, ~100x faster); ``ahrs`` calls the ahrs package per sample (the reference). Mahony
+      and the EKF always use the ahrs package.
     """
 
     filter: AttitudeFilter = AttitudeFilter.madgwick
@@ -135,10 +141,13 @@ class AttitudeConfig:
     reset_deg: float | None = None
     reset_s: float = 1.0
     extra: dict = field(default_factory=dict)
+    backend: str = "numba"
 
     def __post_init__(self):
         _check_filter(self.filter)
         self.filter = AttitudeFilter(self.filter)
+        if self.backend not in BACKENDS:
+            raise ValueError(f"unknown attitude backend {self.backend!r}; choose one of {list(BACKENDS)}")
         if int(self.median_window) < 1:
             raise ValueError(f"median_window must be >= 1, got {self.median_window}")
 
@@ -241,7 +250,18 @@ def _median_windows(win: np.ndarray) -> np.ndarray:
 
 def causal_median(x: np.ndarray, window: int) -> np.ndarray:
     """Causal running median (T, d) -> (T, d): out[k] = median(x[k-w+1 .. k]) per column, the window
-    padded with copies of x[0] before the start."""
+    padded with copies of x[0] before the start. Compiled (:func:`~blenav.filters.ahrs_jit.causal_median_jit`,
+    np.median's numbers bit for bit); :func:`causal_median_numpy` is the numpy reference."""
+    x = np.asarray(x, float)
+    if window <= 1 or len(x) == 0:
+        return x.copy()
+    from .ahrs_jit import causal_median_jit
+
+    return causal_median_jit(np.ascontiguousarray(x.reshape(len(x), -1)), int(window)).reshape(x.shape)
+
+
+def causal_median_numpy(x: np.ndarray, window: int) -> np.ndarray:
+    """:func:`causal_median` with np.median over the padded sliding window (the reference)."""
     x = np.asarray(x, float)
     if window <= 1 or len(x) == 0:
         return x.copy()
@@ -314,9 +334,11 @@ class _Engine:
         self.name = cfg.filter
         self.to_menu = _FRAME_TO_ENU[self.name]  # filter frame -> magnetic ENU
         self.to_world = _qmul(_qz(-np.radians(cfg.declination_deg)), self.to_menu)  # filter frame -> world
+        self.jit = False  # Madgwick compiled (ahrs_jit) instead of the ahrs package's per-sample update
         if self.name == "madgwick":
             gain = cfg.gain if cfg.gain is not None else (0.041 if cfg.use_mag else 0.033)
-            self.f = Madgwick(gain=gain, **cfg.extra)
+            self.f = Madgwick(gain=gain, **cfg.extra)  # with the numba backend: its gain and Dt only
+            self.jit = cfg.backend == "numba"
         elif self.name == "mahony":
             self.f = Mahony(k_P=cfg.k_P, k_I=cfg.k_I, **cfg.extra)
         else:
@@ -374,7 +396,13 @@ class _Engine:
     def step(self, t: float, dt: float, gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None,
              mag_new: bool) -> np.ndarray:
         f, q = self.f, self.q
-        if self.name == "ekf":
+        if self.jit:
+            from .ahrs_jit import madgwick_step
+
+            q = np.empty(4)
+            madgwick_step(self.q, gyr, acc, _NO_MAG if mag is None else mag, mag is not None, float(dt),
+                          float(f.gain), float(f.Dt), q)
+        elif self.name == "ekf":
             f.mag = None if mag is None else np.empty((0, 3))  # selects 3 or 6 measurements in ahrs' EKF
             q = f.update(q, gyr, -acc, mag, dt=dt)  # ahrs EKF compares with the gravity direction
         elif mag is None:
@@ -396,6 +424,9 @@ class _Engine:
                 if self.name == "mahony":  # its integral term absorbed the disagreement: undo that
                     f.b = self._b_good
         return self.q
+
+
+_NO_MAG = np.zeros(3)
 
 
 # --------------------------------------------------------------------------------------------- API
@@ -486,7 +517,16 @@ def estimate_attitude(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag_t: np
         idx = np.searchsorted(mag_t, t, side="right") - 1
     eng = _Engine(cfg)
     Q = np.empty((n, 4))
-    for k in range(n):
+    k = 0
+    while k < n:
+        if eng.jit and k > 0:  # compiled: runs until a sample that needs the Python engine (or the end)
+            from .ahrs_jit import madgwick_run
+
+            k = madgwick_run(Q, k, t, g, a, _NO_MAG.reshape(1, 3) if m is None else m, idx, float(eng.f.gain),
+                             float(eng.f.Dt), cfg.reset_deg is not None, eng.mag_seen)
+            if k == n:
+                break
+            eng.q = Q[k - 1].copy()
         mk = m[idx[k]] if idx[k] >= 0 else None
         if k == 0:
             eng.init(a[0], mk)
@@ -495,4 +535,5 @@ def estimate_attitude(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag_t: np
                 eng.align_heading(a[k], mk)
             eng.step(t[k], t[k] - t[k - 1], g[k], a[k], mk, idx[k] != idx[k - 1])
         Q[k] = eng.q
+        k += 1
     return _qmul(eng.to_world, Q) if n else Q
