@@ -28,6 +28,7 @@ def register_configs() -> None:
     ``plan_error/schema``     :class:`blenav.eval.plan_errors.PlanErrorConfig`        conf/eval.yaml
     ``windows/schema``        :class:`blenav.learn.data_config.WindowDataConfig`      conf/windows/default.yaml
     ``windows/mapprior_schema`` :class:`blenav.learn.data_config.MapPriorDataConfig`  conf/windows/mapprior.yaml
+    ``backend/schema``        :class:`blenav.backend.config.BackendConfig`            conf/backend/default.yaml
     ========================  ======================================================  =====================
 
     None of these modules imports torch: registering costs the entry points nothing. Also registers the
@@ -36,6 +37,7 @@ def register_configs() -> None:
     """
     from hydra.core.config_store import ConfigStore
 
+    from blenav.backend.config import BackendConfig
     from blenav.eval.plan_errors import PlanErrorConfig
     from blenav.filters.attitude import AttitudeConfig
     from blenav.filters.engine import FilterConfig
@@ -50,6 +52,7 @@ def register_configs() -> None:
     cs.store(group="plan_error", name="schema", node=PlanErrorConfig)
     cs.store(group="windows", name="schema", node=WindowDataConfig)
     cs.store(group="windows", name="mapprior_schema", node=MapPriorDataConfig)
+    cs.store(group="backend", name="schema", node=BackendConfig)
 
 
 def if_train_devices(preset_train, value, *, _root_):

@@ -1,0 +1,206 @@
+"""Settings of the smoothing back-end (Hydra group ``backend/``, schema :class:`BackendConfig`).
+
+``conf/backend/default.yaml`` lists ``- schema`` in its defaults, so a misspelt key or a value outside its
+Enum fails when the config is composed. :func:`load_backend_config` reads it outside Hydra (the
+``blenav-map`` command, tests) with the same check.
+
+Units are in the comments of every field; noise densities are continuous-time (per sqrt(Hz)), as GTSAM's
+preintegration expects them (it divides by the sample interval itself).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import Optional
+
+
+class Solver(StrEnum):
+    """``solver.method``: iSAM2 (online, one update per keyframe) or Levenberg-Marquardt (offline batch)."""
+
+    isam2 = "isam2"
+    lm = "lm"
+
+
+class RobustKernel(StrEnum):
+    """``range.robust``: the M-estimator of the range factors (GTSAM ``noiseModel.mEstimator``)."""
+
+    none = "none"
+    huber = "huber"
+    cauchy = "cauchy"
+
+
+class Combine(StrEnum):
+    """``range.combine``: every range its own factor (000: "does not discard any measurements"), or one factor
+    per beacon and keyframe with the median of its ranges in the keyframe interval."""
+
+    all = "all"
+    median = "median"
+
+
+class Factorization(StrEnum):
+    """``solver.factorization``: how GTSAM eliminates the linearised system. Cholesky is the fast default;
+    QR (about 10x slower on this graph) tolerates worse conditioning. With stiff IMU position increments
+    (``imu.integration_sigma`` < 1e-2 m/sqrt(s)) against 3-5 m priors and ranges, iSAM2's Cholesky reports
+    an indeterminant system where QR does not."""
+
+    qr = "qr"
+    cholesky = "cholesky"
+
+
+class InitFrom(StrEnum):
+    """``init.from_runs``: which of the front-end's R runs initialises the graph (Fig. 2 of 000)."""
+
+    mean = "mean"
+    run0 = "run0"
+
+
+@dataclass
+class ImuConfig:
+    """IMU noise for GTSAM's preintegration (Forster et al., ref. [2] of 000), nav frame ENU (gravity -z)."""
+
+    gravity_mps2: float = 9.80665  # m/s^2, magnitude of gravity (nav frame: world ENU, gravity along -z)
+    accel_noise_density: float = 0.01  # m/s^2/sqrt(Hz): white accelerometer noise (incl. hand tremor)
+    gyro_noise_density: float = 3.0e-4  # rad/s/sqrt(Hz): white gyroscope noise
+    accel_bias_rw: float = 1.0e-3  # m/s^3/sqrt(Hz): accelerometer bias random walk
+    gyro_bias_rw: float = 2.0e-4  # rad/s^2/sqrt(Hz): gyroscope bias random walk
+    integration_sigma: float = 0.01  # m/sqrt(s): position random walk of the integration (lever arm, timing,
+    #   tremor); below ~1e-2 the position increments are so stiff against 3-5 m priors and ranges that
+    #   Cholesky reports an indeterminant system
+    accel_bias_prior: float = 0.1  # m/s^2: std of the first keyframe's accelerometer bias (prior mean 0)
+    gyro_bias_prior: float = 0.02  # rad/s: std of the first keyframe's gyroscope bias (prior mean 0)
+
+
+@dataclass
+class RangeConfig:
+    """RSSI -> range by path loss, the conversion and 10 m clamp of PF-PL (000 sec. IV-B, Table I), through
+    :class:`blenav.filters.measurement.PathLossRange`; range factors N(||p - l|| - r; 0, sigma_n^2)."""
+
+    a_x: float = -64.53  # dBm at d0 (000 Table I; replaced by a fit when the method is calibrated)
+    gamma: float = 1.72  # path-loss exponent (000 Table I)
+    d0: float = 1.78  # m, reference distance (000 Table I)
+    use_anchor_tx_power: bool = False  # an anchor's tx_power_dbm, when known, as its a_X
+    sigma_n: float = 5.0  # m, range noise std (000 Table I)
+    max_range_m: float = 10.0  # m, ranges above are discarded (000 sec. IV-B)
+    robust: RobustKernel = RobustKernel.huber  # M-estimator against NLOS ranges
+    robust_k: float = 1.345  # kernel width in units of sigma_n (Huber 1.345: 95 % efficiency)
+    gate_m: Optional[float] = 5.0  # m: a range is used only when the beacon's prior position is within this of
+    #   the keyframe's initial (front-end) position; None: no gate. The 10 m clamp keeps far beacons' readings
+    #   only when they came out short (-5 m on average beyond 6 m in the simulated office), which pulls beacons
+    #   towards the path; gating on the *predicted* distance, not the measured one, does not select on the noise
+    combine: Combine = Combine.median  # all | median: one range per beacon and keyframe (the median)
+    max_beacons_per_keyframe: Optional[int] = None  # keep the N beacons with the shortest ranges per keyframe
+    #   (the nearest: least affected by the 10 m clamp's truncation); None: all
+    min_ranges: int = 2  # a beacon with fewer usable ranges in a session: its range factors are dropped
+    device_z: float = 1.2  # m, height of the receiver above the floor (initial z; prior mean of the height)
+
+
+@dataclass
+class PriorConfig:
+    """Priors that keep every variable determined."""
+
+    beacon_sigma_m: float = 0.5  # m per axis: a beacon's prior when anchors.csv gives no std_m
+    beacon_sigma_z_m: float = 0.5  # m: vertical prior std of a beacon (mounting height)
+    start_position_sigma_m: float = 3.0  # m per axis: X(0) position around the front-end's first estimate
+    start_velocity_sigma_mps: float = 1.0  # m/s per axis: V(0) around the front-end's velocity
+    attitude_sigma_deg: float = 15.0  # deg, isotropic: the AHRS attitude error (heading prior)
+    attitude_corr_s: float = 2.0  # s: correlation time of the AHRS error; per keyframe the prior's sigma is
+    #   attitude_sigma_deg * sqrt(attitude_corr_s / keyframe interval), i.e. one independent prior per corr_s
+    height_sigma_m: Optional[float] = 0.3  # m: every keyframe's world z around range.device_z (None: off)
+
+
+@dataclass
+class InitConfig:
+    """Initial values from the front-end (000 Fig. 2: its position and velocity estimates)."""
+
+    from_runs: InitFrom = InitFrom.mean  # R runs of an Estimate: their mean, or run 0
+    position_window_s: float = 1.0  # s: positions are a centred moving average over this span (a particle
+    #   filter's estimate jumps by decimetres between steps, which the IMU factors would first have to undo)
+    velocity_window_s: float = 1.0  # s: velocities are central differences of positions over this span
+    max_speed_mps: float = 3.0  # m/s: faster initial velocities (a jumping filter) are scaled down to it
+
+
+@dataclass
+class SolverConfig:
+    method: Solver = Solver.isam2
+    keyframe_every: int = 1  # a keyframe every N front-end steps (1: the front-end's rate)
+    update_every: int = 1  # iSAM2: one update per N keyframes (each update re-eliminates the beacons at the
+    #   root of the Bayes tree, ~20 ms with 40-80 beacons: N > 1 trades latency for throughput)
+    factorization: Factorization = Factorization.cholesky  # iSAM2 and LM elimination, beacon marginals (QR: 10x slower)
+    # iSAM2 relinearizes a variable when its delta exceeds these (per component). Positions and velocities enter
+    # the preintegrated IMU residual linearly (given the rotations) and the 5 m range factors are nearly linear
+    # over a metre, so their thresholds are large; a beacon is in the factors of every keyframe that heard it,
+    # and relinearizing it re-eliminates most of the tree.
+    relinearize_rotation_rad: float = 0.05  # rad
+    relinearize_position_m: float = 0.5  # m
+    relinearize_velocity_mps: float = 0.3  # m/s
+    relinearize_accel_bias: float = 0.02  # m/s^2
+    relinearize_gyro_bias: float = 0.002  # rad/s
+    relinearize_beacon_m: float = 0.5  # m
+    relinearize_skip: int = 1  # iSAM2: check relinearization every N updates (GTSAM's default: 10)
+    passes: int = 2  # LM only (iSAM2 is online: one pass): passes in all; each after the first starts from the
+    #   previous solution, whose trajectory and beacons re-gate the ranges
+    lm_max_iterations: int = 100  # Levenberg-Marquardt
+    lm_relative_tol: float = 1.0e-3  # LM: stop when the error decreases by less than this fraction (1e-5:
+    #   3x the iterations for 1 % of the error on a 384 s session)
+    beacon_covariance: bool = True  # marginal covariance of every beacon (its std_m)
+
+
+@dataclass
+class MappingConfig:
+    """Beacon maps from labelled walks (issue 14 sec. 3, :mod:`blenav.backend.mapping`).
+
+    Per reading, RSSI-domain path loss (log-normal shadowing, the model PF-PS uses):
+    rssi = A_j - 10 gamma log10(||p - l_j|| / 1 m) + eps, eps ~ N(0, sigma_db^2), with the beacon's
+    position l_j and its RSSI at 1 m A_j both unknown, the pose p known (ground truth)."""
+
+    gamma: float = 2.0  # path-loss exponent (initial value when estimate_gamma)
+    estimate_gamma: bool = True  # one exponent shared by all beacons, estimated with them
+    sigma_db: float = 6.0  # dB: RSSI residual std (shadowing + receiver noise)
+    robust: RobustKernel = RobustKernel.huber
+    robust_k: float = 1.345  # in units of sigma_db
+    min_rssi_dbm: Optional[float] = -90.0  # readings weaker than this are left out (receiver-sensitivity censoring)
+    a_x_prior_dbm: float = -60.0  # dBm: prior mean of A_j (broad)
+    a_x_prior_sigma_db: float = 20.0  # dB
+    prior_sigma_m: float = 30.0  # m per axis: broad horizontal prior around the initial guess
+    use_map_prior: bool = False  # centre the broad prior on anchors.csv's x, y (else on the initial guess)
+    height_sigma_m: float = 0.5  # m: vertical prior around anchors.csv's z (walks cannot see the height)
+    min_readings: int = 30  # readings below which a beacon is not placed (heard too little)
+    min_spread_m: float = 1.0  # m: minor-axis std of the hearing positions below which it is not placed
+    max_std_m: float = 2.0  # m: placed only when the estimate's horizontal std is below this
+    device_z: Optional[float] = None  # m: receiver height when the ground truth has no z (None: use gt z)
+
+
+@dataclass
+class BackendConfig:
+    """The radio-inertial smoother of 000 (sec. IV-D, Problem 3) and its mapping mode."""
+
+    imu: ImuConfig = field(default_factory=ImuConfig)
+    range: RangeConfig = field(default_factory=RangeConfig)
+    priors: PriorConfig = field(default_factory=PriorConfig)
+    init: InitConfig = field(default_factory=InitConfig)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+
+
+def load_backend_config(path: str | Path | None = None, overrides: list[str] | None = None,
+                        node=None) -> BackendConfig:
+    """:class:`BackendConfig` from ``conf/backend/default.yaml`` (or ``path``), then ``node`` (a dict or
+    DictConfig of overrides), then dotlist ``overrides`` (``["solver.method=lm"]``). A key the schema lacks
+    raises ``ValueError`` naming it."""
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    if path is None:
+        from blenav.paths import conf_dir
+
+        path = conf_dir() / "backend" / "default.yaml"
+    try:
+        doc = OmegaConf.load(path)
+        doc.pop("defaults", None)
+        merged = OmegaConf.merge(OmegaConf.structured(BackendConfig), doc, node or {},
+                                 OmegaConf.from_dotlist(list(overrides or [])))
+        return OmegaConf.to_object(merged)
+    except OmegaConfBaseException as exc:
+        raise ValueError(f"backend config {path}: {' '.join(str(exc).split())}") from exc

@@ -1,0 +1,626 @@
+"""The radio-inertial factor graph of Ghaffari Jadidi et al. (000, sec. III Problem 3, sec. IV-D, Fig. 2) on GTSAM.
+
+Variables (keys from ``gtsam.symbol_shorthand``), one set per keyframe k at the front-end's update rate:
+
+* ``X(k)``: device pose, ``gtsam.Pose3`` (device frame -> world ENU, metres);
+* ``V(k)``: velocity in the world frame, (3,) m/s;
+* ``B(k)``: IMU bias, ``gtsam.imuBias.ConstantBias`` (accelerometer m/s^2, gyroscope rad/s);
+* ``L(j)``: position of BLE beacon j (row j of the anchor table), ``Point3`` world m.
+
+Factors, the terms of the MAP problem eq. (3) of 000, X* = argmin ||r_0||^2_{Sigma_0} + ||r_{0:T}||^2_{Sigma_r}:
+
+* ``CombinedImuFactor(X(k-1), V(k-1), X(k), V(k), B(k-1), B(k))``: GTSAM's on-manifold preintegration
+  (Forster et al., ref. [2] of 000) of every IMU sample between the keyframes, with the bias random walk
+  (noise densities and gravity from :class:`~blenav.backend.config.ImuConfig`);
+* ``RangeFactor3D(X(k), L(j), r)``: range r = d0 10^((a_X - rssi) / (10 gamma)) from an RSSI reading, the
+  conversion and 10 m clamp of PF-PL (:class:`blenav.filters.measurement.PathLossRange`, 000 sec. IV-B),
+  noise sigma_n = 5 m (000 Table I) inside a robust kernel (Huber or Cauchy) against NLOS ranges. Each
+  range belongs to the keyframe nearest its time. Two departures from 000's "does not discard any
+  measurements", both configurable (``range.gate_m``, ``range.combine``) and measured on the simulated
+  384 s office (accurate map, LM at 2 Hz keyframes; front-end 3.44 m): every range as its own factor,
+  smoothed 3.81 m, beacons pulled 2.67 m off their (true) priors; gate + median, 1.36 m and 0.29 m.
+  (i) a validation gate: a range is used only when the beacon's position (prior, or the previous pass's
+  estimate) lies within ``gate_m`` of the keyframe's (front-end, or previous pass's) position. The 10 m
+  clamp keeps a far beacon's reading only when it came out short (-5 m on average beyond 6 m), so ungated
+  ranges pull every beacon towards the walked path; the gate selects on the *predicted* distance, not on
+  the noisy measured one (selecting the shortest ranges per keyframe selects on the noise: -2.7 m);
+  (ii) one factor per beacon and keyframe with the median of its ranges (their shadowing is correlated over
+  a keyframe, so the sum of per-reading factors would overstate what they know);
+* ``PriorFactorPoint3(L(j))``: the map's stated uncertainty of each beacon (anchors.csv ``std_m``, else a
+  configured sigma), so every landmark is determined even when it is heard once;
+* ``PoseRotationPrior3D(X(k))``: the AHRS orientation (accelerometer + magnetometer heading) as a soft
+  prior, isotropic sigma;
+* ``PoseTranslationPrior3D(X(k))`` on the world z only (x, y sigmas 1 km): the receiver's height above
+  the floor, which a walk keeps within decimetres (the IMU alone lets z drift);
+* priors on X(0), V(0), B(0) around the front-end's first estimate (Fig. 2 initialisation).
+
+Initial values come from the front-end (Fig. 2): positions (K, 2) and velocities, and the AHRS attitude.
+
+Solvers: iSAM2 (online, one ``update`` per ``solver.update_every`` keyframes, the paper's choice) or
+Levenberg-Marquardt (offline batch, ``solver.passes`` passes, each after the first re-gating the ranges with
+the previous solution), :class:`~blenav.backend.config.Solver`. Cholesky by default, QR on request or when
+Cholesky fails (LM); beacon covariances from one iSAM2 elimination at the solution.
+
+Failures never reach the caller: :func:`smooth` returns a :class:`BackendResult` whose ``failures`` name
+the key (``describe_key``: 'beacon ble-003 (l3)', 'keyframe 17 at t=1.80 s (x17)') GTSAM's
+``IndeterminantLinearSystemException`` (a ``RuntimeError`` in Python) points at, and whose trajectory is
+the last good estimate followed by the front-end's values. Guards before solving: every beacon variable
+has a prior; a beacon with fewer than ``range.min_ranges`` ranges keeps no range factor (its ranges are
+buffered, online, until it has enough; reported); non-finite inputs are dropped (reported); initial
+velocities are clipped to ``init.max_speed_mps`` (reported); a keyframe interval without IMU samples is
+bridged by holding the last sample (reported).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from .config import BackendConfig, Combine, RobustKernel, Solver
+
+__all__ = ["Keyframes", "ImuSamples", "RangeObs", "BeaconPriors", "BackendFailure", "BackendResult",
+           "preintegration_params", "preintegrate", "robust_noise", "describe_key", "RadioInertialGraph", "smooth"]
+
+
+# ------------------------------------------------------------------------------------------------ inputs
+@dataclass
+class Keyframes:
+    """Keyframe times and initial values. t (K,) s increasing; position (K, 3) world m; velocity (K, 3) world
+    m/s; q (K, 4) w-first device -> world (ENU) quaternions (the AHRS at t); bias (K, 6) accelerometer m/s^2,
+    gyroscope rad/s (default 0; the prior on B(0) is always centred on 0)."""
+
+    t: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    q: np.ndarray
+    bias: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.t = np.asarray(self.t, float)
+        K = len(self.t)
+        self.position = np.asarray(self.position, float).reshape(K, 3)
+        self.velocity = np.asarray(self.velocity, float).reshape(K, 3)
+        self.q = np.asarray(self.q, float).reshape(K, 4)
+        self.bias = np.zeros((K, 6)) if self.bias is None else np.asarray(self.bias, float).reshape(K, 6)
+        if K and np.any(np.diff(self.t) <= 0):
+            raise ValueError("keyframe times must increase strictly")
+
+
+@dataclass
+class ImuSamples:
+    """t (T,) s non-decreasing; acc (T, 3) m/s^2 specific force incl. gravity; gyr (T, 3) rad/s; device frame."""
+
+    t: np.ndarray
+    acc: np.ndarray
+    gyr: np.ndarray
+
+
+@dataclass
+class RangeObs:
+    """Ranges already converted from RSSI and clamped: t (M,) s, anchor (M,) row in :class:`BeaconPriors`,
+    range_m (M,) m."""
+
+    t: np.ndarray
+    anchor: np.ndarray
+    range_m: np.ndarray
+
+
+@dataclass
+class BeaconPriors:
+    """ids (A,) str; xyz (A, 3) world m (prior mean); sigma (A, 3) m per axis (prior std)."""
+
+    ids: np.ndarray
+    xyz: np.ndarray
+    sigma: np.ndarray
+
+
+@dataclass
+class BackendFailure:
+    """What went wrong: ``stage`` ('isam2-update', 'lm', 'marginals', 'input'), the key GTSAM named (as
+    :func:`describe_key` reads it, or None), the keyframe time when known, and GTSAM's message (first line)."""
+
+    stage: str
+    key: str | None
+    t: float | None
+    message: str
+
+    def __str__(self) -> str:
+        where = f" near {self.key}" if self.key else ""
+        when = f" (t={self.t:.2f} s)" if self.t is not None else ""
+        return f"{self.stage}{where}{when}: {self.message}"
+
+
+@dataclass
+class BackendResult:
+    """The smoothed trajectory, beacon map and biases of one session.
+
+    t (K,) s; position (K, 3) world m; velocity (K, 3) m/s; q (K, 4) w-first device -> world; bias (K, 6)
+    (accelerometer m/s^2, gyroscope rad/s); online_position (K, 3): iSAM2's estimate of keyframe k right after
+    its update (the filtered, causal estimate; equals ``position`` for LM; with ``solver.update_every`` N > 1 the
+    keyframes between updates keep their front-end values here); beacon_map: DataFrame anchor_id,
+    x, y, z, std_m (horizontal, sqrt of trace / 2 of the marginal covariance; the prior's for beacons left at it),
+    n_ranges (range factors), n_heard (ranges within the clamp, before the gate), status ('optimized', 'prior:
+    why', 'not heard'); update_s (K,) s per iSAM2 update, at the keyframe that triggered it (NaN elsewhere and for LM);
+    failures and notes for the report; wall_s: build + solve time."""
+
+    t: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    q: np.ndarray
+    bias: np.ndarray
+    online_position: np.ndarray
+    beacon_map: pd.DataFrame
+    update_s: np.ndarray
+    failures: list[BackendFailure] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    wall_s: float = 0.0
+    solve_s: float = 0.0
+    n_factors: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+
+# ------------------------------------------------------------------------------------------------ helpers
+def _gtsam():
+    import gtsam
+
+    return gtsam
+
+
+def preintegration_params(cfg) -> "gtsam.PreintegrationCombinedParams":
+    """GTSAM preintegration parameters from :class:`~blenav.backend.config.ImuConfig` (ENU: gravity -z)."""
+    gtsam = _gtsam()
+    p = gtsam.PreintegrationCombinedParams.MakeSharedU(float(cfg.gravity_mps2))
+    I3 = np.eye(3)
+    p.setAccelerometerCovariance(I3 * cfg.accel_noise_density**2)  # (m/s^2)^2 / Hz
+    p.setGyroscopeCovariance(I3 * cfg.gyro_noise_density**2)  # (rad/s)^2 / Hz
+    p.setIntegrationCovariance(I3 * cfg.integration_sigma**2)
+    p.setBiasAccCovariance(I3 * cfg.accel_bias_rw**2)  # (m/s^3)^2 / Hz
+    p.setBiasOmegaCovariance(I3 * cfg.gyro_bias_rw**2)  # (rad/s^2)^2 / Hz
+    return p
+
+
+def integration_pieces(imu_t: np.ndarray, kf_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split [kf_t[0], kf_t[-1]] at every IMU time and keyframe time: for each piece, the IMU sample held over
+    it (the latest at or before its start; the first sample before the IMU starts), its duration (s) and the
+    keyframe interval k (1..K-1) it belongs to (piece in (t_{k-1}, t_k]). Returns (sample (P,), dt (P,),
+    interval (P,))."""
+    inside = imu_t[(imu_t > kf_t[0]) & (imu_t < kf_t[-1])]
+    grid = np.union1d(inside, kf_t)
+    start = grid[:-1]
+    sample = np.clip(np.searchsorted(imu_t, start, side="right") - 1, 0, len(imu_t) - 1)
+    interval = np.searchsorted(kf_t, start, side="right")
+    return sample, np.diff(grid), interval
+
+
+def preintegrate(params, imu: ImuSamples, kf_t: np.ndarray) -> tuple[list, int]:
+    """One ``PreintegratedCombinedMeasurements`` per keyframe interval (K - 1 of them; bias estimate 0: the
+    factor corrects to first order for the bias variable), zero-order hold of each IMU sample over its
+    interval. Returns (pims, number of intervals without an IMU sample of their own)."""
+    gtsam = _gtsam()
+    K = len(kf_t)
+    pims = [gtsam.PreintegratedCombinedMeasurements(params) for _ in range(max(K - 1, 0))]
+    if K < 2:
+        return pims, 0
+    sample, dt, interval = integration_pieces(imu.t, kf_t)
+    acc, gyr = imu.acc, imu.gyr
+    for s, d, k in zip(sample.tolist(), dt.tolist(), interval.tolist()):
+        if d > 0:
+            pims[k - 1].integrateMeasurement(acc[s], gyr[s], d)
+    own = np.zeros(K, bool)
+    own[np.searchsorted(kf_t, imu.t[(imu.t > kf_t[0]) & (imu.t <= kf_t[-1])], side="left")] = True
+    return pims, int(np.count_nonzero(~own[1:]))
+
+
+def nearest_keyframe(kf_t: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(M,) index of the keyframe nearest to each time t (M,) s: a range is a measurement of the pose at its
+    own time, and the nearest keyframe halves the time offset (and removes its bias) compared with the step
+    that closes its interval."""
+    i = np.clip(np.searchsorted(kf_t, t, side="left"), 1, max(len(kf_t) - 1, 1))
+    if len(kf_t) < 2:
+        return np.zeros(len(t), int)
+    return np.where(np.abs(t - kf_t[i - 1]) <= np.abs(kf_t[i] - t), i - 1, i)
+
+
+def select_ranges(k: np.ndarray, j: np.ndarray, r: np.ndarray, combine: Combine, max_beacons: int | None):
+    """Ranges r (M,) m of beacons j (M,) attached to keyframes k (M,) -> (k, j, r) sorted by keyframe (stable):
+    all of them, or (``combine`` median) one per (keyframe, beacon) with the median range; with
+    ``max_beacons``, only the ranges of the N beacons per keyframe whose median range is shortest."""
+    order = np.argsort(k, kind="stable")
+    k, j, r = k[order], j[order], r[order]
+    if Combine(combine) == Combine.all and not max_beacons:
+        return k, j, r
+    df = pd.DataFrame({"k": k, "j": j, "r": r})
+    med = df.groupby(["k", "j"], sort=True)["r"].median().reset_index()
+    if max_beacons:
+        med = med.sort_values(["k", "r"], kind="stable").groupby("k").head(int(max_beacons))
+        med = med.sort_values(["k", "j"], kind="stable")
+    if Combine(combine) == Combine.median:
+        return med["k"].to_numpy(), med["j"].to_numpy(), med["r"].to_numpy()
+    keep = df.merge(med[["k", "j"]], on=["k", "j"], how="inner", sort=False)  # df's order within a keyframe
+    keep = keep.sort_values("k", kind="stable")
+    return keep["k"].to_numpy(), keep["j"].to_numpy(), keep["r"].to_numpy()
+
+
+def robust_noise(kind: RobustKernel, k: float, sigma: float, dim: int = 1):
+    """Isotropic noise of ``sigma`` (the quantity's unit) inside an M-estimator of width ``k`` sigmas."""
+    gtsam = _gtsam()
+    base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma))
+    kind = RobustKernel(kind)
+    if kind == RobustKernel.none:
+        return base
+    est = gtsam.noiseModel.mEstimator
+    m = est.Huber.Create(float(k)) if kind == RobustKernel.huber else est.Cauchy.Create(float(k))
+    return gtsam.noiseModel.Robust.Create(m, base)
+
+
+_KEY_RE = re.compile(r"Symbol:\s*([A-Za-z])(\d+)")
+
+
+def describe_key(symbol: str | None, kf_t: np.ndarray | None = None, beacon_ids=None) -> str | None:
+    """'l3' -> 'beacon ble-003 (l3)', 'x17' -> 'keyframe 17 at t=1.80 s (x17)' (names when known)."""
+    if not symbol:
+        return None
+    ch, idx = symbol[0], int(symbol[1:])
+    if ch == "l" and beacon_ids is not None and idx < len(beacon_ids):
+        return f"beacon {beacon_ids[idx]} ({symbol})"
+    what = {"x": "pose", "v": "velocity", "b": "bias"}.get(ch)
+    if what and kf_t is not None and idx < len(kf_t):
+        return f"{what} of keyframe {idx} at t={kf_t[idx]:.2f} s ({symbol})"
+    return symbol
+
+
+def _symbol_in(message: str) -> str | None:
+    m = _KEY_RE.search(message)
+    return f"{m.group(1)}{m.group(2)}" if m else None
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = [s.strip() for s in str(exc).splitlines() if s.strip()]
+    return " ".join(lines[:2]) if lines else type(exc).__name__
+
+
+# ------------------------------------------------------------------------------------------------ the graph
+class RadioInertialGraph:
+    """Builds the factors of each keyframe (:meth:`keyframe_factors`) for either solver.
+
+    Noise models are built once, each named for what it models (units in comments)."""
+
+    def __init__(self, cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors,
+                 beacon_init: np.ndarray | None = None, pims: list | None = None):
+        """``beacon_init`` (A, 3) world m: initial beacon positions, also used by the range gate (default: the
+        prior means; a second pass gives the first pass's estimate); ``pims``: the preintegrated IMU of these
+        keyframe times, when already computed (a second pass)."""
+        gtsam = _gtsam()
+        self.gtsam = gtsam
+        self.cfg, self.kf, self.beacons = cfg, kf, beacons
+        self.beacon_init = np.asarray(beacons.xyz if beacon_init is None else beacon_init, float)
+        self.notes: list[str] = []
+        self.failures: list[BackendFailure] = []
+        K = len(kf.t)
+        pr, rc = cfg.priors, cfg.range
+        nm = gtsam.noiseModel
+        # --- noise models
+        self.range_noise = robust_noise(rc.robust, rc.robust_k, rc.sigma_n)  # m
+        dt_kf = float(np.median(np.diff(kf.t))) if K > 1 else 1.0
+        inflate = np.sqrt(max(pr.attitude_corr_s / dt_kf, 1.0))  # correlated AHRS errors: one prior per corr_s
+        self.attitude_noise = nm.Isotropic.Sigma(3, np.deg2rad(pr.attitude_sigma_deg) * inflate)  # rad
+        self.height_noise = (None if pr.height_sigma_m is None
+                             else nm.Diagonal.Sigmas(np.array([1e3, 1e3, pr.height_sigma_m])))  # m (x, y free)
+        self.start_pose_noise = nm.Diagonal.Sigmas(np.r_[np.full(3, np.deg2rad(pr.attitude_sigma_deg)),
+                                                         np.full(3, pr.start_position_sigma_m)])  # rad, m
+        self.start_velocity_noise = nm.Isotropic.Sigma(3, pr.start_velocity_sigma_mps)  # m/s
+        self.start_bias_noise = nm.Diagonal.Sigmas(np.r_[np.full(3, cfg.imu.accel_bias_prior),
+                                                         np.full(3, cfg.imu.gyro_bias_prior)])  # m/s^2, rad/s
+        # --- inputs, checked
+        self._check_inputs(imu, ranges)
+        n_held = 0
+        self.pims = pims
+        if pims is None:
+            self.pims, n_held = preintegrate(preintegration_params(cfg.imu), self.imu, kf.t)
+        if n_held:
+            self.notes.append(f"{n_held} keyframe interval(s) without an IMU sample of their own: the last sample "
+                              f"was held over them")
+        kidx = nearest_keyframe(kf.t, self.ranges.t)
+        rj, rr = self.ranges.anchor, self.ranges.range_m
+        self.n_heard = np.bincount(rj, minlength=len(beacons.ids))  # usable ranges before the gate
+        if rc.gate_m is not None and len(kidx):  # validation gate on the predicted distance (initial values)
+            pred = np.linalg.norm(kf.position[kidx] - self.beacon_init[rj], axis=-1)
+            inside = pred < rc.gate_m
+            if not inside.all():
+                self.notes.append(f"{np.count_nonzero(~inside)} of {len(inside)} ranges outside the {rc.gate_m:g} m gate "
+                                  f"(beacon prior to front-end position) left out")
+            kidx, rj, rr = kidx[inside], rj[inside], rr[inside]
+        self._range_k, self._range_j, self._range_r = select_ranges(kidx, rj, rr,
+                                                                    rc.combine, rc.max_beacons_per_keyframe)
+        self._bounds = np.searchsorted(self._range_k, np.arange(K + 1), side="left")
+        self.n_ranges = np.bincount(self._range_j, minlength=len(beacons.ids))
+        self._pending: dict[int, list[tuple[int, float]]] = {}
+        self.in_graph = np.zeros(len(beacons.ids), bool)
+        self.rots = [gtsam.Rot3(R) for R in _quat_to_matrix(kf.q)]
+
+    # ---------------------------------------------------------------- inputs
+    def _check_inputs(self, imu: ImuSamples, ranges: RangeObs) -> None:
+        kf = self.kf
+        t, acc, gyr = (np.asarray(a, float) for a in (imu.t, imu.acc, imu.gyr))
+        ok = np.isfinite(t) & np.isfinite(acc).all(1) & np.isfinite(gyr).all(1)
+        if not ok.all():
+            self.notes.append(f"{np.count_nonzero(~ok)} non-finite IMU sample(s) dropped")
+        if not ok.any():
+            raise ValueError("no finite IMU sample: the back-end needs the IMU")
+        self.imu = ImuSamples(t[ok], acc[ok], gyr[ok])
+        rt, rj, rr = np.asarray(ranges.t, float), np.asarray(ranges.anchor, int), np.asarray(ranges.range_m, float)
+        good = np.isfinite(rt) & np.isfinite(rr) & (rr >= 0) & (rj >= 0) & (rj < len(self.beacons.ids))
+        if not good.all():
+            self.notes.append(f"{np.count_nonzero(~good)} non-finite or unknown-beacon range(s) dropped")
+        self.ranges = RangeObs(rt[good], rj[good], rr[good])
+        bad_b = ~(np.isfinite(self.beacons.xyz).all(1) & np.isfinite(self.beacons.sigma).all(1)
+                  & (self.beacons.sigma > 0).all(1))
+        if bad_b.any():
+            ids = ", ".join(map(str, self.beacons.ids[bad_b][:5]))
+            self.notes.append(f"{np.count_nonzero(bad_b)} beacon(s) without a finite prior are left out: {ids}")
+            keep = ~bad_b[self.ranges.anchor]
+            self.ranges = RangeObs(self.ranges.t[keep], self.ranges.anchor[keep], self.ranges.range_m[keep])
+        for name, arr in (("position", kf.position), ("velocity", kf.velocity), ("q", kf.q)):
+            if not np.isfinite(arr).all():
+                raise ValueError(f"non-finite initial {name} in the keyframes (front-end estimate)")
+
+    # ---------------------------------------------------------------- factors per keyframe
+    def keyframe_factors(self, k: int):
+        """(NonlinearFactorGraph, Values): the factors that keyframe k adds (priors, IMU from k-1, its
+        ranges, beacons that became determined) and initial values of its new variables."""
+        gtsam = self.gtsam
+        from gtsam.symbol_shorthand import B, L, V, X
+
+        cfg, kf = self.cfg, self.kf
+        g = gtsam.NonlinearFactorGraph()
+        v = gtsam.Values()
+        pose = gtsam.Pose3(self.rots[k], kf.position[k])
+        v.insert(X(k), pose)
+        v.insert(V(k), kf.velocity[k])
+        v.insert(B(k), gtsam.imuBias.ConstantBias(kf.bias[k, :3], kf.bias[k, 3:]))
+        if k == 0:
+            g.add(gtsam.PriorFactorPose3(X(0), pose, self.start_pose_noise))
+            g.add(gtsam.PriorFactorVector(V(0), kf.velocity[0], self.start_velocity_noise))
+            g.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(), self.start_bias_noise))
+        else:
+            g.add(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self.pims[k - 1]))
+            g.add(gtsam.PoseRotationPrior3D(X(k), self.rots[k], self.attitude_noise))
+        if self.height_noise is not None:
+            target = np.array([kf.position[k, 0], kf.position[k, 1], cfg.range.device_z])
+            g.add(gtsam.PoseTranslationPrior3D(X(k), gtsam.Point3(target), self.height_noise))
+        lo, hi = self._bounds[k], self._bounds[k + 1]
+        for j, r in zip(self._range_j[lo:hi].tolist(), self._range_r[lo:hi].tolist()):
+            if self.in_graph[j]:
+                g.add(gtsam.RangeFactor3D(X(k), L(j), r, self.range_noise))
+                continue
+            pend = self._pending.setdefault(j, [])
+            pend.append((k, r))
+            if len(pend) >= cfg.range.min_ranges:  # determined enough: the beacon enters with its prior
+                self._add_beacon(j, g, v)
+                for kk, rr in pend:
+                    g.add(gtsam.RangeFactor3D(X(kk), L(j), rr, self.range_noise))
+                del self._pending[j]
+        return g, v
+
+    def _add_beacon(self, j: int, g, v) -> None:
+        gtsam = self.gtsam
+        from gtsam.symbol_shorthand import L
+
+        prior = np.asarray(self.beacons.xyz[j], float)
+        v.insertPoint3(L(j), self.beacon_init[j])
+        beacon_prior_noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(self.beacons.sigma[j], float))  # m
+        g.add(gtsam.PriorFactorPoint3(L(j), prior, beacon_prior_noise))
+        self.in_graph[j] = True
+
+    # ---------------------------------------------------------------- solvers
+    def solve(self) -> BackendResult:
+        t0 = time.perf_counter()
+        method = Solver(self.cfg.solver.method)
+        res = self._solve_isam2() if method == Solver.isam2 else self._solve_lm()
+        res.notes = self.notes + res.notes
+        res.failures = self.failures + res.failures
+        res.solve_s = time.perf_counter() - t0
+        return res
+
+    def _solve_isam2(self) -> BackendResult:
+        gtsam = self.gtsam
+        from gtsam.symbol_shorthand import X
+
+        sc = self.cfg.solver
+        params = gtsam.ISAM2Params()
+        params.setFactorization(str(sc.factorization).upper())
+        thresholds = gtsam.ISAM2ThresholdMap()  # per variable type and component (tangent-space order)
+        thresholds.insert(("x", np.r_[np.full(3, sc.relinearize_rotation_rad), np.full(3, sc.relinearize_position_m)]))
+        thresholds.insert(("v", np.full(3, float(sc.relinearize_velocity_mps))))
+        thresholds.insert(("b", np.r_[np.full(3, sc.relinearize_accel_bias), np.full(3, sc.relinearize_gyro_bias)]))
+        thresholds.insert(("l", np.full(3, float(sc.relinearize_beacon_m))))
+        params.setRelinearizeThreshold(thresholds)
+        params.relinearizeSkip = int(sc.relinearize_skip)
+        isam = gtsam.ISAM2(params)
+        K = len(self.kf.t)
+        online = self.kf.position.copy()
+        update_s = np.full(K, np.nan)
+        graph, initial = gtsam.NonlinearFactorGraph(), gtsam.Values()  # everything so far (for a recovery)
+        failed_at = None
+        every = max(int(sc.update_every), 1)
+        new_g, new_v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for k in range(K):
+            g, v = self.keyframe_factors(k)
+            graph.push_back(g)
+            initial.insert(v)
+            if failed_at is not None:
+                continue
+            new_g.push_back(g)
+            new_v.insert(v)
+            if (k + 1) % every and k < K - 1:
+                continue
+            t1 = time.perf_counter()
+            try:
+                isam.update(new_g, new_v)
+                online[k] = isam.calculateEstimatePose3(X(k)).translation()
+            except RuntimeError as exc:
+                self._fail("isam2-update", exc, k)
+                failed_at = k
+                continue
+            update_s[k] = time.perf_counter() - t1
+            new_g, new_v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if failed_at is not None:  # the online smoother is gone: the whole session in batch (LM, QR) instead
+            self.notes.append(f"iSAM2 failed at keyframe {failed_at}; the session was smoothed in batch (LM, QR) "
+                              f"instead, online estimates after it are the front-end's")
+            res = self._batch(graph, initial, qr=True)
+        else:
+            estimate = None
+            try:
+                estimate = isam.calculateEstimate()
+            except RuntimeError as exc:
+                self._fail("isam2-estimate", exc, K - 1)
+            cov = (lambda key: isam.marginalCovariance(key)) if estimate is not None else None
+            res = self._collect(estimate, K - 1 if estimate is not None else -1, cov)
+        res.online_position = online
+        res.update_s = update_s
+        res.n_factors = int(graph.size())
+        return res
+
+    def _solve_lm(self) -> BackendResult:
+        gtsam = self.gtsam
+        graph = gtsam.NonlinearFactorGraph()
+        initial = gtsam.Values()
+        for k in range(len(self.kf.t)):
+            g, v = self.keyframe_factors(k)
+            graph.push_back(g)
+            initial.insert(v)
+        return self._batch(graph, initial, qr=str(self.cfg.solver.factorization) == "qr")
+
+    def _lm(self, graph, initial, qr: bool):
+        """Levenberg-Marquardt on the whole graph; the estimate, or None after a failure (recorded)."""
+        gtsam = self.gtsam
+        sc = self.cfg.solver
+        params = gtsam.LevenbergMarquardtParams()
+        params.setLinearSolverType("MULTIFRONTAL_QR" if qr else "MULTIFRONTAL_CHOLESKY")
+        params.setMaxIterations(int(sc.lm_max_iterations))
+        params.setRelativeErrorTol(float(sc.lm_relative_tol))
+        try:
+            opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+            estimate = opt.optimize()
+        except RuntimeError as exc:
+            if qr:
+                self._fail("lm", exc, None)
+                return None
+            self.notes.append(f"LM with Cholesky failed ({_first_line(exc)}); retried with QR")
+            return self._lm(graph, initial, qr=True)
+        self.notes.append(f"LM{' (QR)' if qr else ''}: {opt.iterations()} iterations, error "
+                          f"{graph.error(initial):.4g} -> {graph.error(estimate):.4g}")
+        return estimate
+
+    def _batch(self, graph, initial, qr: bool) -> BackendResult:
+        estimate = self._lm(graph, initial, qr)
+        cov = None
+        if estimate is not None and self.cfg.solver.beacon_covariance and self.in_graph.any():
+            cov = self._marginals(graph, estimate)
+        res = self._collect(estimate, len(self.kf.t) - 1 if estimate is not None else -1, cov)
+        res.n_factors = int(graph.size())
+        return res
+
+    def _marginals(self, graph, estimate):
+        """``key -> marginal covariance`` at ``estimate``: one iSAM2 elimination of the whole graph with the
+        configured factorization (gtsam.Marginals has only Cholesky in Python), or None on failure."""
+        gtsam = self.gtsam
+        params = gtsam.ISAM2Params()
+        params.setFactorization(str(self.cfg.solver.factorization).upper())
+        params.enableRelinearization = False
+        isam = gtsam.ISAM2(params)
+        try:
+            isam.update(graph, estimate)
+        except RuntimeError as exc:
+            self._fail("marginals", exc, None)
+            return None
+        return isam.marginalCovariance
+
+    def _fail(self, stage: str, exc: RuntimeError, k: int | None) -> None:
+        sym = _symbol_in(str(exc))
+        key = describe_key(sym, self.kf.t, self.beacons.ids)
+        t = float(self.kf.t[k]) if k is not None else None
+        self.failures.append(BackendFailure(stage, key, t, _first_line(exc)))
+
+    def _collect(self, estimate, last_good: int, cov) -> BackendResult:
+        """Arrays from the estimate for keyframes 0..last_good, the front-end's values after (a failure)."""
+        from gtsam.symbol_shorthand import B, L, V, X
+
+        kf = self.kf
+        K = len(kf.t)
+        pos, vel, q = kf.position.copy(), kf.velocity.copy(), kf.q.copy()
+        bias = np.zeros((K, 6))
+        for k in range(last_good + 1):
+            pose = estimate.atPose3(X(k))
+            pos[k] = pose.translation()
+            quat = pose.rotation().toQuaternion()
+            q[k] = [quat.w(), quat.x(), quat.y(), quat.z()]
+            vel[k] = estimate.atVector(V(k))
+            bias[k] = estimate.atConstantBias(B(k)).vector()
+        if last_good < K - 1:
+            self.notes.append(f"keyframes {last_good + 1}..{K - 1} keep the front-end's values (back-end failure)")
+        rows = []
+        for j, aid in enumerate(self.beacons.ids):
+            xyz, std = self.beacons.xyz[j], float(np.sqrt(np.mean(self.beacons.sigma[j, :2] ** 2)))
+            n = int(self.n_ranges[j])
+            if self.in_graph[j] and estimate is not None and estimate.exists(L(j)):
+                xyz = estimate.atPoint3(L(j))
+                status = "optimized"
+                std = np.nan
+                if cov is not None and self.cfg.solver.beacon_covariance:
+                    try:
+                        c = np.asarray(cov(L(j)))
+                        std = float(np.sqrt(max(np.trace(c[:2, :2]), 0.0) / 2.0))
+                    except RuntimeError as exc:
+                        self._fail("marginals", exc, None)
+            elif self.n_heard[j] == 0:
+                status = "not heard"
+            elif n == 0:
+                status = f"prior: none of its {self.n_heard[j]} range(s) inside the gate"
+            else:
+                status = f"prior: {n} range(s) < min_ranges {self.cfg.range.min_ranges}"
+            rows.append({"anchor_id": str(aid), "x": float(xyz[0]), "y": float(xyz[1]), "z": float(xyz[2]),
+                         "std_m": std, "n_ranges": n, "n_heard": int(self.n_heard[j]), "status": status})
+        few = [r["anchor_id"] for r in rows if r["status"].startswith("prior") and r["n_ranges"]]
+        if few:
+            self.notes.append(f"{len(few)} beacon(s) heard too little for range factors, kept at their prior: "
+                              f"{', '.join(few[:8])}{' ...' if len(few) > 8 else ''}")
+        bmap = pd.DataFrame(rows, columns=["anchor_id", "x", "y", "z", "std_m", "n_ranges", "n_heard", "status"])
+        return BackendResult(kf.t.copy(), pos, vel, q, bias, pos.copy(), bmap, np.full(K, np.nan))
+
+
+def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    from blenav.filters.attitude import quat_to_matrix
+
+    return quat_to_matrix(q)
+
+
+def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors) -> BackendResult:
+    """Build the graph of one session and solve it with ``cfg.solver.method``; never raises on a GTSAM failure
+    (see :class:`BackendResult`.failures). ``ValueError`` for inputs it cannot use at all (no IMU, < 2
+    keyframes, non-finite front-end values)."""
+    t0 = time.perf_counter()
+    if len(kf.t) < 2:
+        raise ValueError(f"the back-end needs at least 2 keyframes, got {len(kf.t)}")
+    graph = RadioInertialGraph(cfg, kf, imu, ranges, beacons)
+    res = graph.solve()
+    passes = int(cfg.solver.passes) if Solver(cfg.solver.method) == Solver.lm else 1  # iSAM2 is online: one pass
+    for p in range(passes - 1):
+        if not res.ok:
+            break
+        # again, from this solution: its keyframes and beacons re-gate the ranges and initialise the graph
+        again = Keyframes(kf.t, res.position, res.velocity, res.q, res.bias)
+        init = res.beacon_map[["x", "y", "z"]].to_numpy(float)
+        graph = RadioInertialGraph(cfg, again, imu, ranges, beacons, beacon_init=init, pims=graph.pims)
+        notes = res.notes
+        res = graph.solve()
+        res.notes = notes + [f"pass {p + 2}: " + n for n in res.notes]
+    res.wall_s = time.perf_counter() - t0
+    return res
