@@ -36,6 +36,7 @@ from typing import Optional
 
 import numpy as np
 
+from .kernels import mean_cov
 from .resampling import ess, get_scheme, log_normalise
 
 
@@ -222,9 +223,8 @@ class ParticleFilter:
     # ------------------------------------------------------------------ helpers
     def _estimate(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         xy = self.x[..., :2]
-        mean = np.einsum("rn,rnk->rk", w, xy)
-        d = xy - mean[:, None, :]
-        cov = np.einsum("rn,rni,rnj->rij", w, d, d)
+        # compiled: the numbers of einsum("rn,rnk->rk", w, xy) and einsum("rn,rni,rnj->rij", w, d, d), d = xy - mean
+        mean, cov = mean_cov(w, self.x)
         if self.cfg.estimate == "median":
             med = _weighted_median(xy, w)
             nearest = np.argmin(np.sum((xy - med[:, None, :]) ** 2, axis=-1), axis=1)

@@ -34,6 +34,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import kernels as K
+
+
+def _rows(xy: np.ndarray) -> np.ndarray:
+    """(R, N, >= 2) positions as (R * N, >= 2) rows (a view for the engine's ``x[..., :2]``)."""
+    return xy.reshape(-1, xy.shape[-1])
+
 
 class MeasurementModel:
     """Base of every measurement model: the interface the engine and the runner call, with its defaults.
@@ -182,10 +189,9 @@ class PathLossRange(_PathLoss):
         idx, r = self.ranges(obs)
         if len(idx) == 0:
             return np.zeros(xy.shape[:-1])
-        res = self._distances(xy, idx)
-        res -= r.astype(np.float32)[:, None]
-        res *= np.float32(1.0 / self.sigma_n)
-        return self._sum_squares(res, xy.shape[:-1])
+        # compiled, one pass: float32 residuals (d - r) / sigma_n of _distances, summed as _sum_squares
+        return K.range_loglik(_rows(xy), self.anchors.xyz[idx], float(self.device_z), r.astype(np.float32),
+                              1.0 / self.sigma_n).reshape(xy.shape[:-1])
 
 
 @dataclass
@@ -199,15 +205,13 @@ class RssiDomain(_PathLoss):
         idx, rssi = obs["rssi_idx"], obs["rssi"]
         if len(idx) == 0:
             return np.zeros(xy.shape[:-1])
-        d = self._distances(xy, idx)
-        np.maximum(d, np.float32(self.d_min), out=d)
-        # residual rssi - (a_X - 10 gamma log10(d / d0)), rearranged to one log per element
+        # compiled distances (P, M) floored at d_min, numpy's float32 log10 in place (its SIMD routine: the
+        # same numbers as before), then one compiled pass for the residuals
+        # rssi - (a_X - 10 gamma log10(d / d0)) = 10 gamma log10(d) + base, / sigma_s, summed as _sum_squares
+        d = K.distances_pm(_rows(xy), self.anchors.xyz[idx], float(self.device_z), float(self.d_min))
         base = (rssi - self._ax()[idx] - 10.0 * self.gamma * np.log10(self.d0)).astype(np.float32)
-        res = np.log10(d, out=d)
-        res *= np.float32(10.0 * self.gamma)
-        res += base[:, None]
-        res *= np.float32(1.0 / self.sigma_s)
-        return self._sum_squares(res, xy.shape[:-1])
+        np.log10(d, out=d)
+        return K.rssi_sum_squares(d, 10.0 * self.gamma, base, 1.0 / self.sigma_s).reshape(xy.shape[:-1])
 
 
 

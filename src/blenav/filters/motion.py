@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels as K
+
 
 class MotionModel:
     """Base: ``propagate(x, ctrl, dt, rng) -> x_new``; ``state_dim``; ``init_state(xy, rng)``."""
@@ -56,15 +58,12 @@ class RandomWalk(MotionModel):
     max_speed: float = 3.0
 
     def propagate(self, x, ctrl, dt, rng):
-        out = x.copy()
         e = rng.standard_normal(x.shape[:-1] + (4,))  # one draw: (nu, eps)
-        # per coordinate (a (..., 2) slice of the state makes numpy loop over pairs: 4x slower)
-        vx, vy = _clip_speed2(x[..., 2] + self.sigma_v * e[..., 0], x[..., 3] + self.sigma_v * e[..., 1],
-                              self.max_speed)
-        out[..., 2], out[..., 3] = vx, vy
-        out[..., 0] = x[..., 0] + dt * vx + self.sigma_p * e[..., 2]
-        out[..., 1] = x[..., 1] + dt * vy + self.sigma_p * e[..., 3]
-        return out
+        # compiled (kernels.random_walk: one pass, the numbers of v' = clip(v + sigma_v nu),
+        # p' = p + dt v' + sigma_p eps as numpy computed them)
+        D = x.shape[-1]
+        return K.random_walk(x.reshape(-1, D), e.reshape(-1, 4), float(dt), float(self.sigma_v), float(self.sigma_p),
+                             float(self.max_speed)).reshape(x.shape)
 
 
 class _HeadingOffset(MotionModel):
@@ -142,16 +141,14 @@ class ImuProposal(MotionModel):
         na = np.hypot(a[0], a[1])
         a_hat = a / na if na >= self.min_acc else np.zeros(2)  # eq. 7
         shape = x.shape[:-1]
-        zeta = self.sigma_a * rng.standard_normal(shape + (1,))
-        nu = self.sigma_v * rng.standard_normal(shape + (2,))
-        out = x.copy()
-        h = 0.5 * dt * dt
-        for k in range(2):  # per coordinate (a (..., 2) slice makes numpy loop over pairs: 4x slower)
-            u = zeta[..., 0] * a_hat[k]  # zeta a_hat
-            out[..., k] = x[..., k] + dt * x[..., 2 + k] + h * u + dt * nu[..., k]  # eqs. 4-5, position rows
-            out[..., 2 + k] = x[..., 2 + k] + dt * u + nu[..., k]  # velocity rows
-        out[..., 2], out[..., 3] = _clip_speed2(out[..., 2], out[..., 3], self.max_speed)
-        return out
+        z = rng.standard_normal(shape + (1,))  # zeta / sigma_a
+        n = rng.standard_normal(shape + (2,))  # nu / sigma_v
+        # compiled (kernels.imu_proposal): per particle, u = zeta a_hat,
+        #   p' = p + dt p_dot + dt^2/2 u + dt nu, p_dot' = p_dot + dt u + nu (eqs. 4-5), then the speed cap
+        D = x.shape[-1]
+        return K.imu_proposal(x.reshape(-1, D), z.reshape(-1), n.reshape(-1, 2), float(a_hat[0]), float(a_hat[1]),
+                              float(dt), float(self.sigma_a), float(self.sigma_v),
+                              float(self.max_speed)).reshape(x.shape)
 
 
 @dataclass
@@ -224,12 +221,3 @@ def _moved(x: np.ndarray, move: np.ndarray, dt: float, col4: np.ndarray) -> np.n
     out[..., 2:4] = move / dt
     out[..., 4] = col4
     return out
-
-
-def _clip_speed2(vx: np.ndarray, vy: np.ndarray, vmax: float) -> tuple[np.ndarray, np.ndarray]:
-    """Velocity components scaled so that the speed is at most ``vmax`` (unchanged when no particle exceeds it)."""
-    s2 = vx * vx + vy * vy
-    if not (s2 > vmax * vmax).any():
-        return vx, vy
-    f = np.minimum(1.0, vmax / np.sqrt(np.maximum(s2, 1e-24)))
-    return vx * f, vy * f

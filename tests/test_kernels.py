@@ -1,0 +1,163 @@
+"""The compiled particle-filter kernels (blenav.filters.kernels) give the numbers of the numpy code they
+replaced, bit for bit: the numpy expressions are kept here as the references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blenav.filters import kernels as K
+from blenav.filters.measurement import AnchorTable, PathLossRange, RssiDomain
+from blenav.filters.motion import ImuProposal, RandomWalk
+
+
+def _clip_speed2(vx, vy, vmax):
+    s2 = vx * vx + vy * vy
+    if not (s2 > vmax * vmax).any():
+        return vx, vy
+    f = np.minimum(1.0, vmax / np.sqrt(np.maximum(s2, 1e-24)))
+    return vx * f, vy * f
+
+
+def rw_numpy(m, x, dt, rng):
+    out = x.copy()
+    e = rng.standard_normal(x.shape[:-1] + (4,))
+    vx, vy = _clip_speed2(x[..., 2] + m.sigma_v * e[..., 0], x[..., 3] + m.sigma_v * e[..., 1], m.max_speed)
+    out[..., 2], out[..., 3] = vx, vy
+    out[..., 0] = x[..., 0] + dt * vx + m.sigma_p * e[..., 2]
+    out[..., 1] = x[..., 1] + dt * vy + m.sigma_p * e[..., 3]
+    return out
+
+
+def imu_numpy(m, x, ctrl, dt, rng):
+    a = np.asarray(ctrl["acc_w"], dtype=float)[:2]
+    na = np.hypot(a[0], a[1])
+    a_hat = a / na if na >= m.min_acc else np.zeros(2)
+    shape = x.shape[:-1]
+    zeta = m.sigma_a * rng.standard_normal(shape + (1,))
+    nu = m.sigma_v * rng.standard_normal(shape + (2,))
+    out = x.copy()
+    h = 0.5 * dt * dt
+    for k in range(2):
+        u = zeta[..., 0] * a_hat[k]
+        out[..., k] = x[..., k] + dt * x[..., 2 + k] + h * u + dt * nu[..., k]
+        out[..., 2 + k] = x[..., 2 + k] + dt * u + nu[..., k]
+    out[..., 2], out[..., 3] = _clip_speed2(out[..., 2], out[..., 3], m.max_speed)
+    return out
+
+
+def distances_numpy(model, xy, idx):
+    l = model.anchors.xyz[idx].astype(np.float32)
+    d = xy[..., 0].astype(np.float32).reshape(1, -1) - l[:, 0:1]
+    d *= d
+    dy = xy[..., 1].astype(np.float32).reshape(1, -1) - l[:, 1:2]
+    dy *= dy
+    d += dy
+    d += ((np.float32(model.device_z) - l[:, 2]) ** 2)[:, None]
+    return np.sqrt(d, out=d)
+
+
+def sum_squares_numpy(res, lead):
+    r = np.ascontiguousarray(res.T).reshape(*lead, res.shape[0])
+    return -0.5 * np.einsum("rnm,rnm->rn", r, r).astype(np.float64)
+
+
+def rssi_numpy(model, xy, obs):
+    idx, rssi = obs["rssi_idx"], obs["rssi"]
+    d = distances_numpy(model, xy, idx)
+    np.maximum(d, np.float32(model.d_min), out=d)
+    base = (rssi - model._ax()[idx] - 10.0 * model.gamma * np.log10(model.d0)).astype(np.float32)
+    res = np.log10(d, out=d)
+    res *= np.float32(10.0 * model.gamma)
+    res += base[:, None]
+    res *= np.float32(1.0 / model.sigma_s)
+    return sum_squares_numpy(res, xy.shape[:-1])
+
+
+def range_numpy(model, xy, obs):
+    idx, r = model.ranges(obs)
+    if len(idx) == 0:
+        return np.zeros(xy.shape[:-1])
+    res = distances_numpy(model, xy, idx)
+    res -= r.astype(np.float32)[:, None]
+    res *= np.float32(1.0 / model.sigma_n)
+    return sum_squares_numpy(res, xy.shape[:-1])
+
+
+def estimate_numpy(w, x):
+    xy = x[..., :2]
+    mean = np.einsum("rn,rnk->rk", w, xy)
+    d = xy - mean[:, None, :]
+    return mean, np.einsum("rn,rni,rnj->rij", w, d, d)
+
+
+@pytest.fixture
+def anchors():
+    rng = np.random.default_rng(5)
+    A = 40
+    tx = rng.uniform(-70, -55, A)
+    tx[::7] = np.nan
+    return AnchorTable(np.array([f"b{i}" for i in range(A)]),
+                       np.column_stack([rng.uniform(0, 45, A), rng.uniform(0, 55, A), rng.uniform(2, 3, A)]), tx)
+
+
+@pytest.mark.parametrize("D", [4, 5])
+def test_random_walk(D):
+    rng = np.random.default_rng(0)
+    m = RandomWalk(max_speed=0.3)  # low cap: some particles are clipped, most not
+    x = rng.standard_normal((7, 50, D)) * [3, 3, 0.2, 0.2, 1][:D]
+    for dt in (0.1, 0.25):
+        a = m.propagate(x, {}, dt, np.random.default_rng(1))
+        b = rw_numpy(m, x, dt, np.random.default_rng(1))
+        assert a.dtype == b.dtype and a.shape == b.shape
+        assert np.array_equal(a, b)
+    m = RandomWalk()  # no particle clipped
+    assert np.array_equal(m.propagate(x, {}, 0.1, np.random.default_rng(2)), rw_numpy(m, x, 0.1, np.random.default_rng(2)))
+
+
+@pytest.mark.parametrize("acc", [(0.3, -0.2), (0.01, 0.0), (2.0, 1.0)])
+def test_imu_proposal(acc):
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((5, 60, 4)) * [3, 3, 1.5, 1.5]  # some above max_speed
+    m = ImuProposal()
+    ctrl = {"acc_w": np.array([*acc, 0.1])}
+    a = m.propagate(x, ctrl, 0.1, np.random.default_rng(3))
+    b = imu_numpy(m, x, ctrl, 0.1, np.random.default_rng(3))
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("M", [1, 3, 4, 5, 15, 16, 17, 18, 33, 64, 70])
+def test_path_loss_likelihoods(anchors, M):
+    rng = np.random.default_rng(M)
+    x = np.concatenate([rng.uniform(0, 45, (4, 30, 1)), rng.uniform(0, 55, (4, 30, 1)), rng.standard_normal((4, 30, 2))],
+                       axis=-1)
+    x[0, 0, :2] = anchors.xyz[3, :2]  # a particle under a beacon: distance floored at d_min
+    xy = x[..., :2]
+    obs = {"rssi_idx": rng.integers(0, len(anchors.ids), M), "rssi": rng.uniform(-95, -50, M)}
+    ps = RssiDomain()
+    ps.bind(anchors)
+    assert np.array_equal(ps.log_likelihood(xy, obs), rssi_numpy(ps, xy, obs))
+    pl = PathLossRange()
+    pl.bind(anchors)
+    assert np.array_equal(pl.log_likelihood(xy, obs), range_numpy(pl, xy, obs))
+    assert np.array_equal(ps._distances(xy, obs["rssi_idx"]), distances_numpy(ps, xy, obs["rssi_idx"]))
+
+
+def test_sum_squares_order():
+    rng = np.random.default_rng(7)
+    for M in range(1, 130):
+        r = (rng.standard_normal((2, 20, M)) * 3).astype(np.float32)
+        ref = np.einsum("rnm,rnm->rn", r, r)
+        got = np.array([[K._sum_squares_sse(r[i, j], M) for j in range(20)] for i in range(2)], dtype=np.float32)
+        assert np.array_equal(ref, got), M
+
+
+@pytest.mark.parametrize("shape", [(100, 300, 4), (3, 7, 5), (1, 1000, 4)])
+def test_mean_cov(shape):
+    rng = np.random.default_rng(11)
+    x = rng.standard_normal(shape) * 10
+    w = rng.random(shape[:2])
+    w /= w.sum(axis=1, keepdims=True)
+    m1, c1 = K.mean_cov(w, x)
+    m2, c2 = estimate_numpy(w, x)
+    assert np.array_equal(m1, m2) and np.array_equal(c1, c2)
