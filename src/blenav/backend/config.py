@@ -160,16 +160,31 @@ class MappingConfig:
     sigma_db: float = 6.0  # dB: RSSI residual std (shadowing + receiver noise)
     robust: RobustKernel = RobustKernel.huber
     robust_k: float = 1.345  # in units of sigma_db
-    min_rssi_dbm: Optional[float] = -90.0  # readings weaker than this are left out (receiver-sensitivity censoring)
+    min_rssi_dbm: Optional[float] = None  # readings weaker than this are left out (None: all; a fixed threshold
+    #   ignores the receiver's own level and selects on the noise: worse on the simulated office)
+    censor_margin_db: Optional[float] = None  # dB: leave out readings within this of the session's weakest
+    #   (0.5th percentile) reading: near its sensitivity a receiver reports only what came out strong
     a_x_prior_dbm: float = -60.0  # dBm: prior mean of A_j (broad)
-    a_x_prior_sigma_db: float = 20.0  # dB
+    a_x_prior_sigma_db: float = 20.0  # dB (of the common level, or of each beacon when a_x_spread_db is None)
+    a_x_spread_db: Optional[float] = 3.0  # dB: beacons' 1 m levels around their common level (None: independent)
     prior_sigma_m: float = 30.0  # m per axis: broad horizontal prior around the initial guess
     use_map_prior: bool = False  # centre the broad prior on anchors.csv's x, y (else on the initial guess)
-    height_sigma_m: float = 0.5  # m: vertical prior around anchors.csv's z (walks cannot see the height)
+    height_sigma_m: float = 0.3  # m: vertical prior around anchors.csv's z (walks on one floor hardly see the height)
     min_readings: int = 30  # readings below which a beacon is not placed (heard too little)
     min_spread_m: float = 1.0  # m: minor-axis std of the hearing positions below which it is not placed
-    max_std_m: float = 2.0  # m: placed only when the estimate's horizontal std is below this
+    max_std_m: float = 2.5  # m: placed only when the estimate's (stated) horizontal std is below this
     device_z: Optional[float] = None  # m: receiver height when the ground truth has no z (None: use gt z)
+    body_loss: bool = True  # the carrier's body shadow W (1 - cos theta) / 2, W estimated (shared by all beacons)
+    body_db_prior: float = 5.0  # dB, prior mean of W
+    body_db_sigma: float = 5.0  # dB
+    walls: bool = True  # multi-wall term: M per wall of the floor plan crossed by the line of sight, M estimated
+    wall_db_prior: float = 3.0  # dB per wall, prior mean of M
+    wall_db_sigma: float = 3.0  # dB
+    max_walls: int = 5  # walls counted at most
+    wall_passes: int = 3  # solves, each with the wall counts at the previous estimate (stops when < 1 % change)
+    max_iterations: int = 100  # LM
+    shadow_corr_m: float = 3.0  # m: cell size over which shadowing is taken as shared (stds: design effect)
+    std_scale: float = 2.0  # the stated std is this times the model's (measured on simulated walks, see mapping.py)
 
 
 @dataclass
