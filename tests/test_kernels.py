@@ -161,3 +161,79 @@ def test_mean_cov(shape):
     m1, c1 = K.mean_cov(w, x)
     m2, c2 = estimate_numpy(w, x)
     assert np.array_equal(m1, m2) and np.array_equal(c1, c2)
+
+
+def test_duplicates():
+    from blenav.filters.engine import _duplicates
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        idx = rng.integers(0, 30, (4, 30))
+        order = np.argsort(idx, axis=1, kind="stable")
+        srt = np.take_along_axis(idx, order, axis=1)
+        dup_sorted = np.zeros_like(srt, dtype=bool)
+        dup_sorted[:, 1:] = srt[:, 1:] == srt[:, :-1]
+        ref = np.empty_like(dup_sorted)
+        np.put_along_axis(ref, order, dup_sorted, axis=1)
+        assert np.array_equal(_duplicates(idx), ref)
+
+
+@pytest.mark.parametrize("rooms_routes", [True, False])  # given map, and rooms/routes derived from the plan
+def test_grid_nearest_edge(tmp_path, rooms_routes):
+    from blenav.cli.sim import run as sim_run
+    from blenav.configs import compose
+    from blenav.data.building import Building
+    from blenav.filters.map import MapGeometry
+
+    out = tmp_path / "small"
+    sim_run(compose("sim", "sim=small", "seed=0", f"out={out}", "duration_s=2", "sessions=1", "progress=false"))
+    b = out / "buildings" / "small"
+    if not rooms_routes:
+        (b / "rooms.geojson").unlink()
+        (b / "navgraph.geojson").unlink()
+    ix = MapGeometry.from_building(Building.load(b), 0).get_index("grid", 3.0, 1.0)
+    x0, y0, x1, y1 = ix.x0, ix.y0, ix.x0 + ix.nx * ix.cell, ix.y0 + ix.ny * ix.cell
+    rng = np.random.default_rng(0)
+    xy = np.column_stack([rng.uniform(x0 - 3, x1 + 3, 20000), rng.uniform(y0 - 3, y1 + 3, 20000)])
+    xy[:5] = ix.segs[:5, 0]  # on segment end points
+    xy[5] = np.nan
+    with np.errstate(invalid="ignore"):  # the NaN point's cell index
+        ref = ix.nearest_edge_numpy(xy)
+    for a, b in zip(ix.nearest_edge(xy), ref):
+        assert np.array_equal(a, b, equal_nan=True)
+
+
+@pytest.mark.parametrize("scheme", ["systematic", "stratified", "multinomial", "residual", "low_variance"])
+def test_inverse_cdf(scheme):
+    from blenav.filters import resampling as RS
+
+    rng = np.random.default_rng(4)
+    for R, N in ((100, 300), (3, 7), (1, 1)):
+        for _ in range(10):
+            w = rng.random((R, N)) ** 8  # uneven weights
+            w /= w.sum(axis=1, keepdims=True)
+            w[0, : N // 2] = 0.0  # zero weights: ties in the cumulative sums
+            w[0] /= w[0].sum()
+            a = RS.get_scheme(scheme)(w, np.random.default_rng(9))
+            orig, RS._inverse_cdf = RS._inverse_cdf, RS._inverse_cdf_numpy
+            try:
+                b = RS.get_scheme(scheme)(w, np.random.default_rng(9))
+            finally:
+                RS._inverse_cdf = orig
+            assert np.array_equal(a, b)
+    u = np.sort(rng.random((50, 300)), axis=1)
+    u[:, -1] = np.nextafter(1.0, 0.0)  # keys whose offset sum rounds up to the row's end
+    w = rng.random((50, 300))
+    w /= w.sum(axis=1, keepdims=True)
+    assert np.array_equal(K.inverse_cdf(w, u), RS._inverse_cdf_numpy(w, u))
+
+
+def test_gather_rows():
+    rng = np.random.default_rng(8)
+    x = rng.standard_normal((6, 40, 5))
+    runs = np.array([0, 2, 5])
+    idx = rng.integers(0, 40, (3, 40))
+    ref = x.copy()
+    ref[runs] = np.take_along_axis(ref[runs], idx[..., None], axis=1)
+    K.gather_rows(x, runs, idx)
+    assert np.array_equal(x, ref)

@@ -36,7 +36,7 @@ from typing import Optional
 
 import numpy as np
 
-from .kernels import mean_cov
+from .kernels import duplicates, gather_rows, mean_cov
 from .resampling import ess, get_scheme, log_normalise
 
 
@@ -233,7 +233,10 @@ class ParticleFilter:
 
     def _resample(self, runs: np.ndarray, w: np.ndarray) -> None:
         idx = self.resample_fn(w[runs], self.rng)
-        self.x[runs] = np.take_along_axis(self.x[runs], idx[..., None], axis=1)
+        if self.x.flags.c_contiguous and self.x.dtype == np.float64:  # compiled, in place: take_along_axis's copies
+            gather_rows(self.x, runs.astype(np.int64), np.ascontiguousarray(idx, dtype=np.int64))
+        else:
+            self.x[runs] = np.take_along_axis(self.x[runs], idx[..., None], axis=1)
         for m in self.measurements:
             m.on_resample(runs, idx)
         self.logw[runs] = -np.log(self.N)
@@ -271,6 +274,8 @@ class ParticleFilter:
 
 def _duplicates(idx: np.ndarray) -> np.ndarray:
     """(R, N) bool: True for every copy of an ancestor index after its first, row by row."""
+    if idx.ndim == 2 and len(idx):
+        return duplicates(np.ascontiguousarray(idx, dtype=np.int64))  # compiled: the same flags, no argsort
     order = np.argsort(idx, axis=1, kind="stable")
     srt = np.take_along_axis(idx, order, axis=1)
     dup_sorted = np.zeros_like(srt, dtype=bool)

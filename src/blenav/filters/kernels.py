@@ -102,7 +102,9 @@ def imu_proposal(x, z, n, ax, ay, dt, sigma_a, sigma_v, vmax):
 
 @njit(cache=True, inline="always")
 def _sum_squares_sse(r, M):
-    """float32 sum of r[0..M)^2 in the order of numpy's einsum 'rnm,rnm->rn' (baseline SSE: 4 lanes)."""
+    """float32 sum of r[0..M)^2 in the order of numpy's einsum 'rnm,rnm->rn' (baseline SSE: 4 lanes, lane l
+    takes r[l], r[l + 4], ...; in blocks of 16 the four rows of a lane are added last to first; each
+    ``lane + a * a`` rounded twice; then (l0 + l1) + (l2 + l3)). The reference for the lane kernels below."""
     a0 = np.float32(0.0)
     a1 = np.float32(0.0)
     a2 = np.float32(0.0)
@@ -142,59 +144,120 @@ def _anchor_terms(l, device_z):
 
 
 @njit(cache=True)
-def distances_pm(x, l, device_z, d_min):
-    """(P, M) float32 3-D distances from the particles (rows of x (P, >= 2) float64) to the anchors l (M, 3),
-    particle-major, floored at ``d_min`` (float32; 0 for none): the numbers of ``_PathLoss._distances``."""
+def _xy32(x):
+    """float32 copies (P,) of the particles' x and y (rows of x (P, >= 2))."""
     P = x.shape[0]
+    px = np.empty(P, np.float32)
+    py = np.empty(P, np.float32)
+    for p in range(P):
+        px[p] = np.float32(x[p, 0])
+        py[p] = np.float32(x[p, 1])
+    return px, py
+
+
+@njit(cache=True)
+def distances_mp(x, l, device_z, d_min):
+    """(M, P) float32 3-D distances from the particles (rows of x (P, >= 2) float64) to the anchors l (M, 3),
+    anchor-major, floored at ``d_min`` (0: no floor): the numbers of ``_PathLoss._distances`` (and of
+    np.maximum(d, d_min), NaN staying NaN). Anchor-major, so the inner loop runs over particles (SIMD)."""
     M = l.shape[0]
     lx, ly, dz2 = _anchor_terms(l, device_z)
+    px, py = _xy32(x)
+    P = px.shape[0]
     fmin = np.float32(d_min)
-    out = np.empty((P, M), np.float32)
-    for p in range(P):
-        px = np.float32(x[p, 0])
-        py = np.float32(x[p, 1])
-        for m in range(M):
-            dx = px - lx[m]
-            dy = py - ly[m]
-            d = np.sqrt(dx * dx + dy * dy + dz2[m])
-            out[p, m] = d if not d < fmin else fmin  # np.maximum(d, d_min): NaN stays NaN
+    out = np.empty((M, P), np.float32)
+    for m in range(M):
+        a = lx[m]
+        b = ly[m]
+        c = dz2[m]
+        o = out[m]
+        for p in range(P):
+            dx = px[p] - a
+            dy = py[p] - b
+            d = np.sqrt(dx * dx + dy * dy + c)
+            o[p] = d if not d < fmin else fmin
     return out
 
 
 @njit(cache=True)
 def rssi_sum_squares(logd, gain, base, inv_sigma):
-    """-0.5 sum_m ((log10 d * gain + base_m) * inv_sigma)^2 per particle, float32 residuals summed as numpy's
-    einsum, returned as float64 (P,): RssiDomain's likelihood from logd = log10(distances) (P, M)."""
-    P, M = logd.shape
+    """RssiDomain's likelihood (P,) float64 from logd = log10(distances) (M, P) float32: -0.5 sum_m r_m^2,
+    r_m = (logd_m * gain + base_m) * inv_sigma in float32, summed per particle in :func:`_sum_squares_sse`'s
+    order (four lane accumulators per particle, vectorised over the particles)."""
+    M, P = logd.shape
     g = np.float32(gain)
     s = np.float32(inv_sigma)
+    acc = np.zeros((4, P), np.float32)
+    i = 0
+    while M - i >= 16:
+        for l in range(4):
+            a = acc[l]
+            r0, r1, r2, r3 = logd[i + l], logd[i + 4 + l], logd[i + 8 + l], logd[i + 12 + l]
+            b0, b1, b2, b3 = base[i + l], base[i + 4 + l], base[i + 8 + l], base[i + 12 + l]
+            for p in range(P):
+                v0 = (r0[p] * g + b0) * s
+                v1 = (r1[p] * g + b1) * s
+                v2 = (r2[p] * g + b2) * s
+                v3 = (r3[p] * g + b3) * s
+                a[p] = v0 * v0 + (v1 * v1 + (v2 * v2 + (v3 * v3 + a[p])))
+        i += 16
+    while i < M:
+        for l in range(4):
+            if i + l < M:
+                a = acc[l]
+                r0 = logd[i + l]
+                b0 = base[i + l]
+                for p in range(P):
+                    v0 = (r0[p] * g + b0) * s
+                    a[p] = v0 * v0 + a[p]
+        i += 4
     out = np.empty(P)
-    r = np.empty(M, np.float32)
     for p in range(P):
-        for m in range(M):
-            r[m] = (logd[p, m] * g + base[m]) * s
-        out[p] = -0.5 * np.float64(_sum_squares_sse(r, M))
+        out[p] = -0.5 * np.float64((acc[0, p] + acc[1, p]) + (acc[2, p] + acc[3, p]))
     return out
+
+
+@njit(cache=True, inline="always")
+def _range_res(px, py, a, b, c, rng_m, s):
+    dx = px - a
+    dy = py - b
+    return (np.sqrt(dx * dx + dy * dy + c) - rng_m) * s
 
 
 @njit(cache=True)
 def range_loglik(x, l, device_z, ranges, inv_sigma):
-    """PathLossRange's likelihood (P,) float64: -0.5 sum_m ((d_pm - r_m) * inv_sigma)^2 in float32, summed as
-    numpy's einsum, with d the distances of :func:`distances_pm` (no floor)."""
-    P = x.shape[0]
+    """PathLossRange's likelihood (P,) float64: -0.5 sum_m ((d_pm - r_m) * inv_sigma)^2 in float32, d the
+    distances of :func:`distances_mp` (no floor), summed in :func:`_sum_squares_sse`'s order."""
     M = l.shape[0]
     lx, ly, dz2 = _anchor_terms(l, device_z)
+    px, py = _xy32(x)
+    P = px.shape[0]
     s = np.float32(inv_sigma)
+    acc = np.zeros((4, P), np.float32)
+    i = 0
+    while M - i >= 16:
+        for l4 in range(4):
+            a = acc[l4]
+            m0, m1, m2, m3 = i + l4, i + 4 + l4, i + 8 + l4, i + 12 + l4
+            for p in range(P):
+                v0 = _range_res(px[p], py[p], lx[m0], ly[m0], dz2[m0], ranges[m0], s)
+                v1 = _range_res(px[p], py[p], lx[m1], ly[m1], dz2[m1], ranges[m1], s)
+                v2 = _range_res(px[p], py[p], lx[m2], ly[m2], dz2[m2], ranges[m2], s)
+                v3 = _range_res(px[p], py[p], lx[m3], ly[m3], dz2[m3], ranges[m3], s)
+                a[p] = v0 * v0 + (v1 * v1 + (v2 * v2 + (v3 * v3 + a[p])))
+        i += 16
+    while i < M:
+        for l4 in range(4):
+            m0 = i + l4
+            if m0 < M:
+                a = acc[l4]
+                for p in range(P):
+                    v0 = _range_res(px[p], py[p], lx[m0], ly[m0], dz2[m0], ranges[m0], s)
+                    a[p] = v0 * v0 + a[p]
+        i += 4
     out = np.empty(P)
-    r = np.empty(M, np.float32)
     for p in range(P):
-        px = np.float32(x[p, 0])
-        py = np.float32(x[p, 1])
-        for m in range(M):
-            dx = px - lx[m]
-            dy = py - ly[m]
-            r[m] = (np.sqrt(dx * dx + dy * dy + dz2[m]) - ranges[m]) * s
-        out[p] = -0.5 * np.float64(_sum_squares_sse(r, M))
+        out[p] = -0.5 * np.float64((acc[0, p] + acc[1, p]) + (acc[2, p] + acc[3, p]))
     return out
 
 
@@ -234,3 +297,147 @@ def mean_cov(w, x):
         cov[r, 1, 0] = c10
         cov[r, 1, 1] = c11
     return mean, cov
+
+
+# -------------------------------------------------------------------------------------- resampling
+
+
+@njit(cache=True, inline="always")
+def _less(a, b):
+    """numpy's sort order for floats (NaN last)."""
+    return a < b or (b != b and a == a)
+
+
+@njit(cache=True)
+def inverse_cdf(w, u):
+    """resampling._inverse_cdf, the same indices: per row r the cumulative weights c (sequential sums as
+    np.cumsum, the last set to 1.0) offset by r, all rows concatenated, and the keys u + r searched with numpy's
+    own binary search (side='right', its window carried over from the previous key), minus r N, clipped to
+    [0, N - 1]."""
+    R, N = w.shape
+    M = u.shape[1]
+    arr = np.empty(R * N)
+    for r in range(R):
+        off = float(r)
+        acc = 0.0
+        for j in range(N):
+            acc = w[r, j] if j == 0 else acc + w[r, j]
+            arr[r * N + j] = acc
+        arr[r * N + N - 1] = 1.0
+        for j in range(N):
+            arr[r * N + j] = arr[r * N + j] + off
+    out = np.empty((R, M), np.int64)
+    n = R * N
+    min_idx = 0
+    max_idx = n
+    last = u[0, 0] + 0.0 if R * M else 0.0
+    for r in range(R):
+        off = float(r)
+        for k in range(M):
+            key = u[r, k] + off
+            if not _less(key, last):  # cmp(last, key) for side='right': last <= key
+                max_idx = n
+            else:
+                min_idx = 0
+                max_idx = max_idx + 1 if max_idx < n else n
+            last = key
+            while min_idx < max_idx:
+                mid = min_idx + ((max_idx - min_idx) >> 1)
+                if not _less(key, arr[mid]):  # arr[mid] <= key
+                    min_idx = mid + 1
+                else:
+                    max_idx = mid
+            i = min_idx - r * N
+            out[r, k] = 0 if i < 0 else (N - 1 if i > N - 1 else i)
+    return out
+
+
+@njit(cache=True)
+def gather_rows(x, runs, idx):
+    """x[runs] = take_along_axis(x[runs], idx[..., None], axis=1) in place: x (R, N, D), idx (Q, N)."""
+    N = x.shape[1]
+    D = x.shape[2]
+    tmp = np.empty((N, D))
+    for q in range(runs.shape[0]):
+        r = runs[q]
+        tmp[:, :] = x[r]
+        for j in range(N):
+            a = idx[q, j]
+            for k in range(D):
+                x[r, j, k] = tmp[a, k]
+
+
+@njit(cache=True)
+def duplicates(idx):
+    """(R, N) bool: True for every copy of an ancestor index after its first, row by row (engine._duplicates)."""
+    R, N = idx.shape
+    out = np.zeros((R, N), np.bool_)
+    seen = np.zeros(N, np.bool_)
+    for r in range(R):
+        seen[:] = False
+        for j in range(N):
+            a = idx[r, j]
+            out[r, j] = seen[a]
+            seen[a] = True
+    return out
+
+
+# ------------------------------------------------------------------------------------ map queries
+
+
+@njit(cache=True)
+def grid_nearest_edge(xy, x0, y0, cell, nx, ny, cell_edges, segs, max_d2):
+    """GridIndex.nearest_edge: per point, the closest point on the nearest candidate edge of its 1 m cell
+    within sqrt(max_d2) (ties: the lowest edge index); proj (P, 2) (the point itself without one), dist (P,)
+    (inf), idx (P,) (-1). The arithmetic of shapes.project_segments."""
+    P = xy.shape[0]
+    K = cell_edges.shape[1]
+    proj = np.empty((P, 2))
+    dist = np.full(P, np.inf)
+    idx = np.full(P, -1, np.int64)
+    for p in range(P):
+        x = xy[p, 0]
+        y = xy[p, 1]
+        proj[p, 0] = x
+        proj[p, 1] = y
+        fx = np.floor((x - x0) / cell)
+        fy = np.floor((y - y0) / cell)
+        if not (fx >= 0 and fx < nx and fy >= 0 and fy < ny):
+            continue
+        c = int(fy) * nx + int(fx)
+        best = np.inf
+        bx = 0.0
+        by = 0.0
+        be = -1
+        for k in range(K):
+            e = cell_edges[c, k]
+            if e < 0:
+                continue
+            ax = segs[e, 0, 0]
+            ay = segs[e, 0, 1]
+            dx = segs[e, 1, 0] - ax
+            dy = segs[e, 1, 1] - ay
+            px = x - ax
+            py = y - ay
+            dd = dx * dx + dy * dy
+            t = (px * dx + py * dy) / (dd if dd > 0 else 1.0)
+            if t < 0.0:
+                t = 0.0
+            elif t > 1.0:
+                t = 1.0
+            qx = ax + t * dx
+            qy = ay + t * dy
+            rx = x - qx
+            ry = y - qy
+            d2 = rx * rx + ry * ry
+            if d2 <= max_d2 and d2 < best:
+                best = d2
+                bx = qx
+                by = qy
+                be = e
+        if be >= 0:
+            proj[p, 0] = bx
+            proj[p, 1] = by
+            dist[p] = np.sqrt(best)
+            idx[p] = be
+    return proj, dist, idx

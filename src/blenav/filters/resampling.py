@@ -19,6 +19,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .kernels import inverse_cdf
+
 Scheme = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 SCHEMES: dict[str, Scheme] = {}
 
@@ -38,7 +40,17 @@ def get_scheme(name: str) -> Scheme:
 
 
 def _inverse_cdf(w: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Indices i with cumsum(w)[i-1] <= u < cumsum(w)[i], row by row; u (R, M) sorted or not, in [0, 1)."""
+    """Indices i with cumsum(w)[i-1] <= u < cumsum(w)[i], row by row; u (R, M) sorted or not, in [0, 1).
+
+    Compiled (:func:`blenav.filters.kernels.inverse_cdf`): the indices of :func:`_inverse_cdf_numpy`, the
+    same float sums and numpy's own binary search, without the (R N) temporaries."""
+    if w.ndim == 2 and u.ndim == 2 and w.size and u.size:
+        return inverse_cdf(np.ascontiguousarray(w, dtype=float), np.ascontiguousarray(u, dtype=float))
+    return _inverse_cdf_numpy(w, u)
+
+
+def _inverse_cdf_numpy(w: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """:func:`_inverse_cdf` in numpy (the reference)."""
     R, N = w.shape
     c = np.cumsum(w, axis=1)
     c[:, -1] = 1.0  # guard against round-off leaving the last cumulative weight below 1

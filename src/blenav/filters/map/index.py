@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
+from .. import kernels as K
 from .shapes import ShrunkRooms, project_segments
 
 DEFAULT_INDEX = "grid"
@@ -119,6 +120,15 @@ class GridIndex(SpatialIndex):
         return cid
 
     def nearest_edge(self, xy):
+        # compiled: one loop over the points and their cell's candidates (kernels.grid_nearest_edge), the numbers
+        # of nearest_edge_numpy
+        return K.grid_nearest_edge(np.ascontiguousarray(xy, dtype=float), float(self.x0), float(self.y0),
+                                   float(self.cell), int(self.nx), int(self.ny), self.cell_edges,
+                                   np.ascontiguousarray(self.segs, dtype=float).reshape(-1, 2, 2),
+                                   float(self.max_edge_dist**2))
+
+    def nearest_edge_numpy(self, xy):
+        """:meth:`nearest_edge` in numpy over (P, K) candidates (the reference)."""
         P = len(xy)
         proj = xy.copy()
         dist = np.full(P, np.inf)
