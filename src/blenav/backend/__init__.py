@@ -4,7 +4,9 @@ from labelled walks (issue 14).
 * :mod:`blenav.backend.config`: settings (:class:`BackendConfig`, ``conf/backend/default.yaml``);
 * :mod:`blenav.backend.graph`: the factor graph and its solvers (:func:`smooth`);
 * :mod:`blenav.backend.inputs`: a session and a front-end estimate -> the graph's inputs;
-* :mod:`blenav.backend.mapping`: beacon positions and RSSI at 1 m from walks with known poses.
+* :mod:`blenav.backend.mapping`: beacon positions and RSSI at 1 m from walks with known poses (``blenav-map``);
+* :mod:`blenav.backend.localizer`: :class:`BackendLocalizer`, a particle-filter front-end then the smoother, as a
+  localizer (``conf/localizer/backend.yaml``).
 
 GTSAM is imported when a graph is built, not when this package is.
 """

@@ -108,6 +108,10 @@ class PriorConfig:
     attitude_corr_s: float = 2.0  # s: correlation time of the AHRS error; per keyframe the prior's sigma is
     #   attitude_sigma_deg * sqrt(attitude_corr_s / keyframe interval), i.e. one independent prior per corr_s
     height_sigma_m: Optional[float] = 0.3  # m: every keyframe's world z around range.device_z (None: off)
+    front_end_sigma_m: Optional[float] = None  # m: every keyframe's x, y around the front-end's (smoothed)
+    #   estimate; None (000): the front-end only initialises the graph. The front-end saw the same ranges, so
+    #   this counts them twice: a regulariser for sparse radio data, not a measurement
+    front_end_corr_s: float = 5.0  # s: correlation time of the front-end's error (sigma inflated as the attitude's)
 
 
 @dataclass

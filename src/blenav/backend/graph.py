@@ -311,8 +311,13 @@ class RadioInertialGraph:
         dt_kf = float(np.median(np.diff(kf.t))) if K > 1 else 1.0
         inflate = np.sqrt(max(pr.attitude_corr_s / dt_kf, 1.0))  # correlated AHRS errors: one prior per corr_s
         self.attitude_noise = nm.Isotropic.Sigma(3, np.deg2rad(pr.attitude_sigma_deg) * inflate)  # rad
-        self.height_noise = (None if pr.height_sigma_m is None
-                             else nm.Diagonal.Sigmas(np.array([1e3, 1e3, pr.height_sigma_m])))  # m (x, y free)
+        # world-frame position prior per keyframe: z around the receiver height, x, y free (1 km) or around the
+        # front-end's estimate (priors.front_end_sigma_m, inflated for its correlated errors like the attitude)
+        xy_sigma = 1e3 if pr.front_end_sigma_m is None else pr.front_end_sigma_m * np.sqrt(
+            max(pr.front_end_corr_s / dt_kf, 1.0))
+        z_sigma = 1e3 if pr.height_sigma_m is None else pr.height_sigma_m
+        self.height_noise = (None if pr.height_sigma_m is None and pr.front_end_sigma_m is None
+                             else nm.Diagonal.Sigmas(np.array([xy_sigma, xy_sigma, z_sigma])))  # m
         self.start_pose_noise = nm.Diagonal.Sigmas(np.r_[np.full(3, np.deg2rad(pr.attitude_sigma_deg)),
                                                          np.full(3, pr.start_position_sigma_m)])  # rad, m
         self.start_velocity_noise = nm.Isotropic.Sigma(3, pr.start_velocity_sigma_mps)  # m/s

@@ -1,0 +1,75 @@
+"""The front-end + back-end localizer (blenav.backend.localizer.BackendLocalizer, conf/localizer/backend.yaml):
+built from its config node like every method, it returns the smoothed trajectory and the beacon map."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("gtsam")
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    from helpers import simulate_small
+
+    return simulate_small(tmp_path_factory.mktemp("loc") / "sim", 5, 60.0, 1)
+
+
+def _method(data):
+    from blenav.configs import compose
+    from blenav.eval.harness import shared_settings
+    from blenav.localizers import build_localizer
+
+    cfg = compose("eval", "experiment=frontend_000", f"data={data}", "+localizer@methods.B-end=backend")
+    return build_localizer("B-end", cfg.methods["B-end"], shared_settings(cfg))
+
+
+def test_backend_localizer_smooths_every_run_and_maps_the_beacons(sim):
+    from blenav.data import Dataset
+    from blenav.filters.calibration import fit_sessions
+
+    ds = Dataset.open(sim)
+    s = ds.session(ds.session_ids[0])
+    loc = _method(sim)
+    assert loc.wants_path_loss_fit()
+    loc.apply_path_loss_fit(fit_sessions([s]))
+    est = loc.run(s, 2, 0)
+    R, K = est.position.shape[:2]
+    assert (R, K) == (2, len(est.t))
+    assert np.isfinite(est.position).all()
+    for key in ("smoothed", "front_end", "bias", "beacon_map", "attitude", "backend_s"):
+        assert key in est.outputs, key
+    assert est.outputs["front_end"].shape == est.position.shape and est.outputs["bias"].shape == (R, K, 6)
+    bmap = est.outputs["beacon_map"]
+    assert list(bmap.columns[:5]) == ["anchor_id", "x", "y", "z", "std_m"]
+    assert set(bmap["anchor_id"]) == set(s.building.anchors_of("ble")["anchor_id"])
+    assert not est.outputs["backend_failures"], est.outputs["backend_failures"]
+    # the two runs' front-ends differ, so do their smoothed trajectories
+    assert not np.allclose(est.position[0], est.position[1])
+    gt = s.positions_at(est.t)
+    rmse = lambda p: float(np.sqrt(np.mean(np.sum((p - gt) ** 2, -1))))  # noqa: E731
+    print("RMSE front-end", [round(rmse(p), 2) for p in est.outputs["front_end"]], "smoothed",
+          [round(rmse(p), 2) for p in est.position], "back-end s", np.round(est.outputs["backend_s"], 2))
+    assert max(rmse(p) for p in est.position) < 6.0
+
+
+def test_backend_localizer_without_imu_is_skipped_not_failed(tmp_path):
+    from helpers import make_tiny_dataset
+
+    from blenav.data import Dataset
+    from blenav.localizers import MissingStream
+
+    root = make_tiny_dataset(tmp_path / "tiny")
+    (root / "sessions" / "walk0" / "imu.csv").unlink()
+    s = Dataset.open(root).session("walk0")
+    with pytest.raises(MissingStream, match="IMU"):
+        _method(root).run(s, 1, 0)
+
+
+def test_a_misspelt_backend_setting_names_the_method():
+    from blenav.backend.localizer import BackendLocalizer
+
+    with pytest.raises(ValueError, match="method 'B-end', backend: .*sigm"):
+        BackendLocalizer("B-end", None, front_end={"motion": {"_target_": "blenav.filters.motion.RandomWalk"}},
+                         backend={"range": {"sigm": 3}})
