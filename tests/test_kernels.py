@@ -237,3 +237,66 @@ def test_gather_rows():
     ref[runs] = np.take_along_axis(ref[runs], idx[..., None], axis=1)
     K.gather_rows(x, runs, idx)
     assert np.array_equal(x, ref)
+
+
+@pytest.fixture(scope="module")
+def small_geometry(tmp_path_factory):
+    from blenav.cli.sim import run as sim_run
+    from blenav.configs import compose
+    from blenav.data.building import Building
+    from blenav.filters.map import MapGeometry
+
+    out = tmp_path_factory.mktemp("kernels") / "small"
+    sim_run(compose("sim", "sim=small", "seed=0", f"out={out}", "duration_s=2", "sessions=1", "progress=false"))
+    return MapGeometry.from_building(Building.load(out / "buildings" / "small"), 0)
+
+
+def _points(ix, n, seed):
+    rng = np.random.default_rng(seed)
+    x0, y0, x1, y1 = ix.x0, ix.y0, ix.x0 + ix.nx * ix.cell, ix.y0 + ix.ny * ix.cell
+    xy = np.column_stack([rng.uniform(x0 - 3, x1 + 3, n), rng.uniform(y0 - 3, y1 + 3, n)])
+    xy[0] = np.nan
+    xy[1, 1] = np.nan
+    xy[2] = (1e30, -1e30)
+    return xy
+
+
+def test_grid_cells_and_project_shrunk(small_geometry):
+    ix = small_geometry.get_index("grid", 3.0, 1.0)
+    xy = _points(ix, 20000, 1)
+    with np.errstate(invalid="ignore"):
+        assert np.array_equal(ix._cells(xy), ix._cells_numpy(xy))
+    assert np.array_equal(ix.room_of(xy), ix.room_of_numpy(xy))
+    assert (ix.room_of(xy) >= 0).sum() > 1000
+    k = np.random.default_rng(2).integers(0, len(ix.rooms), len(xy))
+    assert np.array_equal(ix.project_shrunk(xy, k), ix.project_shrunk_numpy(xy, k), equal_nan=True)
+
+
+def test_obstacle_snap(small_geometry):
+    from blenav.data.building import FREE, OCCUPIED
+
+    m = small_geometry
+    fl = m.floor
+    xy = _points(m.get_index("grid", 3.0, 1.0), 20000, 3)
+    c = np.random.default_rng(4).integers(0, 4, len(xy)).astype(np.int8)
+    with np.errstate(invalid="ignore"):
+        occupied = fl.lookup(xy, outside=FREE) == OCCUPIED
+        ref = m.snap_free(xy, only=(c > 0) | occupied)
+    ox, oy, res = float(fl.origin[0]), float(fl.origin[1]), float(fl.resolution)
+    got = xy.copy()
+    bad = K.obstacle_candidates(got, c, fl.occupancy, ox, oy, res, FREE, OCCUPIED)
+    K.snap_to_free(got, bad, ox, oy, res, fl.shape[0], fl.shape[1], m.nearest_free_pixels())
+    assert bad.sum() > 100
+    assert np.array_equal(got, ref, equal_nan=True)
+
+
+def test_inverse_cdf_unsorted_rows():
+    """Cumulative sums that overshoot 1 before the last weight (set to 1.0): numpy's own search path."""
+    from blenav.filters import resampling as RS
+
+    rng = np.random.default_rng(12)
+    w = np.full((3, 10), 0.1)
+    w[1, -1] = 0.0
+    w[1, -2] += 1e-15  # cumsum passes 1.0 before the end
+    for u in (np.sort(rng.random((3, 10)), axis=1), rng.random((3, 10)), np.full((3, 10), 1 - 1e-16)):
+        assert np.array_equal(K.inverse_cdf(w, u), RS._inverse_cdf_numpy(w, u))

@@ -181,7 +181,7 @@ class ParticleFilter:
 
     def step(self, t: float, ctrl: dict, obs: dict) -> StepResult:
         dt = max(t - self.t, 1e-6)
-        xy_prev = self.x[..., :2].copy()
+        xy_prev = self.x[..., :2].copy() if self.constraints else None  # only the constraints read it
         self.x = self.motion.propagate(self.x, ctrl, dt, self.rng)
         penalty = None  # the constraints' log-weight terms (R, N)
         for c in self.constraints:

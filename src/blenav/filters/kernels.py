@@ -328,6 +328,13 @@ def inverse_cdf(w, u):
             arr[r * N + j] = arr[r * N + j] + off
     out = np.empty((R, M), np.int64)
     n = R * N
+    # sorted (numpy's order): the answer (first index with key < arr[i]) is unique, and ascending keys (the
+    # systematic and stratified schemes) are found galloping forward; else numpy's own search path
+    monotone = True
+    for i in range(n - 1):
+        if _less(arr[i + 1], arr[i]):
+            monotone = False
+            break
     min_idx = 0
     max_idx = n
     last = u[0, 0] + 0.0 if R * M else 0.0
@@ -337,9 +344,19 @@ def inverse_cdf(w, u):
             key = u[r, k] + off
             if not _less(key, last):  # cmp(last, key) for side='right': last <= key
                 max_idx = n
+                if monotone:  # the answer is >= the previous one: gallop forward from it, then bisect
+                    b = 1
+                    hi = min_idx
+                    while hi < n and not _less(key, arr[hi]):  # arr[hi] <= key: the answer is > hi
+                        min_idx = hi + 1
+                        hi = min_idx + b
+                        b *= 2
+                    max_idx = hi if hi < n else n
             else:
                 min_idx = 0
                 max_idx = max_idx + 1 if max_idx < n else n
+                if monotone:
+                    max_idx = n
             last = key
             while min_idx < max_idx:
                 mid = min_idx + ((max_idx - min_idx) >> 1)
@@ -441,3 +458,172 @@ def grid_nearest_edge(xy, x0, y0, cell, nx, ny, cell_edges, segs, max_d2):
             dist[p] = np.sqrt(best)
             idx[p] = be
     return proj, dist, idx
+
+
+@njit(cache=True)
+def grid_cells(xy, x0, y0, cell, nx, ny):
+    """GridIndex._cells: cell id iy nx + ix of each point (P, 2), -1 off the grid (and for NaN)."""
+    P = xy.shape[0]
+    out = np.empty(P, np.int64)
+    for p in range(P):
+        fx = np.floor((xy[p, 0] - x0) / cell)
+        fy = np.floor((xy[p, 1] - y0) / cell)
+        if fx >= 0 and fx < nx and fy >= 0 and fy < ny:
+            out[p] = int(fy) * nx + int(fx)
+        else:
+            out[p] = -1
+    return out
+
+
+@njit(cache=True)
+def project_rings(xy, k, segs):
+    """GridIndex.project_shrunk: the closest point of room k[p]'s shrunk boundary segments segs[k[p]] (S, 2, 2,
+    NaN padded) to each point (project_segments' arithmetic; argmin's first minimum, NaN distances as inf)."""
+    P = xy.shape[0]
+    S = segs.shape[1]
+    out = np.empty((P, 2))
+    for p in range(P):
+        x = xy[p, 0]
+        y = xy[p, 1]
+        kk = k[p]
+        best = np.inf
+        bx = 0.0
+        by = 0.0
+        for j in range(S):
+            ax = segs[kk, j, 0, 0]
+            ay = segs[kk, j, 0, 1]
+            dx = segs[kk, j, 1, 0] - ax
+            dy = segs[kk, j, 1, 1] - ay
+            px = x - ax
+            py = y - ay
+            dd = dx * dx + dy * dy
+            t = (px * dx + py * dy) / (dd if dd > 0 else 1.0)
+            if t < 0.0:
+                t = 0.0
+            elif t > 1.0:
+                t = 1.0
+            qx = ax + t * dx
+            qy = ay + t * dy
+            rx = x - qx
+            ry = y - qy
+            d2 = rx * rx + ry * ry
+            if d2 != d2:
+                d2 = np.inf
+            if j == 0 or d2 < best:
+                best = d2
+                bx = qx
+                by = qy
+        out[p, 0] = bx
+        out[p, 1] = by
+    return out
+
+
+_INT64_MIN = -9223372036854775808
+
+
+@njit(cache=True, inline="always")
+def _np_int(f):
+    """float -> int64 as numpy's astype(np.int64) gives it on x86-64: INT64_MIN for NaN and out of range."""
+    if f >= -9.223372036854775808e18 and f < 9.223372036854775808e18:
+        return np.int64(f)
+    return np.int64(_INT64_MIN)
+
+
+@njit(cache=True, inline="always")
+def _pixel(x, y, ox, oy, res, h):
+    """Floor.world_to_pixel for one point: (row, col), possibly off the image (a negative row where numpy's
+    (h - 1) - INT64_MIN wraps around)."""
+    col = _np_int(np.floor((x - ox) / res))
+    iy = _np_int(np.floor((y - oy) / res))
+    row = np.int64(-1) if iy == _INT64_MIN else (h - 1) - iy
+    return row, col
+
+
+@njit(cache=True)
+def obstacle_candidates(xy, case, occupancy, ox, oy, res, free, occupied):
+    """MapGeometry.condition's step 5 selection: (P,) bool, the points snap_free would move: not in a FREE
+    pixel (off the image counts as not free) and (conditioned (case > 0) or in an OCCUPIED pixel)."""
+    h, w = occupancy.shape
+    P = xy.shape[0]
+    out = np.zeros(P, np.bool_)
+    for p in range(P):
+        row, col = _pixel(xy[p, 0], xy[p, 1], ox, oy, res, h)
+        if row >= 0 and row < h and col >= 0 and col < w:
+            v = occupancy[row, col]
+            out[p] = v != free and (case[p] > 0 or v == occupied)
+        else:  # off the image: not free (snap_free), not occupied (lookup(outside=FREE))
+            out[p] = case[p] > 0
+    return out
+
+
+@njit(cache=True)
+def snap_to_free(xy, bad, ox, oy, res, h, w, nearest_free):
+    """MapGeometry.snap_free for the points ``bad``: moved (in place) into the nearest free pixel (nearest_free
+    (2, H, W): its row and column per pixel), clipped 1e-3 pixel inside it; off-image points use the
+    nearest image pixel."""
+    eps = 1e-3 * res
+    for p in range(xy.shape[0]):
+        if not bad[p]:
+            continue
+        x = xy[p, 0]
+        y = xy[p, 1]
+        r, c = _pixel(x, y, ox, oy, res, h)
+        r = 0 if r < 0 else (h - 1 if r > h - 1 else r)
+        c = 0 if c < 0 else (w - 1 if c > w - 1 else c)
+        fr = nearest_free[0, r, c]
+        fc = nearest_free[1, r, c]
+        cx0 = ox + fc * res
+        cy0 = oy + (h - 1 - fr) * res
+        lo = cx0 + eps
+        hi = cx0 + res - eps
+        if x == x:
+            xy[p, 0] = hi if (x if x > lo else lo) > hi else (x if x > lo else lo)
+        lo = cy0 + eps
+        hi = cy0 + res - eps
+        if y == y:
+            xy[p, 1] = hi if (y if y > lo else lo) > hi else (y if y > lo else lo)
+
+
+@njit(cache=True)
+def grid_room_pairs(cid, cell_full_room, cell_rooms):
+    """GridIndex.room_of, the grid part: (out (P,) the room of points in a cell wholly inside one room, -1
+    otherwise; pi, rid: the (point, candidate room) pairs left to a point-in-polygon test, by point, rooms
+    ascending)."""
+    P = cid.shape[0]
+    K = cell_rooms.shape[1]
+    out = np.full(P, -1, np.int64)
+    n = 0
+    for p in range(P):
+        c = cid[p]
+        if c >= 0:
+            f = cell_full_room[c]
+            if f >= 0:
+                out[p] = f
+            else:
+                for k in range(K):
+                    if cell_rooms[c, k] >= 0:
+                        n += 1
+    pi = np.empty(n, np.int64)
+    rid = np.empty(n, np.int64)
+    n = 0
+    for p in range(P):
+        c = cid[p]
+        if c >= 0 and cell_full_room[c] < 0:
+            for k in range(K):
+                r = cell_rooms[c, k]
+                if r >= 0:
+                    pi[n] = p
+                    rid[n] = r
+                    n += 1
+    return out, pi, rid
+
+
+@njit(cache=True)
+def lowest_inside(out, pi, rid, inside):
+    """out[p] = the lowest room id r of the pairs (p, r) with inside, for the points that have pairs (-1 if
+    none is inside)."""
+    for j in range(pi.shape[0]):
+        out[pi[j]] = -1
+    for j in range(pi.shape[0] - 1, -1, -1):
+        if inside[j]:
+            out[pi[j]] = rid[j]

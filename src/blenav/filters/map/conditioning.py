@@ -19,6 +19,8 @@ import numpy as np
 
 from blenav.data.building import FREE, OCCUPIED
 
+from .. import kernels as K
+
 if TYPE_CHECKING:
     from .geometry import MapGeometry
 
@@ -100,9 +102,12 @@ def condition(m: MapGeometry, x_xy: np.ndarray, rng: np.random.Generator, sigma:
         out[rest[hit]] = proj[hit]
         c[rest[hit]] = CASE_TO_EDGE
     # 5. obstacles
-    if obstacle == "project":
-        occupied = m.floor.lookup(out, outside=FREE) == OCCUPIED
-        out = m.snap_free(out, only=(c > CASE_FAR) | occupied)
+    if obstacle == "project":  # compiled: the points and numbers of m.snap_free(out, only=(c > CASE_FAR) | occupied)
+        fl = m.floor
+        ox, oy, res = float(fl.origin[0]), float(fl.origin[1]), float(fl.resolution)
+        bad = K.obstacle_candidates(out, c, fl.occupancy, ox, oy, res, FREE, OCCUPIED)
+        if bad.any():
+            K.snap_to_free(out, bad, ox, oy, res, fl.shape[0], fl.shape[1], m.nearest_free_pixels())
     flat[sel] = out
     case[sel] = c
     x[..., :2] = flat.reshape(lead + (2,))

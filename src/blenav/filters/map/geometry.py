@@ -182,6 +182,14 @@ class MapGeometry:
         flat = xy[..., :2].reshape(-1, 2)
         return self.get_index(index, max_edge_dist).room_of(flat).reshape(xy.shape[:-1])
 
+    def nearest_free_pixels(self) -> np.ndarray:
+        """(2, H, W) int32: row and column of the nearest FREE pixel of every pixel (Euclidean distance
+        transform, computed once)."""
+        if self._nearest_free is None:
+            _, ind = ndimage.distance_transform_edt(~self.floor.free_mask, return_indices=True)
+            self._nearest_free = ind.astype(np.int32)
+        return self._nearest_free
+
     def snap_free(self, xy: np.ndarray, only: np.ndarray | None = None) -> np.ndarray:
         """Move points whose pixel is not FREE (restricted to ``only`` if given) to the nearest point of the
         nearest free pixel; off-image points are first clipped onto the image. Returns a new array."""
@@ -193,15 +201,12 @@ class MapGeometry:
         if not bad.any():
             return xy
         fl = self.floor
-        if self._nearest_free is None:
-            blocked = ~fl.free_mask
-            _, ind = ndimage.distance_transform_edt(blocked, return_indices=True)
-            self._nearest_free = ind.astype(np.int32)
         h, w = fl.shape
         pts = p[bad]
         row, col = fl.world_to_pixel(pts)
         row, col = np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)
-        fr, fc = self._nearest_free[0, row, col], self._nearest_free[1, row, col]
+        nf = self.nearest_free_pixels()
+        fr, fc = nf[0, row, col], nf[1, row, col]
         res, (ox, oy) = fl.resolution, fl.origin
         eps = 1e-3 * res
         cx0 = ox + fc * res

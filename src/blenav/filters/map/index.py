@@ -113,6 +113,11 @@ class GridIndex(SpatialIndex):
                       "rooms_per_cell_mean": float(n_cand.mean()), "rooms_per_cell_max": int(n_cand.max())}
 
     def _cells(self, xy):
+        # compiled (kernels.grid_cells): the ids of _cells_numpy
+        return K.grid_cells(np.ascontiguousarray(xy, dtype=float), float(self.x0), float(self.y0), float(self.cell),
+                            int(self.nx), int(self.ny))
+
+    def _cells_numpy(self, xy):
         ix = np.floor((xy[:, 0] - self.x0) / self.cell).astype(np.int64)
         iy = np.floor((xy[:, 1] - self.y0) / self.cell).astype(np.int64)
         ok = (ix >= 0) & (ix < self.nx) & (iy >= 0) & (iy < self.ny)
@@ -153,6 +158,16 @@ class GridIndex(SpatialIndex):
         return proj, dist, idx
 
     def room_of(self, xy):
+        # compiled grid part (kernels.grid_room_pairs / lowest_inside), shapely for the point-in-polygon
+        # tests: the rooms of room_of_numpy
+        xy = np.ascontiguousarray(xy, dtype=float)
+        out, pi, rid = K.grid_room_pairs(self._cells(xy), self.cell_full_room, self.cell_rooms)
+        if len(pi) and len(self.rooms):
+            inside = shapely.contains_xy(self.rooms[rid], xy[pi, 0], xy[pi, 1])
+            K.lowest_inside(out, pi, rid, inside)
+        return out
+
+    def room_of_numpy(self, xy):
         P = len(xy)
         out = np.full(P, -1, dtype=np.int64)
         cid = self._cells(xy)
@@ -186,6 +201,11 @@ class GridIndex(SpatialIndex):
         return res
 
     def project_shrunk(self, xy, k):
+        # compiled (kernels.project_rings): the points of project_shrunk_numpy
+        return K.project_rings(np.ascontiguousarray(xy, dtype=float), np.ascontiguousarray(k, dtype=np.int64),
+                               np.ascontiguousarray(self.shrunk.segs, dtype=float))
+
+    def project_shrunk_numpy(self, xy, k):
         s = self.shrunk.segs[k]  # (P, S, 2, 2), NaN padded
         q, d2 = project_segments(xy[:, None, :], s[:, :, 0], s[:, :, 1])
         d2 = np.where(np.isnan(d2), np.inf, d2)
