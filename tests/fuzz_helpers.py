@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import yaml
-from hypothesis import HealthCheck, settings
+from hypothesis import HealthCheck, Phase, settings
 from hypothesis import strategies as st
 
 from blenav.data import Dataset, DatasetError, validate
@@ -49,6 +49,7 @@ from helpers import make_tiny_dataset
 
 _N = os.environ.get("BLENAV_FUZZ_EXAMPLES")
 _COMMON = dict(derandomize=True, database=None, deadline=None, print_blob=True,
+               phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.shrink],  # no 'explain': minutes here
                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
                                       HealthCheck.data_too_large])
 settings.register_profile("blenav-ci", max_examples=int(_N or 20), **_COMMON)
@@ -522,8 +523,9 @@ def f_bad_cell(root, f, column, row, token):
     r = row % _n_rows(root, f)
     _set_cells(root, f, {(r, column): token})
     if column == "anchor_id" and token.strip():
-        # a non-empty text is an id: in rssi/rtt an unknown anchor (dropped and counted)
-        return Outcome(REFUSED if f.endswith("anchors.csv") else DROPPED, dropped=1)
+        # a non-empty text is an id: in rssi/rtt an unknown anchor (dropped and counted); in anchors.csv another
+        # anchor (the rows of the old id are dropped and counted, or it is a duplicate)
+        return Outcome(ANY) if f.endswith("anchors.csv") else Outcome(DROPPED, dropped=1)
     if column in ("anchor_id", "kind", "floor"):
         return Outcome(REFUSED)
     return Outcome(REFUSED, frozenset({"non-finite", "not-a-number"}))
@@ -640,6 +642,42 @@ def f_huge_position(root, f, row, column, value):
     r = row % _n_rows(root, f)
     _set_cells(root, f, {(r, column): value})
     return Outcome(ANY)
+
+
+def f_keep_rows(root, f, k):
+    """Only the first ``k`` rows of a stream (a recording that stopped at once, a single survey point)."""
+    p = root / f
+    ls = _lines(p)
+    _write_lines(p, ls[: 1 + k])
+    return Outcome(ANY)
+
+
+def f_one_time(root, f, value):
+    """Every row of a stream at the same time."""
+    p = root / f
+    header, rows = _rows(p)
+    _write_rows(p, header, [r[:header.index("t")] + [value] + r[header.index("t") + 1:] for r in rows])
+    return Outcome(ANY)
+
+
+def f_image(root, kind):
+    """The floor image replaced: the same pixels in RGB (converted, with a warning), 16-bit, 1 x 1 px, or
+    inverted without ``negate``."""
+    from PIL import Image
+
+    p = root / B / "floor_0.png"
+    im = Image.open(p)
+    a = np.asarray(im)
+    if kind == "rgb":
+        im.convert("RGB").save(p)
+        return Outcome(ANY)
+    if kind == "16bit":
+        Image.fromarray(a.astype(np.uint16) * 257).save(p)
+    elif kind == "tiny":
+        Image.fromarray(a[:1, :1]).save(p)
+    else:
+        Image.fromarray(255 - a).save(p)
+    return Outcome(REFUSED)
 
 
 # --------------------------------------------------------------------------- strategies
@@ -765,6 +803,9 @@ def bad_faults():
                   st.sampled_from(["x", "y", "z"]), st.sampled_from(["1e300", "-1e300", "1e9", "-5e4"])),
         st.builds(lambda r, v: Fault("anchor_value", f_anchor_value, (r, "tx_power_dbm", v)), _pos,
                   st.sampled_from(["1e300", "-1e300", "0", "20", "-200"])),
+        st.builds(lambda f, k: Fault("keep_rows", f_keep_rows, (f, k)), streams, st.integers(0, 3)),
+        st.builds(lambda f, v: Fault("one_time", f_one_time, (f, v)), streams, st.sampled_from(["0", "5.0", "19.9"])),
+        st.builds(lambda k: Fault("image", f_image, (k,)), st.sampled_from(["rgb", "16bit", "tiny", "inverted"])),
         st.builds(lambda f, r, c, v: Fault("huge_position", f_huge_position, (f, r, c, v)),
                   st.sampled_from([f"{S}/groundtruth.csv", f"{S}/visual.csv", f"{S}/fixes.csv",
                                    f"{S}/odometry.csv"]), _pos, st.sampled_from(["x", "y"]),

@@ -23,6 +23,7 @@ import contextlib
 import io
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from hypothesis import event, given, settings
@@ -336,3 +337,17 @@ def test_a_yaml_file_cut_in_its_last_line_is_refused(tiny_dataset, file, cut):
     assert ("truncated", file, n) in _refused(tiny_dataset)
     p.write_text(text.rstrip("\n"))  # complete, but without its newline: the same rule, the same fix
     assert _errors(tiny_dataset) == {("truncated", file, n)}
+
+
+def test_an_inverted_floor_image_is_refused(tiny_dataset):
+    """Was: accepted (the inverted walls are free space, so 'floor-no-free-space' did not fire): the map methods
+    ran in a plan whose rooms were obstacles. Now the ground truth, on obstacles, says so."""
+    from PIL import Image
+
+    p = tiny_dataset / B / "floor_0.png"
+    Image.fromarray(255 - np.asarray(Image.open(p))).save(p)
+    assert _errors(tiny_dataset) == {("groundtruth-in-obstacles", f"{S}/groundtruth.csv", None)}
+    assert "inverted" in str([i for i in validate(tiny_dataset) if i.is_error][0])
+    p2 = tiny_dataset / B / "building.yaml"
+    p2.write_text(p2.read_text().replace("  free_thresh: 0.196\n", "  free_thresh: 0.196\n  negate: 1\n"))
+    assert _errors(tiny_dataset) == set()  # with negate: 1 it is the same plan

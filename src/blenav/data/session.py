@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .building import Building, Floor, _floor_key
+from .building import OCCUPIED, Building, Floor, _floor_key
 from .issues import MAX_ROWS_PER_RULE, Issue, error, raise_or_log, warning
 from .schema import (
     ANCHORED_STREAMS,
@@ -219,9 +219,19 @@ def groundtruth_off_floor(path: Path, gt: pd.DataFrame, floor: Floor, building_i
     if len(xy) == 0:
         return []
     x0, x1, y0, y1 = floor.extent
-    off = float(np.mean((xy[:, 0] < x0) | (xy[:, 0] > x1) | (xy[:, 1] < y0) | (xy[:, 1] > y1)))
+    outside = (xy[:, 0] < x0) | (xy[:, 0] > x1) | (xy[:, 1] < y0) | (xy[:, 1] > y1)
+    off = float(np.mean(outside))
     if off <= GT_OFF_FLOOR_MAX:
-        return []
+        # on the plan, a walk goes through free space: mostly on obstacles, the image is inverted (or the origin,
+        # resolution or thresholds are wrong). Real and simulated data: at most 2% on occupied pixels.
+        on = floor.lookup(xy[~outside])
+        occ = float(np.mean(on == OCCUPIED)) if len(on) else 0.0
+        if occ <= GT_OFF_FLOOR_MAX:
+            return []
+        return [error(path, "groundtruth-in-obstacles",
+                      f"{occ:.0%} of the ground truth on the floor plan of building {building_id} floor {floor.id!r} "
+                      f"lies on occupied pixels of {floor.image_path.name}: is the image inverted (negate: 1 in "
+                      "building.yaml), or are its origin, resolution or thresholds wrong?")]
     return [error(path, "groundtruth-off-floor",
                   f"{off:.0%} of the ground truth lies outside the floor plan of building {building_id} floor "
                   f"{floor.id!r} (x {x0:.1f}..{x1:.1f}, y {y0:.1f}..{y1:.1f} m); are 'building' and 'floor' in "

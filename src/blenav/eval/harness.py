@@ -301,7 +301,11 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
             raise EvalError(f"method {name}, session {s.id}: {exc}") from exc
         est, moved = confine(est, s.floor, snap_free=method.uses_floor_plan, cache=ctx.cache)  # stay on the floor
         gt = s.groundtruth
-        m = session_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), init_s)
+        try:
+            m = session_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), init_s)
+        except ValueError as exc:  # e.g. ground truth of one row, or all at one time: name the file
+            raise EvalError(f"method {name}, session {s.id}: {exc} ({s.root / 'groundtruth.csv'}: t "
+                            f"{gt['t'].min():g}..{gt['t'].max():g} s)") from exc
         m["confined"] = moved
         o = orientation_rmse(est, s)
         if o is not None:
