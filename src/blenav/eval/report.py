@@ -54,7 +54,8 @@ def _confined_lines(ms: dict) -> list[str]:
     for name, m in ms.items():
         c = m.get("confined")
         if c and (c["bbox"] or c["off_free"]):
-            moved = f", {c['free']} moved into free space" if c["free"] else " (a map-free method: not moved)"
+            moved = (f", {c['free']} moved into free space" if c["free"]
+                     else " (a map-free method: not moved)" if c["off_free"] else "")
             rows.append(f"- {name}: {c['bbox']} of {c['estimates']} estimates clamped to the plan's bounding box; "
                         f"{c['off_free']} off free space by more than 2 sigma{moved}")
     if not rows:
