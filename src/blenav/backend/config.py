@@ -187,8 +187,9 @@ class MappingConfig:
     max_walls: int = 5  # walls counted at most
     wall_passes: int = 3  # solves, each with the wall counts at the previous estimate (stops when < 1 % change)
     max_iterations: int = 100  # LM
+    relative_tol: float = 1.0e-4  # LM: stop when the error decreases by less than this fraction
     shadow_corr_m: float = 3.0  # m: cell size over which shadowing is taken as shared (stds: design effect)
-    std_scale: float = 2.0  # the stated std is this times the model's (measured on simulated walks, see mapping.py)
+    std_scale: float = 2.5  # the stated std is this times the model's (measured on simulated walks, see mapping.py)
 
 
 @dataclass
