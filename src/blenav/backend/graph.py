@@ -18,7 +18,8 @@ Factors, the terms of the MAP problem eq. (3) of 000, X* = argmin ||r_0||^2_{Sig
   range belongs to the keyframe nearest its time. Two departures from 000's "does not discard any
   measurements", both configurable (``range.gate_m``, ``range.combine``) and measured on the simulated
   384 s office (accurate map, LM at 2 Hz keyframes; front-end 3.44 m): every range as its own factor,
-  smoothed 3.81 m, beacons pulled 2.67 m off their (true) priors; gate + median, 1.36 m and 0.29 m.
+  smoothed 3.81 m, beacons pulled 2.67 m off their (true) priors; gate (7 m) + median, 1.36 m and 0.29 m
+  (the defaults, 5 m gate at 10 Hz keyframes: 1.53 m and 0.44 m).
   (i) a validation gate: a range is used only when the beacon's position (prior, or the previous pass's
   estimate) lies within ``gate_m`` of the keyframe's (front-end, or previous pass's) position. The 10 m
   clamp keeps a far beacon's reading only when it came out short (-5 m on average beyond 6 m), so ungated
@@ -30,8 +31,9 @@ Factors, the terms of the MAP problem eq. (3) of 000, X* = argmin ||r_0||^2_{Sig
   configured sigma), so every landmark is determined even when it is heard once;
 * ``PoseRotationPrior3D(X(k))``: the AHRS orientation (accelerometer + magnetometer heading) as a soft
   prior, isotropic sigma;
-* ``PoseTranslationPrior3D(X(k))`` on the world z only (x, y sigmas 1 km): the receiver's height above
-  the floor, which a walk keeps within decimetres (the IMU alone lets z drift);
+* ``PoseTranslationPrior3D(X(k))`` on the world z (x, y sigmas 1 km): the receiver's height above the
+  floor, which a walk keeps within decimetres (the IMU alone lets z drift); optionally
+  (``priors.front_end_sigma_m``, off by default as in 000) also x, y around the front-end's estimate;
 * priors on X(0), V(0), B(0) around the front-end's first estimate (Fig. 2 initialisation).
 
 Initial values come from the front-end (Fig. 2): positions (K, 2) and velocities, and the AHRS attitude.
@@ -42,9 +44,10 @@ the previous solution), :class:`~blenav.backend.config.Solver`. Cholesky by defa
 Cholesky fails (LM); beacon covariances from one iSAM2 elimination at the solution.
 
 Failures never reach the caller: :func:`smooth` returns a :class:`BackendResult` whose ``failures`` name
-the key (``describe_key``: 'beacon ble-003 (l3)', 'keyframe 17 at t=1.80 s (x17)') GTSAM's
-``IndeterminantLinearSystemException`` (a ``RuntimeError`` in Python) points at, and whose trajectory is
-the last good estimate followed by the front-end's values. Guards before solving: every beacon variable
+the key (``describe_key``: 'beacon ble-003 (l3)', 'pose of keyframe 17 at t=1.80 s (x17)') GTSAM's
+``IndeterminantLinearSystemException`` (a ``RuntimeError`` in Python) points at. A failed iSAM2 update
+hands the whole session to batch LM with QR (noted); where no estimate exists at all, the trajectory keeps
+the front-end's values. Guards before solving: every beacon variable
 has a prior; a beacon with fewer than ``range.min_ranges`` ranges keeps no range factor (its ranges are
 buffered, online, until it has enough; reported); non-finite inputs are dropped (reported); initial
 velocities are clipped to ``init.max_speed_mps`` (reported); a keyframe interval without IMU samples is
