@@ -19,7 +19,9 @@ from blenav.eval.harness import EvalError, evaluate
 from blenav.importers import run_import
 from helpers import simulate_small
 
-PAPER_KEYS = {"frontend_000": {"RW", "DR", "IMU"}, "mapfusion_002": {"PF-PL", "PF-PL+MAP", "PF-PS", "PF-PS+MAP"}}
+PAPER_KEYS = {"frontend_000": {"RW", "DR", "IMU"},
+              # the four rows of Patel et al.'s Table II and the self-calibrating receivers (blenav.filters.offset)
+              "mapfusion_002": {"PF-PL", "PF-PL+MAP", "PF-PS", "PF-PS+MAP", "PF-PL+offset", "PF-PS+MAP+offset"}}
 
 
 def cfg(*overrides):
@@ -193,7 +195,8 @@ def test_pf_pl_tracks_the_small_building_within_metres(small_walks, tmp_path):
     likelihood ignored (log-likelihood 0: particles only diffuse over the floor) the same runs give
     6.9-7.0 m, per walk 4.5-9.3 m, median 7.3 m: the bounds below fail then."""
     res = evaluate(cfg("experiment=mapfusion_002", f"data={small_walks}", "runs=3", f"out={tmp_path}", "init_s=5",
-                       "plots=false", "~methods.pf_ps", "~methods.pf_ps_map"))
+                       "plots=false", "~methods.pf_ps", "~methods.pf_ps_map", "~methods.pf_pl_offset",
+                       "~methods.pf_ps_map_offset"))
     assert set(res["methods"]) == {"PF-PL", "PF-PL+MAP"} and len(res["sessions"]) == 2
     for name, m in res["methods"].items():
         assert m["rmse_m"]["n"] == 6, name
