@@ -680,6 +680,63 @@ def f_image(root, kind):
     return Outcome(REFUSED)
 
 
+GEOJSON_FAULTS = ["nan", "inf", "huge", "far", "bowtie", "two-points", "one-point", "point", "null-geometry",
+                  "no-features", "features-null", "floor-list", "id-list", "no-properties", "text-coordinates"]
+
+
+def f_geojson(root, f, kind, i):
+    """One feature of rooms.geojson or navgraph.geojson broken (or merely odd: no features, a room far away)."""
+    import json
+
+    p = root / f
+    doc = json.loads(p.read_text(encoding="utf-8"))
+    feats = doc["features"]
+    feat = feats[i % len(feats)]
+    g = feat["geometry"]
+    ring = g["coordinates"][0] if g["type"] == "Polygon" else g["coordinates"]
+    expect = REFUSED
+    if kind in ("nan", "inf", "huge"):
+        ring[0][0] = {"nan": float("nan"), "inf": float("inf"), "huge": 1e300}[kind]
+        if g["type"] == "Polygon":
+            ring[-1][0] = ring[0][0]
+    elif kind == "far":  # a room or route 100 km away: valid GeoJSON, not on the floor ('geojson-off-floor')
+        for pt in ring:
+            pt[0] += 1e5
+        if g["type"] == "Polygon":
+            ring[-1] = list(ring[0])
+    elif kind == "bowtie":  # a self-intersecting polygon (a route may cross itself)
+        if g["type"] == "Polygon":
+            ring[1], ring[2] = ring[2], ring[1]
+        else:
+            expect = ANY
+    elif kind == "two-points":
+        g["coordinates"] = [ring[:2] + [ring[0]]] if g["type"] == "Polygon" else ring[:2]
+        expect = ANY if g["type"] != "Polygon" else REFUSED
+    elif kind == "one-point":
+        g["coordinates"] = [ring[:1]] if g["type"] == "Polygon" else ring[:1]
+    elif kind == "point":
+        feat["geometry"] = {"type": "Point", "coordinates": ring[0]}
+    elif kind == "null-geometry":
+        feat["geometry"] = None
+    elif kind == "no-features":
+        doc["features"] = []
+        expect = ANY
+    elif kind == "features-null":
+        doc["features"] = None
+        expect = ANY
+    elif kind == "floor-list":
+        feat["properties"]["floor"] = [0]
+    elif kind == "id-list":
+        feat["properties"]["id"] = ["a", "b"]
+        expect = ANY
+    elif kind == "no-properties":
+        feat["properties"] = None
+    else:  # text-coordinates
+        ring[0][0] = "x"
+    p.write_text(json.dumps(doc, allow_nan=True), encoding="utf-8")  # NaN and Infinity, as Python writes them
+    return Outcome(expect)
+
+
 # --------------------------------------------------------------------------- strategies
 
 _pos = st.integers(0, 10**6)
@@ -806,6 +863,8 @@ def bad_faults():
         st.builds(lambda f, k: Fault("keep_rows", f_keep_rows, (f, k)), streams, st.integers(0, 3)),
         st.builds(lambda f, v: Fault("one_time", f_one_time, (f, v)), streams, st.sampled_from(["0", "5.0", "19.9"])),
         st.builds(lambda k: Fault("image", f_image, (k,)), st.sampled_from(["rgb", "16bit", "tiny", "inverted"])),
+        st.builds(lambda f, k, i: Fault("geojson", f_geojson, (f, k, i)), st.sampled_from(JSON_FILES),
+                  st.sampled_from(GEOJSON_FAULTS), st.integers(0, 3)),
         st.builds(lambda f, r, c, v: Fault("huge_position", f_huge_position, (f, r, c, v)),
                   st.sampled_from([f"{S}/groundtruth.csv", f"{S}/visual.csv", f"{S}/fixes.csv",
                                    f"{S}/odometry.csv"]), _pos, st.sampled_from(["x", "y"]),

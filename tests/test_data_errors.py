@@ -352,7 +352,8 @@ SAME_RULE = [
     # check_session_in_building of the harness, now a data rule
     ("groundtruth-off-floor", _gt_shift(30.0), "groundtruth-off-floor", f"{S}/groundtruth.csv", None),
     ("wrong-floor-size-groundtruth", lambda r: (_resolution(0.02)(r), (r / B / "anchors.csv").unlink(),
-                                                (r / S / "rssi.csv").unlink()),
+                                                (r / S / "rssi.csv").unlink(), (r / B / "rooms.geojson").unlink(),
+                                                (r / B / "navgraph.geojson").unlink()),  # (else: geojson-off-floor)
      "groundtruth-off-floor", f"{S}/groundtruth.csv", None),
 ]
 

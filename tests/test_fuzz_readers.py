@@ -351,3 +351,54 @@ def test_an_inverted_floor_image_is_refused(tiny_dataset):
     p2 = tiny_dataset / B / "building.yaml"
     p2.write_text(p2.read_text().replace("  free_thresh: 0.196\n", "  free_thresh: 0.196\n  negate: 1\n"))
     assert _errors(tiny_dataset) == set()  # with negate: 1 it is the same plan
+
+
+def test_a_yaml_alias_bomb_is_refused_at_once(tiny_dataset):
+    """Was: a hang. Ten lines of aliases of aliases ('billion laughs') expand to 9**9 values: the reader's
+    str() of the session's building never returned."""
+    lines = ['a0: &a0 ["x","x","x","x","x","x","x","x","x"]'] + [
+        f"a{i}: &a{i} [" + ",".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, 10)]
+    p = tiny_dataset / S / "session.yaml"
+    p.write_text("\n".join(lines) + "\n" + p.read_text().replace("building: house", "building: *a9"))
+    assert _errors(tiny_dataset) == {("yaml-size", f"{S}/session.yaml", None)}
+
+
+@pytest.mark.parametrize("file, text", [(f"{S}/session.yaml", "a: " + "[" * 100000 + "\n"),
+                                        (f"{B}/rooms.geojson", "[" * 100000)])
+def test_thousands_of_nested_brackets_are_a_syntax_error(tiny_dataset, file, text):
+    """Was: RecursionError from PyYAML or json (a traceback, not a ValueError)."""
+    (tiny_dataset / file).write_text(text)
+    ((rule, f, _),) = _errors(tiny_dataset)
+    assert rule in ("yaml-syntax", "json-syntax") and f == file
+
+
+@pytest.mark.parametrize("file, value, i", [(f"{B}/rooms.geojson", "NaN", 0), (f"{B}/rooms.geojson", "Infinity", 1),
+                                            (f"{B}/navgraph.geojson", "NaN", 0),
+                                            (f"{B}/navgraph.geojson", "-Infinity", 0)])
+def test_geojson_coordinates_that_are_not_finite_are_refused(tiny_dataset, file, value, i):
+    """Was: accepted (Python's json reads NaN and Infinity); the evaluation then failed in GEOS with a traceback
+    (rooms, Infinity) or with 'Probabilities contain NaN' naming no file (routes, Infinity)."""
+    import json
+
+    p = tiny_dataset / file
+    doc = json.loads(p.read_text())
+    doc["features"][i]["geometry"]["coordinates"][0][0] = float(value)
+    p.write_text(json.dumps(doc))
+    assert _errors(tiny_dataset) == {("geojson-coordinates", file, None)}
+    assert f"features[{i}]" in str(validate(tiny_dataset)[0])
+
+
+def test_geojson_far_off_the_plan_or_invalid_is_refused(tiny_dataset):
+    """Was: accepted; a room corner at x = 1e300 failed the evaluation with 'Maximum allowed size exceeded' (its
+    1 m grid), naming no file; a zero-area or self-intersecting room was used as a room."""
+    import json
+
+    p = tiny_dataset / B / "rooms.geojson"
+    clean = p.read_text()
+    for change, rule in [(lambda r: r[0].__setitem__(0, 1e300), "geojson-off-floor"),
+                         (lambda r: r.__setitem__(slice(None), [r[0], r[1], r[0]]), "geojson-coordinates"),
+                         (lambda r: r.__setitem__(slice(1, 3), [r[2], r[1]]), "geojson-coordinates")]:
+        doc = json.loads(clean)
+        change(doc["features"][0]["geometry"]["coordinates"][0])
+        p.write_text(json.dumps(doc))
+        assert _errors(tiny_dataset) == {(rule, f"{B}/rooms.geojson", None)}, change

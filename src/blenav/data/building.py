@@ -66,9 +66,35 @@ def load_yaml(path: Path) -> tuple[dict | None, list[Issue]]:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
         return None, [error(path, "yaml-syntax", str(getattr(exc, "problem", exc)), line=line)]
+    except RecursionError:  # '[[[[...' thousands deep: Python's parser gives up, so do we, in one line
+        return None, [error(path, "yaml-syntax", "nested too deeply to read (thousands of [ or { levels)")]
     if not isinstance(doc, dict):
         return None, [error(path, "yaml-not-mapping", "top level must be a mapping of keys to values")]
+    if _yaml_nodes_exceed(doc, YAML_MAX_NODES):
+        return None, [error(path, "yaml-size", f"the document expands to more than {YAML_MAX_NODES} values (YAML "
+                            "aliases repeating aliases?): no dataset file is that large")]
     return doc, []
+
+
+#: A YAML document that expands to more values than this is refused ('yaml-size'): a few lines of aliases of
+#: aliases expand to billions (a 'billion laughs'), and printing one value of it would never end.
+YAML_MAX_NODES = 1_000_000
+
+
+def _yaml_nodes_exceed(doc, budget: int) -> bool:
+    """Whether ``doc``, with its aliases expanded, has more than ``budget`` values (stops counting there)."""
+    stack, n = [doc], 0
+    while stack:
+        x = stack.pop()
+        n += 1
+        if n > budget:
+            return True
+        if isinstance(x, dict):
+            stack.extend(x.keys())
+            stack.extend(x.values())
+        elif isinstance(x, (list, tuple)):
+            stack.extend(x)
+    return False
 
 
 @dataclass
@@ -243,9 +269,9 @@ def load_building(root: Path, check_images: bool = True) -> tuple[Building | Non
     issues += ai
     if check_images and not any(i.is_error for i in ai):
         issues += check_anchors_on_floors(root / "anchors.csv", anchors, floors)
-    rooms, ri = _load_geojson(root / "rooms.geojson", declared, ("Polygon", "MultiPolygon"))
+    rooms, ri = _load_geojson(root / "rooms.geojson", declared, ("Polygon", "MultiPolygon"), check_images)
     issues += ri
-    routes, ni = _load_geojson(root / "navgraph.geojson", declared, ("LineString", "MultiLineString"))
+    routes, ni = _load_geojson(root / "navgraph.geojson", declared, ("LineString", "MultiLineString"), check_images)
     issues += ni
     b = Building(id=root.name, root=root, name=str(doc.get("name", root.name)), floors=floors,
                  anchors=anchors, rooms=rooms, navgraph=routes, meta=doc)
@@ -420,7 +446,8 @@ def _anchor_ranges(path: Path, df: pd.DataFrame) -> list[Issue]:
     return issues
 
 
-def _load_geojson(path: Path, floors: dict, kinds: tuple[str, ...]) -> tuple[list[Region], list[Issue]]:
+def _load_geojson(path: Path, floors: dict, kinds: tuple[str, ...], check_plan: bool = False
+                  ) -> tuple[list[Region], list[Issue]]:
     if not path.is_file():
         return [], []
     text, issues = read_text(path)  # a byte-order mark is not JSON, but is no reason to refuse a file
@@ -432,6 +459,8 @@ def _load_geojson(path: Path, floors: dict, kinds: tuple[str, ...]) -> tuple[lis
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
         return [], [error(path, "json-syntax", exc.msg, line=exc.lineno)]
+    except RecursionError:
+        return [], [error(path, "json-syntax", "nested too deeply to read (thousands of [ or { levels)")]
     if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection":
         return [], [error(path, "geojson-type", "top level must be a GeoJSON FeatureCollection")]
     out: list[Region] = []
@@ -464,9 +493,43 @@ def _load_geojson(path: Path, floors: dict, kinds: tuple[str, ...]) -> tuple[lis
         if g.is_empty:
             issues.append(error(path, "geojson-coordinates", "empty geometry", where=where))
             continue
+        bad = _geometry_problem(g)
+        if bad:
+            issues.append(error(path, "geojson-coordinates", bad, where=where))
+            continue
         if known and str(props["floor"]) not in known:
             issues.append(error(path, "geojson-floor", f"floor {props['floor']!r} is not a floor of building.yaml",
                                 where=where))
             continue
+        fl = floors.get(_floor_key(props["floor"], floors)) if check_plan else None
+        if isinstance(fl, Floor):
+            issues += _region_off_floor(path, where, g, fl)
         out.append(Region(id=str(props["id"]), floor=props["floor"], geometry=g, properties=props))
     return out, issues
+
+
+def _geometry_problem(g) -> str | None:
+    """Why a room or route cannot be used (coordinates not finite, a polygon that is not valid, a route of no
+    length), or None. Python's json reads NaN and Infinity; GEOS and the map methods cannot use them."""
+    import shapely
+
+    if not np.isfinite(shapely.get_coordinates(g)).all():
+        return "a coordinate is not a finite number (NaN or Infinity)"
+    if g.geom_type in ("Polygon", "MultiPolygon") and not g.is_valid:
+        return f"not a valid polygon ({shapely.is_valid_reason(g)}): a room is a simple ring of positive area"
+    if g.geom_type in ("LineString", "MultiLineString") and g.length <= 0:
+        return "a route of length zero"
+    return None
+
+
+def _region_off_floor(path: Path, where: str, g, floor: Floor) -> list[Issue]:
+    """A room or route further outside its floor's plan than an anchor may be (``anchor-off-floor``'s margin)."""
+    x0, x1, y0, y1 = floor.extent
+    bx0, by0, bx1, by1 = g.bounds
+    margin = max(ANCHOR_OFF_FLOOR_MIN_M, ANCHOR_OFF_FLOOR_FRAC * max(x1 - x0, y1 - y0))
+    dist = max(x0 - bx0, bx1 - x1, y0 - by0, by1 - y1, 0.0)
+    if dist <= margin:
+        return []
+    return [error(path, "geojson-off-floor", f"reaches {dist:.1f} m outside floor {floor.id!r}'s plan (x {x0:.1f}.."
+                  f"{x1:.1f}, y {y0:.1f}..{y1:.1f} m): are its coordinates in the building's metres, and the floor's "
+                  "resolution and origin right?", where=where)]
