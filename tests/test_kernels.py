@@ -300,3 +300,40 @@ def test_inverse_cdf_unsorted_rows():
     w[1, -2] += 1e-15  # cumsum passes 1.0 before the end
     for u in (np.sort(rng.random((3, 10)), axis=1), rng.random((3, 10)), np.full((3, 10), 1 - 1e-16)):
         assert np.array_equal(K.inverse_cdf(w, u), RS._inverse_cdf_numpy(w, u))
+
+
+def test_window_controls():
+    """steps._window_controls (Python floats) == the numpy expressions it replaced, bit for bit."""
+    from blenav.filters.steps import _window_controls, _window_controls_numpy
+
+    rng = np.random.default_rng(13)
+    for i in range(3000):
+        k = int(rng.integers(1, 25))
+        acc = rng.standard_normal((k, 3)) * 3 + [0, 0, 9.8]
+        q = rng.standard_normal((k, 4)) * rng.uniform(0.2, 3)
+        if i % 100 == 0:
+            acc[-1, 1] = np.nan
+        for mw in (1, 4, 5):
+            a, h = _window_controls(acc, q, mw)
+            b, g = _window_controls_numpy(acc, q, mw)
+            assert np.array_equal(a, b, equal_nan=True) and (h == g or (h != h and g != g))
+
+
+def test_log_normalise_and_ess():
+    from blenav.filters.resampling import ess, log_normalise
+
+    rng = np.random.default_rng(14)
+    for R, N in ((100, 300), (1, 1000), (3, 7), (2, 1), (4, 129)):
+        logw = rng.standard_normal((R, N)) * 30
+        logw[0, : N // 2] = -np.inf
+        if R > 2:
+            logw[1] = -np.inf  # all weights vanished: NaN row
+            logw[2, 0] = np.nan
+        m = np.max(logw, axis=1, keepdims=True)
+        with np.errstate(invalid="ignore"):
+            e = np.exp(logw - m)
+            s = e.sum(axis=1, keepdims=True)
+            w_ref, l_ref = e / s, (m + np.log(s))[:, 0]
+        w, lz = log_normalise(logw)
+        assert np.array_equal(w, w_ref, equal_nan=True) and np.array_equal(lz, l_ref, equal_nan=True)
+        assert np.array_equal(ess(w), 1.0 / np.sum(w_ref * w_ref, axis=1), equal_nan=True)

@@ -36,7 +36,7 @@ from typing import Optional
 
 import numpy as np
 
-from .kernels import duplicates, gather_rows, mean_cov
+from .kernels import add_loglik, duplicates, gather_rows, mean_cov, recover_checks
 from .resampling import ess, get_scheme, log_normalise
 
 
@@ -207,8 +207,7 @@ class ParticleFilter:
             loglik = loglik + penalty
             if loglik_div is not None:
                 loglik_div = loglik_div + penalty
-        self.logw = self.logw + loglik
-        self.logw[~np.isfinite(self.logw)] = -np.inf
+        self.logw = add_loglik(self.logw, loglik)  # compiled: logw + loglik, non-finite -> -inf
         self.t = t
         self._recover(t, loglik if loglik_div is None else loglik_div, n_obs)
         w, _ = log_normalise(self.logw)
@@ -247,9 +246,10 @@ class ParticleFilter:
 
     def _recover(self, t: float, loglik: np.ndarray, n_obs: int) -> None:
         """Re-initialise runs whose weights vanished or whose cloud no longer explains the data."""
-        dead = ~np.isfinite(self.logw).any(axis=1)
+        # compiled: ~isfinite(logw).any(axis=1) and np.max(np.where(np.isfinite(loglik), loglik, -inf), axis=1)
+        dead, best = recover_checks(self.logw, np.ascontiguousarray(loglik, dtype=float))
         if n_obs:
-            best = np.max(np.where(np.isfinite(loglik), loglik, -np.inf), axis=1) / n_obs
+            best = best / n_obs
             bad = best < -0.5 * self.cfg.divergence_sigma**2
             self._bad_since = np.where(bad, np.where(np.isnan(self._bad_since), t, self._bad_since), np.nan)
         diverged = np.isfinite(self._bad_since) & (t - self._bad_since >= self.cfg.patience_s)

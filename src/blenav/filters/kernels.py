@@ -627,3 +627,149 @@ def lowest_inside(out, pi, rid, inside):
     for j in range(pi.shape[0] - 1, -1, -1):
         if inside[j]:
             out[pi[j]] = rid[j]
+
+
+# ----------------------------------------------------------------------------------------- weights
+
+
+@njit(cache=True, inline="always")
+def _pairwise_block(a, lo, n):
+    """numpy's pairwise sum of a[lo:lo + n] for n <= 128: 8 accumulators, then the rest in order."""
+    if n < 8:
+        res = -0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True)
+def _pairwise(a, lo, n):
+    """numpy's pairwise summation of a[lo:lo + n] (what np.sum along a contiguous axis computes): blocks of
+    at most 128, halves (rounded down to a multiple of 8) added left + right. Its recursion is run on an
+    explicit stack (numba's cache does not support recursive functions)."""
+    if n <= 128:
+        return _pairwise_block(a, lo, n)
+    st_lo = np.empty(64, np.int64)
+    st_n = np.empty(64, np.int64)
+    st_phase = np.empty(64, np.int64)
+    st_left = np.empty(64)
+    sp = 0
+    st_lo[0], st_n[0], st_phase[0] = lo, n, 0
+    ret = 0.0
+    while sp >= 0:
+        fl, fn, ph = st_lo[sp], st_n[sp], st_phase[sp]
+        if fn <= 128:
+            ret = _pairwise_block(a, fl, fn)
+            sp -= 1
+            continue
+        n2 = fn // 2
+        n2 -= n2 % 8
+        if ph == 0:  # evaluate the left half
+            st_phase[sp] = 1
+            sp += 1
+            st_lo[sp], st_n[sp], st_phase[sp] = fl, n2, 0
+        elif ph == 1:  # left done (ret): evaluate the right half
+            st_left[sp] = ret
+            st_phase[sp] = 2
+            sp += 1
+            st_lo[sp], st_n[sp], st_phase[sp] = fl + n2, fn - n2, 0
+        else:  # both done
+            ret = st_left[sp] + ret
+            sp -= 1
+    return ret
+
+
+@njit(cache=True)
+def shift_by_row_max(logw):
+    """(logw - m, m): m (R,) the row maxima as np.max gives them (NaN if the row holds one)."""
+    R, N = logw.shape
+    m = np.empty(R)
+    d = np.empty((R, N))
+    for r in range(R):
+        v = logw[r, 0]
+        for j in range(1, N):
+            x = logw[r, j]
+            if v != v:
+                break
+            if x != x or x > v:
+                v = x
+        m[r] = v
+        for j in range(N):
+            d[r, j] = logw[r, j] - v
+    return d, m
+
+
+@njit(cache=True)
+def normalise_rows(e):
+    """In place e /= e.sum(axis=1, keepdims=True) (numpy's pairwise sums); returns the sums (R,)."""
+    R, N = e.shape
+    s = np.empty(R)
+    for r in range(R):
+        t = _pairwise(e[r], 0, N)
+        s[r] = t
+        for j in range(N):
+            e[r, j] = e[r, j] / t
+    return s
+
+
+@njit(cache=True)
+def ess_rows(w):
+    """1 / np.sum(w * w, axis=1): the effective sample size per row (numpy's pairwise sums)."""
+    R, N = w.shape
+    out = np.empty(R)
+    sq = np.empty(N)
+    for r in range(R):
+        for j in range(N):
+            sq[j] = w[r, j] * w[r, j]
+        out[r] = 1.0 / _pairwise(sq, 0, N)
+    return out
+
+
+@njit(cache=True)
+def add_loglik(logw, loglik):
+    """logw + loglik with every non-finite sum set to -inf (a new array)."""
+    R, N = logw.shape
+    out = np.empty((R, N))
+    for r in range(R):
+        for j in range(N):
+            v = logw[r, j] + loglik[r, j]
+            out[r, j] = v if (v - v) == 0.0 else -np.inf  # v - v is NaN for inf and NaN
+    return out
+
+
+@njit(cache=True)
+def recover_checks(logw, loglik):
+    """Per run: dead (no finite log-weight) and the best finite log-likelihood (-inf if none)."""
+    R, N = logw.shape
+    dead = np.empty(R, np.bool_)
+    best = np.empty(R)
+    for r in range(R):
+        alive = False
+        b = -np.inf
+        for j in range(N):
+            if (logw[r, j] - logw[r, j]) == 0.0:
+                alive = True
+            v = loglik[r, j]
+            if (v - v) == 0.0 and v > b:
+                b = v
+        dead[r] = not alive
+        best[r] = b
+    return dead, best

@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .kernels import inverse_cdf
+from .kernels import ess_rows, inverse_cdf, normalise_rows, shift_by_row_max
 
 Scheme = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 SCHEMES: dict[str, Scheme] = {}
@@ -101,6 +101,13 @@ def residual(w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 def log_normalise(logw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Normalised weights (R, N) and log-normaliser (R,) of log-weights; rows of all -inf give NaN weights."""
+    if logw.ndim == 2 and logw.shape[1] and logw.dtype == np.float64:
+        # compiled max, shift, pairwise row sums and division (numpy's numbers); exp and log stay numpy's
+        d, m = shift_by_row_max(np.ascontiguousarray(logw))
+        with np.errstate(invalid="ignore"):
+            np.exp(d, out=d)
+            s = normalise_rows(d)
+            return d, m + np.log(s)
     m = np.max(logw, axis=1, keepdims=True)
     with np.errstate(invalid="ignore"):
         e = np.exp(logw - m)
@@ -110,4 +117,6 @@ def log_normalise(logw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def ess(w: np.ndarray) -> np.ndarray:
     """Effective sample size 1 / sum w^2 per run (R,)."""
+    if w.ndim == 2 and w.shape[1] and w.dtype == np.float64:
+        return ess_rows(np.ascontiguousarray(w))  # compiled: the same pairwise sums
     return 1.0 / np.sum(w * w, axis=1)
