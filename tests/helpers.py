@@ -77,3 +77,22 @@ def rel(root: Path, issue) -> str:
 
 def errors(issues):
     return [i for i in issues if i.is_error]
+
+
+# ------------------------------------------------------------------ editing CSV files in tests
+def lines(path: Path) -> list[str]:
+    return path.read_text(encoding="utf-8").splitlines()
+
+
+def write_lines(path: Path, text_lines: list[str]) -> None:
+    path.write_text("\n".join(text_lines) + "\n", encoding="utf-8")
+
+
+def set_cell(path: Path, line: int, column: str, value: str) -> None:
+    """Replace one cell of a CSV (``line`` 1-based, header = 1)."""
+    ls = lines(path)
+    col = ls[0].split(",").index(column)
+    cells = ls[line - 1].split(",")
+    cells[col] = value
+    ls[line - 1] = ",".join(cells)
+    write_lines(path, ls)

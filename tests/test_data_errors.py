@@ -22,7 +22,7 @@ from blenav.cli.validate import main as validate_main
 from blenav.data import Dataset, DatasetError, check_session_in_building, sum_dropped, validate
 from blenav.data.schema import PLAUSIBLE, T_MAX_S
 from blenav.data.writer import write_csv, write_fixes
-from helpers import errors, rel
+from helpers import errors, lines, rel, set_cell
 
 S = "sessions/walk0"
 B = "buildings/house"
@@ -51,19 +51,6 @@ def refused(root: Path) -> set:
     with pytest.raises(DatasetError) as e:
         load_everything(root)
     return {(i.rule, rel(root, i), i.line) for i in e.value.issues if i.is_error}
-
-
-def lines(path: Path) -> list[str]:
-    return path.read_text(encoding="utf-8").splitlines()
-
-
-def set_cell(path: Path, line: int, column: str, value: str) -> None:
-    ls = lines(path)
-    col = ls[0].split(",").index(column)
-    cells = ls[line - 1].split(",")
-    cells[col] = value
-    ls[line - 1] = ",".join(cells)
-    path.write_text("\n".join(ls) + "\n", encoding="utf-8")
 
 
 def edit_yaml(path: Path, fn) -> None:

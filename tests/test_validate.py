@@ -24,7 +24,7 @@ from PIL import Image
 from blenav.cli.validate import main as validate_main
 from blenav.data import validate
 from blenav.data.schema import SESSION_KEYS
-from helpers import errors, rel
+from helpers import errors, lines, rel, set_cell, write_lines
 
 
 S = "sessions/walk0"
@@ -57,24 +57,6 @@ def assert_only(root: Path, issues, rule: str, file: str, line: int | None = Non
     if severity == "warning":
         assert not errors(issues), describe(root, issues)
     return same
-
-
-def lines(path: Path) -> list[str]:
-    return path.read_text(encoding="utf-8").splitlines()
-
-
-def write_lines(path: Path, text_lines: list[str]) -> None:
-    path.write_text("\n".join(text_lines) + "\n", encoding="utf-8")
-
-
-def set_cell(path: Path, line: int, column: str, value: str) -> None:
-    """Replace one cell of a CSV (``line`` 1-based, header = 1)."""
-    ls = lines(path)
-    col = ls[0].split(",").index(column)
-    cells = ls[line - 1].split(",")
-    cells[col] = value
-    ls[line - 1] = ",".join(cells)
-    write_lines(path, ls)
 
 
 def set_line(path: Path, line: int, text: str) -> None:
