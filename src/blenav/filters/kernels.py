@@ -40,9 +40,11 @@ def _clip_factor(s2, vmax2, vmax):
 
 @njit(cache=True)
 def random_walk(x, e, dt, sigma_v, sigma_p, vmax):
-    """:class:`~blenav.filters.motion.RandomWalk` on (P, D) states with the (P, 4) draws (nu, eps)."""
+    """:class:`~blenav.filters.motion.RandomWalk` on (P, D) states with the (P, 4) draws (nu, eps): a first
+    pass for the velocities (and whether any exceeds ``vmax``), a second for the capped velocities, the
+    positions and the other columns."""
     P, D = x.shape
-    out = x.copy()
+    out = np.empty((P, D))
     vmax2 = vmax * vmax
     clip = False
     for p in range(P):
@@ -62,6 +64,8 @@ def random_walk(x, e, dt, sigma_v, sigma_p, vmax):
             out[p, 3] = vy
         out[p, 0] = x[p, 0] + dt * vx + sigma_p * e[p, 2]
         out[p, 1] = x[p, 1] + dt * vy + sigma_p * e[p, 3]
+        for k in range(4, D):
+            out[p, k] = x[p, k]
     return out
 
 
@@ -70,11 +74,13 @@ def imu_proposal(x, z, n, ax, ay, dt, sigma_a, sigma_v, vmax):
     """:class:`~blenav.filters.motion.ImuProposal` on (P, D) states: z (P,) standard normal draws of zeta,
     n (P, 2) of nu, (ax, ay) the unit acceleration direction a_hat (or zeros)."""
     P, D = x.shape
-    out = x.copy()
+    out = np.empty((P, D))
     h = 0.5 * dt * dt
     vmax2 = vmax * vmax
     clip = False
     for p in range(P):
+        for k in range(4, D):
+            out[p, k] = x[p, k]
         zeta = sigma_a * z[p]
         nu0 = sigma_v * n[p, 0]
         nu1 = sigma_v * n[p, 1]
