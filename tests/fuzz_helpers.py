@@ -737,6 +737,17 @@ def f_geojson(root, f, kind, i):
     return Outcome(expect)
 
 
+def f_both(root, first, second):
+    """Two faults, one after the other (the second may find the first's file gone or unreadable: then it is
+    not applied). Whatever the two require, together the result is refused cleanly or keeps every promise."""
+    first.apply(root)
+    try:
+        second.apply(root)
+    except (OSError, ArithmeticError, ValueError, LookupError, csv.Error, yaml.YAMLError, TypeError, AttributeError):
+        pass  # the helper could not apply it to what the first left (not the readers' problem)
+    return Outcome(ANY)
+
+
 # --------------------------------------------------------------------------- strategies
 
 _pos = st.integers(0, 10**6)
@@ -763,6 +774,10 @@ def renames(draw):
                                and not s.startswith(".") and len(s.encode()) < 100)
     session = draw(st.none() | folder)
     building = draw(st.none() | folder)
+    # one rename map for every kind of id: the new names must be distinct across kinds (and not old names)
+    news = {n.strip() for _, n in pairs} | {"b1", "b2", "b3", "b4", "ap1", "house", "walk0"}
+    session = None if session in news else session
+    building = None if building in news or building == session else building
     if not pairs and session is None and building is None:
         session = "walk 0 é"
     return Fault("rename_ids", f_rename_ids, (pairs, session, building))
@@ -870,3 +885,7 @@ def bad_faults():
                                    f"{S}/odometry.csv"]), _pos, st.sampled_from(["x", "y"]),
                   st.sampled_from(["1e300", "-1e300", "1e12", "5e3"])),
     )
+
+
+def two_bad_faults():
+    return st.builds(lambda a, b: Fault("both", f_both, (a, b)), bad_faults(), bad_faults())

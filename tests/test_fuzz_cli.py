@@ -47,6 +47,7 @@ from fuzz_helpers import (
     make_fuzz_dataset,
     read_everything,
     same_faults,
+    two_bad_faults,
 )
 
 pytestmark = pytest.mark.timeout(900)
@@ -174,6 +175,13 @@ def test_eval_harmless_slow(env, fault):
 @settings(SLOW, max_examples=max(SLOW.max_examples // 4, 1))
 @given(fault=bad_faults())
 def test_eval_corrupted_slow(env, fault):
+    check_eval_bad(env, fault)
+
+
+@pytest.mark.slow
+@settings(SLOW, max_examples=max(SLOW.max_examples // 4, 1))
+@given(fault=two_bad_faults())
+def test_eval_two_corruptions_slow(env, fault):
     check_eval_bad(env, fault)
 
 

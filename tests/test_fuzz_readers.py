@@ -45,6 +45,7 @@ from fuzz_helpers import (
     names_a_file,
     read_everything,
     same_faults,
+    two_bad_faults,
 )
 
 pytestmark = pytest.mark.timeout(900)
@@ -156,6 +157,19 @@ def test_several_harmless_faults_together_change_nothing(template, clean, work, 
         seen.add(key)
         rename.update(f.apply(root).rename)
     read_everything(root, rename).assert_same(clean)
+
+
+@settings(CI)
+@given(fault=two_bad_faults())
+def test_two_corruptions_together_are_refused_cleanly_or_read_with_every_promise(template, clean, work, fault):
+    check_bad(template, clean, work, fault)
+
+
+@pytest.mark.slow
+@settings(SLOW)
+@given(fault=two_bad_faults())
+def test_two_corruptions_slow(template, clean, work, fault):
+    check_bad(template, clean, work, fault)
 
 
 @pytest.mark.slow
