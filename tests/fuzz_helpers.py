@@ -99,6 +99,25 @@ def make_fuzz_dataset(root: Path) -> Path:
     return root
 
 
+def make_sim_fuzz_dataset(root: Path, seed: int = 3, duration_s: float = 15.0) -> Path:
+    """The simulator's ``small`` preset (one 15 s pedestrian walk: IMU with a moving gyroscope, magnetometer, BLE,
+    RTT, odometry, ground truth with orientation), laid out like :func:`make_fuzz_dataset` (building ``house``,
+    session ``walk0``, every stream with rows) so that the same faults apply."""
+    from helpers import simulate_small
+
+    root = simulate_small(Path(root), seed, duration_s, 1)
+    (root / "buildings" / "small").rename(root / B)
+    (sid,) = [d.name for d in (root / "sessions").iterdir()]
+    (root / "sessions" / sid).rename(root / S)
+    _yaml_edit(root / S / "session.yaml", lambda d: d.update(building="house"))
+    t = np.arange(0.0, duration_s, 0.5)
+    gt = pd.read_csv(root / S / "groundtruth.csv")
+    x, y = np.interp(t, gt["t"], gt["x"]), np.interp(t, gt["t"], gt["y"])
+    write_csv(root / S / "visual.csv", pd.DataFrame({"t": t, "x": x, "y": y, "z": 1.2, "yaw": 0.0}))
+    write_csv(root / S / "fixes.csv", pd.DataFrame({"t": t, "x": x, "y": y, "std": 1.5, "source": "pfps"}))
+    return root
+
+
 def fresh_copy(template: Path, base: Path, name: str = "d") -> Path:
     """A writable copy of ``template`` at ``base/name`` (replacing what was there)."""
     dst = Path(base) / name

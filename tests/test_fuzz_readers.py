@@ -42,6 +42,7 @@ from fuzz_helpers import (
     check_promises,
     fresh_copy,
     make_fuzz_dataset,
+    make_sim_fuzz_dataset,
     names_a_file,
     read_everything,
     same_faults,
@@ -61,6 +62,18 @@ def template(tmp_path_factory):
 @pytest.fixture(scope="module")
 def clean(template):
     return read_everything(template)
+
+
+@pytest.fixture(scope="module")
+def sim_template(tmp_path_factory):
+    root = make_sim_fuzz_dataset(tmp_path_factory.mktemp("fuzz_sim") / "template")
+    assert validate(root) == []
+    return root
+
+
+@pytest.fixture(scope="module")
+def sim_clean(sim_template):
+    return read_everything(sim_template)
 
 
 @pytest.fixture(scope="module")
@@ -170,6 +183,20 @@ def test_two_corruptions_together_are_refused_cleanly_or_read_with_every_promise
 @given(fault=two_bad_faults())
 def test_two_corruptions_slow(template, clean, work, fault):
     check_bad(template, clean, work, fault)
+
+
+@pytest.mark.slow
+@settings(SLOW)
+@given(fault=same_faults())
+def test_simulated_dataset_faults_that_change_nothing_slow(sim_template, sim_clean, work, fault):
+    check_same(sim_template, sim_clean, work, fault)
+
+
+@pytest.mark.slow
+@settings(SLOW)
+@given(fault=bad_faults())
+def test_simulated_dataset_corrupted_slow(sim_template, sim_clean, work, fault):
+    check_bad(sim_template, sim_clean, work, fault)
 
 
 @pytest.mark.slow
