@@ -40,9 +40,9 @@ def _clip_factor(s2, vmax2, vmax):
 
 @njit(cache=True)
 def random_walk(x, e, dt, sigma_v, sigma_p, vmax):
-    """:class:`~blenav.filters.motion.RandomWalk` on (P, D) states with the (P, 4) draws (nu, eps): a first
-    pass for the velocities (and whether any exceeds ``vmax``), a second for the capped velocities, the
-    positions and the other columns."""
+    """:class:`~blenav.filters.motion.RandomWalk` on (P, D) states with the (P, 4) draws (nu, eps). One pass
+    without the speed cap; only when some particle exceeds ``vmax`` a second pass redoes every particle with
+    _clip_speed2's all-or-nothing scaling (by exactly 1.0 below the limit)."""
     P, D = x.shape
     out = np.empty((P, D))
     vmax2 = vmax * vmax
@@ -50,22 +50,24 @@ def random_walk(x, e, dt, sigma_v, sigma_p, vmax):
     for p in range(P):
         vx = x[p, 2] + sigma_v * e[p, 0]
         vy = x[p, 3] + sigma_v * e[p, 1]
+        clip |= vx * vx + vy * vy > vmax2
+        out[p, 0] = x[p, 0] + dt * vx + sigma_p * e[p, 2]
+        out[p, 1] = x[p, 1] + dt * vy + sigma_p * e[p, 3]
         out[p, 2] = vx
         out[p, 3] = vy
-        if vx * vx + vy * vy > vmax2:
-            clip = True
-    for p in range(P):
-        vx, vy = out[p, 2], out[p, 3]
-        if clip:  # _clip_speed2: all particles are scaled (by exactly 1.0 below the limit) when one exceeds it
+        for k in range(4, D):
+            out[p, k] = x[p, k]
+    if clip:
+        for p in range(P):
+            vx = x[p, 2] + sigma_v * e[p, 0]
+            vy = x[p, 3] + sigma_v * e[p, 1]
             f = _clip_factor(vx * vx + vy * vy, vmax2, vmax)
             vx = vx * f
             vy = vy * f
+            out[p, 0] = x[p, 0] + dt * vx + sigma_p * e[p, 2]
+            out[p, 1] = x[p, 1] + dt * vy + sigma_p * e[p, 3]
             out[p, 2] = vx
             out[p, 3] = vy
-        out[p, 0] = x[p, 0] + dt * vx + sigma_p * e[p, 2]
-        out[p, 1] = x[p, 1] + dt * vy + sigma_p * e[p, 3]
-        for k in range(4, D):
-            out[p, k] = x[p, k]
     return out
 
 
