@@ -657,10 +657,13 @@ def f_anchor_value(root, row, column, value):
 
 
 def f_huge_position(root, f, row, column, value):
-    """One position of a stream far away (positions have no range: ANY, but never NaN downstream)."""
+    """One position of a stream far away: world positions more than 2 km off the plan (the templates' plans are
+    under 100 m) are refused ('position-off-floor'); odometry has an arbitrary frame (ANY, never NaN downstream)."""
     r = row % _n_rows(root, f)
     _set_cells(root, f, {(r, column): value})
-    return Outcome(ANY)
+    if f.endswith("odometry.csv") or abs(float(value)) < 2100:
+        return Outcome(ANY)
+    return Outcome(REFUSED, frozenset({"position-off-floor"}))
 
 
 def f_keep_rows(root, f, k):
@@ -902,7 +905,7 @@ def bad_faults():
         st.builds(lambda f, r, c, v: Fault("huge_position", f_huge_position, (f, r, c, v)),
                   st.sampled_from([f"{S}/groundtruth.csv", f"{S}/visual.csv", f"{S}/fixes.csv",
                                    f"{S}/odometry.csv"]), _pos, st.sampled_from(["x", "y"]),
-                  st.sampled_from(["1e300", "-1e300", "1e12", "5e3"])),
+                  st.sampled_from(["1e300", "-1e300", "1e12", "5e3", "1500", "-900"])),
     )
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import pytest
 from hypothesis import event, given, settings
+from hypothesis import strategies as st
 
 from blenav.configs import compose
 from blenav.data import DatasetError
@@ -45,6 +46,7 @@ from fuzz_helpers import (
     f_truncate,
     fresh_copy,
     make_fuzz_dataset,
+    make_sim_fuzz_dataset,
     read_everything,
     same_faults,
     two_bad_faults,
@@ -63,13 +65,13 @@ VOLATILE = {"wall_s", "realtime_factor", "dataset"}
 class Env:
     """The template, a work folder (dataset copy ``d``, output ``o``), the config and the clean results."""
 
-    def __init__(self, base: Path):
+    def __init__(self, base: Path, make=make_fuzz_dataset, *overrides: str):
         self.base = base
-        self.template = make_fuzz_dataset(base / "template")
+        self.template = make(base / "template")
         self.data = base / "d"
         self.out = base / "o"
         self.cfg = compose("eval", "experiment=mapfusion_002", f"data={self.data}", "runs=1", f"out={self.out}",
-                           "plots=false", "progress=false", "calibration=none")
+                           "plots=false", "progress=false", "calibration=none", *overrides)
         self.fresh()
         self.snapshot = read_everything(self.data)
         self.results = normalized(evaluate(self.cfg))
@@ -82,6 +84,19 @@ class Env:
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
     return Env(tmp_path_factory.mktemp("fuzz_eval"))
+
+
+@pytest.fixture(scope="module")
+def env_imu(tmp_path_factory):
+    """RW, DR and the IMU proposal (frontend_000) on a simulated walk: the inertial and odometry paths."""
+    return Env(tmp_path_factory.mktemp("fuzz_eval_imu"), make_sim_fuzz_dataset, "experiment=frontend_000")
+
+
+@pytest.fixture(scope="module")
+def env_fixes(tmp_path_factory):
+    """The fix likelihood (fused_003) on fixes.csv's source 'pfps'."""
+    return Env(tmp_path_factory.mktemp("fuzz_eval_fixes"), make_fuzz_dataset, "experiment=fused_003",
+               "experiment.fix_source=pfps")
 
 
 def normalized(res: dict, rename: dict | None = None) -> dict:
@@ -185,6 +200,20 @@ def test_eval_two_corruptions_slow(env, fault):
     check_eval_bad(env, fault)
 
 
+@pytest.mark.slow
+@settings(SLOW, max_examples=max(SLOW.max_examples // 4, 1))
+@given(fault=st.one_of(bad_faults(), two_bad_faults()))
+def test_eval_imu_methods_on_a_simulated_walk_slow(env_imu, fault):
+    check_eval_bad(env_imu, fault)
+
+
+@pytest.mark.slow
+@settings(SLOW, max_examples=max(SLOW.max_examples // 4, 1))
+@given(fault=st.one_of(bad_faults(), two_bad_faults()))
+def test_eval_fix_likelihood_slow(env_fixes, fault):
+    check_eval_bad(env_fixes, fault)
+
+
 # --------------------------------------------------------------------------- the command lines, end to end
 
 
@@ -247,3 +276,37 @@ def test_ground_truth_of_one_instant_is_refused_naming_the_file(env, rows):
     f_keep_rows(root, f, 1) if rows == "1" else f_one_time(root, f, "0")
     with pytest.raises(EvalError, match=r"session walk0: no estimate .*groundtruth\.csv: t 0\.\.0 s"):
         evaluate(env.cfg)
+
+
+def test_an_imu_with_every_time_twice_runs_the_imu_methods(tmp_path):
+    """Was: OverflowError (a traceback) in the step detector: duplicate times (allowed) made the median IMU
+    interval 0 and the rate infinite. Found by the fuzz faults with experiment=frontend_000 (RW, DR, IMU)."""
+    import pandas as pd
+
+    root = make_fuzz_dataset(tmp_path / "d")
+    p = root / "sessions/walk0/imu.csv"
+    df = pd.read_csv(p)
+    pd.concat([df, df]).sort_values("t", kind="stable").to_csv(p, index=False)
+    res = evaluate(compose("eval", "experiment=frontend_000", f"data={root}", "runs=1", f"out={tmp_path / 'o'}",
+                           "plots=false", "progress=false", "calibration=none"))
+    assert {m["rmse_m"]["n"] for m in res["methods"].values()} == {1}
+    bad = [(p, v) for p, v in numbers(res) if not math.isfinite(v)]
+    assert not bad, bad
+
+
+def test_an_imu_that_ends_before_the_ground_truth_starts_gives_no_nan(tmp_path):
+    """Was: orientation_rmse_deg NaN in results.json when no ground-truth time falls in the IMU's time span (the
+    mean of nothing); now absent, as for a method without an AHRS."""
+    import pandas as pd
+
+    root = make_fuzz_dataset(tmp_path / "d")
+    s = root / "sessions/walk0"
+    imu = pd.read_csv(s / "imu.csv")
+    imu[imu["t"] < 5.0].to_csv(s / "imu.csv", index=False)
+    gt = pd.read_csv(s / "groundtruth.csv")
+    gt[gt["t"] >= 10.0].to_csv(s / "groundtruth.csv", index=False)
+    res = evaluate(compose("eval", "experiment=frontend_000", f"data={root}", "runs=1", f"out={tmp_path / 'o'}",
+                           "plots=false", "progress=false", "calibration=none", "init_s=1"))
+    bad = [(p, v) for p, v in numbers(res) if not math.isfinite(v)]
+    assert not bad, bad
+    assert all("orientation_rmse_deg" not in m for m in res["methods"].values())

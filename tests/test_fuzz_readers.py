@@ -443,3 +443,31 @@ def test_geojson_far_off_the_plan_or_invalid_is_refused(tiny_dataset):
         change(doc["features"][0]["geometry"]["coordinates"][0])
         p.write_text(json.dumps(doc))
         assert _errors(tiny_dataset) == {(rule, f"{B}/rooms.geojson", None)}, change
+
+
+@pytest.mark.parametrize("file, line", [(f"{S}/groundtruth.csv", 150), (f"{S}/groundtruth.csv", 2)])
+def test_one_position_far_off_the_plan_is_refused(tiny_dataset, file, line):
+    """Was: one ground-truth row at x = 1e300 among 200 was accepted (less than half off the plan): the
+    evaluation's RMSE and error statistics became inf (found on the simulated walk with experiment=frontend_000)."""
+    p = tiny_dataset / file
+    ls = p.read_text().splitlines()
+    cells = ls[line - 1].split(",")
+    cells[1] = "1e300"
+    ls[line - 1] = ",".join(cells)
+    p.write_text("\n".join(ls) + "\n")
+    assert _errors(tiny_dataset) == {("position-off-floor", file, line)}
+    cells[1] = "1500"  # 1.5 km east of a 10 m plan: odd, but no floor is larger than 2 km
+    ls[line - 1] = ",".join(cells)
+    p.write_text("\n".join(ls) + "\n")
+    assert _errors(tiny_dataset) == set()
+
+
+def test_an_imu_whose_time_does_not_advance_is_refused(tiny_dataset):
+    """Was: 2000 IMU rows at one time were accepted: the step detector's rate was infinite (OverflowError) and the
+    orientation RMSE NaN (found with experiment=frontend_000)."""
+    p = tiny_dataset / S / "imu.csv"
+    df = pd.read_csv(p)
+    df["t"] = 19.9
+    df.to_csv(p, index=False)
+    assert _errors(tiny_dataset) == {("imu-rate", f"{S}/imu.csv", None)}
+    assert "advance" in str(validate(tiny_dataset)[0])

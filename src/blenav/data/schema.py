@@ -37,6 +37,9 @@ T_MAX_S = 1e6
 #: no inertial sensor samples below 1 Hz; 100 Hz samples with t in milliseconds look like this.
 IMU_MAX_MEAN_DT_S = 1.0
 IMU_RATE_MIN_ROWS = 10
+#: ... and one whose mean interval is below IMU_MIN_MEAN_DT_S (faster than 10 kHz; phones sample at most ~500 Hz):
+#: its times do not advance (all one value), or are in hours.
+IMU_MIN_MEAN_DT_S = 1e-4
 
 
 @dataclass(frozen=True)

@@ -16,12 +16,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .building import OCCUPIED, Building, Floor, _floor_key
+from .building import FLOOR_MAX_SIDE_M, OCCUPIED, Building, Floor, _floor_key
 from .issues import MAX_ROWS_PER_RULE, Issue, error, raise_or_log, warning
 from .schema import (
     ANCHORED_STREAMS,
     CARRIERS,
     IMU_MAX_MEAN_DT_S,
+    IMU_MIN_MEAN_DT_S,
     IMU_RATE_MIN_ROWS,
     QUAT_MIN_NORM,
     SESSION_KEYS,
@@ -33,6 +34,11 @@ from .tables import _rows_issue, read_header, read_stream
 
 #: More than this fraction of a labelled session's ground truth outside its floor's plan is an error.
 GT_OFF_FLOOR_MAX = 0.5
+#: A world position (ground truth, visual, fixes) further than this outside its floor's plan is an error at its
+#: line ('position-off-floor'): no floor is that large (FLOOR_MAX_SIDE_M), so the value is corrupt, or in another
+#: unit or frame; one such row among many would otherwise make the error statistics infinite.
+POSITION_OFF_FLOOR_MAX_M = FLOOR_MAX_SIDE_M
+WORLD_POSITION_STREAMS = ("groundtruth", "visual", "fixes")
 
 #: The files of one session share one clock: a stream whose last time is more than CLOCK_RATIO times another
 #: stream's last time is an error ('time-clock'), when both end after CLOCK_MIN_S and have CLOCK_MIN_ROWS rows or
@@ -167,10 +173,14 @@ def load_stream(root: Path, name: str, building: Building | None, labelled: bool
     if name == "imu" and not any(i.rule == "time-range" for i in more):
         issues += _check_imu_rate(path, df, reported)
     dropped: dict[str, int] = {}
+    far: list[Issue] = []
+    if name in WORLD_POSITION_STREAMS and building is not None and _floor_key(floor_id, building.floors) is not None:
+        far = positions_far_off_floor(path, df, building.floor(floor_id), reported)
+        issues += far
     if name == "groundtruth":
         df, more = _check_quaternions(path, df, reported)
         issues += more
-        if building is not None and _floor_key(floor_id, building.floors) is not None:
+        if building is not None and _floor_key(floor_id, building.floors) is not None and not far:
             issues += groundtruth_off_floor(path, df[~reported], building.floor(floor_id), building.id)
     if name in ANCHORED_STREAMS:
         n = len(df)
@@ -179,6 +189,25 @@ def load_stream(root: Path, name: str, building: Building | None, labelled: bool
         if len(df) < n:
             dropped["unknown-anchor"] = n - len(df)
     return df, issues, dropped
+
+
+def positions_far_off_floor(path: Path, df: pd.DataFrame, floor: Floor, skip: np.ndarray) -> list[Issue]:
+    """Rows whose world position (x, y) lies more than :data:`POSITION_OFF_FLOOR_MAX_M` outside the floor's plan:
+    one error per row (capped), 'position-off-floor'. Rows in ``skip`` were already reported."""
+    xy = df[["x", "y"]].to_numpy(dtype=float)
+    x0, x1, y0, y1 = floor.extent
+    with np.errstate(invalid="ignore"):
+        d = np.maximum.reduce([x0 - xy[:, 0], xy[:, 0] - x1, y0 - xy[:, 1], xy[:, 1] - y1, np.zeros(len(xy))])
+        bad = np.flatnonzero((d > POSITION_OFF_FLOOR_MAX_M) & ~skip)
+    out = [error(path, "position-off-floor", f"({xy[r, 0]:g}, {xy[r, 1]:g}) m lies {d[r]:g} m outside floor "
+                 f"{floor.id!r}'s plan (x {x0:.1f}..{x1:.1f}, y {y0:.1f}..{y1:.1f} m), further than any floor is large "
+                 f"({POSITION_OFF_FLOOR_MAX_M:g} m): a corrupt value, or another unit or frame?", line=int(r) + 2)
+           for r in bad[:MAX_ROWS_PER_RULE]]
+    if len(bad) > MAX_ROWS_PER_RULE:
+        out.append(error(path, "position-off-floor", f"{len(bad) - MAX_ROWS_PER_RULE} more rows further than "
+                         f"{POSITION_OFF_FLOOR_MAX_M:g} m outside the plan (lines {int(bad[MAX_ROWS_PER_RULE]) + 2}.."
+                         f"{int(bad[-1]) + 2})"))
+    return out
 
 
 def check_ranges(path: Path, df: pd.DataFrame, name: str, skip: np.ndarray) -> list[Issue]:
@@ -206,6 +235,9 @@ def _check_imu_rate(path: Path, df: pd.DataFrame, skip: np.ndarray) -> list[Issu
     if len(t) < IMU_RATE_MIN_ROWS:
         return []
     dt = (t[-1] - t[0]) / (len(t) - 1)
+    if dt < IMU_MIN_MEAN_DT_S:
+        return [error(path, "imu-rate", f"{len(t)} rows within {t[-1] - t[0]:g} s, one every {dt:g} s on average: no "
+                      f"inertial sensor samples faster than every {IMU_MIN_MEAN_DT_S:g} s; does t advance, in seconds?")]
     if dt <= IMU_MAX_MEAN_DT_S:
         return []
     return [error(path, "imu-rate", f"{len(t)} rows over {t[-1] - t[0]:g} s, one every {dt:g} s on average: an "

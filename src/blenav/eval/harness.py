@@ -275,6 +275,8 @@ def orientation_rmse(est: Estimate, session) -> float | None:
     gt_t = gt["t"].to_numpy()
     idx = np.clip(np.searchsorted(imu_t, gt_t), 0, len(imu_t) - 1)
     ok = (gt_t >= imu_t[0]) & (gt_t <= imu_t[-1])
+    if not ok.any():  # the IMU's time span holds no ground-truth time: nothing to compare (not NaN)
+        return None
     ang = misalignment_deg(q[idx[ok]], gq[ok])
     return float(np.sqrt(np.mean(ang**2)))
 

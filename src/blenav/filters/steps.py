@@ -242,7 +242,9 @@ def imu_features(a: SessionArrays, att_cfg: AttitudeConfig, det_cfg: StepDetecto
     if not len(a.imu_t):
         return None, np.zeros(0, bool)
     q = estimate_attitude(a.imu_t, a.acc, a.gyr, a.mag_t, a.mag, att_cfg, mag_offset=mag_offset)
-    imu_rate = 1.0 / np.median(np.diff(a.imu_t)) if len(a.imu_t) > 1 else 100.0
+    dt = np.diff(a.imu_t)
+    dt = dt[dt > 0]  # repeated times (allowed) would make the median interval 0 and the rate infinite
+    imu_rate = 1.0 / np.median(dt) if len(dt) else 100.0
     det = StepDetector(det_cfg, imu_rate)
     flags = np.fromiter((det.update(t, v) for t, v in zip(a.imu_t, a.acc)), bool, len(a.imu_t))
     return q, flags
