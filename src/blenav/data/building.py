@@ -486,7 +486,8 @@ def _load_geojson(path: Path, floors: dict, kinds: tuple[str, ...], check_plan: 
                                 where=where))
             continue
         try:
-            g = shape(geom)
+            with np.errstate(invalid="ignore"):  # NaN coordinates: reported below, not as a numpy warning
+                g = shape(geom)
         except Exception as exc:  # shapely raises several types for malformed coordinates
             issues.append(error(path, "geojson-coordinates", f"malformed coordinates ({exc})", where=where))
             continue
