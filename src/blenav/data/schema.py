@@ -7,7 +7,9 @@ A :class:`StreamSpec` describes one per-session CSV stream:
 
 * ``required``: columns that must exist and hold a finite value on every row;
 * ``nullable``: columns that must exist but may be empty on a row (e.g. ``fixes.std``);
-* ``string``: columns read as text (anchor ids, fix sources), never parsed as numbers.
+* ``string``: columns read as text (anchor ids, fix sources), never parsed as numbers;
+* ``optional``: numeric columns a file may have or lack (a compatible extension, e.g. ``rtt.rssi``); when
+  present they are read and checked like ``nullable`` ones, when absent the frame has no such column.
 """
 
 from __future__ import annotations
@@ -89,6 +91,9 @@ PLAUSIBLE: dict[tuple[str, str], Plausible] = {
     ("rtt", "range_m"): Plausible(-50.0, 1000.0, "m", "rtt-range",
                                   "is it in metres (not mm or cm)? (Android reports small negative ranges)"),
     ("rtt", "range_std_m"): Plausible(0.0, 1000.0, "m", "rtt-range", "a standard deviation in metres"),
+    # the optional WiFi RSSI of the ranged AP (004 sec. V-A: ranges below -65 dBm are dropped); empty when unknown
+    ("rtt", "rssi"): Plausible(RSSI_MIN_DBM, RSSI_MAX_DBM, "dBm", "rssi-range",
+                               "the AP's WiFi RSSI in dBm: a sentinel or corrupt value (empty when unknown)", open_=True),
     ("fixes", "std"): Plausible(0.0, float("inf"), "m", "fixes-range",
                                 "a standard deviation is >= 0 (empty when unknown)"),
     # anchors.csv: the calibrated RSSI at 1 m is an RSSI (empty when unknown)
@@ -116,6 +121,11 @@ class StreamSpec:
     required: tuple[str, ...]
     nullable: tuple[str, ...] = ()
     string: tuple[str, ...] = ()
+    optional: tuple[str, ...] = ()
+
+    def present(self, columns) -> tuple[str, ...]:
+        """:attr:`columns` plus the optional columns found among ``columns`` (a header or a frame's columns)."""
+        return self.columns + tuple(c for c in self.optional if c in columns)
 
     @property
     def filename(self) -> str:
@@ -135,8 +145,8 @@ STREAMS: dict[str, StreamSpec] = {
         StreamSpec("mag", ("t", "mx", "my", "mz")),
         # one row per received advertisement, dBm
         StreamSpec("rssi", ("t", "anchor_id", "rssi"), string=("anchor_id",)),
-        # range and reported std, metres
-        StreamSpec("rtt", ("t", "anchor_id", "range_m"), ("range_std_m",), string=("anchor_id",)),
+        # range and reported std, metres; optional: the AP's WiFi RSSI (dBm) of the ranging exchange
+        StreamSpec("rtt", ("t", "anchor_id", "range_m"), ("range_std_m",), string=("anchor_id",), optional=("rssi",)),
         # sparse visual pose fixes, world frame, yaw rad CCW from +x
         StreamSpec("visual", ("t", "x", "y", "z", "yaw")),
         # inertial odometry, arbitrary frame fixed at session start, metres

@@ -215,7 +215,7 @@ def check_ranges(path: Path, df: pd.DataFrame, name: str, skip: np.ndarray) -> l
     per row and column (capped per column), naming the value; rows in ``skip`` were already reported."""
     spec = STREAMS[name]
     issues: list[Issue] = []
-    for c in spec.columns:
+    for c in spec.present(df.columns):
         p = plausible(name, c)
         if p is None or c in spec.string:
             continue
@@ -273,7 +273,7 @@ def groundtruth_off_floor(path: Path, gt: pd.DataFrame, floor: Floor, building_i
 def _reported_rows(df: pd.DataFrame, spec, issues: list[Issue]) -> np.ndarray:
     """Rows (bool mask) with a cell error already reported by the table checks."""
     out = np.zeros(len(df), dtype=bool)
-    for c in spec.columns:
+    for c in spec.present(df.columns):
         if c in spec.string:
             continue
         v = df[c].to_numpy(dtype=float)

@@ -251,5 +251,7 @@ def _slow_parse(path: Path, numeric: list[str], string: tuple[str, ...], exc: Ex
 
 
 def read_stream(path: Path, spec: StreamSpec) -> tuple[pd.DataFrame | None, list[Issue]]:
-    """Read a session stream file with the columns of ``spec`` (see :mod:`blenav.data.schema`)."""
-    return read_table(path, spec.required, spec.nullable, spec.string)
+    """Read a session stream file with the columns of ``spec`` (see :mod:`blenav.data.schema`); its optional
+    columns, where the header has them, are read as nullable numeric columns."""
+    opt = tuple(c for c in spec.optional if c in read_header(path)) if spec.optional else ()
+    return read_table(path, spec.required, spec.nullable + opt, spec.string)

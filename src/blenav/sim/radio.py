@@ -20,6 +20,15 @@ interpolated per packet, so a packet costs O(1); the distance term is exact.
 
 RTT: range = d + offset_a + NLOS bias (exponential, mean ``nlos_bias_m`` per wall) + N(0, sigma(d)^2),
 with sigma(d) = ``std_m`` + ``std_per_m`` d and a reported std that is sigma times U(0.7, 1.3).
+Each kept ranging exchange also reports the AP's WiFi RSSI (the optional ``rssi`` column of rtt.csv, used
+by the -65 dBm rule of Duembgen et al. 004 sec. V-A), a log-distance model with wall loss
+(:func:`rtt_wifi_rssi`)::
+
+    rssi = P_ap - 10 n_w log10(d) - W_w min(walls, W_max) + N(0, sigma_w^2), rounded to 1 dBm
+
+with ``P_ap`` the AP's 1 m level in this session (``rssi_1m_dbm`` + N(0, ``rssi_tx_spread_db``), drawn per
+session: it includes the phone's receive gain). Its draws come from a
+random stream of their own, so every other output of a seed is unchanged by it.
 """
 
 from __future__ import annotations
@@ -65,6 +74,15 @@ class RttConfig:
     loss_prob: float = 0.05
     loss_prob_per_wall: float = 0.08
     max_range_m: float = 35.0
+    # WiFi RSSI reported with each range (rtt.csv `rssi`; 004 sec. V-A drops ranges below -65 dBm). With these
+    # values a line-of-sight AP falls below -65 dBm at about 10 m, one behind two walls at about 5 m.
+    write_rssi: bool = True
+    rssi_1m_dbm: float = -38.0
+    rssi_tx_spread_db: float = 2.0
+    rssi_exponent: float = 2.7
+    rssi_wall_db: float = 4.0
+    rssi_walls_max: int = 5
+    rssi_std_db: float = 3.0
 
 
 def gaussian_field(rng: np.random.Generator, shape: tuple[int, ...], corr_px: float) -> np.ndarray:
@@ -249,3 +267,21 @@ def simulate_rtt(rng: np.random.Generator, cfg: RttConfig, maps: AnchorMaps, ap_
     lost = rng.random(d.shape) < cfg.loss_prob + cfg.loss_prob_per_wall * walls
     keep = ~lost & (d < cfg.max_range_m)
     return t[keep], aid[keep], rng_m[keep], std[keep]
+
+
+def rtt_wifi_rssi(rng: np.random.Generator, cfg: RttConfig, maps: AnchorMaps, ap_xyz: np.ndarray, t: np.ndarray,
+                  aid: np.ndarray, traj_t: np.ndarray, traj_xyz: np.ndarray) -> np.ndarray:
+    """The AP's WiFi RSSI (dBm, (N,), integers as float) reported with each ranging exchange ``t`` (N,) s to AP
+    ``aid`` (N,) of :func:`simulate_rtt` (see the module docstring for the model).
+
+    ``rng`` must be a stream of its own (not the one of :func:`simulate_rtt`), so that the other outputs of a
+    seed stay bit-identical; the APs' 1 m levels are its first draws. Values are clipped to [-100, -1] dBm."""
+    p1m = cfg.rssi_1m_dbm + cfg.rssi_tx_spread_db * rng.standard_normal(len(ap_xyz))
+    if len(t) == 0:
+        return np.zeros(0)
+    pos = np.stack([np.interp(t, traj_t, traj_xyz[:, k]) for k in range(3)], axis=1)
+    d = np.linalg.norm(ap_xyz[aid] - pos, axis=1)
+    walls = np.round(maps.sample(maps.walls, aid, pos[:, :2]))
+    level = (p1m[aid] - 10.0 * cfg.rssi_exponent * np.log10(np.maximum(d, 0.1))
+             - cfg.rssi_wall_db * np.minimum(walls, cfg.rssi_walls_max) + cfg.rssi_std_db * rng.standard_normal(len(t)))
+    return np.clip(np.round(level), -100.0, -1.0)

@@ -24,8 +24,11 @@ from .config import SimConfig
 from .inertial import DisturbanceField, simulate_imu, simulate_mag, simulate_odometry
 from .layout import Layout, LayoutConfig, generate_layout
 from .motion import Trajectory, survey, walk
-from .radio import AnchorMaps, simulate_ble, simulate_rtt
+from .radio import AnchorMaps, rtt_wifi_rssi, simulate_ble, simulate_rtt
 from .calibration import profile_for
+
+#: spawn-key suffix of the per-session random stream of the WiFi RSSI in rtt.csv (radio.rtt_wifi_rssi)
+RTT_RSSI_STREAM = 0x525353
 
 log = logging.getLogger("blenav.sim")
 
@@ -158,6 +161,11 @@ def simulate_session(cfg: SimConfig, w: World, i: int, duration_s: float, ss: np
     tb, ab, rb = simulate_ble(rng, cfg.ble, profile, w.ble_maps, w.ble_xyz, w.ble_p1m, traj.t, traj.xyz,
                               traj.heading, body, traj.duration)
     tr, ar, rr, sr = simulate_rtt(rng, cfg.rtt, w.ap_maps, w.ap_xyz, w.ap_offset, traj.t, traj.xyz, traj.duration)
+    rtt = pd.DataFrame({"t": tr, "anchor_id": np.char.add("ap-", np.char.zfill(ar.astype(str), 3)),
+                        "range_m": rr, "range_std_m": sr})
+    if cfg.rtt.write_rssi:  # a stream of its own (RTT_RSSI_STREAM): every other output of the seed is unchanged
+        rng_w = np.random.default_rng(np.random.SeedSequence(ss.entropy, spawn_key=ss.spawn_key + (RTT_RSSI_STREAM,)))
+        rtt["rssi"] = rtt_wifi_rssi(rng_w, cfg.rtt, w.ap_maps, w.ap_xyz, tr, ar, traj.t, traj.xyz)
     t_odo, odo = simulate_odometry(rng, cfg.odometry, traj)
     step = max(1, int(round(cfg.motion.imu_rate_hz / cfg.groundtruth_rate_hz)))
     gi = np.arange(0, len(traj.t), step)
@@ -169,8 +177,7 @@ def simulate_session(cfg: SimConfig, w: World, i: int, duration_s: float, ss: np
         "mag": pd.DataFrame({"t": t_mag, "mx": mag[:, 0], "my": mag[:, 1], "mz": mag[:, 2]}),
         "rssi": pd.DataFrame({"t": tb, "anchor_id": np.char.add("ble-", np.char.zfill(ab.astype(str), 3)),
                               "rssi": rb}),
-        "rtt": pd.DataFrame({"t": tr, "anchor_id": np.char.add("ap-", np.char.zfill(ar.astype(str), 3)),
-                             "range_m": rr, "range_std_m": sr}),
+        "rtt": rtt,
         "visual": visual_fixes(rng, cfg, w, traj.t[gi], traj.xyz[gi], dev_yaw),
     }
     if carrier != "static":  # a survey is moved between points off the clock: no odometry
