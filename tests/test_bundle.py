@@ -1,0 +1,215 @@
+"""The runtime bundle (issue 18, section 1 and the bundle item of section 4).
+
+- round trip: ``export.py bundle=true`` writes the localizer, the map prior, their ORT and int8 variants (measured in
+  the manifest), settings and the building's signature; every variant opens and localizes;
+- the CLI writes t,x,y,std, one row per filter step; its imports and its run load no torch, lightning or hydra;
+- refusal: another building's beacons (missing, extra, moved) or floor plan, or a changed file, are named;
+- parity: the bundle (onnxruntime, push API) reproduces the PyTorch pipeline (torch networks, batch windows,
+  ``run_session``) within 1 cm on the same seed.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from blenav.configs import compose
+from blenav.data import Dataset
+from blenav.learn.export import export
+from blenav.learn.train import train
+from blenav.runtime import Bundle, BuildingMismatch
+from blenav.runtime.bundle import FIX_SOURCE, MANIFEST, build_method, variant_name
+from helpers import simulate_small
+
+pytestmark = pytest.mark.onnx
+REPO = Path(__file__).resolve().parents[1]
+TINY_MP = ["trainer.enable_progress_bar=false", "data.samples_per_epoch=64", "data.val_samples=32",
+           "data.batch_size=16", "data.crop_px=32", "model.net.unet_channels=[4,8]", "model.net.channels=8",
+           "trainer.max_epochs=1", "early_stopping=null"]
+
+
+def _export_py():
+    spec = importlib.util.spec_from_file_location("blenav_export_script", REPO / "export.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory):
+    """A 'small' building with 3 one-minute walks, a tiny LocNet and map prior, and their bundle."""
+    root = tmp_path_factory.mktemp("bundle")
+    data = simulate_small(root / "d", 11, 60, 3)
+    train(compose("train", "model=locnet", f"data={data}", f"out={root / 'loc'}", "data.batch_size=32",
+                  "model.lr=3e-3", "trainer.enable_progress_bar=false", "trainer.max_epochs=1",
+                  "model.locnet.hidden=16", "model.locnet.fc_hidden=8"))
+    train(compose("train", "experiment=mapprior", f"data={data}", f"out={root / 'mp'}", *TINY_MP))
+    cfg = compose("export", "bundle=true", f"ckpt={root / 'loc' / 'last.ckpt'}", f"out={root / 'B'}",
+                  f"mapprior={root / 'mp' / 'last.ckpt'}", f"data={data}", "eval_sessions=1")
+    _export_py().bundle(cfg)
+    return {"root": root, "data": data, "bundle": root / "B", "loc": root / "loc" / "last.ckpt",
+            "mp": root / "mp" / "last.ckpt"}
+
+
+def test_round_trip_files_variants_and_manifest(made):
+    B = made["bundle"]
+    m = json.loads((B / MANIFEST).read_text())
+    assert m["format"] == "blenav-bundle/1" and m["has_map_prior"]
+    assert set(m["variants_available"]) == {"float", "ort", "int8", "int8_ort"}, m["variants_failed"]
+    for base in ("localizer", "map_prior/map_encoder", "map_prior/trajectory_encoder"):
+        for v in m["variants_available"]:
+            assert variant_name(base, v) in m["files"]
+            r = m["measured"]["graphs"][base][v]
+            assert r["bytes"] > 0 and r["latency_ms"]["median"] > 0
+    assert {"settings.json", "building.json", "map_prior/meta.json"} <= set(m["files"])
+    assert set(m["versions"]) >= {"blenav", "onnxruntime", "numpy"}
+    assert m["measured"]["graphs"]["localizer"]["int8"]["bytes"] < m["measured"]["graphs"]["localizer"]["float"]["bytes"]
+    pipe = m["measured"]["pipeline"]
+    assert set(pipe) == set(m["variants_available"]) and abs(pipe["ort"]["rmse_change_m"]) < 0.01
+    ds = Dataset.open(made["data"])
+    s = ds.sessions()[0] if isinstance(ds.sessions(), list) else next(iter(ds.sessions()))
+    for v in m["variants_available"]:
+        est = Bundle.open(B, variant=v).run_session(s, seed=1)
+        assert len(est) > 30 and all(np.isfinite([e.x, e.y, e.std]).all() for e in est)
+
+
+def test_cli_writes_t_x_y_std_and_loads_no_torch(made, tmp_path):
+    sdir = sorted((made["data"] / "sessions").iterdir())[0]
+    out = tmp_path / "est.csv"
+    code = f"""
+import json, sys
+from blenav.cli.localize import main
+rc = main([{str(made['bundle'])!r}, {str(sdir)!r}, "--out", {str(out)!r}, "--no-progress"])
+print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "hydra") if m in sys.modules)}}))
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(r.stdout.strip().splitlines()[-1])
+    assert res == {"rc": 0, "heavy": []}
+    df = pd.read_csv(out)
+    assert list(df.columns) == ["t", "x", "y", "std"] and len(df) > 30
+    assert np.isfinite(df.to_numpy()).all() and (np.diff(df["t"]) > 0).all()
+    bad = subprocess.run([sys.executable, "-m", "blenav.cli.localize", str(made["bundle"]), str(tmp_path / "nope"),
+                          "--out", str(tmp_path / "x.csv")], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 1 and "blenav-localize: error:" in bad.stderr and "does not exist" in bad.stderr
+
+
+def test_push_api_matches_replay(made):
+    """Samples pushed one by one give the rows run_session gives (the same engine)."""
+    from blenav.filters.runner import replay
+
+    b = Bundle.open(made["bundle"])
+    s = Dataset.open(made["data"]).session(sorted(Dataset.open(made["data"]).session_ids)[1])
+    loc = b.localizer(s.building, seed=3)
+    rows, t_end = [], 0.0
+    for ev in replay(s):
+        if ev[0] == "rssi":
+            rows += loc.push_rssi(ev[1], ev[2], ev[3])
+        elif ev[0] == "odo":
+            rows += loc.push_odometry(ev[1], ev[2])
+        else:
+            continue
+        t_end = ev[1]
+    rows += loc.close(t_end)
+    ref = b.run_session(s, seed=3)
+    assert len(rows) == len(ref) and np.allclose(np.array(rows), np.array(ref))
+
+
+def _copy_building(made, tmp_path, change):
+    data = Path(shutil.copytree(made["data"], tmp_path / "d2"))
+    bdir = next((data / "buildings").iterdir())
+    change(bdir)
+    return Dataset.open(data).building(bdir.name)
+
+
+def test_refuses_other_beacons_and_floor_plans_saying_what_differs(made, tmp_path):
+    b = Bundle.open(made["bundle"])
+
+    def beacons(bdir):
+        a = pd.read_csv(bdir / "anchors.csv")
+        ble = a.index[a["kind"] == "ble"]
+        a.loc[ble[0], "anchor_id"] = "intruder-9"  # one renamed: one missing, one extra
+        a.loc[ble[1], "x"] = a.loc[ble[1], "x"] + 2.0  # one moved 2 m
+        a.to_csv(bdir / "anchors.csv", index=False)
+
+    first = sorted(pd.read_csv(next((made["data"] / "buildings").iterdir()) / "anchors.csv")
+                   .query("kind == 'ble'")["anchor_id"].astype(str))
+    with pytest.raises(BuildingMismatch) as e:
+        b.check_building(_copy_building(made, tmp_path / "a", beacons))
+    msg = str(e.value)
+    assert "missing from the building" in msg and "does not know: intruder-9" in msg and "moved" in msg
+    assert "(2.00 m)" in msg
+
+    def plan(bdir):
+        from PIL import Image
+
+        png = next(bdir.glob("*.png"))
+        im = np.array(Image.open(png))
+        im[im.shape[0] // 2, :] = 0  # a new wall across the floor
+        Image.fromarray(im).save(png)
+
+    with pytest.raises(BuildingMismatch, match=r"floor 0: another floor plan \(plan hash [0-9a-f]{12}\.\.\., "
+                                               r"bundle's [0-9a-f]{12}\.\.\.\)"):
+        b.localizer(_copy_building(made, tmp_path / "b", plan))
+    assert first  # the bundle's beacons are the building's
+    assert b.beacons == first
+
+
+def test_refuses_a_changed_file(made, tmp_path):
+    B = Path(shutil.copytree(made["bundle"], tmp_path / "B"))
+    s = json.loads((B / "settings.json").read_text())
+    s["fix"]["sigma_m"] = 1.0
+    (B / "settings.json").write_text(json.dumps(s))
+    with pytest.raises(ValueError, match=r"settings\.json changed"):
+        Bundle.open(B)
+    (B / "localizer.int8.ort").unlink()
+    with pytest.raises(ValueError, match=r"localizer\.int8\.ort missing"):
+        Bundle.open(B)
+
+
+def torch_pipeline(bundle: Bundle, ckpt: Path, mapprior_ckpt: Path, session, seed: int):
+    """The PyTorch pipeline: torch LocNet over the session's batch windows -> fixes; torch map prior; run_session."""
+    import torch
+
+    from blenav.features.windows import WindowConfig, session_windows
+    from blenav.filters.runner import run_session
+    from blenav.learn.checkpoint import load_module
+    from blenav.learn.export import streaming_net
+    from blenav.learn.mapprior_checkpoint import load_map_prior
+
+    module, meta = load_module(ckpt)
+    net = streaming_net(module, meta)
+    w = meta["window"]
+    win = session_windows(session, meta["beacons"], WindowConfig(
+        history=int(w["history"]), step_hz=float(w["step_hz"]), offset_db=float(w["offset_db"]),
+        floor_u=float(w["floor_u"]), beacon_subset=w.get("beacon_subset")))
+    z = torch.zeros(module.locnet.layers, len(win.S), module.locnet.hidden)
+    with torch.no_grad():
+        xy = net(torch.from_numpy(win.S), z, z)[0].numpy().astype(float)
+    ok = (win.S > 0).reshape(len(win.S), -1).any(axis=1)
+    fixes = pd.DataFrame({"t": win.t[ok], "x": xy[ok, 0], "y": xy[ok, 1], "std": np.nan, "source": FIX_SOURCE})
+    method = build_method(bundle.settings, load_map_prior(mapprior_ckpt))
+    res = run_session(method, session, 1, seed, fixes=fixes)
+    return res.t, res.position[0]
+
+
+def test_runtime_reproduces_the_pytorch_pipeline_within_1cm(made):
+    b = Bundle.open(made["bundle"])
+    ds = Dataset.open(made["data"])
+    for sid in sorted(ds.session_ids)[:2]:
+        s = ds.session(sid)
+        t_ref, xy_ref = torch_pipeline(b, made["loc"], made["mp"], s, seed=5)
+        est = b.run_session(s, seed=5)
+        t = np.array([e.t for e in est])
+        common, i, j = np.intersect1d(np.round(t, 6), np.round(t_ref, 6), return_indices=True)
+        assert len(common) >= len(t_ref) - 1 and len(common) > 30
+        err = np.hypot(*(np.array([[e.x, e.y] for e in est])[i] - xy_ref[j]).T)
+        assert err.max() < 0.01, f"{sid}: max {err.max():.4f} m"
