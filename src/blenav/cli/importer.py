@@ -13,15 +13,21 @@ def _main(argv: list[str] | None) -> int:
 
     p = argparse.ArgumentParser(prog="blenav-import", description=__doc__.splitlines()[0])
     p.add_argument("kind", choices=KINDS, help="which public data set SRC holds")
-    p.add_argument("src", help="folder of the raw data set (e.g. ../shared/data/raw/uji_ble)")
+    p.add_argument("src", help="folder of the raw data set (e.g. ../shared/data/raw/uji_ble); ilc20: a floor or "
+                   "site folder, the challenge layout, or a .tar.gz/.zip of one")
     p.add_argument("out", help="output dataset folder (created)")
+    p.add_argument("--floors", default=None, metavar="SITE/FLOOR,...",
+                   help="ilc20 only: import only these floors (e.g. site1/F1,site1/F2); default every floor found")
     args = p.parse_args(argv)
+    if args.floors is not None and args.kind != "ilc20":
+        p.error("--floors applies to ilc20 only")
 
     from blenav.data import DatasetError
     from blenav.importers import ImportError_, run_import
 
     try:
-        report = run_import(args.kind, args.src, args.out)
+        options = {"floors": args.floors} if args.floors is not None else {}
+        report = run_import(args.kind, args.src, args.out, **options)
     except (ImportError_, DatasetError) as exc:
         print(f"blenav-import: error: {exc}", file=sys.stderr)
         return 1

@@ -25,6 +25,7 @@ from .issues import Issue, error, raise_or_log, warning
 from .schema import (
     ANCHOR_COLUMNS,
     ANCHOR_KINDS,
+    ANCHOR_POSITION_COLUMNS,
     DEFAULT_FREE_THRESH,
     DEFAULT_OCCUPIED_THRESH,
     FLOOR_KEYS,
@@ -190,6 +191,10 @@ class Region:
     properties: dict = field(default_factory=dict)
 
 
+class AnchorPositionsUnknown(ValueError):
+    """A method needs anchor positions that the dataset does not give; the message is the reason to skip it."""
+
+
 @dataclass
 class Building:
     """A building folder: ``building.yaml``, floor images, anchors, rooms, navigation graph.
@@ -221,6 +226,24 @@ class Building:
         if floor is not None:
             a = a[a["floor"].astype(str) == str(floor)]
         return a
+
+    def anchors_without_position(self, kind: str | None = None) -> pd.DataFrame:
+        """Anchors (of ``kind``) whose position is unknown: x, y, z empty in anchors.csv (e.g. an imported
+        recording that names its beacons but not where they are; ``blenav-map`` estimates them)."""
+        a = self.anchors_of(kind)
+        return a[a[list(ANCHOR_POSITION_COLUMNS)].isna().all(axis=1).to_numpy()]
+
+    def require_anchor_positions(self, kind: str = "ble", who: str = "this method") -> None:
+        """Raise :class:`AnchorPositionsUnknown` (a ValueError whose message is the reason to skip) when no anchor of
+        ``kind`` has a known position. Methods that need positions call this instead of running on NaN;
+        anchors without a position among positioned ones are left to the caller (see anchors_without_position)."""
+        a = self.anchors_of(kind)
+        unknown = len(self.anchors_without_position(kind))
+        if len(a) == 0 or unknown == len(a):
+            raise AnchorPositionsUnknown(
+                f"{who} needs {kind} anchor positions, but building {self.id!r} has "
+                + (f"no {kind} anchors" if len(a) == 0 else f"none: its {len(a)} {kind} anchors have empty x, y, z in "
+                   "anchors.csv (estimate them from labelled walks with blenav-map)"))
 
     def rooms_on(self, floor) -> list[Region]:
         return [r for r in self.rooms if str(r.floor) == str(floor)]
@@ -406,10 +429,18 @@ def _load_anchors(path: Path, floors: dict) -> tuple[pd.DataFrame, list[Issue]]:
                           for c in ANCHOR_COLUMNS})
     if not path.is_file():
         return empty, []
-    df, issues = read_table(path, ("anchor_id", "kind", "x", "y", "z", "floor"), ("tx_power_dbm", "channel_model"),
-                            string=("anchor_id", "kind", "floor", "channel_model"), time_column=None)
+    # x, y, z may be empty together (the position is unknown); one or two of them empty is an error
+    df, issues = read_table(path, ("anchor_id", "kind", "floor"), ANCHOR_POSITION_COLUMNS + ("tx_power_dbm",
+                            "channel_model"), string=("anchor_id", "kind", "floor", "channel_model"), time_column=None)
     if df is None:
         return empty, issues
+    pos = df[list(ANCHOR_POSITION_COLUMNS)].to_numpy(dtype=float)
+    partial = np.isnan(pos).any(axis=1) & ~np.isnan(pos).all(axis=1)
+    partial[[i.line - 2 for i in issues if i.is_error and i.line is not None and 2 <= i.line < len(df) + 2]] = False
+    for r in np.flatnonzero(partial)[:20]:
+        c = ANCHOR_POSITION_COLUMNS[int(np.argmax(np.isnan(pos[r])))]
+        issues.append(error(path, "non-finite", f"column '{c}' is NaN/empty but not all of x, y, z are: a position "
+                            "is known (all three finite) or unknown (all three empty)", line=int(r) + 2))
     df["anchor_id"] = df["anchor_id"].astype(str).str.strip()
     kinds = df["kind"].astype(str).str.strip()
     for r in np.flatnonzero(~kinds.isin(ANCHOR_KINDS).to_numpy())[:20]:

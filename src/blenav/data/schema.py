@@ -88,6 +88,10 @@ PLAUSIBLE: dict[tuple[str, str], Plausible] = {
     **{("mag", c): _MAG for c in ("mx", "my", "mz")},
     ("rssi", "rssi"): Plausible(RSSI_MIN_DBM, RSSI_MAX_DBM, "dBm", "rssi-range",
                                 "a sentinel or corrupt value (a beacon not heard has no row)", open_=True),
+    ("wifi", "rssi_dbm"): Plausible(RSSI_MIN_DBM, RSSI_MAX_DBM, "dBm", "rssi-range",
+                                    "a sentinel or corrupt value (an access point not heard has no row)", open_=True),
+    ("wifi", "freq_mhz"): Plausible(2000.0, 8000.0, "MHz", "wifi-range",
+                                    "WiFi channels lie between 2.4 and 7.1 GHz: is it in MHz (not GHz or a channel number)?"),
     ("rtt", "range_m"): Plausible(-50.0, 1000.0, "m", "rtt-range",
                                   "is it in metres (not mm or cm)? (Android reports small negative ranges)"),
     ("rtt", "range_std_m"): Plausible(0.0, 1000.0, "m", "rtt-range", "a standard deviation in metres"),
@@ -155,6 +159,11 @@ STREAMS: dict[str, StreamSpec] = {
         StreamSpec("fixes", ("t", "x", "y"), ("std", "source"), string=("source",)),
         # world-frame position (m) and device-to-world quaternion (w first, may be empty)
         StreamSpec("groundtruth", ("t", "x", "y", "z"), ("qw", "qx", "qy", "qz")),
+        # WiFi RSS scans (optional extension): one row per access point per scan, dBm, MHz; not anchored
+        StreamSpec("wifi", ("t", "bssid", "rssi_dbm"), ("freq_mhz",), string=("bssid",)),
+        # the phone's own orientation estimate (optional extension, e.g. Android's rotation vector): unit
+        # quaternion, w first, device frame -> the frame named in session.yaml `orientation_frame`
+        StreamSpec("orientation", ("t", "qw", "qx", "qy", "qz")),
     )
 }
 
@@ -162,6 +171,13 @@ STREAMS: dict[str, StreamSpec] = {
 ANCHORED_STREAMS = ("rssi", "rtt")
 
 ANCHOR_COLUMNS = ("anchor_id", "kind", "x", "y", "z", "floor", "tx_power_dbm", "channel_model")
+#: Anchor columns that may be empty together on a row: the anchor's position is unknown (docs/dataset-format.md,
+#: "Anchors whose position is unknown"); one or two of them empty is an error ('non-finite').
+ANCHOR_POSITION_COLUMNS = ("x", "y", "z")
+
+#: session.yaml `groundtruth_kind`: `trajectory` (default: ground truth sampled along the walk) or `waypoints`
+#: (sparse surveyed points only; consumers that need denser labels interpolate and say so).
+GROUNDTRUTH_KINDS = ("trajectory", "waypoints")
 ANCHOR_TRUE_COLUMNS = ("x_true", "y_true", "z_true")
 
 FLOOR_KEYS = ("id", "image", "resolution", "origin")

@@ -21,6 +21,7 @@ from .issues import MAX_ROWS_PER_RULE, Issue, error, raise_or_log, warning
 from .schema import (
     ANCHORED_STREAMS,
     CARRIERS,
+    GROUNDTRUTH_KINDS,
     IMU_MAX_MEAN_DT_S,
     IMU_MIN_MEAN_DT_S,
     IMU_RATE_MIN_ROWS,
@@ -56,6 +57,9 @@ def check_session_meta(path: Path, doc: dict, buildings: dict) -> list[Issue]:
         issues.append(error(path, "session-keys", f"session.yaml lacks key(s) {', '.join(missing)}"))
     if "carrier" in doc and doc["carrier"] not in CARRIERS:
         issues.append(error(path, "session-carrier", f"carrier {doc['carrier']!r} is not one of {CARRIERS}"))
+    if "groundtruth_kind" in doc and doc["groundtruth_kind"] not in GROUNDTRUTH_KINDS:
+        issues.append(error(path, "session-groundtruth-kind",
+                            f"groundtruth_kind {doc['groundtruth_kind']!r} is not one of {GROUNDTRUTH_KINDS}"))
     if "labelled" in doc and not isinstance(doc["labelled"], bool):
         issues.append(error(path, "session-labelled", f"labelled must be true or false, got {doc['labelled']!r}"))
     b = doc.get("building")
@@ -177,6 +181,9 @@ def load_stream(root: Path, name: str, building: Building | None, labelled: bool
     if name in WORLD_POSITION_STREAMS and building is not None and _floor_key(floor_id, building.floors) is not None:
         far = positions_far_off_floor(path, df, building.floor(floor_id), reported)
         issues += far
+    if name == "orientation":  # the phone's orientation estimate: normalised like ground-truth quaternions
+        df, more = _check_quaternions(path, df, reported)
+        issues += more
     if name == "groundtruth":
         df, more = _check_quaternions(path, df, reported)
         issues += more
@@ -353,6 +360,13 @@ class Session:
         return bool(self.meta.get("labelled", False))
 
     @property
+    def groundtruth_sparse(self) -> bool:
+        """Whether the ground truth is sparse surveyed waypoints (session.yaml ``groundtruth_kind: waypoints``), not
+        a trajectory sampled along the walk: consumers that need a position at every instant interpolate between
+        them (:meth:`positions_at`) and say so."""
+        return self.meta.get("groundtruth_kind", "trajectory") == "waypoints"
+
+    @property
     def floor(self) -> Floor:
         return self.building.floor(self.meta.get("floor"))
 
@@ -408,6 +422,9 @@ class Session:
     visual = property(lambda self: self.stream("visual"), doc="t, x, y, z (m), yaw (rad CCW from +x)")
     odometry = property(lambda self: self.stream("odometry"), doc="t, x, y (m, arbitrary frame)")
     fixes = property(lambda self: self.stream("fixes"), doc="t, x, y, std (m), source")
+    wifi = property(lambda self: self.stream("wifi"), doc="t, bssid, rssi_dbm (dBm), freq_mhz (MHz; NaN unknown)")
+    orientation = property(lambda self: self.stream("orientation"),
+                           doc="t, qw, qx, qy, qz: the phone's own device->world(ish) quaternion, normalised")
     groundtruth = property(lambda self: self.stream("groundtruth"),
                            doc="t, x, y, z (m, world), qw, qx, qy, qz (device->world, NaN when absent)")
 

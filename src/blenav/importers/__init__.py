@@ -11,7 +11,9 @@ import importlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-KINDS = ("uji_ble", "danis_ble_tracks", "kolakowski_ble_calib", "feng_wifi_rtt")
+KINDS = ("uji_ble", "danis_ble_tracks", "kolakowski_ble_calib", "feng_wifi_rtt", "ilc20")
+#: kinds whose SRC may be an archive file as well as a folder
+ARCHIVE_KINDS = ("ilc20",)
 
 
 class ImportError_(ValueError):
@@ -44,12 +46,13 @@ class ImportReport:
         return "\n".join(lines)
 
 
-def run_import(kind: str, src: Path | str, out: Path | str) -> ImportReport:
-    """Dispatch to ``blenav.importers.<kind>.import_<kind>``."""
+def run_import(kind: str, src: Path | str, out: Path | str, **options) -> ImportReport:
+    """Dispatch to ``blenav.importers.<kind>.import_<kind>``; ``options`` are passed on (e.g. ilc20's ``floors``)."""
     if kind not in KINDS:
         raise ValueError(f"unknown import kind {kind!r}; choose one of {', '.join(KINDS)}")
     src, out = Path(src), Path(out)
-    if not src.is_dir():
-        raise ImportError_(src, None, "source folder does not exist")
+    if not src.is_dir() and not (kind in ARCHIVE_KINDS and src.is_file()):
+        raise ImportError_(src, None, "source folder does not exist" if kind not in ARCHIVE_KINDS
+                           else "source folder or archive does not exist")
     mod = importlib.import_module(f"blenav.importers.{kind}")
-    return getattr(mod, f"import_{kind}")(src, out)
+    return getattr(mod, f"import_{kind}")(src, out, **options)

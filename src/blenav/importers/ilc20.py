@@ -1,0 +1,875 @@
+"""Import Indoor Location Competition 2.0 recordings (and the 2021 Kaggle challenge layout) into dataset format v1.
+
+Source: XYZ10, Inc., Indoor Location Competition 2.0 sample data, GitHub
+location-competition/indoor-location-competition-20 (MIT licence; see ``SOURCE.txt`` beside the raw copy).
+The 2021 "Indoor Location & Navigation" challenge (204 buildings) uses the same path-file format.
+
+Input (``src``)
+---------------
+* a floor folder ``<site>/<floor>/{floor_info.json, geojson_map.json, floor_image.png, path_data_files/*.txt}``,
+  a site folder holding floor folders, or any folder above them (repository layout);
+* the challenge layout ``train/<site>/<floor>/*.txt`` with ``metadata/<site>/<floor>/{floor_info.json,
+  geojson_map.json}`` (``src`` may be the folder holding both, or ``train`` itself when ``metadata`` is its
+  sibling);
+* a ``.tar.gz`` / ``.tgz`` / ``.tar`` or ``.zip`` of either, read member by member (tar: one streaming pass)
+  without unpacking to disk.
+
+``floors`` (``--floors SITE/FLOOR,...``) keeps only those floors; a name that matches no floor is an error
+listing the floors found. Site and floor names are the folder names (``site1``, ``F1``).
+
+What is written
+---------------
+* One building per site (folder name, e.g. ``site1``; ``name`` = the path files' ``SiteName``), one floor per
+  floor folder, floor id = the folder name (``B1``, ``F1``, a string). Floor ``z`` = level x
+  ``FLOOR_HEIGHT_M`` (5 m, **assumed**; level from the name: ``F<k>``/``L<k>``/``<k>F`` -> k - 1,
+  ``B<k>`` -> -k, else the GeoJSON outline's ``floor_num`` - 1, else 0).
+* **Frames.** Every floor keeps the upstream floor frame, the frame of its waypoints: x east, y north, metres,
+  origin at the south-west corner of the bounding box of the floor outline. The outline's longitude/latitude
+  bounding box maps linearly onto ``[0, width] x [0, height]`` (``floor_info.json`` ``map_info``), the
+  alignment described in SOURCE.txt. Floors of one site therefore have slightly different origins (format v1
+  wants one origin per building): building.yaml ``floor_frames`` gives each floor's bounding box in
+  longitude/latitude and the shift (m) of its origin from the first floor's, for consumers that move between
+  floors. The alignment is checked per floor against the waypoints (below).
+* **Occupancy grid** at ``RESOLUTION_M`` = 0.1 m/px covering ``[0, width] x [0, height]``, origin (0, 0):
+  a pixel is FREE (walkable) when its centre lies inside the floor outline (holes excluded) and outside every
+  unit polygon, else OCCUPIED. Rasterised with PIL's polygon fill (exact to about one pixel at edges); holes
+  of unit polygons are not cut out (none in the sample data). ``floor_image.png`` is not used.
+* **Rooms**: every unit (shop) polygon becomes a ``rooms.geojson`` feature in floor metres, ``id`` = the
+  unit's GeoJSON id (else ``<floor>-unit<i>``), ``name`` = its name. An invalid polygon is repaired with
+  shapely's ``make_valid`` (counted in the report); empty ones are dropped (counted).
+* **Alignment check** (per floor, in the report and in building.yaml ``alignment``): the share of all
+  waypoints of the floor inside the outline, on FREE cells of the grid, and inside a unit; plus the ratio of
+  ``floor_info`` width/height to the outline's geodesic size (1.0 = the same scale). A floor with under half
+  of its waypoints on FREE cells would fail the validator's ``groundtruth-in-obstacles`` rule.
+* ``anchors.csv``: one ``kind: ble`` row per iBeacon transmitter heard, **position unknown** (x, y, z empty:
+  the data gives none; ``blenav-map`` estimates them). ``anchor_id`` = ``UUID:major:minor:MAC`` (upper case):
+  in this data the iBeacon triple alone does not identify a beacon: the mall's 327 beacons of the three floors
+  all advertise ``9195B3AD-A9D0-4500-85FF-9FB0F65A5201:0:0`` and differ only in MAC (E0:78:A3:...), and
+  other triples are advertised by up to 113 MACs (phones with rotating addresses). ``beacon_id="triple"``
+  writes ``UUID:major:minor`` instead. ``floor`` = the floor where it was heard most often (a guess: heard
+  on several floors, see ``floors_heard``); ``tx_power_dbm`` = the median advertised measured power (RSSI at
+  1 m) when it lies in (-150, 0) dBm, else empty. Extra columns: ``uuid, major, minor, mac, n_rows,
+  floors_heard``.
+* One session per path file, id ``<site>_<floor>_<path id>``: ``carrier: pedestrian``, ``device_model`` =
+  ``<Brand> <Model>`` from the header (``unknown`` when absent), ``receiver_brand``, ``android``,
+  ``groundtruth_kind: waypoints``, ``orientation_frame``, the upstream ``site_id``/``floor_id``/``path_id``,
+  ``start_unix_ms``, ``sensor_time_offset_s``, ``records`` (rows per record type read).
+
+  - ``imu.csv``: TYPE_ACCELEROMETER (m/s^2 incl. gravity) and TYPE_GYROSCOPE (rad/s), Android device frame
+    (the format's frame; no conversion). **Time alignment**: when both streams have the same timestamps (all
+    walks of the sample: the app logs them together) rows are paired; otherwise the gyroscope is linearly
+    interpolated at the accelerometer times and accelerometer samples outside the gyroscope's time span are
+    dropped (counted).
+  - ``mag.csv``: TYPE_MAGNETIC_FIELD (calibrated, microtesla). The ``*_UNCALIBRATED`` streams are not imported.
+  - ``orientation.csv`` (format extension): TYPE_ROTATION_VECTOR as a unit quaternion ``qw, qx, qy, qz``
+    (``qw = sqrt(1 - x^2 - y^2 - z^2)``, Android's ``getQuaternionFromVector``) rotating device-frame vectors
+    into Android's East-North-Up frame, whose y axis points to *magnetic* north (session.yaml
+    ``orientation_frame: enu-magnetic``); the floor frame's y is geographic north of the map, so they differ
+    by the magnetic declination (about -5 deg at the ILC mall) plus the map's own error.
+  - ``rssi.csv``: TYPE_BEACON rows, ``t`` = the row's time, ``rssi`` dBm. Readings not in (-150, 0) dBm are
+    dropped and counted.
+  - ``wifi.csv`` (format extension): TYPE_WIFI rows: ``t`` = the scan's row time, ``bssid`` (lower case),
+    ``rssi_dbm``, ``freq_mhz``; extra ``ssid`` and ``t_seen`` (the AP's ``last_seen`` time on the session
+    clock, s; it can precede the scan by tens of seconds, and the session's start: a cached reading).
+    Readings not in (-150, 0) dBm are dropped and counted; a frequency outside 2000..8000 MHz is left empty.
+  - ``groundtruth.csv``: the surveyed TYPE_WAYPOINT rows only (x, y in floor metres; z = floor z +
+    ``PHONE_HEIGHT_M`` 1.2 m, assumed; orientation empty; extra ``raw_line``). Nothing is interpolated:
+    consumers that need denser labels interpolate between waypoints and say so. A walk with fewer than two
+    waypoints is written ``labelled: false`` without groundtruth.csv (its waypoint, if any, in session.yaml
+    ``waypoints``).
+
+Time
+----
+Every row carries a Unix time in ms. The session clock is ``t = (unix_ms - t0) / 1000`` s with ``t0`` the
+header's ``startTime`` (the first row's time when the header lacks it, or the earliest row when a row precedes
+it). Rows of each stream are sorted by time (stable): waypoints, for one, are logged out of file order.
+**Sensor vs system time**: sensor rows (accelerometer, gyroscope, magnetometer, rotation vector) carry the
+SensorEvent time aligned to Unix time by the recording app, other rows the system time. In the 365 walks
+of the sample the sensor rows start 106..189 ms after ``startTime`` and end at most 11 ms after ``endTime``,
+so no offset is applied. When the sensor times of a walk lie more than ``SENSOR_CLOCK_TOL_S`` (10 s) outside
+the walk's system-time span (an app that did not align the SensorEvent clock: boot time), the sensor streams
+are shifted so that their first sample falls at the walk's start, and the shift is written as
+``sensor_time_offset_s`` (0.0 otherwise) and counted in the report.
+
+Bad input
+---------
+A line that does not parse (too few or too many tab-separated fields for its record type, a time that is
+not an integer, a value that is not a finite number, a blank line inside the file, bytes that are not
+UTF-8) or a file that does not end with a newline (its last line may be cut) raises
+:class:`~blenav.importers.ImportError_` naming the file (``archive:member`` inside an archive) and the
+1-based line. Record types the format does not document are counted per type and reported, never fatal;
+documented types that are not imported (uncalibrated streams, TYPE_BLUE/BLU4/DIST1/DIST2, accuracy changes)
+are counted as ignored. A walk without an ``endTime`` header line (possibly cut exactly at a line end) is
+imported and counted. Output goes to a temporary folder beside ``out`` that is renamed to ``out`` only when
+everything parsed, so a failed import leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import re
+import shutil
+import tarfile
+import zipfile
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import pandas as pd
+import shapely
+from PIL import Image, ImageDraw
+from shapely.geometry import MultiPolygon, Polygon, shape
+
+from blenav.data.building import FREE, OCCUPIED
+from blenav.data.schema import STREAMS
+from blenav.data.writer import write_building, write_dataset_meta, write_session
+
+from . import ImportError_, ImportReport
+from ._common import check_out, grid_lookup, rssi_in_range, validate_or_raise
+
+RESOLUTION_M = 0.1
+FLOOR_HEIGHT_M = 5.0
+PHONE_HEIGHT_M = 1.2
+SENSOR_CLOCK_TOL_S = 10.0
+WIFI_FREQ_MHZ = (2000.0, 8000.0)
+#: metres per degree of latitude, and of longitude at the equator (WGS84 mean values, for the scale check only)
+M_PER_DEG_LAT = 110_574.0
+M_PER_DEG_LON = 111_320.0
+
+SENSOR_TYPES = ("TYPE_ACCELEROMETER", "TYPE_GYROSCOPE", "TYPE_MAGNETIC_FIELD", "TYPE_ROTATION_VECTOR")
+#: record type -> (allowed numbers of tab-separated fields, names of the fields after time and type)
+USED = {
+    **{t: ((5, 6), ("x", "y", "z", "accuracy")) for t in SENSOR_TYPES},
+    "TYPE_WAYPOINT": ((4,), ("x", "y")),
+    "TYPE_WIFI": ((7,), ("ssid", "bssid", "rssi", "frequency", "last_seen")),
+    "TYPE_BEACON": ((10,), ("uuid", "major", "minor", "tx_power", "rssi", "distance", "mac", "unix_ms")),
+}
+IGNORED = ("TYPE_ACCELEROMETER_UNCALIBRATED", "TYPE_GYROSCOPE_UNCALIBRATED", "TYPE_MAGNETIC_FIELD_UNCALIBRATED",
+           "TYPE_BLUE", "TYPE_BLU4", "TYPE_DIST1", "TYPE_DIST2")
+_IGNORED_RE = re.compile(r"^TYPE_SENSOR_[A-Z_]+_ACCURACY_CHANGED$")
+
+_REPO_RE = re.compile(r"^(?:.*/)?([^/]+)/([^/]+)/path_data_files/([^/]+)\.txt$")
+_CHALLENGE_RE = re.compile(r"^(?:.*/)?train/([^/]+)/([^/]+)/([^/]+)\.txt$")
+_META_RE = re.compile(r"^(?:.*/)?([^/]+)/([^/]+)/(floor_info|geojson_map)\.json$")
+_SESSION_ID_RE = re.compile(r"[^A-Za-z0-9_.-]+")
+
+
+# --------------------------------------------------------------------------------------------------
+# sources: folder, tar, zip
+
+
+@dataclass
+class _Entry:
+    vpath: str        # posix path used for layout matching
+    display: str      # what error messages name
+    data: bytes
+
+
+def _classify(vpath: str) -> tuple[str, tuple[str, str], str] | None:
+    """('walk' | 'meta', (site, floor), stem or meta name) for a relevant path, else None."""
+    name = vpath.rsplit("/", 1)[-1]
+    if name.startswith("._") or "__MACOSX/" in vpath:
+        return None
+    m = _REPO_RE.match(vpath)
+    if m:
+        return "walk", (m.group(1), m.group(2)), m.group(3)
+    m = _CHALLENGE_RE.match(vpath)
+    if m:
+        return "walk", (m.group(1), m.group(2)), m.group(3)
+    m = _META_RE.match(vpath)
+    if m:
+        return "meta", (m.group(1), m.group(2)), m.group(3)
+    return None
+
+
+def _iter_source(src: Path, want) -> Iterator[_Entry]:
+    """Relevant files of ``src`` (folder, tar or zip) in storage order; ``want(vpath)`` filters before reading."""
+    name = src.name.lower()
+    if src.is_dir():
+        base = src.resolve()
+        for root, dirs, files in os.walk(base):
+            dirs.sort()
+            for f in sorted(files):
+                p = Path(root) / f
+                vpath = p.as_posix().lstrip("/")
+                if want(vpath):
+                    yield _Entry(vpath, str(p), p.read_bytes())
+        # challenge layout given as its train/ folder: the metadata/ sibling
+        if base.name == "train" and (base.parent / "metadata").is_dir():
+            yield from _iter_source(base.parent / "metadata", want)
+    elif name.endswith((".tar.gz", ".tgz", ".tar")):
+        try:
+            with tarfile.open(src, mode="r|*") as tf:
+                for m in tf:
+                    if m.isfile() and want(m.name):
+                        yield _Entry(m.name, f"{src}:{m.name}", tf.extractfile(m).read())
+        except (tarfile.TarError, EOFError, OSError) as exc:
+            raise ImportError_(src, None, f"not a readable tar archive ({exc})") from None
+    elif name.endswith(".zip"):
+        try:
+            with zipfile.ZipFile(src) as zf:
+                for info in zf.infolist():
+                    if not info.is_dir() and want(info.filename):
+                        yield _Entry(info.filename, f"{src}:{info.filename}", zf.read(info))
+        except (zipfile.BadZipFile, EOFError, OSError) as exc:
+            raise ImportError_(src, None, f"not a readable zip archive ({exc})") from None
+    else:
+        raise ImportError_(src, None, "expected a folder, a .tar.gz/.tgz/.tar or a .zip archive")
+
+
+# --------------------------------------------------------------------------------------------------
+# path files
+
+
+#: tab-separated fields read per line (the widest documented record, TYPE_BEACON, has 10)
+MAX_FIELDS = 12
+
+
+@dataclass
+class _Walk:
+    header: dict[str, str]
+    start_line: dict[str, int]
+    cells: pd.DataFrame           # str cells, row r = file line r + 1, columns 0..MAX_FIELDS-1 ('' when absent)
+    nfields: np.ndarray           # (lines,) tab-separated fields per line
+    kinds: np.ndarray             # (lines,) record type ('' on header lines)
+    counts: Counter
+    unknown: Counter
+    ignored: Counter
+
+
+def _parse_lines(display: str, data: bytes) -> _Walk:
+    """Split a path file into cells (pandas' C parser; one row per physical line) and check the line structure."""
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ImportError_(display, data[: exc.start].count(b"\n") + 1, f"not UTF-8 text ({exc.reason})") from None
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    if not data:
+        raise ImportError_(display, None, "file is empty")
+    if not data.endswith(b"\n"):
+        raise ImportError_(display, data.count(b"\n") + 1, "the file does not end with a newline, so its last line "
+                           "may be cut short (a number missing digits): the walk was cut while it was written or copied")
+    a = np.frombuffer(data, dtype=np.uint8)
+    ends = np.flatnonzero(a == 10)
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    tabs = np.flatnonzero(a == 9)
+    nfields = np.searchsorted(tabs, ends) - np.searchsorted(tabs, starts) + 1
+    blank = (ends == starts) | ((ends - starts == 1) & (a[np.maximum(ends - 1, 0)] == 13))
+    if blank.any():
+        raise ImportError_(display, int(np.argmax(blank)) + 1, "blank line inside the file")
+    wide = nfields > MAX_FIELDS
+    if wide.any():
+        r = int(np.argmax(wide))
+        raise ImportError_(display, r + 1, f"{nfields[r]} tab-separated fields; no record type has more than 10")
+    try:
+        cells = pd.read_csv(io.BytesIO(data), sep="\t", header=None, names=range(MAX_FIELDS), dtype=str,
+                            quoting=csv.QUOTE_NONE, keep_default_na=False, skip_blank_lines=False, engine="c")
+    except (ValueError, pd.errors.ParserError) as exc:  # not expected after the checks above
+        m = re.search(r"line (\d+)", str(exc))
+        raise ImportError_(display, int(m.group(1)) if m else None, f"unreadable line ({exc})") from None
+    if len(cells) != len(ends):
+        raise ImportError_(display, None, f"{len(cells)} rows read from {len(ends)} lines (a stray carriage return?)")
+    first = cells[0].to_numpy(dtype=object)
+    is_header = cells[0].str.startswith("#").to_numpy(dtype=bool)
+    header: dict[str, str] = {}
+    start_line: dict[str, int] = {}
+    for r in np.flatnonzero(is_header):
+        items = [first[r][1:]] + [str(x) for x in cells.iloc[r, 1:nfields[r]]]
+        for item in items:
+            k, sep, v = item.partition(":")
+            if sep and k.strip():
+                header[k.strip()] = v.strip()
+                start_line[k.strip()] = int(r) + 1
+    short = ~is_header & (nfields < 2)
+    if short.any():
+        r = int(np.argmax(short))
+        raise ImportError_(display, r + 1, f"1 field, expected 'unix_time_ms<TAB>TYPE<TAB>values' ({first[r][:60]!r})")
+    kinds = np.where(is_header, "", cells[1].to_numpy(dtype=object)).astype(object)
+    vc = Counter(pd.Series(kinds[~is_header]).value_counts().to_dict())
+    counts, unknown, ignored = Counter(), Counter(), Counter()
+    for k, n in vc.items():
+        if k in USED:
+            counts[k] = n
+        elif k in IGNORED or _IGNORED_RE.match(k):
+            ignored[k] = n
+        else:
+            unknown[k or "(empty type)"] = n
+    return _Walk(header, start_line, cells, nfields, kinds, counts, unknown, ignored)
+
+
+def _table(display: str, walk: _Walk, kind: str, numeric: tuple[int, ...]
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, pd.DataFrame]:
+    """(lines (n,), unix ms (n,) int64, numbers (n, len(numeric)) float64, str cells (n, MAX_FIELDS)) of the rows
+    of ``kind``, in file order. ``numeric`` indexes the fields after time and type (cell column 2 + i). Raises
+    naming the line of the first bad row (field count, time, number)."""
+    rows = np.flatnonzero(walk.kinds == kind)
+    allowed, names = USED[kind]
+    n = len(rows)
+    if n == 0:
+        return np.empty(0, np.int64), np.empty(0, np.int64), np.empty((0, len(numeric))), walk.cells.iloc[:0]
+    lens = walk.nfields[rows]
+    bad = ~np.isin(lens, allowed)
+    if bad.any():
+        r = int(rows[np.argmax(bad)])
+        want = " or ".join(str(a) for a in allowed)
+        raise ImportError_(display, r + 1, f"{kind}: {walk.nfields[r]} tab-separated fields, expected {want} "
+                           f"(time, type, {', '.join(names)})")
+    sub = walk.cells.iloc[rows]
+    tf = pd.to_numeric(sub[0], errors="coerce").to_numpy(dtype=float)
+    with np.errstate(invalid="ignore"):
+        isint = np.isfinite(tf) & (tf == np.round(tf)) & (np.abs(tf) < 2 ** 53)
+    if not isint.all():
+        r = int(rows[np.argmax(~isint)])
+        raise ImportError_(display, r + 1, f"time {walk.cells.iat[r, 0]!r} is not an integer (Unix ms)")
+    t = tf.astype(np.int64)
+    v = np.empty((n, len(numeric)))
+    for k, c in enumerate(numeric):
+        col = pd.to_numeric(sub[2 + c], errors="coerce").to_numpy(dtype=float)
+        bad = ~np.isfinite(col)
+        if bad.any():
+            r = int(rows[np.argmax(bad)])
+            raise ImportError_(display, r + 1, f"{kind} field {names[c]!r}: {walk.cells.iat[r, 2 + c]!r} is not a "
+                               "finite number")
+        v[:, k] = col
+    return rows + 1, t, v, sub
+
+
+# --------------------------------------------------------------------------------------------------
+# one walk -> one session
+
+
+@dataclass
+class _FloorAcc:
+    """What the sessions of one floor contribute to its building."""
+
+    waypoints: list = field(default_factory=list)           # (n, 2) arrays
+    walks: int = 0
+    site_name: str = ""
+    site_id: str = ""
+    floor_id: str = ""
+
+
+def _stable_sort(t: np.ndarray) -> np.ndarray:
+    return np.argsort(t, kind="stable")
+
+
+def _num_text(v: np.ndarray, decimals: int) -> np.ndarray:
+    """Numbers as CSV text rounded to ``decimals`` (NaN -> empty cell)."""
+    fmt = f"%.{decimals}f"
+    return np.array(["" if x != x else (fmt % x).rstrip("0").rstrip(".") if decimals else "%d" % x
+                     for x in np.asarray(v, dtype=float).tolist()], dtype=object)
+
+
+def _quote(v: np.ndarray) -> np.ndarray:
+    """Text cells quoted as RFC 4180 wants where they hold a comma, a quote or a line end."""
+    s = pd.Series(v, dtype=object).fillna("").astype(str)
+    need = s.str.contains(r'[,"\r\n]|^\s|\s$', regex=True).to_numpy(dtype=bool)
+    if need.any():
+        s[need] = '"' + s[need].str.replace('"', '""') + '"'
+    return s.to_numpy(dtype=object)
+
+
+def _write_streams(root: Path, sid: str, meta: dict, streams: dict[str, dict[str, np.ndarray]]) -> None:
+    """session.yaml (blenav's writer) and one CSV per stream from columns of text cells (spec columns first)."""
+    sroot = write_session(root, sid, meta, {})
+    for name, cols in streams.items():
+        spec = STREAMS[name]
+        missing = [c for c in spec.columns if c not in cols]
+        if missing:
+            raise ValueError(f"stream {name} for session {sid} lacks columns {missing}")
+        order = list(spec.columns) + [c for c in cols if c not in spec.columns]
+        body = "\n".join(map(",".join, zip(*(cols[c] for c in order))))
+        (sroot / spec.filename).write_text(",".join(order) + "\n" + body + ("\n" if body else ""), encoding="utf-8")
+
+
+def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, floor_z: float, beacon_id: str,
+                  report: ImportReport, events: Counter, beacons: dict, bssids: set
+                  ) -> tuple[str, dict, dict, np.ndarray, dict]:
+    """Parse one path file; returns (session id, session.yaml, streams, waypoints (n, 2) m, header).
+
+    ``beacons`` (anchor id -> what was heard) and ``bssids`` are updated; rows left out are counted in
+    ``report.dropped``, walk-level events in ``events``."""
+    w = _parse_lines(display, data)
+    for k in ("startTime", "endTime"):
+        if k in w.header and not re.fullmatch(r"-?\d+", w.header[k]):
+            raise ImportError_(display, w.start_line[k], f"header {k}: {w.header[k]!r} is not an integer (Unix ms)")
+    _, acc_t, acc, acc_c = _table(display, w, "TYPE_ACCELEROMETER", (0, 1, 2))
+    _, gyr_t, gyr, gyr_c = _table(display, w, "TYPE_GYROSCOPE", (0, 1, 2))
+    _, mag_t, mag, mag_c = _table(display, w, "TYPE_MAGNETIC_FIELD", (0, 1, 2))
+    _, rot_t, rot, rot_c = _table(display, w, "TYPE_ROTATION_VECTOR", (0, 1, 2))
+    wp_l, wp_t, wp, _ = _table(display, w, "TYPE_WAYPOINT", (0, 1))
+    _, wf_t, wf, wf_c = _table(display, w, "TYPE_WIFI", (2, 3))
+    _, bc_t, bc, bc_c = _table(display, w, "TYPE_BEACON", (1, 2, 3, 4))
+
+    sys_times = [a for a in (wf_t, bc_t, wp_t) if len(a)]
+    sensor_times = [a for a in (acc_t, gyr_t, mag_t, rot_t) if len(a)]
+    start = int(w.header["startTime"]) if "startTime" in w.header else None
+    end = int(w.header["endTime"]) if "endTime" in w.header else None
+    if end is None:
+        events["walks without an endTime header line (imported; possibly cut at a line end)"] += 1
+    lo = ([start] if start is not None else []) + [int(a.min()) for a in sys_times]
+    sys_lo = min(lo) if lo else 0
+    sys_hi = max(([end] if end is not None else []) + [int(a.max()) for a in sys_times] + [sys_lo])
+    offset_ms = 0
+    if sensor_times and (start is not None or sys_times):
+        s_lo = min(int(a.min()) for a in sensor_times)
+        s_hi = max(int(a.max()) for a in sensor_times)
+        tol = SENSOR_CLOCK_TOL_S * 1000
+        if s_lo < sys_lo - tol or s_hi > sys_hi + tol:
+            offset_ms = s_lo - sys_lo
+            events["walks whose sensor clock was shifted onto the system clock (sensor_time_offset_s)"] += 1
+    acc_t, gyr_t, mag_t, rot_t = (a - offset_ms for a in (acc_t, gyr_t, mag_t, rot_t))
+    all_t = [a for a in (acc_t, gyr_t, mag_t, rot_t, wf_t, bc_t, wp_t) if len(a)]
+    first = min(int(a.min()) for a in all_t) if all_t else 0
+    t0 = start if start is not None else first
+    if first < t0:
+        report.notes.append(f"{display}: rows precede startTime by {(t0 - first) / 1000:g} s; the session starts "
+                            "at the earliest row")
+        t0 = first
+
+    def sec(t_ms):
+        """Session time (s) as text with exactly the millisecond resolution of the raw times."""
+        return np.array(["%.3f" % x for x in ((np.asarray(t_ms, dtype=np.int64) - t0) / 1000.0).tolist()],
+                        dtype=object)
+
+    streams: dict[str, dict[str, np.ndarray]] = {}   # name -> column -> text cells
+
+    def raw(cells: pd.DataFrame, order: np.ndarray, field_: int) -> np.ndarray:
+        """The raw text of a numeric field (checked finite by _table), written as read: no float formatting."""
+        return cells[2 + field_].to_numpy(dtype=object)[order]
+
+    # IMU: pair accelerometer and gyroscope rows on equal times, else interpolate the gyroscope
+    if len(acc_t) and len(gyr_t):
+        ia, ig = _stable_sort(acc_t), _stable_sort(gyr_t)
+        at, gt = acc_t[ia], gyr_t[ig]
+        if len(at) == len(gt) and np.array_equal(at, gt):
+            imu = {"t": sec(at), **{c: raw(acc_c, ia, k) for k, c in enumerate(("ax", "ay", "az"))},
+                   **{c: raw(gyr_c, ig, k) for k, c in enumerate(("gx", "gy", "gz"))}}
+        else:
+            inside = (at >= gt[0]) & (at <= gt[-1])
+            report.drop("accelerometer samples outside the gyroscope's time span", int((~inside).sum()))
+            ia, at = ia[inside], at[inside]
+            g = gyr[ig]
+            imu = {"t": sec(at), **{c: raw(acc_c, ia, k) for k, c in enumerate(("ax", "ay", "az"))},
+                   **{c: _num_text(np.interp(at, gt, g[:, k]), 7) for k, c in enumerate(("gx", "gy", "gz"))}}
+        if len(at):
+            streams["imu"] = imu
+    elif len(acc_t) or len(gyr_t):
+        events["walks with an accelerometer or a gyroscope but not both (no imu.csv)"] += 1
+    if len(mag_t):
+        o = _stable_sort(mag_t)
+        streams["mag"] = {"t": sec(mag_t[o]), **{c: raw(mag_c, o, k) for k, c in enumerate(("mx", "my", "mz"))}}
+    if len(rot_t):
+        o = _stable_sort(rot_t)
+        n2 = (rot[o] ** 2).sum(axis=1)
+        # |v| <= 1 for a rotation vector; a larger one (rounding) gets qw = 0 and is normalised by the readers
+        qw = np.round(np.sqrt(np.clip(1.0 - n2, 0.0, None)), 7)
+        streams["orientation"] = {"t": sec(rot_t[o]), "qw": _num_text(qw, 7), **{c: raw(rot_c, o, k) for k, c in
+                                                                                  enumerate(("qx", "qy", "qz"))}}
+    if len(bc_t):
+        o = _stable_sort(bc_t)
+        rssi = bc[o, 3]
+        keep = rssi_in_range(rssi)
+        report.drop("iBeacon readings outside (-150, 0) dBm", int((~keep).sum()))
+        o = o[keep]
+        uuid = bc_c[2].str.strip().str.upper().to_numpy(dtype=object)[o]
+        mac = bc_c[8].str.strip().str.upper().to_numpy(dtype=object)[o]
+        major, minor = bc[o, 0].astype(np.int64), bc[o, 1].astype(np.int64)
+        triple = uuid + ":" + major.astype(str).astype(object) + ":" + minor.astype(str).astype(object)
+        ids = triple + ":" + mac if beacon_id == "mac" else triple
+        heard = pd.DataFrame({"id": ids, "uuid": uuid, "major": major, "minor": minor, "mac": mac, "tx": bc[o, 2]})
+        for aid, g in heard.groupby("id", sort=False):
+            b = beacons.get(aid)
+            if b is None:
+                r0 = g.iloc[0]
+                b = beacons[aid] = {"uuid": r0["uuid"], "major": int(r0["major"]), "minor": int(r0["minor"]),
+                                    "mac": r0["mac"] if beacon_id == "mac" else "", "floors": Counter(), "tx": []}
+            b["floors"][floor] += len(g)
+            if len(b["tx"]) < 200:
+                b["tx"] += g["tx"].tolist()[:200]
+        streams["rssi"] = {"t": sec(bc_t[o]), "anchor_id": ids, "rssi": raw(bc_c, o, 4)}
+    if len(wf_t):
+        o = _stable_sort(wf_t)
+        keep = rssi_in_range(wf[o, 0])
+        report.drop("WiFi readings outside (-150, 0) dBm", int((~keep).sum()))
+        o = o[keep]
+        freq = wf[o, 1].copy()
+        bad_f = (freq < WIFI_FREQ_MHZ[0]) | (freq > WIFI_FREQ_MHZ[1])
+        report.drop("WiFi frequencies outside 2000..8000 MHz (written empty)", int(bad_f.sum()))
+        freq[bad_f] = np.nan
+        bssid = wf_c[3].str.strip().str.lower().to_numpy(dtype=object)[o]
+        seen = pd.to_numeric(wf_c[6], errors="coerce").to_numpy(dtype=float)[o]
+        bssids.update(bssid)
+        streams["wifi"] = {"t": sec(wf_t[o]), "bssid": bssid, "rssi_dbm": raw(wf_c, o, 2),
+                           "freq_mhz": _num_text(freq, 0), "ssid": _quote(wf_c[2].to_numpy(dtype=object)[o]),
+                           "t_seen": _num_text((seen - t0) / 1000.0, 3)}
+    o = _stable_sort(wp_t)
+    wp_xy = wp[o]
+    labelled = len(wp_t) >= 2
+    if labelled:
+        empty = np.full(len(o), "", dtype=object)
+        streams["groundtruth"] = {"t": sec(wp_t[o]), "x": _num_text(wp_xy[:, 0], 6), "y": _num_text(wp_xy[:, 1], 6),
+                                  "z": _num_text(np.full(len(o), floor_z + PHONE_HEIGHT_M), 3), "qw": empty,
+                                  "qx": empty, "qy": empty, "qz": empty, "raw_line": _num_text(wp_l[o], 0)}
+    else:
+        events["walks with fewer than two waypoints (written as unlabelled sessions)"] += 1
+
+    h = w.header
+    brand, model = h.get("Brand", "").strip(), h.get("Model", "").strip()
+    sid = _SESSION_ID_RE.sub("-", f"{site}_{floor}_{stem}")
+    meta = {"building": site, "floor": floor, "device_model": f"{brand} {model}".strip() or "unknown",
+            "carrier": "pedestrian", "labelled": labelled, "groundtruth_kind": "waypoints",
+            "orientation_frame": "enu-magnetic",
+            "notes": ("Indoor Location Competition 2.0 walk; ground truth = surveyed waypoints only"
+                      + ("" if labelled else f"; {len(wp_t)} waypoint(s), fewer than two: unlabelled")),
+            "receiver_brand": brand, "android": h.get("AndroidName", ""),
+            "site_id": h.get("SiteID", ""), "floor_id": h.get("FloorId", ""), "path_id": stem,
+            "start_unix_ms": int(t0), "sensor_time_offset_s": offset_ms / 1000.0,
+            "records": {k: int(v) for k, v in sorted((w.counts + w.ignored + w.unknown).items())}}
+    if not labelled and len(wp_t):
+        meta["waypoints"] = [[float(a), float(b), float(c)] for a, (b, c) in zip(sec(wp_t[o]), wp_xy)]
+    for k, v in w.unknown.items():
+        report.drop(f"rows of undocumented record type {k} (not imported)", v)
+    for k, v in w.ignored.items():
+        report.drop(f"rows of {k} (documented, not imported)", v)
+    return sid, meta, streams, wp_xy, h
+
+
+# --------------------------------------------------------------------------------------------------
+# floor plans
+
+
+def _floor_level(name: str, floor_num) -> int:
+    m = re.fullmatch(r"(?:F|L)(\d+)|(\d+)F", name, flags=re.I)
+    if m:
+        return int(m.group(1) or m.group(2)) - 1
+    m = re.fullmatch(r"B(\d+)|(\d+)B", name, flags=re.I)
+    if m:
+        return -int(m.group(1) or m.group(2))
+    try:
+        return int(floor_num) - 1
+    except (TypeError, ValueError):
+        return 0
+
+
+def _json(display: str, data: bytes):
+    try:
+        return json.loads(data.decode("utf-8-sig"))
+    except UnicodeDecodeError as exc:
+        raise ImportError_(display, data[: exc.start].count(b"\n") + 1, f"not UTF-8 text ({exc.reason})") from None
+    except json.JSONDecodeError as exc:
+        raise ImportError_(display, exc.lineno, f"not valid JSON ({exc.msg})") from None
+    except RecursionError:
+        raise ImportError_(display, None, "JSON nested too deeply") from None
+
+
+@dataclass
+class _Plan:
+    occupancy: np.ndarray
+    outline: shapely.Geometry
+    units: list                     # (id, name, geometry in metres)
+    width: float
+    height: float
+    lonlat_box: tuple[float, float, float, float]
+    scale_ratio: tuple[float, float]
+    floor_num: object
+
+
+def _polygons(g) -> list[Polygon]:
+    if isinstance(g, Polygon):
+        return [g]
+    if isinstance(g, MultiPolygon):
+        return list(g.geoms)
+    if hasattr(g, "geoms"):
+        return [p for x in g.geoms for p in _polygons(x)]
+    return []
+
+
+def _read_plan(info_display: str, info_data: bytes, geo_display: str, geo_data: bytes, floor: str,
+               report: ImportReport) -> _Plan:
+    info = _json(info_display, info_data)
+    try:
+        width = float(info["map_info"]["width"])
+        height = float(info["map_info"]["height"])
+    except (KeyError, TypeError, ValueError):
+        raise ImportError_(info_display, None, "expected {'map_info': {'width': metres, 'height': metres}}") from None
+    if not (math.isfinite(width) and math.isfinite(height) and 0 < width <= 2000 and 0 < height <= 2000):
+        raise ImportError_(info_display, None, f"map_info width {width:g} x height {height:g} m is not a floor size")
+    doc = _json(geo_display, geo_data)
+    feats = doc.get("features") if isinstance(doc, dict) else None
+    if not isinstance(feats, list) or not feats:
+        raise ImportError_(geo_display, None, "expected a GeoJSON FeatureCollection with the floor outline first")
+    geoms = []
+    for i, f in enumerate(feats):
+        try:
+            g = shape(f["geometry"])
+        except Exception as exc:  # shapely raises several types for malformed coordinates
+            raise ImportError_(geo_display, None, f"features[{i}]: malformed geometry ({exc})") from None
+        if not np.isfinite(shapely.get_coordinates(g)).all():
+            raise ImportError_(geo_display, None, f"features[{i}]: a coordinate is not a finite number")
+        geoms.append(g)
+    props = [f.get("properties") or {} for f in feats]
+    k = next((i for i, p in enumerate(props) if p.get("type") == "floor"), 0)
+    outline_ll = geoms[k]
+    lon0, lat0, lon1, lat1 = outline_ll.bounds
+    if not (lon1 > lon0 and lat1 > lat0):
+        raise ImportError_(geo_display, None, f"features[{k}]: the floor outline has an empty bounding box")
+
+    def to_m(g):
+        return shapely.transform(g, lambda c: np.column_stack([(c[:, 0] - lon0) / (lon1 - lon0) * width,
+                                                               (c[:, 1] - lat0) / (lat1 - lat0) * height]))
+
+    outline = shapely.make_valid(to_m(outline_ll))
+    lat_mid = math.radians((lat0 + lat1) / 2)
+    scale = (width / ((lon1 - lon0) * M_PER_DEG_LON * math.cos(lat_mid)), height / ((lat1 - lat0) * M_PER_DEG_LAT))
+    units, used_ids = [], set()
+    for i, (g, p) in enumerate(zip(geoms, props)):
+        if i == k:
+            continue
+        polys = _polygons(g)
+        if not polys:
+            report.drop(f"GeoJSON features that are not polygons (floor {floor})")
+            continue
+        gm = to_m(g)
+        if not gm.is_valid:
+            gm = shapely.make_valid(gm)
+            report.drop(f"unit polygons repaired with make_valid (floor {floor})")
+            parts = _polygons(gm)
+            gm = parts[0] if len(parts) == 1 else MultiPolygon(parts) if parts else None
+        if gm is None or gm.is_empty or gm.area <= 0:
+            report.drop(f"empty unit polygons (floor {floor})")
+            continue
+        uid = str(p.get("id") or f"{floor}-unit{i}")
+        while uid in used_ids:
+            uid += "_"
+        used_ids.add(uid)
+        units.append((uid, str(p.get("name") or p.get("display") or ""), gm))
+
+    # rasterise: pixel centre (col + 0.5, row + 0.5) in PIL coordinates -> integer PIL coordinates
+    w_px, h_px = int(math.ceil(width / RESOLUTION_M - 1e-9)), int(math.ceil(height / RESOLUTION_M - 1e-9))
+
+    def ring_px(ring) -> list[tuple[float, float]]:
+        c = np.asarray(ring.coords)
+        px = c[:, 0] / RESOLUTION_M - 0.5
+        py = h_px - c[:, 1] / RESOLUTION_M - 0.5
+        return list(zip(px.tolist(), py.tolist()))
+
+    def raster(polys: list[Polygon], holes: bool) -> np.ndarray:
+        im = Image.new("1", (w_px, h_px), 0)
+        d = ImageDraw.Draw(im)
+        for poly in polys:
+            d.polygon(ring_px(poly.exterior), fill=1)
+            if holes:
+                for r in poly.interiors:
+                    d.polygon(ring_px(r), fill=0)
+        return np.asarray(im, dtype=bool)
+
+    inside = raster(_polygons(outline), True)
+    in_unit = raster([p for _, _, g in units for p in _polygons(g)], False)
+    occ = np.where(inside & ~in_unit, FREE, OCCUPIED).astype(np.int8)
+    return _Plan(occ, outline, units, width, height, (lon0, lat0, lon1, lat1), scale,
+                 props[k].get("floor_num"))
+
+
+# --------------------------------------------------------------------------------------------------
+# the import
+
+
+def _floor_list(floors) -> list[tuple[str, str]] | None:
+    if floors is None:
+        return None
+    items = floors.split(",") if isinstance(floors, str) else list(floors)
+    out = []
+    for it in items:
+        it = str(it).strip().strip("/")
+        if not it:
+            continue
+        site, sep, fl = it.partition("/")
+        if not sep or not site or not fl or "/" in fl:
+            raise ImportError_("--floors", None, f"{it!r} is not SITE/FLOOR (e.g. site1/F1)")
+        out.append((site, fl))
+    return out
+
+
+def import_ilc20(src: Path, out: Path, floors=None, beacon_id: str = "mac") -> ImportReport:
+    """Convert the ILC 2.0 / challenge recordings at ``src`` (folder or archive) into dataset ``out``.
+
+    ``floors``: ``"site1/F1,site1/F2"`` or a list of such names (default: every floor found). ``beacon_id``:
+    ``"mac"`` (``UUID:major:minor:MAC``, default) or ``"triple"`` (``UUID:major:minor``). See the module doc.
+    """
+    src, out = Path(src), Path(out)
+    if beacon_id not in ("mac", "triple"):
+        raise ValueError(f"beacon_id must be 'mac' or 'triple', got {beacon_id!r}")
+    if not src.exists():
+        raise ImportError_(src, None, "source does not exist")
+    check_out(out)
+    selected = _floor_list(floors)
+    sel = set(selected) if selected is not None else None
+    seen_floors: set[tuple[str, str]] = set()
+
+    def want(vpath: str) -> bool:
+        c = _classify(vpath)
+        if c is None:
+            return False
+        seen_floors.add(c[1])
+        return sel is None or c[1] in sel
+
+    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    report = ImportReport(out=out)
+    try:
+        _import(src, tmp, want, sel, seen_floors, beacon_id, report)
+        if out.exists():
+            out.rmdir()  # empty (check_out refused a dataset); a non-empty folder raises OSError
+        os.replace(tmp, out)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise ImportError_(out, None, f"cannot write the dataset here ({exc})") from None
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    report.out = out
+    validate_or_raise(out, report)
+    return report
+
+
+def _import(src: Path, tmp: Path, want, sel, seen_floors, beacon_id: str, report: ImportReport) -> None:
+    meta_files: dict[tuple[tuple[str, str], str], tuple[str, bytes]] = {}
+    acc: dict[tuple[str, str], _FloorAcc] = defaultdict(_FloorAcc)
+    beacons: dict[str, dict] = {}
+    bssids: dict[str, set] = defaultdict(set)
+    sessions: set[str] = set()
+    pending_z: dict[tuple[str, str], float] = {}
+    events: Counter = Counter()
+    labelled = 0
+    for e in _iter_source(src, want):
+        kind, key, name = _classify(e.vpath)
+        if kind == "meta":
+            meta_files[(key, name)] = (e.display, e.data)
+            continue
+        site, floor = key
+        z = pending_z.setdefault(key, _floor_level(floor, None) * FLOOR_HEIGHT_M)
+        sid, meta, streams, wp_xy, header = _convert_walk(e.display, e.data, site, floor, name, z, beacon_id, report,
+                                                          events, beacons, bssids[site])
+        if sid in sessions:
+            raise ImportError_(e.display, None, f"a second walk with session id {sid!r} (the same path file twice?)")
+        if not streams:
+            events["walks without any data row (no session written)"] += 1
+            continue
+        sessions.add(sid)
+        _write_streams(tmp, sid, meta, streams)
+        report.sessions += 1
+        labelled += bool(meta["labelled"])
+        a = acc[key]
+        a.walks += 1
+        if len(wp_xy):
+            a.waypoints.append(wp_xy)
+        a.site_name = a.site_name or header.get("SiteName", "")
+        a.site_id = a.site_id or header.get("SiteID", "")
+        a.floor_id = a.floor_id or header.get("FloorId", "")
+    if sel is not None:
+        missing = sorted(sel - set(acc))
+        if missing:
+            found = ", ".join(f"{s}/{f}" for s, f in sorted(seen_floors)) or "none"
+            raise ImportError_(src, None, f"--floors names {', '.join(f'{s}/{f}' for s, f in missing)}, not found "
+                               f"with walks in the source (floors found: {found})")
+    if not acc:
+        raise ImportError_(src, None, "no path files found: expected <site>/<floor>/path_data_files/*.txt or "
+                           "train/<site>/<floor>/*.txt (in a folder, .tar.gz or .zip)")
+
+    by_site: dict[str, list[str]] = defaultdict(list)
+    for site, floor in sorted(acc):
+        by_site[site].append(floor)
+    for site, floor_names in by_site.items():
+        floors, rooms, frames, alignment = [], [], {}, {}
+        ref = None
+        for floor in floor_names:
+            key = (site, floor)
+            info = meta_files.get((key, "floor_info"))
+            geo = meta_files.get((key, "geojson_map"))
+            if info is None or geo is None:
+                lack = " and ".join(n for n, v in (("floor_info.json", info), ("geojson_map.json", geo)) if v is None)
+                raise ImportError_(src, None, f"floor {site}/{floor} has walks but no {lack} (repository layout: "
+                                   f"beside path_data_files/; challenge layout: metadata/{site}/{floor}/)")
+            plan = _read_plan(*info, *geo, floor, report)
+            level = _floor_level(floor, plan.floor_num)
+            z = level * FLOOR_HEIGHT_M
+            if z != pending_z.get(key, z):  # the level came from the GeoJSON: fix the sessions' ground-truth z
+                _rewrite_gt_z(tmp, site, floor, z + PHONE_HEIGHT_M)
+            floors.append({"id": floor, "occupancy": plan.occupancy, "resolution": RESOLUTION_M, "origin": (0.0, 0.0),
+                           "z": z, "filename": f"floor_{floor}.png"})
+            rooms += [{"id": uid, "floor": floor, "geometry": g, "properties": {"name": nm}}
+                      for uid, nm, g in plan.units]
+            lon0, lat0, lon1, lat1 = plan.lonlat_box
+            if ref is None:
+                ref = plan
+            r0 = ref.lonlat_box
+            shift = ((lon0 - r0[0]) / (r0[2] - r0[0]) * ref.width, (lat0 - r0[1]) / (r0[3] - r0[1]) * ref.height)
+            frames[floor] = {"lonlat_bbox": [lon0, lat0, lon1, lat1], "size_m": [plan.width, plan.height],
+                             "origin_shift_m": [round(shift[0], 3), round(shift[1], 3)],
+                             "scale_vs_geodesic": [round(plan.scale_ratio[0], 4), round(plan.scale_ratio[1], 4)]}
+            wps = np.vstack(acc[key].waypoints) if acc[key].waypoints else np.empty((0, 2))
+            n = len(wps)
+            in_outline = float(shapely.contains_xy(plan.outline, wps[:, 0], wps[:, 1]).mean()) if n else float("nan")
+            on_free = float((grid_lookup(plan.occupancy, (0.0, 0.0), wps, RESOLUTION_M, OCCUPIED) == FREE).mean()) \
+                if n else float("nan")
+            if n and plan.units:
+                u = shapely.union_all([g for _, _, g in plan.units])
+                in_unit = float(shapely.contains_xy(u, wps[:, 0], wps[:, 1]).mean())
+            else:
+                in_unit = float("nan") if not n else 0.0
+            alignment[floor] = {"waypoints": n, "walks": acc[key].walks, "inside_outline": round(in_outline, 4),
+                                "on_walkable": round(on_free, 4), "inside_unit": round(in_unit, 4),
+                                "free_share_of_plan": round(float((plan.occupancy == FREE).mean()), 4)}
+            report.notes.append(
+                f"floor {site}/{floor}: {acc[key].walks} walks, {n} waypoints: {in_outline:.1%} inside the outline, "
+                f"{on_free:.1%} on walkable cells, {in_unit:.1%} inside a unit; plan {plan.width:.1f} x "
+                f"{plan.height:.1f} m, floor_info / geodesic size x {plan.scale_ratio[0]:.3f}, "
+                f"y {plan.scale_ratio[1]:.3f}; {len(plan.units)} units")
+        site_b = {k: v for k, v in beacons.items() if any(f in floor_names for f in v["floors"])}
+        rows = []
+        for aid, b in sorted(site_b.items()):
+            tx = np.asarray(b["tx"], dtype=float)
+            med = float(np.median(tx)) if len(tx) else float("nan")
+            fl = b["floors"].most_common(1)[0][0]
+            rows.append({"anchor_id": aid, "kind": "ble", "x": np.nan, "y": np.nan, "z": np.nan, "floor": fl,
+                         "tx_power_dbm": med if rssi_in_range(np.array([med]))[0] else np.nan,
+                         "channel_model": "iBeacon; position unknown (not in the ILC data)",
+                         "uuid": b["uuid"], "major": b["major"], "minor": b["minor"], "mac": b["mac"],
+                         "n_rows": int(sum(b["floors"].values())),
+                         "floors_heard": ";".join(sorted(b["floors"]))})
+        anchors = pd.DataFrame(rows) if rows else None
+        a0 = acc[(site, floor_names[0])]
+        write_building(tmp, site, a0.site_name or site, floors, anchors, rooms=rooms,
+                       site_id=a0.site_id, floor_frames=frames, alignment=alignment,
+                       floor_plan=(f"rasterised from geojson_map.json at {RESOLUTION_M} m/px: walkable = inside the "
+                                   "floor outline and outside every unit polygon; each floor in its upstream frame "
+                                   "(outline bounding box -> [0, width] x [0, height] m)"),
+                       assumptions=[f"floor z = level x {FLOOR_HEIGHT_M} m", f"phone height {PHONE_HEIGHT_M} m",
+                                    "anchor positions unknown"])
+        report.buildings += 1
+        report.notes.append(f"site {site}: {len(rows)} BLE anchors (position unknown), {len(bssids[site])} WiFi "
+                            "access points (BSSIDs) heard")
+    report.notes.append(f"{labelled} of {report.sessions} sessions labelled (>= 2 waypoints)")
+    report.notes += [f"{n} {what}" for what, n in sorted(events.items())]
+    write_dataset_meta(
+        tmp, "ilc20", "Indoor Location Competition 2.0 walks: IMU, magnetometer, rotation vector, WiFi and iBeacon "
+        "RSSI, surveyed waypoints, floor plans (beacon and AP positions not given)", "MIT",
+        "XYZ10, Inc., location-competition/indoor-location-competition-20 (data/); same format as the 2021 Indoor "
+        "Location & Navigation challenge", importer="blenav.importers.ilc20", source_path=str(src),
+        beacon_id="UUID:major:minor:MAC" if beacon_id == "mac" else "UUID:major:minor")
+
+
+def _rewrite_gt_z(root: Path, site: str, floor: str, z: float) -> None:
+    for p in (root / "sessions").glob(f"{_SESSION_ID_RE.sub('-', f'{site}_{floor}_')}*/groundtruth.csv"):
+        df = pd.read_csv(p)
+        df["z"] = z
+        df.to_csv(p, index=False, na_rep="", lineterminator="\n")
