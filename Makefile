@@ -41,6 +41,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/stream_flat.py
 	$(BIN)/python benchmarks/map_index.py
 	$(BIN)/python benchmarks/onnx_speed.py
+	$(BIN)/python benchmarks/runtime_latency.py
 	$(BIN)/python benchmarks/crossphone_train.py
 	$(BIN)/python benchmarks/mapprior_train.py
 

@@ -32,6 +32,16 @@ def _open_session(path: Path):
     return Dataset.open(root).session(path.name)
 
 
+def _set_total(bar):
+    if bar is None:
+        return None
+
+    def set_total(n: int) -> None:
+        bar.total = n
+        bar.refresh()
+    return set_total
+
+
 def _main(argv: list[str] | None) -> int:
     p = argparse.ArgumentParser(prog="blenav-localize", description=__doc__.splitlines()[0])
     p.add_argument("bundle", help="a bundle folder written by `python export.py bundle=true ...`")
@@ -68,7 +78,8 @@ def _main(argv: list[str] | None) -> int:
             n += 1
 
         est = bundle.run_session(session, seed=args.seed, on_estimate=row,
-                                 on_event=(lambda k: bar.update(k)) if bar is not None else None)
+                                 on_event=(lambda k: bar.update(k)) if bar is not None else None,
+                                 on_total=_set_total(bar))
     if bar is not None:
         bar.close()
     fixes = len(getattr(bundle, "last_fixes", []))

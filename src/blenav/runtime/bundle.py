@@ -451,9 +451,11 @@ class Bundle:
         return BundleLocalizer(self, building, floor=floor, seed=seed, **kw)
 
     def run_session(self, session, seed: int = 0, on_estimate: Callable[[Estimate], None] | None = None,
-                    on_event: Callable[[int], None] | None = None) -> list[Estimate]:
+                    on_event: Callable[[int], None] | None = None,
+                    on_total: Callable[[int], None] | None = None) -> list[Estimate]:
         """Replay a recorded session through :meth:`localizer` (its own fixes, fixes.csv is not read); calls
-        ``on_estimate`` with each estimate as it is made and ``on_event(n)`` every n events (progress)."""
+        ``on_total(n)`` once with the number of samples to replay, ``on_estimate`` with each estimate as it is made
+        and ``on_event(n)`` after every n samples (progress)."""
         from blenav.filters.runner import replay
 
         self.check_session(session)
@@ -463,6 +465,8 @@ class Bundle:
         t_end = None
         events = [e for e in replay(session) if e[0] != "fix" and (need_imu or e[0] not in ("imu", "mag"))]
         every = max(1, len(events) // 200)
+        if on_total is not None:
+            on_total(len(events))
         for i, ev in enumerate(events):
             rows = loc.push_event(ev)
             if ev[0] != "mag":

@@ -1,0 +1,245 @@
+"""One filter update of the runtime bundle (BLE fix + map prior + 1000 particles) on one core, beside the
+PyTorch-eager pipeline; the bundle's parity with the PyTorch pipeline; its ORT / int8 variants.
+
+An *update* is everything the push API computes for one second of data at 1 Hz: queueing that second's RSSI
+packets and odometry samples, closing the RSSI step (the localizer's window -> one BLE fix), and the particle
+filter's step (1000 particles: odometry motion eq. 3.7, the fix likelihood eq. 3.9, the map prior eq. 3.8 = the
+trajectory encoder on 36 heading windows + a gather at the particles, low-variance resampling, obstacle test). It
+is timed as the sum of the wall times of the push calls between two estimates, after the first 10 s (the prior's
+window is full and every step has a fix), on one core: the process is pinned to one CPU
+(``os.sched_setaffinity``, what ``taskset -c N`` does), onnxruntime and torch use one intra-op thread. Budget: 5 ms.
+
+- runtime: :class:`blenav.runtime.Bundle` (onnxruntime; every variant of the bundle: float, ort, int8, int8_ort);
+- PyTorch eager: the same engine with the networks run in torch (the checkpoint's LocNet, the map prior's
+  ``TorchBackend``), i.e. what the pipeline costs without the export;
+- parity: the bundle's trajectory against the PyTorch pipeline of the tests (torch LocNet over the session's batch
+  windows -> fixes; torch map prior; ``run_session``), same seed: max and median distance (cm), target < 1 cm;
+- variants: size, latency and accuracy change against the float models, from the bundle's manifest (measured by
+  ``python export.py bundle=true``) and the update time above.
+
+    .venv/bin/python benchmarks/runtime_latency.py                      # builds a small bundle itself (~2 min)
+    .venv/bin/python benchmarks/runtime_latency.py --bundle B --ckpt RUN/last.ckpt --mapprior RUN2/last.ckpt --data DIR
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib.util
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+REPO = Path(__file__).resolve().parents[1]
+BUDGET_MS = 5.0
+WARM_S = 10.0
+
+
+def pin_one_core() -> str:
+    """Pin this process to one CPU (the last allowed one); returns what was done."""
+    if hasattr(os, "sched_setaffinity"):
+        cpus = sorted(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {cpus[-1]})
+        return f"pinned to CPU {cpus[-1]} of {cpus} (sched_setaffinity)"
+    return "not pinned (no sched_setaffinity)"
+
+
+def build(work: Path) -> dict:
+    """Simulate a 'small' building (2 walks of 120 s), train a LocNet and a map prior of the default sizes briefly,
+    export the bundle. Latency does not depend on how well they are trained."""
+    from blenav.cli.sim import run as sim_run
+    from blenav.configs import compose
+    from blenav.learn.train import train
+
+    data = work / "data"
+    sim_run(compose("sim", "sim=small", "seed=21", f"out={data}", "duration_s=120", "sessions=2", "progress=false",
+                    "sim.carriers=[pedestrian]"))
+    train(compose("train", "model=locnet", f"data={data}", f"out={work / 'loc'}", "trainer.enable_progress_bar=false",
+                  "trainer.max_epochs=3", "model.lr=3e-3"))
+    train(compose("train", "experiment=mapprior", f"data={data}", f"out={work / 'mp'}", "trainer.enable_progress_bar=false",
+                  "data.samples_per_epoch=64", "data.val_samples=32", "trainer.max_epochs=1", "early_stopping=null"))
+    spec = importlib.util.spec_from_file_location("blenav_export_script", REPO / "export.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.bundle(compose("export", "bundle=true", f"ckpt={work / 'loc' / 'last.ckpt'}", f"out={work / 'B'}",
+                       f"mapprior={work / 'mp' / 'last.ckpt'}", f"data={data}", "eval_sessions=1"))
+    return {"bundle": work / "B", "ckpt": work / "loc" / "last.ckpt", "mapprior": work / "mp" / "last.ckpt",
+            "data": data}
+
+
+class TorchGraph:
+    """The checkpoint's LocNet in PyTorch eager, with the interface of :class:`blenav.runtime.bundle.LocalizerGraph`."""
+
+    def __init__(self, ckpt: Path):
+        import torch
+
+        from blenav.learn.checkpoint import load_module
+        from blenav.learn.export import streaming_net
+
+        self.torch = torch
+        module, self.meta = load_module(ckpt)
+        self.net = streaming_net(module, self.meta)
+        self.layers, self.hidden = module.locnet.layers, module.locnet.hidden
+        self.beacons = [str(b) for b in self.meta["beacons"]]
+
+    def predict(self, S: np.ndarray) -> np.ndarray:
+        z = self.torch.zeros(self.layers, len(S), self.hidden)
+        with self.torch.no_grad():
+            xy = self.net(self.torch.from_numpy(np.ascontiguousarray(S, dtype=np.float32)), z, z)[0].numpy()
+        xy = xy.astype(float)
+        xy[~(S > 0).reshape(len(S), -1).any(axis=1)] = np.nan
+        return xy
+
+
+def update_times(bundle, session, seed: int = 0) -> tuple[np.ndarray, list]:
+    """(ms per update after WARM_S, the estimates) replaying ``session`` through ``bundle``'s push API."""
+    from blenav.filters.runner import replay
+
+    loc = bundle.localizer(session.building, floor=session.meta.get("floor"), seed=seed)
+    events = [e for e in replay(session) if e[0] in ("rssi", "odo")]
+    acc, per, rows, t_end = 0.0, [], [], 0.0
+    for ev in events:
+        t0 = time.perf_counter()
+        out = loc.push_event(ev)
+        acc += time.perf_counter() - t0
+        t_end = ev[1]
+        if out:
+            for r in out:
+                rows.append(r)
+            per.append((out[-1].t, acc * 1e3 / len(out)))
+            acc = 0.0
+    rows += loc.close(t_end)
+    t = np.array([p[0] for p in per])
+    ms = np.array([p[1] for p in per])
+    return ms[t >= t[0] + WARM_S] if len(t) else ms, rows
+
+
+def torch_reference(bundle, ckpt: Path, mapprior: Path, session, seed: int):
+    """The PyTorch pipeline of tests/test_bundle.py: batch windows -> torch fixes; torch prior; run_session."""
+    import torch
+
+    from blenav.features.windows import WindowConfig, session_windows
+    from blenav.filters.runner import run_session
+    from blenav.learn.checkpoint import load_module
+    from blenav.learn.export import streaming_net
+    from blenav.learn.mapprior_checkpoint import load_map_prior
+    from blenav.runtime.bundle import FIX_SOURCE, build_method
+
+    module, meta = load_module(ckpt)
+    net = streaming_net(module, meta)
+    w = meta["window"]
+    win = session_windows(session, meta["beacons"], WindowConfig(
+        history=int(w["history"]), step_hz=float(w["step_hz"]), offset_db=float(w["offset_db"]),
+        floor_u=float(w["floor_u"]), beacon_subset=w.get("beacon_subset")))
+    z = torch.zeros(module.locnet.layers, len(win.S), module.locnet.hidden)
+    with torch.no_grad():
+        xy = net(torch.from_numpy(win.S), z, z)[0].numpy().astype(float)
+    ok = (win.S > 0).reshape(len(win.S), -1).any(axis=1)
+    fixes = pd.DataFrame({"t": win.t[ok], "x": xy[ok, 0], "y": xy[ok, 1], "std": np.nan, "source": FIX_SOURCE})
+    res = run_session(build_method(bundle.settings, load_map_prior(mapprior)), session, 1, seed, fixes=fixes)
+    return res.t, res.position[0]
+
+
+def stats(ms: np.ndarray) -> dict:
+    return {"median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)), "updates": int(len(ms))}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--bundle")
+    ap.add_argument("--ckpt", help="the localizer checkpoint the bundle was exported from")
+    ap.add_argument("--mapprior", help="the map prior checkpoint the bundle was exported from")
+    ap.add_argument("--data", help="the dataset (its sessions are replayed)")
+    ap.add_argument("--sessions", type=int, default=2, help="sessions to replay (default %(default)s)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--json", help="also write the results here")
+    args = ap.parse_args()
+    pinned = pin_one_core()
+    import torch
+
+    torch.set_num_threads(1)
+    from blenav.data import Dataset
+    from blenav.learn.mapprior_checkpoint import load_map_prior
+    from blenav.runtime import Bundle
+
+    tmp = None
+    if args.bundle is None:
+        tmp = tempfile.TemporaryDirectory(prefix="runtime_latency_")
+        print("building a small bundle (simulate, train briefly, export) ...", flush=True)
+        paths = build(Path(tmp.name))
+    else:
+        if not (args.ckpt and args.mapprior and args.data):
+            ap.error("--bundle needs --ckpt, --mapprior and --data")
+        paths = {"bundle": Path(args.bundle), "ckpt": Path(args.ckpt), "mapprior": Path(args.mapprior),
+                 "data": Path(args.data)}
+    b = Bundle.open(paths["bundle"])
+    if b.prior is None:
+        ap.error(f"{paths['bundle']} has no map prior: export it with mapprior=...")
+    ds = Dataset.open(paths["data"])
+    sessions = [s for s in ds.sessions() if s.meta.get("building") == b.signature["building"]][: args.sessions]
+    n = b.settings["filter"]["n_particles"]
+    print(f"bundle {paths['bundle']}: {n} particles at {b.settings['filter']['rate_hz']:g} Hz, map prior, BLE fixes; "
+          f"{pinned}; 1 intra-op thread (onnxruntime, torch {torch.get_num_threads()}); sessions "
+          f"{[s.id for s in sessions]}")
+    res: dict = {"pinned": pinned, "n_particles": n, "budget_ms": BUDGET_MS, "update": {}, "parity": {}}
+    eager = dataclasses.replace(b, graph=TorchGraph(paths["ckpt"]), prior=load_map_prior(paths["mapprior"]))
+    pipelines = {"PyTorch eager": eager}
+    for v in b.manifest["variants_available"]:
+        pipelines[f"runtime {v}"] = Bundle.open(paths["bundle"], variant=v)
+    traj = {}
+    print(f"\none update (BLE fix + map prior + {n} particles), ms on one core, after the first {WARM_S:g} s:")
+    print(f"  {'pipeline':<18} {'median':>8} {'p90':>8} {'updates':>8}  vs {BUDGET_MS:g} ms budget")
+    for name, p in pipelines.items():
+        runs = [update_times(p, s, args.seed) for s in sessions]
+        ms = np.concatenate([r[0] for r in runs])
+        traj[name] = runs[0][1]
+        st = stats(ms)
+        res["update"][name] = st
+        ok = "within" if st["median_ms"] <= BUDGET_MS else "OVER"
+        print(f"  {name:<18} {st['median_ms']:8.3f} {st['p90_ms']:8.3f} {st['updates']:8d}  median {ok} budget")
+    print("\nparity: bundle (onnxruntime, push API) vs the PyTorch pipeline (torch, batch windows, run_session), "
+          f"seed {args.seed}:")
+    worst = 0.0
+    for s in sessions:
+        t_ref, xy_ref = torch_reference(b, paths["ckpt"], paths["mapprior"], s, args.seed)
+        est = b.run_session(s, seed=args.seed)
+        t = np.array([e.t for e in est])
+        _, i, j = np.intersect1d(np.round(t, 6), np.round(t_ref, 6), return_indices=True)
+        d = np.hypot(*(np.array([[e.x, e.y] for e in est])[i] - xy_ref[j]).T) * 100
+        worst = max(worst, float(d.max()))
+        res["parity"][s.id] = {"steps": int(len(i)), "max_cm": float(d.max()), "median_cm": float(np.median(d))}
+        print(f"  {s.id}: {len(i)} steps, max {d.max():.2e} cm, median {np.median(d):.2e} cm")
+    print(f"  worst {worst:.2e} cm: {'within' if worst < 1.0 else 'OVER'} the 1 cm target")
+    ref = np.array([[e.x, e.y] for e in traj["runtime float"]])
+    for name, rows in traj.items():
+        if name != "runtime float" and len(rows) == len(ref):
+            d = np.hypot(*(np.array([[e.x, e.y] for e in rows]) - ref).T) * 100
+            res["parity"][f"{name} vs runtime float, {sessions[0].id}"] = {"max_cm": float(d.max())}
+            print(f"  {name} (push API) vs runtime float on {sessions[0].id}: max {d.max():.2e} cm")
+    res["parity_worst_cm"] = worst
+    m = b.manifest.get("measured") or {}
+    print("\nvariants (manifest of the bundle; graph latency: one call, one thread):")
+    for g, per in (m.get("graphs") or {}).items():
+        for v, r in per.items():
+            rel = (f"  size x{r['size_vs_float']:.2f}, latency x{r['latency_vs_float']:.2f}, max |diff| "
+                   f"{r['max_abs_diff_vs_float']:.2g}" if "size_vs_float" in r else "")
+            print(f"  {g:<30} {v:<9} {r['bytes'] / 1024:8.1f} KiB {r['latency_ms']['median']:8.3f} ms{rel}")
+    for v, r in (m.get("pipeline") or {}).items():
+        ch = f" ({r['rmse_change_m']:+.3f} m vs float)" if "rmse_change_m" in r else ""
+        print(f"  pipeline RMSE {v:<9} {r['rmse_m']:.3f} m{ch} on {m.get('pipeline_sessions')}")
+    res["variants"] = m
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=2, sort_keys=True, default=str) + "\n")
+    if tmp is not None:
+        tmp.cleanup()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
