@@ -10,13 +10,24 @@ from blenav.cli.common import run_hydra
 from blenav.configs import cli_overrides
 
 
-def task(cfg: DictConfig) -> None:
+def task(cfg: DictConfig) -> float | None:
+    """Train; returns ``metrics[cfg.optimized_metric]`` when that is set (the objective of a hyper-parameter
+    sweep, ``hparams_search=crossphone_optuna``), else None."""
     from blenav.learn.train import train
 
     if OmegaConf.is_missing(cfg.data, "path") or not cfg.data.get("path"):
         raise ValueError("name the dataset to train on: data=DIR (a format-v1 dataset folder)")
     metrics, _ = train(cfg)
     print({k: round(v, 4) for k, v in metrics.items()})
+    key = cfg.get("optimized_metric")
+    if key:
+        if key not in metrics:
+            raise ValueError(f"optimized_metric={key!r} was not measured; measured: {sorted(metrics)}")
+        from blenav.learn.sweep import record_trial
+
+        record_trial(cfg, float(metrics[key]))
+        return float(metrics[key])
+    return None
 
 
 def main() -> None:

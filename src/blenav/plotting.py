@@ -425,3 +425,38 @@ def figure_trajectories(session: Session, tracks: dict[str, tuple[np.ndarray, np
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     ax.set_title(f"trajectories, session {session.id} (first run)", fontsize=9)
     return fig
+
+
+def figure_learning_curves(history: Sequence[dict], knn_val_err_m: float | None = None, title: str = "") -> Figure:
+    """Learning curves of one training run (:class:`blenav.learn.trainer.TrainingMonitor` history): left, the
+    training and validation loss per validation check against optimizer steps (log scale) and the learning
+    rate (right axis); right, the validation error in metres with KNN's on the same validation windows."""
+    fig = new_figure(9.0, 3.6)
+    ax, ax2 = fig.subplots(1, 2)
+    step = np.array([h.get("step", np.nan) for h in history], float)
+
+    def col(key):
+        return np.array([np.nan if h.get(key) is None else h[key] for h in history], float)
+
+    ax.plot(step, col("train_loss"), label="train loss", lw=1.0)
+    ax.plot(step, col("val_loss"), label="validation loss", lw=1.0)
+    if np.isfinite(col("val_loss")).any() or np.isfinite(col("train_loss")).any():
+        ax.set_yscale("log")
+    ax.set_xlabel("optimizer step")
+    ax.set_ylabel("loss")
+    ax.grid(True, alpha=0.3)
+    lr = col("lr")
+    if np.isfinite(lr).any():
+        axr = ax.twinx()
+        axr.plot(step, lr, color="0.6", lw=0.8, ls=":", label="learning rate")
+        axr.set_ylabel("learning rate", fontsize=8)
+    ax.legend(fontsize=7)
+    ax2.plot(step, col("val_err_m"), label="network, validation", lw=1.0)
+    if knn_val_err_m is not None and np.isfinite(knn_val_err_m):
+        ax2.axhline(knn_val_err_m, color="k", ls="--", lw=0.8, label=f"KNN, validation ({knn_val_err_m:.2f} m)")
+    ax2.set_xlabel("optimizer step")
+    ax2.set_ylabel("mean validation error [m]")
+    ax2.grid(True, alpha=0.3)
+    ax2.legend(fontsize=7)
+    fig.suptitle(title or "learning curves", fontsize=9)
+    return fig

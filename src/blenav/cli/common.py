@@ -68,8 +68,10 @@ def run_hydra(prog: str, config_name: str, task: Callable, args: list[str], conv
             fail(prog, exc)
 
     @hydra.main(config_path=str(conf_dir()), config_name=config_name, version_base="1.3")
-    def _app(cfg) -> None:
-        guarded(prog, lambda: task(cfg), debug)
+    def _app(cfg) -> float | None:
+        value: list = []  # a float the task returns is the sweep's objective (Hydra's Optuna sweeper reads it)
+        guarded(prog, lambda: value.append(task(cfg)), debug)
+        return value[0] if value and isinstance(value[0], float) else None
 
     sys.argv = [sys.argv[0]] + args
     _app()

@@ -14,7 +14,13 @@ beacon was heard (a window with no beacon heard gives no fix; how many there wer
      "per_device": {device_model: {"mean","std","median","p90","max","n"}},
      "per_brand": {brand: {...}}, "per_session": {SESSION_ID: {"error_m": {...}, "device_model"}},
      "train_s" (null when a complete run was reused), "predict_s", "n_windows",
-     "source" ("trained: OUT/runs/KEY" | "reused: OUT/runs/KEY" | "model: FILE.onnx" | "fitted")}
+     "source" ("trained: OUT/runs/KEY" | "reused: OUT/runs/KEY" | "model: FILE.onnx" | "fitted"),
+     "training" (learned methods trained here): {"steps", "early_stopped", "stop_reason", "best_val_error_m",
+                 "knn_val_error_m" (KNN, k = 5, on the same validation windows), "converged", "best_step",
+                 "warnings" (worse than KNN on validation, stopped before converging), "learning_curves" (png)}}
+
+Every learned method's run also leaves ``OUT/runs/KEY/training.json`` and ``learning_curves.png`` (the training
+report of :mod:`blenav.learn.train`); its warnings are logged.
 
 A method is named by its label (``LocNet``, ``TransNet+LocNet``, ``TransNet+LocNet+semi``, ``DL-RNN``,
 ``KNN``, ``Bayesian``, ``KRR+KF``). ``model_path=FILE.onnx`` replaces the training of ``TransNet+LocNet`` by an
@@ -76,7 +82,7 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path, dm) -
     from blenav.learn.train import train
 
     tcfg = OmegaConf.create({"seed": cfg.seed, "out": str(run_dir), "semi": spec.get("semi"),
-                             "threads": cfg.get("threads"),
+                             "threads": cfg.get("threads"), "plots": bool(cfg.get("plots", True)),
                              "data": OmegaConf.to_container(cfg.data, resolve=True),
                              "model": OmegaConf.to_container(spec.model, resolve=True),
                              "trainer": {**OmegaConf.to_container(cfg.trainer, resolve=True),
@@ -91,7 +97,14 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path, dm) -
         copied = True
     before = _check_reuse(ck, dm, None if copied else tcfg.model)
     _, objs = train(tcfg, datamodule=dm)  # the split windowed once for every method
-    return ck, before == objs["trainer"].global_step  # (checkpoint, reused without a training step)
+    training = {k: objs["training"].get(k) for k in TRAINING_KEYS}
+    training["learning_curves"] = str(run_dir / "learning_curves.png")
+    return ck, before == objs["global_step"], training  # (checkpoint, reused without a training step, report)
+
+
+#: ``methods.NAME.training`` of a learned method (blenav.learn.train.training_report)
+TRAINING_KEYS = ("steps", "early_stopped", "stop_reason", "best_val_error_m", "knn_val_error_m", "converged",
+                 "best_step", "warnings")
 
 
 def _check_reuse(ck: Path, dm, model: DictConfig | None = None) -> int | None:
@@ -158,7 +171,7 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
 
     train_S = train_S * U_SCALE  # baselines read the thesis scale
     onnx_model = cfg.get("model_path")
-    predictors, sources, train_s = {}, {}, {}
+    predictors, sources, train_s, trainings = {}, {}, {}, {}
     for key, spec in (cfg.experiment.get("learned") or {}).items():
         if spec is None:  # switched off by an experiment (`learned.semi: null`)
             continue
@@ -171,7 +184,7 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
                 f"model: {onnx_model}", 0.0
             continue
         t0 = time.perf_counter()
-        ck, reused = _train_run(cfg, key, spec, runs_dir / key, dm)
+        ck, reused, trainings[label] = _train_run(cfg, key, spec, runs_dir / key, dm)
         train_s[label] = None if reused else time.perf_counter() - t0
         predictors[label] = _predict_module(ck)
         sources[label] = f"{'reused' if reused else 'trained'}: {ck.parent}"
@@ -203,6 +216,8 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
         errors[name] = errs
         results["methods"][name] = _method_result(errs, test.sessions, time.perf_counter() - t0, train_s[name],
                                                   sources[name])
+        if name in trainings:
+            results["methods"][name]["training"] = trainings[name]
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "results.json", results)
     from .report import write_crossphone_markdown

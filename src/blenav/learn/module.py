@@ -6,6 +6,12 @@ Batches are dicts: ``S`` (b, B, H) windows on the normalised scale u / 100 (see
 the module is plain LocNet (scenario 1 and the baselines 1/2 of Roy). Loss weights follow eq. 3.6;
 ``M`` (B, B) is the known brand's statistics matrix (eq. 3.1) when the SSL term is used. ``augment``
 (:class:`blenav.learn.augment.ReceiverAugment`) re-receives training windows by random phones.
+
+Learning rate: Adam at ``optimizer``'s lr times :func:`blenav.learn.trainer.lr_factor` of the optimizer step
+when ``schedule`` is given (``{"kind", "warmup_steps", "total_steps", "min_lr_ratio"}``: linear warm-up, then
+cosine or one-cycle; a ``LambdaLR`` stepped every optimizer step, its state resumes with the checkpoint),
+else constant. ``stage = "semi"`` (the semi-supervised stage of scenario 3) trains at the constant
+``semi_lr`` instead, whatever the optimizer state restored from the supervised stage held.
 """
 
 from __future__ import annotations
@@ -17,21 +23,24 @@ import torch
 
 from .augment import ReceiverAugment
 from .losses import localization_loss, position_smoothness_loss, ssl_loss, temporal_smoothness_loss, total_loss
+from .schedule import lr_factor
 
 
 class CrossPhoneModule(L.LightningModule):
     def __init__(self, locnet: torch.nn.Module, transnet: torch.nn.Module | None = None,
                  optimizer=partial(torch.optim.Adam, lr=1e-4), weights: dict | None = None,
                  M: torch.Tensor | None = None, tau: float = 0.1, meta: dict | None = None,
-                 augment: ReceiverAugment | None = None, seed: int = 0):
+                 augment: ReceiverAugment | None = None, seed: int = 0, schedule: dict | None = None):
         super().__init__()
         self.locnet, self.transnet = locnet, transnet
         self.optimizer_factory = optimizer
         self.weights = {"loc": 1.0, "ps": 0.0, "ssl": 0.0, "ts": 0.0, **(weights or {})}
         self.tau = tau
         self.meta = meta or {}  # stored in checkpoints under "blenav" (see blenav.learn.checkpoint)
-        self.semi_from_epoch: int | None = None  # scenario 3: from this epoch on, Adam's lr is semi_lr
-        self.semi_lr = 1e-5
+        self.schedule = dict(schedule) if schedule else None
+        self.training_info: dict = {}  # training report so far (blenav.learn.train), saved with the checkpoint
+        self.stage = "supervised"  # "semi": scenario 3's stage, constant lr semi_lr
+        self.semi_lr = 1e-4
         self.augment = augment if augment is not None and augment.active else None
         self.aug_generator = torch.Generator().manual_seed(seed)  # its state is saved with the checkpoint
         self.register_buffer("M", M if M is not None else torch.zeros(0, 0), persistent=True)
@@ -88,8 +97,8 @@ class CrossPhoneModule(L.LightningModule):
     def test_step(self, batch, batch_idx):
         return self._log_step(batch, "test")
 
-    def on_train_epoch_start(self) -> None:
-        if self.semi_from_epoch is not None and self.current_epoch >= self.semi_from_epoch:
+    def on_train_batch_start(self, batch, batch_idx) -> None:
+        if self.stage == "semi":  # the optimizer state restored from the supervised stage carries its lr
             for opt in self.trainer.optimizers:
                 for group in opt.param_groups:
                     group["lr"] = self.semi_lr
@@ -97,10 +106,20 @@ class CrossPhoneModule(L.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["blenav"] = self.meta
         checkpoint["blenav_aug_rng"] = self.aug_generator.get_state()
+        checkpoint["blenav_training"] = self.training_info
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         if "blenav_aug_rng" in checkpoint:  # a resumed run continues the augmentation stream
             self.aug_generator.set_state(checkpoint["blenav_aug_rng"])
+        if "blenav_training" in checkpoint:
+            self.training_info = dict(checkpoint["blenav_training"] or {})
 
     def configure_optimizers(self):
-        return self.optimizer_factory(self.parameters())
+        opt = self.optimizer_factory(self.parameters())
+        if self.stage == "semi" or not self.schedule:
+            return opt
+        sc = self.schedule
+        fn = partial(lr_factor, kind=str(sc.get("kind", "cosine")), warmup_steps=int(sc.get("warmup_steps", 0)),
+                     total_steps=int(sc["total_steps"]), min_lr_ratio=float(sc.get("min_lr_ratio", 0.01)))
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, fn)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step", "frequency": 1}}

@@ -4,10 +4,17 @@
 
 A run started again with the same ``out`` resumes from ``OUT/last.ckpt``: optimizer and scheduler states,
 epoch and step counters (and whatever the module saves in ``on_save_checkpoint``).
+
+The cross-phone task also uses the pieces of a step budget defined here: :func:`lr_factor` (linear warm-up,
+then cosine decay or one-cycle, as a function of the optimizer step), :class:`TrainingMonitor` (learning
+curves, the best validation check and its weights, all resumable with the checkpoint) and
+:func:`stop_reason` (why a fit ended).
 """
 
 from __future__ import annotations
 
+import copy
+import math
 from importlib.util import find_spec
 from pathlib import Path
 
@@ -15,6 +22,7 @@ import lightning as L
 import torch
 
 from .checkpoint import SAFE_GLOBALS, load_file
+from .schedule import SCHEDULES, lr_factor  # noqa: F401  (re-exported: the step budget's pieces live here)
 
 LAST = "last.ckpt"
 
@@ -32,7 +40,8 @@ def last_checkpoint(out: Path) -> L.Callback:
     (Lightning 2.6 writes ``save_last`` only with a top-k checkpoint, i.e. with save_top_k=0 only when fit
     ends); no version counter: a resumed or copied-in run (scenario 3 from scenario 2) overwrites it."""
     return L.pytorch.callbacks.ModelCheckpoint(dirpath=out, filename="last", save_top_k=1, monitor=None,
-                                               every_n_epochs=1, enable_version_counter=False)
+                                               every_n_epochs=1, enable_version_counter=False,
+                                               save_on_train_epoch_end=True)  # whatever the validation cadence
 
 
 def loggers(out: Path) -> list:
@@ -44,11 +53,15 @@ def loggers(out: Path) -> list:
 
 
 def fit(module: L.LightningModule, datamodule: L.LightningDataModule, out: Path, trainer_kw: dict,
-        callbacks: list | tuple = ()) -> L.Trainer:
+        callbacks: list | tuple = (), run: bool = True) -> L.Trainer:
     """A Trainer with ``trainer_kw``, :func:`last_checkpoint` first and then ``callbacks``, :func:`loggers`;
-    fit, resuming from OUT/last.ckpt when it exists. Returns the trainer."""
+    fit, resuming from OUT/last.ckpt when it exists (``run`` False: the trainer only, nothing fitted, e.g. to
+    test a finished run). Returns the trainer."""
+    trainer_kw = {k: v for k, v in trainer_kw.items() if k != "budget"}  # blenav's step budget, not Lightning's
     trainer = L.Trainer(**trainer_kw, default_root_dir=out, callbacks=[last_checkpoint(out), *callbacks],
                         logger=loggers(out), enable_model_summary=False)
+    if not run:
+        return trainer
     resume = out / LAST
     if resume.is_file():
         load_file(resume)  # a last.ckpt that would run code is refused here, before Lightning unpickles it
@@ -56,3 +69,100 @@ def fit(module: L.LightningModule, datamodule: L.LightningDataModule, out: Path,
         trainer.fit(module, datamodule=datamodule, ckpt_path=str(resume) if resume.is_file() else None,
                     weights_only=True)
     return trainer
+
+
+class TrainingMonitor(L.Callback):
+    """Learning curves and the best validation check of a run, kept in the checkpoint (a resumed run continues
+    its curve and still knows its best weights).
+
+    ``history``: one row per validation check, ``{"step", "epoch", "train_loss"`` (mean training loss since the
+    previous check), ``"val_loss", "val_err_m", "lr"}``. ``best``: the row with the lowest ``monitor`` value;
+    ``best_state``: a CPU copy of the module's state dict at that check (restored by the caller when the fit
+    ends, so a finished run keeps the weights of its best validation check, not of its last step)."""
+
+    def __init__(self, monitor: str = "val/loss", err_key: str = "val/err_m"):
+        self.monitor, self.err_key = monitor, err_key
+        self.history: list[dict] = []
+        self.best: dict | None = None
+        self.best_state: dict | None = None
+        self._sum, self._n = 0.0, 0
+
+    @property
+    def state_key(self) -> str:
+        return f"TrainingMonitor{{monitor={self.monitor}}}"
+
+    def on_train_batch_end(self, trainer, module, outputs, batch, batch_idx):
+        loss = outputs["loss"] if isinstance(outputs, dict) else outputs
+        if loss is not None:
+            self._sum += float(loss.detach())
+            self._n += 1
+
+    def on_validation_end(self, trainer, module):
+        if trainer.sanity_checking:
+            return
+        m = trainer.callback_metrics
+        if self.monitor not in m:
+            return
+        step = int(trainer.global_step)
+        if self.history and self.history[-1]["step"] == step:  # a second validation of the same weights
+            return
+        opt = trainer.optimizers[0] if trainer.optimizers else None
+        row = {"step": step, "epoch": int(trainer.current_epoch),
+               "train_loss": self._sum / self._n if self._n else None,
+               "val_loss": float(m[self.monitor]),
+               "val_err_m": float(m[self.err_key]) if self.err_key in m else None,
+               "lr": float(opt.param_groups[0]["lr"]) if opt is not None else None}
+        self._sum, self._n = 0.0, 0
+        self.history.append(row)
+        if math.isfinite(row["val_loss"]) and (self.best is None or row["val_loss"] < self.best["val_loss"]):
+            self.best = dict(row)
+            self.best_state = {k: v.detach().cpu().clone() for k, v in module.state_dict().items()}
+
+    def state_dict(self) -> dict:
+        return {"history": copy.deepcopy(self.history), "best": dict(self.best) if self.best else None,
+                "best_state": self.best_state}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.history = list(state.get("history") or [])
+        self.best = state.get("best")
+        self.best_state = state.get("best_state")
+
+
+class StepBudget(L.Callback):
+    """Stops the fit after ``max_steps`` optimizer steps (``trainer.should_stop``, as early stopping does).
+
+    Lightning's own ``max_steps`` would do the same, but with it set, a run resumed from its end-of-epoch
+    checkpoint (Lightning 2.6) runs one batch of the resumed epoch and counts the epoch finished; with the
+    budget here, resuming behaves as with epochs alone."""
+
+    def __init__(self, max_steps: int):
+        self.max_steps = int(max_steps)
+        self.reached = False
+
+    def _check(self, trainer) -> None:
+        if self.max_steps > 0 and trainer.global_step >= self.max_steps:
+            self.reached = True
+            trainer.should_stop = True
+
+    def on_train_start(self, trainer, module):  # a resumed run that already used its budget
+        self._check(trainer)
+
+    def on_train_batch_end(self, trainer, module, outputs, batch, batch_idx):
+        self._check(trainer)
+
+
+def stop_reason(trainer: L.Trainer, early_stopping: L.Callback | None, budget: StepBudget | None = None) -> str:
+    """Why a fit ended: ``early_stopping`` (validation loss did not improve for ``patience`` checks),
+    ``max_steps``, ``max_epochs``, ``max_time`` or ``interrupted``."""
+    if early_stopping is not None and (getattr(early_stopping, "stopped_epoch", 0) > 0
+                                       or early_stopping.wait_count >= early_stopping.patience):
+        return "early_stopping"
+    if budget is not None and budget.max_steps > 0 and trainer.global_step >= budget.max_steps:
+        return "max_steps"
+    if trainer.max_steps is not None and trainer.max_steps > 0 and trainer.global_step >= trainer.max_steps:
+        return "max_steps"
+    if trainer.max_epochs is not None and trainer.max_epochs > 0 and trainer.current_epoch >= trainer.max_epochs:
+        return "max_epochs"
+    if getattr(trainer, "interrupted", False):
+        return "interrupted"
+    return "max_time" if trainer.should_stop else "interrupted"

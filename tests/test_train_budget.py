@@ -1,0 +1,132 @@
+"""The step budget of the cross-phone training (issue 16): schedule, early stopping, the training report
+(learning curves, best validation error beside KNN's, warnings), resume, and methods.NAME.training in
+results.json. Tiny data (the 'small' simulated building), seconds each."""
+
+from __future__ import annotations
+
+import json
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+
+from blenav.configs import compose
+from blenav.learn.schedule import lr_factor
+from blenav.learn.train import train, training_report
+from blenav.learn.trainer import TrainingMonitor
+
+TINY = ["model=locnet", "data.batch_size=32", "trainer.enable_progress_bar=false", "model.locnet.hidden=16",
+        "model.locnet.fc_hidden=8", "data.holdout=0", "data.val_fraction=0.3", "plots=false"]
+
+
+def cfg(data, out, *extra):
+    return compose("train", f"data.path={data}", f"out={out}", *TINY, *extra)
+
+
+def test_schedule_warms_up_then_decays_to_the_floor():
+    f = [lr_factor(s, "cosine", warmup_steps=10, total_steps=100, min_lr_ratio=0.02) for s in range(120)]
+    assert f[0] == pytest.approx(0.1) and f[9] == pytest.approx(1.0)
+    assert np.all(np.diff(f[:10]) > 0)  # linear warm-up
+    assert np.all(np.diff(f[10:100]) <= 1e-12) and f[55] == pytest.approx(0.02 + 0.98 * 0.5, abs=0.02)
+    assert f[100] == pytest.approx(0.02) and f[119] == pytest.approx(0.02)  # held at the floor after the budget
+    one = [lr_factor(s, "onecycle", 0, 100) for s in range(100)]
+    assert int(np.argmax(one)) == 29  # one-cycle: 30 % warm-up
+    assert lr_factor(50, "constant", 10, 100) == 1.0
+    with pytest.raises(ValueError, match="schedule"):
+        lr_factor(0, "step", 0, 10)
+
+
+def test_the_learning_rate_follows_the_schedule_in_a_run(two_phones, tmp_path):
+    _, objs = train(cfg(two_phones, tmp_path / "r", "model.lr=1e-2", "trainer.budget.max_steps=40",
+                        "trainer.budget.warmup_steps=10", "trainer.budget.val_every_steps=2",
+                        "trainer.budget.patience=null", "trainer.budget.min_lr_ratio=0.1"))
+    hist = json.loads((tmp_path / "r" / "training.json").read_text())["history"]
+    lr = {h["step"]: h["lr"] for h in hist}
+    assert lr[2] == pytest.approx(1e-2 * 3 / 10)  # LambdaLR steps after each optimizer step: factor of step 2
+    assert max(lr.values()) == pytest.approx(1e-2, rel=0.05)
+    assert lr[40] == pytest.approx(1e-3, rel=0.05)  # decayed to min_lr_ratio * lr at the budget
+    assert objs["training"]["steps"] == 40 and objs["training"]["stop_reason"] == "max_steps"
+    assert objs["training"]["early_stopped"] is False
+
+
+def test_early_stopping_stops_a_run_that_does_not_improve_and_the_report_flags_knn(two_phones, tmp_path):
+    out = tmp_path / "r"
+    _, objs = train(cfg(two_phones, out, "model.lr=1e-12", "trainer.budget.max_steps=400",
+                        "trainer.budget.warmup_steps=0", "trainer.budget.val_every_steps=2",
+                        "trainer.budget.patience=3", "plots=true"))
+    info = objs["training"]
+    assert info["early_stopped"] is True and info["stop_reason"] == "early_stopping"
+    assert info["steps"] < 40  # 1 + 3 checks of 2 steps (plus the rest of an epoch), far from 400
+    assert info["best_val_error_m"] > info["knn_val_error_m"] > 0  # an untrained net vs KNN, same windows
+    assert any("worse than KNN" in w for w in info["warnings"])
+    on_disk = json.loads((out / "training.json").read_text())
+    assert on_disk["stop_reason"] == "early_stopping" and len(on_disk["history"]) >= 4
+    assert (out / "learning_curves.png").stat().st_size > 1000 and (out / "config.yaml").is_file()
+    state = torch.load(out / "last.ckpt", map_location="cpu", weights_only=True)
+    assert state["blenav_training"]["stop_reason"] == "early_stopping"
+    # started again: an early-stopped run is finished, nothing more is trained
+    _, again = train(cfg(two_phones, out, "model.lr=1e-12", "trainer.budget.max_steps=400",
+                         "trainer.budget.warmup_steps=0", "trainer.budget.val_every_steps=2",
+                         "trainer.budget.patience=3"))
+    assert again["global_step"] == info["steps"] and again["training"]["stop_reason"] == "early_stopping"
+
+
+def test_report_warns_when_stopped_before_converging():
+    m = TrainingMonitor()
+    m.history = [{"step": 10 * i, "val_loss": 1.0 / (i + 1), "val_err_m": 5.0 / (i + 1)} for i in range(12)]
+    m.best = dict(m.history[-1])
+    info = training_report(m, "max_steps", 110, knn_err=1.0)
+    assert not info["converged"] and any("before the validation loss levelled off" in w for w in info["warnings"])
+    assert not any("worse than KNN" in w for w in info["warnings"])  # 0.42 m < 1.0 m
+    m.history += [{"step": 120 + 10 * i, "val_loss": m.best["val_loss"], "val_err_m": 0.4} for i in range(12)]
+    assert training_report(m, "max_steps", 230, knn_err=0.3)["converged"]  # flat for the last quarter
+    assert any("worse than KNN" in w for w in training_report(m, "max_steps", 230, knn_err=0.3)["warnings"])
+
+
+class _Crash(Exception):
+    pass
+
+
+def test_an_interrupted_run_resumes_with_its_curve_and_schedule(two_phones, tmp_path):
+    class CrashAtEpoch3(L.Callback):
+        def on_train_epoch_start(self, trainer, module):
+            if trainer.current_epoch == 3:
+                raise _Crash()
+
+    over = ["model.lr=3e-3", "trainer.budget.max_steps=24", "trainer.budget.warmup_steps=4",
+            "trainer.budget.val_every_steps=2", "trainer.budget.patience=null"]
+    with pytest.raises(_Crash):
+        train(cfg(two_phones, tmp_path / "r", *over), callbacks=[CrashAtEpoch3()])
+    state = torch.load(tmp_path / "r" / "last.ckpt", map_location="cpu", weights_only=True)
+    before = state["global_step"]
+    assert before > 0 and state["lr_schedulers"]  # the schedule's state is in the checkpoint
+    key = next(k for k in state["callbacks"] if k.startswith("TrainingMonitor"))
+    n_before = len(state["callbacks"][key]["history"])
+    _, objs = train(cfg(two_phones, tmp_path / "r", *over))
+    assert objs["training"]["steps"] == 24 and objs["training"]["stop_reason"] == "max_steps"
+    hist = json.loads((tmp_path / "r" / "training.json").read_text())["history"]
+    steps = [h["step"] for h in hist]
+    assert len(hist) > n_before and steps == sorted(steps) and steps[0] < before  # one curve across the restart
+    # the resumed schedule continues: the lr at the end is the cosine floor, not a new warm-up
+    assert hist[-1]["lr"] == pytest.approx(3e-3 * 0.02, rel=0.05)
+
+
+def test_the_training_dict_lands_in_results_json(two_phones, tmp_path):
+    from blenav.eval.harness import evaluate
+
+    off = [f"experiment.learned.{k}=null" for k in ("locnet_aug", "transnet_locnet", "semi", "dlrnn")] + \
+          [f"experiment.baselines.{k}=null" for k in ("bayesian", "krr_kf")]
+    c = compose("eval", "experiment=crossphone_003", f"data={two_phones}", f"out={tmp_path / 'o'}", "progress=false",
+                "data.train_devices=[iphone-8]", "data.test_devices=[galaxy-s10]", "data.val_fraction=0.5",
+                "data.batch_size=32", "trainer.enable_progress_bar=false", "model_path=null", "plots=false",
+                "experiment.learned.locnet.model.locnet.hidden=16", "trainer.budget.max_steps=30",
+                "trainer.budget.val_every_steps=5", *off)
+    evaluate(c)
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    tr = res["methods"]["LocNet"]["training"]
+    assert {"steps", "early_stopped", "stop_reason", "best_val_error_m", "knn_val_error_m"} <= set(tr)
+    assert tr["steps"] == 30 and tr["stop_reason"] == "max_steps" and tr["early_stopped"] is False
+    assert tr["best_val_error_m"] > 0 and tr["knn_val_error_m"] > 0
+    assert "training" not in res["methods"]["KNN"]
+    assert (tmp_path / "o" / "runs" / "locnet" / "training.json").is_file()
