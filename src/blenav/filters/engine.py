@@ -37,6 +37,7 @@ from typing import Optional
 import numpy as np
 
 from .kernels import add_loglik, duplicates, gather_rows, mean_cov, recover_checks
+from .noise import motion_stream
 from .resampling import ess, get_scheme, log_normalise
 
 
@@ -148,7 +149,8 @@ class ParticleFilter:
     * ``constraints``: :class:`Constraint` components (walls, obstacle re-initialisation).
 
     Public state for components: ``x`` (R, N, D), ``logw`` (R, N), ``rng``, ``events``, ``last_est`` (R, 2)
-    (the previous step's estimates, NaN before the first), ``R``, ``N``.
+    (the previous step's estimates, NaN before the first), ``R``, ``N``. ``motion_rng``: the motion model's
+    own stream (a child of ``rng``, drawn a step ahead in a worker thread: :mod:`blenav.filters.noise`).
     """
 
     def __init__(self, cfg: FilterConfig, motion, measurements: list, initializer: Initializer,
@@ -160,6 +162,7 @@ class ParticleFilter:
         self.conditioner = conditioner
         self.constraints = list(constraints)
         self.rng = rng
+        self.motion_rng = motion_stream(rng)
         self.R, self.N = int(n_runs), int(cfg.n_particles)
         self.resample_fn = get_scheme(cfg.resampling)
         if cfg.estimate not in ("mean", "median"):
@@ -182,7 +185,7 @@ class ParticleFilter:
     def step(self, t: float, ctrl: dict, obs: dict) -> StepResult:
         dt = max(t - self.t, 1e-6)
         xy_prev = self.x[..., :2].copy() if self.constraints else None  # only the constraints read it
-        self.x = self.motion.propagate(self.x, ctrl, dt, self.rng)
+        self.x = self.motion.propagate(self.x, ctrl, dt, self.motion_rng)
         penalty = None  # the constraints' log-weight terms (R, N)
         for c in self.constraints:
             term = c.after_propagate(self, t, xy_prev)
