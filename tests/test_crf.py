@@ -233,3 +233,18 @@ def test_rows_without_their_streams_are_skipped_with_the_reason(renamed, tmp_pat
     assert "visual" in next(iter(ms["BLE+IMU/online"]["skipped"].values()))
     assert "static" in next(iter(ms["BLE+IMU/offline"]["skipped"].values()))
     assert np.isfinite(ms["BLE/none"]["error_m"]["median"]) and np.isfinite(ms["IMU/none"]["error_m"]["mean"])
+
+
+def test_compiled_step_detector_equals_the_project_detector(small):
+    from blenav.crf.steps_jit import step_flags
+    from blenav.data import Dataset
+    from blenav.filters.steps import StepDetector, StepDetectorConfig
+
+    imu = next(Dataset.open(small).sessions()).imu
+    t, acc = imu["t"].to_numpy(), imu[["ax", "ay", "az"]].to_numpy()
+    for cfg in (StepDetectorConfig(), StepDetectorConfig(threshold=0.8, min_interval_s=0.25, smooth_s=0.05)):
+        det = StepDetector(cfg, 200.0)
+        ref = np.fromiter((det.update(a, v) for a, v in zip(t, acc)), bool, len(t))
+        got = step_flags(t, acc, cfg, 200.0)
+        assert ref.sum() > 20
+        np.testing.assert_array_equal(got, ref)

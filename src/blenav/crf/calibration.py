@@ -170,7 +170,8 @@ def online_track(base: CalibrationTrack, fixes: np.ndarray, wifi: AnchorTable, b
     """Online calibration at visual fixes (004 sec. V-B), on top of ``base`` (a one-row track: the prior).
 
     fixes (F, 5): t, x, y, z, yaw of visual.csv (yaw NaN: no heading calibration at that fix);
-    rtt / rssi: (t (M,), anchor row (M,), range m | RSSI dBm (M,)) readings that passed 004 sec. V-A, or None;
+    rtt / rssi: (t (M,), anchor row (M,), range m | RSSI dBm (M,)) readings that passed 004 sec. V-A, in time
+    order, or None;
     yaw: (t (T,), AHRS yaw (T,) rad) of the device's forward axis, or None. Each fix gives a row valid from
     t + window_s, computed from the readings in [t, t + window_s)."""
     F = len(fixes)
@@ -186,19 +187,19 @@ def online_track(base: CalibrationTrack, fixes: np.ndarray, wifi: AnchorTable, b
         off[c + 1], tx[c + 1], hd[c + 1] = off[c], tx[c], hd[c]
         if calibrate_rtt and rtt is not None and len(wifi.ids):
             tt, ii, rr = rtt
-            w = (tt >= t0) & (tt < t1)
-            if w.any():
+            w = slice(*np.searchsorted(tt, [t0, t1]))  # readings are in time order
+            if w.stop > w.start:
                 new = rtt_offsets(ii[w], rr[w], np.linalg.norm(wifi.xyz[ii[w]] - v, axis=1), len(wifi.ids))
                 off[c + 1] = np.where(np.isfinite(new), new, off[c])
         if calibrate_ble and rssi is not None and len(ble.ids):
             tt, ii, rr = rssi
-            w = (tt >= t0) & (tt < t1)
-            if w.any():
+            w = slice(*np.searchsorted(tt, [t0, t1]))
+            if w.stop > w.start:
                 new = ble_tx_powers(ii[w], rr[w], np.linalg.norm(ble.xyz[ii[w]] - v, axis=1), n, len(ble.ids))
                 tx[c + 1] = np.where(np.isfinite(new), new, tx[c])
         if calibrate_heading and yaw is not None and np.isfinite(yv):
             tt, yy = yaw
-            w = (tt >= t0) & (tt < t1)
+            w = slice(*np.searchsorted(tt, [t0, t1]))
             h = heading_offset(yv, yy[w])
             if np.isfinite(h):
                 hd[c + 1] = h

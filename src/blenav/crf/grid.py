@@ -14,7 +14,9 @@ Edges are stored twice in CSR form (numpy arrays, no Python objects per cell):
   with ``dist`` (E,) m and ``angle`` (E,) rad (direction from source to target, CCW from +x; 0 for self
   edges);
 * by target: ``tgt_ptr`` (N+1,), ``tsrc`` (E,) the source of each incoming edge, ``tedge`` (E,) its row in
-  the by-source arrays.
+  the by-source arrays;
+* the D offsets of a full neighbourhood, ``off_dist`` (D,), ``off_angle`` (D,): a cell with D edges has
+  exactly these (the Viterbi kernel computes their normaliser once per step).
 
 World frame: x east, y north (m); cell (cy, cx) has centre origin + ((cx + 0.5) cell_m, (cy + 0.5) cell_m).
 """
@@ -49,6 +51,8 @@ class CrfGrid:
     tgt_ptr: np.ndarray  # (N+1,) int64
     tsrc: np.ndarray  # (E,) int32
     tedge: np.ndarray  # (E,) int64
+    off_dist: np.ndarray  # (D,) m: the offsets of a full neighbourhood (a cell far from walls has all D edges)
+    off_angle: np.ndarray  # (D,) rad
 
     @property
     def n_cells(self) -> int:
@@ -167,4 +171,5 @@ def grid_from_occupancy(occ: np.ndarray, resolution: float, origin: tuple[float,
     tgt_ptr = np.concatenate([[0], np.cumsum(np.bincount(dst, minlength=N))]).astype(np.int64)
     return CrfGrid(float(cell_m), (x0, y0), (ny, nx), index, cy.astype(np.int32), cx.astype(np.int32), xy,
                    float(max_step_m), src_ptr, dst.astype(np.int32), dist, ang, tgt_ptr,
-                   src[torder].astype(np.int32), torder.astype(np.int64))
+                   src[torder].astype(np.int32), torder.astype(np.int64), np.hypot(odx, ody) * cell_m,
+                   np.where((odx != 0) | (ody != 0), np.arctan2(ody, odx), 0.0).astype(float))

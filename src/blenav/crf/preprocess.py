@@ -26,7 +26,7 @@ import numpy as np
 from blenav.filters.measurement import AnchorTable
 
 __all__ = ["window_medians", "window_count", "rtt_keep_mask", "ble_keep_mask", "RadioWindows", "preprocess",
-           "anchor_tables", "session_span"]
+           "anchor_tables", "session_span", "anchor_rows"]
 
 
 def window_count(t_start: float, t_end: float, window_s: float) -> int:
@@ -95,6 +95,16 @@ def anchor_tables(building, floor=None) -> tuple[AnchorTable, AnchorTable]:
     return out[0], out[1]
 
 
+def anchor_rows(ids, anchors: AnchorTable) -> np.ndarray:
+    """(M,) row of each anchor id in ``anchors`` (-1 when unknown); a hash lookup (``AnchorTable.index_of``
+    sorts strings: seconds for the hundreds of thousands of BLE packets of an hour)."""
+    import pandas as pd
+
+    if not len(anchors.ids):
+        return np.full(len(ids), -1, np.int64)
+    return pd.Index(anchors.ids.astype(str)).get_indexer(pd.Series(ids).astype(str)).astype(np.int64)
+
+
 def session_span(session, streams=("imu", "rssi", "rtt", "visual")) -> tuple[float, float]:
     """(first, last) time stamp (s) over the session's present, non-empty ``streams``."""
     lo, hi = [], []
@@ -115,7 +125,8 @@ class RadioWindows:
 
     t (K,) s: window ends; rtt (K, Aw) m median range per WiFi AP (NaN: none kept); rtt_std (K, Aw) m median
     reported std (NaN: none); ble (K, Ab) dBm median RSSI per beacon (NaN: none kept); wifi, ble_anchors: the
-    anchor tables the columns refer to; dropped: rows rejected per rule; notes: remarks for the report."""
+    anchor tables the columns refer to; dropped: rows rejected per rule; notes: remarks for the report;
+    rtt_raw, ble_raw: the readings that passed the rules, (t (M,) s, anchor row (M,), range m | RSSI dBm (M,))."""
 
     t: np.ndarray
     t_start: float
@@ -127,6 +138,8 @@ class RadioWindows:
     ble_anchors: AnchorTable
     dropped: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    rtt_raw: tuple = (np.zeros(0), np.zeros(0, np.int64), np.zeros(0))
+    ble_raw: tuple = (np.zeros(0), np.zeros(0, np.int64), np.zeros(0))
 
 
 def preprocess(session, t_start: float | None = None, n_windows: int | None = None, window_s: float = 1.0,
@@ -146,11 +159,12 @@ def preprocess(session, t_start: float | None = None, n_windows: int | None = No
         n_windows = window_count(t_start, hi, window_s) if n_windows is None else n_windows
     K, Aw, Ab = int(n_windows), len(wifi.ids), len(ble_anchors.ids)
     dropped, notes = {}, []
+    rtt_raw = ble_raw = (np.zeros(0), np.zeros(0, np.int64), np.zeros(0))
     rtt = np.full((K, Aw), np.nan)
     rtt_std = np.full((K, Aw), np.nan)
     if Aw and (session.root / "rtt.csv").is_file() and len(session.rtt):
         df = session.rtt
-        idx = wifi.index_of(df["anchor_id"].astype(str).to_numpy())
+        idx = anchor_rows(df["anchor_id"], wifi)
         rng = df["range_m"].to_numpy(float)
         wr = df["rssi"].to_numpy(float) if "rssi" in df.columns else None
         if wr is None and min_wifi_rssi_dbm is not None:
@@ -160,18 +174,21 @@ def preprocess(session, t_start: float | None = None, n_windows: int | None = No
         if n_weak:
             dropped["rtt_weak_wifi_rssi"] = n_weak
         t = df["t"].to_numpy(float)[keep]
+        rtt_raw = (t, idx[keep], rng[keep])
         rtt = window_medians(t, idx[keep], rng[keep], Aw, t_start, K, window_s)
         std = df["range_std_m"].to_numpy(float)[keep] if "range_std_m" in df.columns else np.full(keep.sum(), np.nan)
         rtt_std = window_medians(t, idx[keep], std, Aw, t_start, K, window_s)
     ble = np.full((K, Ab), np.nan)
     if Ab and (session.root / "rssi.csv").is_file() and len(session.rssi):
         df = session.rssi
-        idx = ble_anchors.index_of(df["anchor_id"].astype(str).to_numpy())
+        idx = anchor_rows(df["anchor_id"], ble_anchors)
         r = df["rssi"].to_numpy(float)
         keep = ble_keep_mask(r, min_ble_rssi_dbm) & (idx >= 0)
         n_weak = int((~ble_keep_mask(r, min_ble_rssi_dbm) & np.isfinite(r)).sum())
         if n_weak:
             dropped["ble_below_min_rssi"] = n_weak
-        ble = window_medians(df["t"].to_numpy(float)[keep], idx[keep], r[keep], Ab, t_start, K, window_s)
+        ble_raw = (df["t"].to_numpy(float)[keep], idx[keep], r[keep])
+        ble = window_medians(*ble_raw, Ab, t_start, K, window_s)
     t_end = t_start + (np.arange(K) + 1) * window_s
-    return RadioWindows(t_end, float(t_start), float(window_s), rtt, rtt_std, ble, wifi, ble_anchors, dropped, notes)
+    return RadioWindows(t_end, float(t_start), float(window_s), rtt, rtt_std, ble, wifi, ble_anchors, dropped, notes,
+                        rtt_raw, ble_raw)

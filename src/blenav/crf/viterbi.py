@@ -39,14 +39,44 @@ def _wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _edge_w(length, heading, use_heading, inv_sl, inv_st, dist, angle):
+    r = (length - dist) * inv_sl
+    w = -0.5 * r * r
+    if use_heading:
+        if dist > 0.0:
+            d = _wrap(heading - angle)
+        else:
+            d = math.pi
+        w -= 0.5 * (d * inv_st) * (d * inv_st)
+    return w
+
+
 @njit(cache=True, nogil=True)
-def _maxprod(score, thresh, src_ptr, dst, dist, angle, use_imu, length, heading, use_heading, inv_sl, inv_st,
-             normalise, out, back, buf):
+def _log_norm(length, heading, use_heading, inv_sl, inv_st, dist, angle):
+    m = -np.inf
+    for e in range(dist.shape[0]):
+        w = _edge_w(length, heading, use_heading, inv_sl, inv_st, dist[e], angle[e])
+        if w > m:
+            m = w
+    z = 0.0
+    for e in range(dist.shape[0]):
+        z += math.exp(_edge_w(length, heading, use_heading, inv_sl, inv_st, dist[e], angle[e]) - m)
+    return m + math.log(z)
+
+
+@njit(cache=True, nogil=True)
+def _maxprod(score, thresh, src_ptr, dst, dist, angle, off_dist, off_angle, use_imu, length, heading, use_heading,
+             inv_sl, inv_st, normalise, out, back):
     N = score.shape[0]
     for j in range(N):
         out[j] = -np.inf
         back[j] = -1
     n_active = 0
+    D = off_dist.shape[0]
+    lz_full = 0.0
+    if use_imu and normalise:  # every cell with a full neighbourhood has the same normaliser: once per step
+        lz_full = _log_norm(length, heading, use_heading, inv_sl, inv_st, off_dist, off_angle)
     for i in range(N):
         s = score[i]
         if not (s >= thresh):
@@ -55,27 +85,12 @@ def _maxprod(score, thresh, src_ptr, dst, dist, angle, use_imu, length, heading,
         a = src_ptr[i]
         b = src_ptr[i + 1]
         if use_imu:
-            m = -np.inf
-            for e in range(a, b):
-                r = (length - dist[e]) * inv_sl
-                w = -0.5 * r * r
-                if use_heading:
-                    if dist[e] > 0.0:
-                        d = _wrap(heading - angle[e])
-                    else:
-                        d = math.pi
-                    w -= 0.5 * (d * inv_st) * (d * inv_st)
-                buf[e - a] = w
-                if w > m:
-                    m = w
             lz = 0.0
             if normalise:
-                z = 0.0
-                for e in range(a, b):
-                    z += math.exp(buf[e - a] - m)
-                lz = m + math.log(z)
+                lz = lz_full if b - a == D else _log_norm(length, heading, use_heading, inv_sl, inv_st, dist[a:b],
+                                                          angle[a:b])
             for e in range(a, b):
-                v = s + buf[e - a] - lz
+                v = s + _edge_w(length, heading, use_heading, inv_sl, inv_st, dist[e], angle[e]) - lz
                 j = dst[e]
                 if v > out[j]:
                     out[j] = v
@@ -102,16 +117,14 @@ def maxprod_step(grid: CrfGrid, score: np.ndarray, prune_log: float = math.log(1
     N = grid.n_cells
     out = np.empty(N) if out is None else out
     back = np.empty(N, np.int32) if back is None else back
-    deg = np.diff(grid.src_ptr)
-    buf = np.empty(int(deg.max()) if N else 1)
     if imu is None:
         length, heading, use_heading, use_imu = 0.0, 0.0, False, False
     else:
         length, heading, use_heading = float(imu[0]), float(imu[1]), bool(imu[2])
         use_imu = True
     n = _maxprod(np.ascontiguousarray(score, dtype=np.float64), float(prune_log), grid.src_ptr, grid.dst, grid.dist,
-                 grid.angle, use_imu, length, heading, use_heading, 1.0 / sigma_l, 1.0 / sigma_theta, bool(normalise),
-                 out, back, buf)
+                 grid.angle, grid.off_dist, grid.off_angle, use_imu, length, heading, use_heading, 1.0 / sigma_l,
+                 1.0 / sigma_theta, bool(normalise), out, back)
     return out, back, int(n)
 
 
@@ -174,14 +187,23 @@ class ViterbiDecoder:
         self.argmax: list[int] = []
         self.active: list[int] = []
 
-    def step(self, unary: np.ndarray | None = None, imu=None, reset: np.ndarray | None = None) -> int:
-        """Advance one step: transitions (``imu`` = (l, theta, step_detected) or None), then ``unary`` (N,) log
-        features (None: none), or -- at a visual fix -- ``reset`` (N,) log map replacing the result (eq. 15).
-        Returns the argmax cell (eq. 16)."""
+    def step(self, unary=None, imu=None, reset: np.ndarray | None = None) -> int:
+        """Advance one step: transitions (``imu`` = (l, theta, step_detected) or None), then the unary log
+        features, or -- at a visual fix -- ``reset`` (N,) log map replacing the result (eq. 15).
+
+        ``unary``: None (no unary feature), an (N,) array, or a callable ``unary(cells) -> (len(cells),)``
+        evaluated only on the cells the transitions reached (the others have probability 0): the features'
+        normalisation constants are the same for every cell, so the normalised result is the same as with the
+        features evaluated and normalised on the whole grid. Returns the argmax cell (eq. 16)."""
         out, back, n_act = maxprod_step(self.grid, self.score, self.prune_log, imu, self.sigma_l, self.sigma_theta,
                                         self.normalise, self._out, self._back)
         if reset is not None:
             new = normalise_log(np.asarray(reset, float).copy())
+        elif callable(unary):
+            cand = np.flatnonzero(out > -np.inf)
+            new = np.full_like(out, -np.inf)
+            v = out[cand] + unary(cand)
+            new[cand] = normalise_log(v)
         else:
             new = out + unary if unary is not None else out.copy()
             new = normalise_log(new)

@@ -44,11 +44,12 @@ from blenav.crf.calibration import (CALIBRATIONS, CalibrationTrack, offline_cali
 from blenav.crf.features import cell_anchor_distances, normalise_log, rssi_log_feature, rtt_log_feature, \
     visual_log_feature, wrap_angle
 from blenav.crf.grid import build_grid
-from blenav.crf.preprocess import anchor_tables, ble_keep_mask, preprocess, rtt_keep_mask, session_span, window_count
+from blenav.crf.preprocess import anchor_tables, preprocess, session_span, window_count
 from blenav.crf.viterbi import ViterbiDecoder
-from blenav.filters.attitude import AttitudeConfig, yaw_of_device_forward
+from blenav.crf.steps_jit import step_flags
+from blenav.filters.attitude import AttitudeConfig, estimate_attitude, yaw_of_device_forward
 from blenav.filters.runner import MissingStream
-from blenav.filters.steps import SessionArrays, StepDetectorConfig, imu_features
+from blenav.filters.steps import StepDetectorConfig
 
 from .base import Estimate, Localizer, RunContext
 
@@ -147,15 +148,24 @@ class CrfLocalizer(Localizer):
             cache[key] = build_grid(session.floor, self.cell_m, self.max_step_m, self.min_free_fraction)
         return cache[key]
 
-    def _imu(self, session, ctx: RunContext | None, ble):
+    def _imu(self, session, ctx: RunContext | None):
         """(step times (S,) s, step AHRS yaw (S,) rad, IMU times (T,), AHRS yaw (T,), q (T, 4)) of the session."""
         key = ("crf-imu", session.id, repr(self.attitude), repr(self.steps))
         cache = ctx.cache if ctx is not None else {}
         if key not in cache:
-            arrays = SessionArrays.from_session(session, ble)
-            q, flags = imu_features(arrays, self.attitude, self.steps)
+            # imu_features' AHRS and its step detector, the latter compiled (blenav.crf.steps_jit: same flags)
+            c = np.ascontiguousarray
+            imu, mag = session.imu, session.mag
+            imu_t = c(imu["t"].to_numpy(float))
+            acc = c(imu[["ax", "ay", "az"]].to_numpy(float))
+            q = estimate_attitude(imu_t, acc, c(imu[["gx", "gy", "gz"]].to_numpy(float)),
+                                  c(mag["t"].to_numpy(float)) if len(mag) else None,
+                                  c(mag[["mx", "my", "mz"]].to_numpy(float)) if len(mag) else None, self.attitude)
+            dt = np.diff(imu_t)
+            dt = dt[dt > 0]
+            flags = step_flags(imu_t, acc, self.steps, 1.0 / np.median(dt) if len(dt) else 100.0)
             yaw = yaw_of_device_forward(q)
-            cache[key] = (arrays.imu_t[flags], yaw[flags], arrays.imu_t, yaw, q)
+            cache[key] = (imu_t[flags], yaw[flags], imu_t, yaw, q)
         return cache[key]
 
     def _offline(self, session, ctx, wifi, ble):
@@ -167,6 +177,26 @@ class CrfLocalizer(Localizer):
             cache[key] = (offline_calibration(stat, wifi, ble, self.ble_n, self.ble_min_rssi_dbm,
                                               self.rtt_min_wifi_rssi_dbm) if stat else None, [s.id for s in stat])
         return cache[key]
+
+    def _unary(self, k, rtt_d, ranges, ble_ld, ble, ble_tx):
+        """The unary log features of window k (eqs. 6, 12) as a function of the cells they are needed on, or None."""
+        parts = []
+        if rtt_d is not None:
+            ok = np.isfinite(ranges[k])
+            if ok.any():
+                parts.append((rtt_d, ok, lambda d, ok=ok: rtt_log_feature(d, ranges[k][ok], self.rtt_sigma_m)))
+        if ble_ld is not None:
+            ok = np.isfinite(ble[k]) & np.isfinite(ble_tx)
+            if ok.any():
+                parts.append((ble_ld, ok, lambda ld, ok=ok: rssi_log_feature(ld, ble[k][ok], ble_tx[ok], self.ble_n,
+                                                                         self.ble_sigma_db, self.ble_mode_correction)))
+        if not parts:
+            return None
+
+        def unary(cells):
+            return sum(f(m[np.ix_(cells, ok)]) for m, ok, f in parts)
+
+        return unary
 
     # ------------------------------------------------------------------ run
     def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
@@ -193,24 +223,13 @@ class CrfLocalizer(Localizer):
             base = cal
             notes.append(f"offline calibration from static session(s) {', '.join(ids)}")
         track = CalibrationTrack.constant(base, ble_prior)
-        imu = self._imu(session, ctx, ble) if ("IMU" in self.modalities or
+        imu = self._imu(session, ctx) if ("IMU" in self.modalities or
                                                 (self.calibration == "online" and session.has("imu"))) else None
         vis = session.visual if session.has("visual") else None
         if self.calibration == "online":
             fixes = vis[["t", "x", "y", "z", "yaw"]].to_numpy(float)
-            rtt_raw = rssi_raw = None
-            if "RTT" in self.modalities:
-                df = session.rtt
-                idx = wifi.index_of(df["anchor_id"].astype(str).to_numpy())
-                keep = rtt_keep_mask(df["range_m"].to_numpy(float),
-                                     df["rssi"].to_numpy(float) if "rssi" in df.columns else None,
-                                     self.rtt_min_wifi_rssi_dbm) & (idx >= 0)
-                rtt_raw = (df["t"].to_numpy(float)[keep], idx[keep], df["range_m"].to_numpy(float)[keep])
-            if "BLE" in self.modalities:
-                df = session.rssi
-                idx = ble.index_of(df["anchor_id"].astype(str).to_numpy())
-                keep = ble_keep_mask(df["rssi"].to_numpy(float), self.ble_min_rssi_dbm) & (idx >= 0)
-                rssi_raw = (df["t"].to_numpy(float)[keep], idx[keep], df["rssi"].to_numpy(float)[keep])
+            rtt_raw = radio.rtt_raw if "RTT" in self.modalities else None
+            rssi_raw = radio.ble_raw if "BLE" in self.modalities else None
             yaw = (imu[2], imu[3]) if imu is not None and "IMU" in self.modalities else None
             track = online_track(track, fixes, wifi, ble, self.ble_n, rtt_raw, rssi_raw, yaw, self.cal_window_s,
                                  calibrate_heading=self.calibrate_heading)
@@ -245,13 +264,7 @@ class CrfLocalizer(Localizer):
             if k in reset_at:
                 reset = visual_log_feature(grid.xy, reset_at[k], self.visual_sigma_m)
             else:
-                u = np.zeros(grid.n_cells)
-                if use_rtt and np.isfinite(ranges[k]).any():
-                    u += normalise_log(rtt_log_feature(rtt_d, ranges[k], self.rtt_sigma_m))
-                if use_ble and np.isfinite(radio.ble[k]).any():
-                    u += normalise_log(rssi_log_feature(ble_ld, radio.ble[k], track.ble_tx[rows[k]], self.ble_n,
-                                                        self.ble_sigma_db, self.ble_mode_correction))
-                unary = u
+                unary = self._unary(k, rtt_d, ranges, ble_ld, radio.ble, track.ble_tx[rows[k]])
             step_imu = (float(step_len[k]), float(step_dir[k]), bool(n_steps[k] > 0)) if use_imu else None
             best = dec.step(unary, step_imu, reset)
             s = dec.score
