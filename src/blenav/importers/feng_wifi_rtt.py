@@ -26,7 +26,9 @@ What is written
   ``range_std_m`` empty (not reported). 100000 mm means "not received": no row. Ranges are kept as
   the phone reported them, including negative ones (Android reports a negative distance when the
   measured round trip is shorter than its calibration offset; 567 readings, down to -10.6 m in
-  office_test) and NLOS ranges longer than the floor's diagonal (corridor, up to 41.7 m).
+  office_test) and NLOS ranges longer than the floor's diagonal (corridor, up to 41.7 m). Optional column
+  ``rssi`` (docs/dataset-format.md): the same scan's RSS of that AP (dBm), empty where its RSS cell is -200
+  (not received); Duembgen et al.'s -65 dBm rule (004 sec. V-A) reads it.
 * ``rssi.csv``: **WiFi RSS** (dBm) of the same APs, same ``anchor_id``; it is not BLE. -200 dBm means
   "not heard": no row. Other values must lie in (-150, 0) dBm. (The anchors' ``channel_model`` says so.)
 * ``groundtruth.csv``: one row per scan (raw row) with the reference point. Orientation columns are
@@ -251,7 +253,8 @@ def import_feng_wifi_rtt(src: Path, out: Path) -> ImportReport:
             report.drop(f"RTT/RSS readings of an AP column without a position ({env})", int(n_orphan))
             r, c = np.nonzero(rtt != RTT_NOT_RECEIVED_MM)
             rtt_df = pd.DataFrame({"t": t[r], "anchor_id": ap_ids[c], "range_m": rtt[r, c] / 1000.0,
-                                   "range_std_m": np.nan})
+                                   "range_std_m": np.nan,
+                                   "rssi": np.where(rss[r, c] != RSS_NOT_RECEIVED_DBM, rss[r, c], np.nan)})
             r2, c2 = np.nonzero(rss != RSS_NOT_RECEIVED_DBM)
             rssi_df = pd.DataFrame({"t": t[r2], "anchor_id": ap_ids[c2], "rssi": rss[r2, c2]})
             los = pd.Series(d.los, dtype=object).replace("", np.nan)

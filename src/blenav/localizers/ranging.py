@@ -29,12 +29,15 @@ Per window of ``window_s`` seconds (004 sec. III: every measurement is the media
   horizontal plane with ``d_m^2 - (z_m - device_z)^2`` as the squared horizontal range (the same cost as the
   3-D one with the device's height fixed). A window needs ``min_ranges`` = 3 ranges (an estimate from fewer
   is a circle or two points, not a position).
-* **Visual fixes**: a window with a fix in ``visual.csv`` takes the (last) fix as its estimate (``visual``).
+* **Visual fixes**: a window with a fix in ``visual.csv`` takes the (last) fix as its estimate (``visual``;
+  online calibration uses the fixes either way).
 
 Estimates: one per window from the first with ranges or a fix to the last, stamped at the window's end
 (``stamp: end``, as the centroid and the CRF) or at the time of its last reading (``stamp: last``: the estimate
 is ready then, and a static survey scan is scored at its own time, not interpolated towards the next point);
-a window without an estimate repeats the previous one, stamped at the window's end. Deterministic: every run
+a window without an estimate repeats the previous one, stamped at the window's end (``hold: false``: it has
+no estimate; the evaluation then scores only the windows a method could localize -- used for static surveys,
+where the previous window may be another point). Deterministic: every run
 gets the same trajectory. Positions in world metres (the anchors' frame); no covariance.
 
 "grid-L1": the paper describes it as "the median rather than mean distance error"; we read the name: the sum
@@ -258,8 +261,10 @@ def window_ranges(t_lists, idx_lists, d_lists, anchor_xyz, kinds, vis_t, vis_xy,
     all_t = np.concatenate([t, vis_t])
     if t0 is None:
         t0 = float(all_t.min())
-    win = np.floor((t - t0) / window_s).astype(np.int64)
-    vwin = np.floor((vis_t - t0) / window_s).astype(np.int64)
+    # 1e-9: a reading exactly on a boundary (8.2 s with windows from 0.2 s) is in the window it starts, not the
+    # one before by a rounding error
+    win = np.floor((t - t0) / window_s + 1e-9).astype(np.int64)
+    vwin = np.floor((vis_t - t0) / window_s + 1e-9).astype(np.int64)
     w_lo = int(min(win.min(initial=np.iinfo(np.int64).max), vwin.min(initial=np.iinfo(np.int64).max)))
     w_hi = int(max(win.max(initial=-1), vwin.max(initial=-1)))
     W = w_hi - w_lo + 1
@@ -415,7 +420,7 @@ class RangeBaseline(Localizer, PathLossCalibrated):
                  min_ble_rssi_dbm: float | None = BLE_MIN_RSSI_DBM, calibration: str = "online",
                  calibration_sessions="auto", calib_window_s: float = 1.0, visual: bool = True,
                  a_x: float = -60.0, gamma: float = 2.25, d0: float = 1.0, use_anchor_tx_power: bool = True,
-                 calibrated: bool = True, device_z: float = 1.2, stamp: str = "end"):
+                 calibrated: bool = True, device_z: float = 1.2, stamp: str = "end", hold: bool = True):
         super().__init__(name, shared)
         src = [sources] if isinstance(sources, str) else list(sources)
         bad = [s for s in src if s not in SOURCES]
@@ -428,7 +433,7 @@ class RangeBaseline(Localizer, PathLossCalibrated):
                              f"(got {window_s}, {grid_m}, {calib_window_s})")
         if stamp not in ("end", "last"):
             raise ValueError(f"method {name!r}: stamp must be 'end' or 'last', got {stamp!r}")
-        self.stamp = stamp
+        self.stamp, self.hold = stamp, bool(hold)
         if int(min_ranges) < 1:
             raise ValueError(f"method {name!r}: min_ranges must be >= 1, got {min_ranges}")
         self.sources, self.window_s, self.grid_m, self.min_ranges = src, float(window_s), float(grid_m), int(min_ranges)
@@ -465,7 +470,7 @@ class RangeBaseline(Localizer, PathLossCalibrated):
                     and s.building.id == session.building.id and s.id != session.id]
         else:
             ids = [spec] if isinstance(spec, str) else [str(i) for i in spec]
-            cand = [s for s in ds.sessions(ids) if s.id != session.id]
+            cand = [s for s in ds.sessions(ids) if s.id != session.id] if ids else []
         return cand
 
     def _corrections(self, session, ctx, wr: WindowRanges, rtt, ble, notes: list):
@@ -565,6 +570,10 @@ class RangeBaseline(Localizer, PathLossCalibrated):
         ends = wr.t0 + (wr.window[first:] + 1) * self.window_s
         stamp = np.where(held | (self.stamp == "end"), ends, stamp)
         stamp = np.maximum.accumulate(stamp)  # a held window's end can pass the next window's first reading only by 0
+        if not self.hold:
+            xy, stamp = xy[~held], stamp[~held]
+        notes.append(f"{session.id}: {int((~held).sum())} of {len(held)} windows localized "
+                     f"({'the others hold the previous estimate' if self.hold else 'the others have no estimate'})")
         pos = np.broadcast_to(xy, (n_runs,) + xy.shape).copy()
         return Estimate(self.name, session.id, stamp, pos, None, [], {}, n_runs * (time.perf_counter() - t_start), notes)
 
