@@ -32,8 +32,11 @@ What is written
   floors. The alignment is checked per floor against the waypoints (below).
 * **Occupancy grid** at ``RESOLUTION_M`` = 0.1 m/px covering ``[0, width] x [0, height]``, origin (0, 0):
   a pixel is FREE (walkable) when its centre lies inside the floor outline (holes excluded) and outside every
-  unit polygon, else OCCUPIED. Rasterised with PIL's polygon fill (exact to about one pixel at edges); holes
-  of unit polygons are not cut out (none in the sample data). ``floor_image.png`` is not used.
+  unit polygon; inside a unit it is UNKNOWN (grey, 205): shops are entered through doors the plan does not
+  draw, and surveyors did walk into them (one B1 walk has 3 of its 5 waypoints inside units), so a unit is
+  "not known to be free", not a wall; outside the outline it is OCCUPIED. Rasterised with PIL's polygon fill
+  (exact to about one pixel at edges); holes of unit polygons are not cut out (none in the sample data).
+  ``floor_image.png`` is not used.
 * **Rooms**: every unit (shop) polygon becomes a ``rooms.geojson`` feature in floor metres, ``id`` = the
   unit's GeoJSON id (else ``<floor>-unit<i>``), ``name`` = its name. An invalid polygon is repaired with
   shapely's ``make_valid`` (counted in the report); empty ones are dropped (counted).
@@ -101,7 +104,8 @@ UTF-8) or a file that does not end with a newline (its last line may be cut) rai
 documented types that are not imported (uncalibrated streams, TYPE_BLUE/BLU4/DIST1/DIST2, accuracy changes)
 are counted as ignored. A walk without an ``endTime`` header line (possibly cut exactly at a line end) is
 imported and counted. Output goes to a temporary folder beside ``out`` that is renamed to ``out`` only when
-everything parsed, so a failed import leaves nothing behind.
+everything parsed, so a parse error leaves nothing behind; the validator then checks ``out`` (a dataset it
+refuses stays there for inspection, and the import raises its errors).
 """
 
 from __future__ import annotations
@@ -126,7 +130,7 @@ import shapely
 from PIL import Image, ImageDraw
 from shapely.geometry import MultiPolygon, Polygon, shape
 
-from blenav.data.building import FREE, OCCUPIED
+from blenav.data.building import FREE, OCCUPIED, UNKNOWN
 from blenav.data.schema import STREAMS
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
@@ -269,7 +273,7 @@ def _parse_lines(display: str, data: bytes) -> _Walk:
         r = int(np.argmax(wide))
         raise ImportError_(display, r + 1, f"{nfields[r]} tab-separated fields; no record type has more than 10")
     try:
-        cells = pd.read_csv(io.BytesIO(data), sep="\t", header=None, names=range(MAX_FIELDS), dtype=str,
+        cells = pd.read_csv(io.BytesIO(data), sep="\t", header=None, names=range(MAX_FIELDS), dtype=object,
                             quoting=csv.QUOTE_NONE, keep_default_na=False, skip_blank_lines=False, engine="c")
     except (ValueError, pd.errors.ParserError) as exc:  # not expected after the checks above
         m = re.search(r"line (\d+)", str(exc))
@@ -277,7 +281,7 @@ def _parse_lines(display: str, data: bytes) -> _Walk:
     if len(cells) != len(ends):
         raise ImportError_(display, None, f"{len(cells)} rows read from {len(ends)} lines (a stray carriage return?)")
     first = cells[0].to_numpy(dtype=object)
-    is_header = cells[0].str.startswith("#").to_numpy(dtype=bool)
+    is_header = a[starts] == ord("#")
     header: dict[str, str] = {}
     start_line: dict[str, int] = {}
     for r in np.flatnonzero(is_header):
@@ -304,6 +308,14 @@ def _parse_lines(display: str, data: bytes) -> _Walk:
     return _Walk(header, start_line, cells, nfields, kinds, counts, unknown, ignored)
 
 
+def _floats(cells: np.ndarray) -> np.ndarray:
+    """float64 of text cells (numpy's conversion, fast); cells that are not numbers become NaN."""
+    try:
+        return cells.astype(np.float64)
+    except (ValueError, TypeError):
+        return pd.to_numeric(pd.Series(cells, dtype=object), errors="coerce").to_numpy(dtype=float)
+
+
 def _table(display: str, walk: _Walk, kind: str, numeric: tuple[int, ...]
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, pd.DataFrame]:
     """(lines (n,), unix ms (n,) int64, numbers (n, len(numeric)) float64, str cells (n, MAX_FIELDS)) of the rows
@@ -322,7 +334,7 @@ def _table(display: str, walk: _Walk, kind: str, numeric: tuple[int, ...]
         raise ImportError_(display, r + 1, f"{kind}: {walk.nfields[r]} tab-separated fields, expected {want} "
                            f"(time, type, {', '.join(names)})")
     sub = walk.cells.iloc[rows]
-    tf = pd.to_numeric(sub[0], errors="coerce").to_numpy(dtype=float)
+    tf = _floats(sub[0].to_numpy(dtype=object))
     with np.errstate(invalid="ignore"):
         isint = np.isfinite(tf) & (tf == np.round(tf)) & (np.abs(tf) < 2 ** 53)
     if not isint.all():
@@ -331,7 +343,7 @@ def _table(display: str, walk: _Walk, kind: str, numeric: tuple[int, ...]
     t = tf.astype(np.int64)
     v = np.empty((n, len(numeric)))
     for k, c in enumerate(numeric):
-        col = pd.to_numeric(sub[2 + c], errors="coerce").to_numpy(dtype=float)
+        col = _floats(sub[2 + c].to_numpy(dtype=object))
         bad = ~np.isfinite(col)
         if bad.any():
             r = int(rows[np.argmax(bad)])
@@ -369,6 +381,8 @@ def _num_text(v: np.ndarray, decimals: int) -> np.ndarray:
 
 def _quote(v: np.ndarray) -> np.ndarray:
     """Text cells quoted as RFC 4180 wants where they hold a comma, a quote or a line end."""
+    if not any(c in "".join(v) for c in ',"\r\n') and not any(x[:1].isspace() or x[-1:].isspace() for x in v):
+        return v
     s = pd.Series(v, dtype=object).fillna("").astype(str)
     need = s.str.contains(r'[,"\r\n]|^\s|\s$', regex=True).to_numpy(dtype=bool)
     if need.any():
@@ -434,10 +448,13 @@ def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, f
                             "at the earliest row")
         t0 = first
 
+    # session times as text with exactly the millisecond resolution of the raw times, each distinct time
+    # formatted once (the sensor streams share their times, the rows of a WiFi scan theirs)
+    uniq = np.unique(np.concatenate(all_t)) if all_t else np.empty(0, np.int64)
+    uniq_text = np.array(["%.3f" % x for x in ((uniq - t0) / 1000.0).tolist()], dtype=object)
+
     def sec(t_ms):
-        """Session time (s) as text with exactly the millisecond resolution of the raw times."""
-        return np.array(["%.3f" % x for x in ((np.asarray(t_ms, dtype=np.int64) - t0) / 1000.0).tolist()],
-                        dtype=object)
+        return uniq_text[np.searchsorted(uniq, np.asarray(t_ms, dtype=np.int64))]
 
     streams: dict[str, dict[str, np.ndarray]] = {}   # name -> column -> text cells
 
@@ -479,8 +496,8 @@ def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, f
         keep = rssi_in_range(rssi)
         report.drop("iBeacon readings outside (-150, 0) dBm", int((~keep).sum()))
         o = o[keep]
-        uuid = bc_c[2].str.strip().str.upper().to_numpy(dtype=object)[o]
-        mac = bc_c[8].str.strip().str.upper().to_numpy(dtype=object)[o]
+        uuid = np.array([x.strip().upper() for x in bc_c[2].to_numpy(dtype=object)[o]], dtype=object)
+        mac = np.array([x.strip().upper() for x in bc_c[8].to_numpy(dtype=object)[o]], dtype=object)
         major, minor = bc[o, 0].astype(np.int64), bc[o, 1].astype(np.int64)
         triple = uuid + ":" + major.astype(str).astype(object) + ":" + minor.astype(str).astype(object)
         ids = triple + ":" + mac if beacon_id == "mac" else triple
@@ -504,8 +521,8 @@ def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, f
         bad_f = (freq < WIFI_FREQ_MHZ[0]) | (freq > WIFI_FREQ_MHZ[1])
         report.drop("WiFi frequencies outside 2000..8000 MHz (written empty)", int(bad_f.sum()))
         freq[bad_f] = np.nan
-        bssid = wf_c[3].str.strip().str.lower().to_numpy(dtype=object)[o]
-        seen = pd.to_numeric(wf_c[6], errors="coerce").to_numpy(dtype=float)[o]
+        bssid = np.array([x.strip().lower() for x in wf_c[3].to_numpy(dtype=object)[o]], dtype=object)
+        seen = _floats(wf_c[6].to_numpy(dtype=object))[o]
         bssids.update(bssid)
         streams["wifi"] = {"t": sec(wf_t[o]), "bssid": bssid, "rssi_dbm": raw(wf_c, o, 2),
                            "freq_mhz": _num_text(freq, 0), "ssid": _quote(wf_c[2].to_numpy(dtype=object)[o]),
@@ -673,7 +690,7 @@ def _read_plan(info_display: str, info_data: bytes, geo_display: str, geo_data: 
 
     inside = raster(_polygons(outline), True)
     in_unit = raster([p for _, _, g in units for p in _polygons(g)], False)
-    occ = np.where(inside & ~in_unit, FREE, OCCUPIED).astype(np.int8)
+    occ = np.where(inside, np.where(in_unit, UNKNOWN, FREE), OCCUPIED).astype(np.int8)
     return _Plan(occ, outline, units, width, height, (lon0, lat0, lon1, lat1), scale,
                  props[k].get("floor_num"))
 
@@ -826,12 +843,17 @@ def _import(src: Path, tmp: Path, want, sel, seen_floors, beacon_id: str, report
                 in_unit = float(shapely.contains_xy(u, wps[:, 0], wps[:, 1]).mean())
             else:
                 in_unit = float("nan") if not n else 0.0
+            # walks whose waypoints lie mostly off walkable cells (inside shops, or a misaligned plan)
+            off = sum(float(np.mean(grid_lookup(plan.occupancy, (0.0, 0.0), w_, RESOLUTION_M, OCCUPIED) != FREE)) > 0.5
+                      for w_ in acc[key].waypoints)
             alignment[floor] = {"waypoints": n, "walks": acc[key].walks, "inside_outline": round(in_outline, 4),
                                 "on_walkable": round(on_free, 4), "inside_unit": round(in_unit, 4),
+                                "walks_mostly_off_walkable": int(off),
                                 "free_share_of_plan": round(float((plan.occupancy == FREE).mean()), 4)}
             report.notes.append(
                 f"floor {site}/{floor}: {acc[key].walks} walks, {n} waypoints: {in_outline:.1%} inside the outline, "
-                f"{on_free:.1%} on walkable cells, {in_unit:.1%} inside a unit; plan {plan.width:.1f} x "
+                f"{on_free:.1%} on walkable cells, {in_unit:.1%} inside a unit ({off} walks with most waypoints off "
+                f"walkable cells); plan {plan.width:.1f} x "
                 f"{plan.height:.1f} m, floor_info / geodesic size x {plan.scale_ratio[0]:.3f}, "
                 f"y {plan.scale_ratio[1]:.3f}; {len(plan.units)} units")
         site_b = {k: v for k, v in beacons.items() if any(f in floor_names for f in v["floors"])}
