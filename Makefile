@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables clean-demo
+.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -263,6 +263,14 @@ selfcal-tables: $(STAMP)
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md
+
+# Issue 15 sec. 3: RTT-only localization at the Feng et al. test points (real WiFi RTT), without / with offline
+# calibration and the -65 dBm rule; writes docs/results/feng_rtt.md.
+FENG_RAW ?= ../shared/data/raw/feng_wifi_rtt
+feng-tables: $(STAMP)
+	rm -rf data/feng_wifi_rtt && $(BIN)/blenav-import feng_wifi_rtt $(FENG_RAW) data/feng_wifi_rtt
+	$(BIN)/blenav-eval experiment=crf_004_feng data=data/feng_wifi_rtt out=data/results/crf_004_feng progress=false
+	$(BIN)/python -m blenav.eval.feng_rtt data/results/crf_004_feng/results.json docs/results/feng_rtt.md "make feng-tables"
 
 clean-demo:
 	rm -rf $(DEMO)
