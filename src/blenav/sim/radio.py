@@ -74,10 +74,11 @@ class RttConfig:
     loss_prob: float = 0.05
     loss_prob_per_wall: float = 0.08
     max_range_m: float = 35.0
-    # WiFi RSSI reported with each range (rtt.csv `rssi`; 004 sec. V-A drops ranges below -65 dBm). With these
-    # values a line-of-sight AP falls below -65 dBm at about 10 m, one behind two walls at about 5 m.
+    # WiFi RSSI reported with each range (rtt.csv `rssi`; 004 sec. V-A drops ranges below -65 dBm). -30 dBm at
+    # 1 m: a 20 dBm EIRP AP minus 46 dB free-space loss at 5 GHz and some phone antenna loss. A line-of-sight AP
+    # falls below -65 dBm at about 20 m, one behind two walls at about 10 m.
     write_rssi: bool = True
-    rssi_1m_dbm: float = -38.0
+    rssi_1m_dbm: float = -30.0
     rssi_tx_spread_db: float = 2.0
     rssi_exponent: float = 2.7
     rssi_wall_db: float = 4.0
