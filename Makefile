@@ -44,6 +44,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/runtime_latency.py
 	$(BIN)/python benchmarks/crossphone_train.py
 	$(BIN)/python benchmarks/mapprior_train.py
+	$(BIN)/python benchmarks/ilc20_import.py
 
 # The README's result tables: per preset, 5 sessions of 384 s with one phone model (as the papers), the
 # first walk calibrates the path-loss model and is not scored, then both experiments with 100 runs.
