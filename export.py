@@ -115,7 +115,8 @@ def _summary(out: Path) -> str:
                          f"{r['latency_ms']['p90']:.3f} ms p90{extra}")
     for v, r in (meas.get("pipeline") or {}).items():
         ch = f" ({r['rmse_change_m']:+.3f} m vs float)" if "rmse_change_m" in r else ""
-        lines.append(f"  pipeline [{v}] on {meas.get('pipeline_sessions')}: RMSE {r['rmse_m']:.3f} m{ch}")
+        fx = f", its fixes {r['fix_rmse_m']:.3f} m" if r.get("fix_rmse_m") is not None else ""
+        lines.append(f"  pipeline [{v}] on {meas.get('pipeline_sessions')}: RMSE {r['rmse_m']:.3f} m{ch}{fx}")
     for k, why in (m.get("variants_failed") or {}).items():
         lines.append(f"  not made: {k}: {why}")
     return "\n".join(lines)

@@ -459,7 +459,10 @@ class Bundle:
         from blenav.filters.runner import replay
 
         self.check_session(session)
-        loc = self.localizer(session.building, floor=session.meta.get("floor"), seed=seed)
+        firsts = [float(f["t"].iloc[0]) for f in (session.imu, session.rssi, session.odometry) if len(f)]
+        # the batch filter's start: the first IMU, RSSI or odometry sample (even when the motion model reads no IMU)
+        loc = self.localizer(session.building, floor=session.meta.get("floor"), seed=seed,
+                             t_start=min(firsts) if firsts else None)
         need_imu = loc.method.needs_imu
         out: list[Estimate] = []
         t_end = None
@@ -512,26 +515,30 @@ def _graph_paths(root: Path, has_prior: bool) -> list[str]:
 def make_variants(root: Path, base: str) -> dict:
     """BASE.onnx -> BASE.ort, BASE.int8.onnx (onnxruntime.quantization.quantize_dynamic, int8 weights) and
     BASE.int8.ort (onnxruntime.tools.convert_onnx_models_to_ort); returns {variant: reason} for those that failed."""
+    import logging
+
+    logging.disable(logging.WARNING)  # the tools log progress lines and a pre-processing hint (restored below)
+    try:
+        return _make_variants(root, base)
+    finally:
+        logging.disable(logging.NOTSET)
+
+
+def _make_variants(root: Path, base: str) -> dict:
     import contextlib
     import io
-    import logging
     import tempfile
 
     from onnxruntime.quantization import QuantType, quantize_dynamic
     from onnxruntime.tools.convert_onnx_models_to_ort import OptimizationStyle, convert_onnx_models_to_ort
 
-    src = root / variant_name(base, "float")
     failed = {}
-    root_log = logging.getLogger()
-    level = root_log.level
-    try:  # the tools print progress lines and log a pre-processing hint: keep stdout for results
-        root_log.setLevel(logging.ERROR)
+    try:
         with contextlib.redirect_stdout(io.StringIO()):
-            quantize_dynamic(str(src), str(root / variant_name(base, "int8")), weight_type=QuantType.QInt8)
+            quantize_dynamic(str(root / variant_name(base, "float")), str(root / variant_name(base, "int8")),
+                             weight_type=QuantType.QInt8)
     except Exception as exc:  # an op the quantiser cannot handle: keep the float model, say why
         failed["int8"] = " ".join(str(exc).split())[:200]
-    finally:
-        root_log.setLevel(level)
     for v, f in (("ort", "float"), ("int8_ort", "int8")):
         if f in failed:
             failed[v] = f"no {f} model"
