@@ -200,7 +200,12 @@ def test_missing_streams_and_bad_settings(hall):
     with pytest.raises(MissingStream, match="static sessions"):
         GridL2Localizer("m", sources=["rtt"], calibration="offline", calibration_sessions=[]).run(
             Dataset.open(hall).session("survey-2"), 1, 0, RunContext())
-    for bad in ({"calibration": "sometimes"}, {"sources": ["uwb"]}, {"stamp": "mid"}, {"min_ranges": 0}):
+    # calibration_modalities: [] switches the correction off (online == none)
+    a = GridL2Localizer("m", sources=["rtt"], calibration="online", calibration_modalities=[]).run(s, 1, 0, RunContext())
+    b = GridL2Localizer("m", sources=["rtt"], calibration="none").run(s, 1, 0, RunContext())
+    np.testing.assert_array_equal(a.position, b.position)
+    for bad in ({"calibration": "sometimes"}, {"sources": ["uwb"]}, {"stamp": "mid"}, {"min_ranges": 0},
+                {"calibration_modalities": ["wifi"]}):
         with pytest.raises(ValueError):
             GridL2Localizer("m", **bad)
 

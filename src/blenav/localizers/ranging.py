@@ -20,7 +20,9 @@ Per window of ``window_s`` seconds (004 sec. III: every measurement is the media
   (median of measured minus true range) and a 1 m level a_X per beacon (median of ``rssi + 10 gamma
   log10(d / d0)``), from the labelled static sessions of the same building (``calibration_sessions``);
   ``online`` -- the same medians over the ``calib_window_s`` = 1 s after each visual fix, with the fix as the
-  true position, used from then on (before the first fix: uncalibrated). Functions: :func:`rtt_offsets`,
+  true position, used from then on (before the first fix: uncalibrated); ``calibration_modalities`` names the
+  modalities corrected (default both, as 004; on simulated walks the 1 s BLE medians make online a_X noisy
+  enough to hurt, which 004 Fig. 9 reports for some beacons too). Functions: :func:`rtt_offsets`,
   :func:`ble_levels`, :func:`online_corrections`.
 * **Solver** (the class): grid-L2 ``argmin_y sum_m (d_m - ||y - a_m||)^2`` and grid-L1 ``argmin_y sum_m
   |d_m - ||y - a_m|||`` over the centres of the floor's free cells at ``grid_m`` = 0.5 m (the CRF's grid,
@@ -420,7 +422,8 @@ class RangeBaseline(Localizer, PathLossCalibrated):
                  min_ble_rssi_dbm: float | None = BLE_MIN_RSSI_DBM, calibration: str = "online",
                  calibration_sessions="auto", calib_window_s: float = 1.0, visual: bool = True,
                  a_x: float = -60.0, gamma: float = 2.25, d0: float = 1.0, use_anchor_tx_power: bool = True,
-                 calibrated: bool = True, device_z: float = 1.2, stamp: str = "end", hold: bool = True):
+                 calibrated: bool = True, device_z: float = 1.2, stamp: str = "end", hold: bool = True,
+                 calibration_modalities=("rtt", "ble")):
         super().__init__(name, shared)
         src = [sources] if isinstance(sources, str) else list(sources)
         bad = [s for s in src if s not in SOURCES]
@@ -434,6 +437,11 @@ class RangeBaseline(Localizer, PathLossCalibrated):
         if stamp not in ("end", "last"):
             raise ValueError(f"method {name!r}: stamp must be 'end' or 'last', got {stamp!r}")
         self.stamp, self.hold = stamp, bool(hold)
+        cal_mod = ([calibration_modalities] if isinstance(calibration_modalities, str)
+                   else list(calibration_modalities or []))
+        if [c for c in cal_mod if c not in SOURCES]:
+            raise ValueError(f"method {name!r}: calibration_modalities must be a subset of {list(SOURCES)}, got {cal_mod}")
+        self.calibration_modalities = cal_mod
         if int(min_ranges) < 1:
             raise ValueError(f"method {name!r}: min_ranges must be >= 1, got {min_ranges}")
         self.sources, self.window_s, self.grid_m, self.min_ranges = src, float(window_s), float(grid_m), int(min_ranges)
@@ -480,16 +488,17 @@ class RangeBaseline(Localizer, PathLossCalibrated):
         off_base = np.zeros(len(ar.ids))
         ax_base = self.path_loss._ax() if len(ab.ids) else np.zeros(0)
         gamma, d0 = self.path_loss.gamma, self.path_loss.d0
-        if self.calibration == "offline":
+        do_rtt, do_ble = "rtt" in self.calibration_modalities, "ble" in self.calibration_modalities
+        if self.calibration == "offline" and (do_rtt or do_ble):
             cal = self._offline_sessions(session, ctx)
             if not cal:
                 raise MissingStream(f"offline calibration needs labelled static sessions of building "
                                     f"{session.building.id} besides {session.id} (calibration_sessions="
                                     f"{self.calibration_sessions!r}); none found")
-            if len(ar.ids):
+            if len(ar.ids) and do_rtt:
                 o = rtt_offsets(cal, ar, self.device_z, self.min_wifi_rssi_dbm)
                 off_base = np.where(np.isfinite(o), o, 0.0)
-            if len(ab.ids):
+            if len(ab.ids) and do_ble:
                 lv = ble_levels(cal, ab, gamma, d0, self.device_z, self.min_ble_rssi_dbm)
                 ax_base = np.where(np.isfinite(lv), lv, ax_base)
             notes.append(f"offline calibration on {', '.join(s.id for s in cal)}")
@@ -499,11 +508,11 @@ class RangeBaseline(Localizer, PathLossCalibrated):
             vis = session.visual
             ft, fxy = vis["t"].to_numpy(float), vis[["x", "y"]].to_numpy(float)
             z = self.device_z
-            if len(ar.ids):
+            if len(ar.ids) and do_rtt:
                 ta, c = online_corrections(ft, fxy, tr, ir, rr,
                                            lambda v, i, xy: v - _dist3(xy, z, ar.xyz[i]), len(ar.ids), self.calib_window_s)
                 off = _correction_at(wr.t_stamp, off_base, ta, c)
-            if len(ab.ids):
+            if len(ab.ids) and do_ble:
                 ta, c = online_corrections(
                     ft, fxy, tb, ib, sb,
                     lambda v, i, xy: v + 10.0 * gamma * np.log10(np.maximum(_dist3(xy, z, ab.xyz[i]), 0.1) / d0),
