@@ -166,19 +166,23 @@ def online_track(base: CalibrationTrack, fixes: np.ndarray, wifi: AnchorTable, b
                  rtt: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
                  rssi: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
                  yaw: tuple[np.ndarray, np.ndarray] | None, window_s: float = 1.0, calibrate_rtt: bool = True,
-                 calibrate_ble: bool = True, calibrate_heading: bool = True) -> CalibrationTrack:
+                 calibrate_ble: bool = True, calibrate_heading: bool = True, pool: bool = False) -> CalibrationTrack:
     """Online calibration at visual fixes (004 sec. V-B), on top of ``base`` (a one-row track: the prior).
 
     fixes (F, 5): t, x, y, z, yaw of visual.csv (yaw NaN: no heading calibration at that fix);
     rtt / rssi: (t (M,), anchor row (M,), range m | RSSI dBm (M,)) readings that passed 004 sec. V-A, in time
     order, or None;
     yaw: (t (T,), AHRS yaw (T,) rad) of the device's forward axis, or None. Each fix gives a row valid from
-    t + window_s, computed from the readings in [t, t + window_s)."""
+    t + window_s, computed from the readings in [t, t + window_s). ``pool``: the RTT offsets and beacon powers
+    are the medians over the readings of every calibration window so far (not only the latest; the heading
+    offset is always the latest's, an AHRS heading drifts)."""
     F = len(fixes)
     off = np.repeat(base.rtt_offset[:1], F + 1, axis=0)
     tx = np.repeat(base.ble_tx[:1], F + 1, axis=0)
     hd = np.repeat(base.heading_offset[:1], F + 1)
     t_av = np.empty(F)
+    acc_rtt: list = [[], [], []]  # pooled (anchor, reading, true distance) over the windows so far
+    acc_ble: list = [[], [], []]
     for c in range(F):  # loop over visual fixes (a handful per session)
         t0, x, y, z, yv = fixes[c]
         v = np.array([x, y, z])
@@ -189,13 +193,23 @@ def online_track(base: CalibrationTrack, fixes: np.ndarray, wifi: AnchorTable, b
             tt, ii, rr = rtt
             w = slice(*np.searchsorted(tt, [t0, t1]))  # readings are in time order
             if w.stop > w.start:
-                new = rtt_offsets(ii[w], rr[w], np.linalg.norm(wifi.xyz[ii[w]] - v, axis=1), len(wifi.ids))
+                args = [ii[w], rr[w], np.linalg.norm(wifi.xyz[ii[w]] - v, axis=1)]
+                if pool:
+                    for lst, a in zip(acc_rtt, args):
+                        lst.append(a)
+                    args = [np.concatenate(lst) for lst in acc_rtt]
+                new = rtt_offsets(*args, len(wifi.ids))
                 off[c + 1] = np.where(np.isfinite(new), new, off[c])
         if calibrate_ble and rssi is not None and len(ble.ids):
             tt, ii, rr = rssi
             w = slice(*np.searchsorted(tt, [t0, t1]))
             if w.stop > w.start:
-                new = ble_tx_powers(ii[w], rr[w], np.linalg.norm(ble.xyz[ii[w]] - v, axis=1), n, len(ble.ids))
+                args = [ii[w], rr[w], np.linalg.norm(ble.xyz[ii[w]] - v, axis=1)]
+                if pool:
+                    for lst, a in zip(acc_ble, args):
+                        lst.append(a)
+                    args = [np.concatenate(lst) for lst in acc_ble]
+                new = ble_tx_powers(args[0], args[1], args[2], n, len(ble.ids))
                 tx[c + 1] = np.where(np.isfinite(new), new, tx[c])
         if calibrate_heading and yaw is not None and np.isfinite(yv):
             tt, yy = yaw

@@ -84,9 +84,9 @@ class CrfLocalizer(Localizer):
                  device_z: float = 1.2, rtt_sigma_m: float = 1.0, rtt_min_wifi_rssi_dbm: float | None = -65.0,
                  ble_sigma_db: float = 6.0, ble_path_loss_exponent: float = 2.0, ble_tx_power_dbm: float = -60.0,
                  ble_min_rssi_dbm: float | None = -90.0, ble_mode_correction: bool = True,
-                 step_length_m: float = 0.7, imu_sigma_l_m: float = 1.0, imu_sigma_theta_rad: float = 0.3,
+                 step_length_m: float = 0.7, imu_sigma_l_m: float = 0.5, imu_sigma_theta_rad: float = 0.3,
                  visual_sigma_m: float = 0.05, calibration_window_s: float = 1.0,
-                 calibrate_heading: bool = True, attitude=None, steps=None):
+                 calibrate_heading: bool = True, calibration_pool: bool = False, attitude=None, steps=None):
         super().__init__(name, shared)
         self.modalities = parse_modalities(modalities)
         if calibration not in CALIBRATIONS:
@@ -110,7 +110,7 @@ class CrfLocalizer(Localizer):
         self.step_length_m, self.sigma_l, self.sigma_theta = float(step_length_m), float(imu_sigma_l_m), \
             float(imu_sigma_theta_rad)
         self.visual_sigma_m, self.cal_window_s = float(visual_sigma_m), float(calibration_window_s)
-        self.calibrate_heading = bool(calibrate_heading)
+        self.calibrate_heading, self.calibration_pool = bool(calibrate_heading), bool(calibration_pool)
         shared = shared or {}
         try:
             self.attitude = _schema(AttitudeConfig, shared.get("attitude") if hasattr(shared, "get") else None, attitude)
@@ -232,7 +232,7 @@ class CrfLocalizer(Localizer):
             rssi_raw = radio.ble_raw if "BLE" in self.modalities else None
             yaw = (imu[2], imu[3]) if imu is not None and "IMU" in self.modalities else None
             track = online_track(track, fixes, wifi, ble, self.ble_n, rtt_raw, rssi_raw, yaw, self.cal_window_s,
-                                 calibrate_heading=self.calibrate_heading)
+                                 calibrate_heading=self.calibrate_heading, pool=self.calibration_pool)
         rows = track.rows(radio.t)  # the parameters valid at each window's end
         # ---- per-window inputs
         use_rtt, use_ble, use_imu = ("RTT" in self.modalities), ("BLE" in self.modalities), ("IMU" in self.modalities)
