@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables clean-demo
+.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables crf-tables clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -45,6 +45,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/crossphone_train.py
 	$(BIN)/python benchmarks/mapprior_train.py
 	$(BIN)/python benchmarks/ilc20_import.py
+	$(BIN)/python benchmarks/crf_speed.py
 
 # The README's result tables: per preset, 5 sessions of 384 s with one phone model (as the papers), the
 # first walk calibrates the path-loss model and is not scored, then both experiments with 100 runs.
@@ -261,6 +262,17 @@ selfcal-tables: $(STAMP)
 	$(BIN)/python -m blenav.eval.merge docs/results/office_mixed_selfcal.md \
 	    "Self-calibrating receivers on the mixed-phone office (calibrated on the iPhone 7 walk)" \
 	    data/results/office_mixed_selfcal $$(ls -d data/results/office_mixed_owncal/*/ | sed 's|/$$|:own-calibration/|')
+
+# The CRF of Duembgen et al. (issue 15): Table I and Fig. 11-12 on simulated crf_004 walks (6 walks of 300 s
+# and 2 static surveys for offline calibration; tuning was done on seed 0, these are seed 1)
+CRF_DATA ?= data/sim/crf_004
+crf-tables: $(STAMP)
+	test -e $(CRF_DATA)/dataset.yaml || $(BIN)/blenav-sim sim=crf_004 seed=1 out=$(CRF_DATA) duration_s=300 \
+	    sessions=8 progress=false
+	$(BIN)/blenav-eval experiment=crf_004_table1 data=$(CRF_DATA) out=data/results/crf_004_table1 progress=false
+	$(BIN)/blenav-eval experiment=crf_004_fig12 data=$(CRF_DATA) out=data/results/crf_004_fig12 progress=false
+	$(BIN)/python -m blenav.crf.tables data/results/crf_004_table1 data/results/crf_004_fig12 \
+	    docs/results/crf_004_tables.md
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md
