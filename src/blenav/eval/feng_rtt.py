@@ -65,6 +65,11 @@ def findings(methods: dict, ranges: list[dict] | None) -> list[str]:
                          f"{_fmt(_mean(methods, f'{solver}/offline', e))}" for e in ENVS)
         out.append(f"- {solver}, offline calibration (no rule), mean error none -> offline [m]: {cal}.")
         out.append(f"- {solver}, the -65 dBm rule (offline), mean error without -> with [m]: {rule}.")
+    clamped = [f"{k} {m['confined']['bbox']} of {m['confined']['estimates']}" for k, m in methods.items()
+               if m.get("confined", {}).get("bbox")]
+    if clamped:
+        out.append("- Estimates the evaluation clamped to the floor plan's bounding box (SRLS is not confined to the "
+                   "grid; the grid methods never leave it): " + "; ".join(clamped) + ".")
     if ranges:
         for r in ranges:
             if r["rule"] == "none" and r["none"] and r["offline"]:

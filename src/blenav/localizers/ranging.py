@@ -381,11 +381,12 @@ def grid_costs(cells: np.ndarray, anchor_xyz: np.ndarray, d: np.ndarray, device_
             e = slice(s, s + step)
             c = (wm[e] @ D2.T) - 2.0 * (dz[e] @ D.T) + (dz[e] ** 2).sum(1)[:, None]
             out[e] = np.argmin(c, axis=1)
-    elif loss == "l1":
+    elif loss == "l1":  # float32 (centimetre residuals are plenty for a 0.5 m grid): half the time of float64
         step = max(1, chunk_elems // max(N * A, 1))
+        D32, d32, m32 = D.astype(np.float32), dz.astype(np.float32), m.astype(np.float32)
         for s in range(0, W, step):
             e = slice(s, s + step)
-            c = (np.abs(dz[e][:, None, :] - D[None]) * m[e][:, None, :]).sum(-1)
+            c = np.einsum("wna,wa->wn", np.abs(d32[e][:, None, :] - D32[None]), m32[e])
             out[e] = np.argmin(c, axis=1)
     else:
         raise ValueError(f"loss must be 'l2' or 'l1', got {loss!r}")
