@@ -203,6 +203,8 @@ def test_floors_option_and_cli(tmp_path, capsys):
     (lambda L: L[:9] + ["16000x0000110\tTYPE_WAYPOINT\t1\t2"] + L[9:], 10, "is not an integer"),
     (lambda L: L[:9] + [""] + L[9:], 10, "blank line"),
     (lambda L: L[:9] + [L[9].replace("9.8", "nan")] + L[10:], 10, "'z': 'nan' is not a finite number"),
+    (lambda L: L[:9] + [L[9] + "\t1" * 20] + L[10:], 10, "26 tab-separated fields, expected 5 or 6"),
+    (lambda L: L[:9] + ["1600000000120\tTYPE_ACCELEROMETER\t1\t2"] + L[9:], 10, "4 tab-separated fields"),
 ])
 def test_malformed_line_names_file_and_line(tmp_path, edit, line, what):
     d = write_floor(tmp_path / "raw")
@@ -212,6 +214,14 @@ def test_malformed_line_names_file_and_line(tmp_path, edit, line, what):
         run_import("ilc20", d, out)
     assert exc.value.path == str(p.resolve()) and exc.value.line == line and what in exc.value.problem
     assert not out.exists() and not list(tmp_path.glob(".ds.partial-*"))
+
+
+def test_wide_header_lines_are_fine(tmp_path):
+    d = write_floor(tmp_path / "raw")
+    lines = walk_lines()
+    write_walk(d, "w", lines[:1] + ["#\t" + "\t".join(f"k{i}:v{i}" for i in range(30))] + lines[1:])
+    out = tmp_path / "ds"
+    assert run_import("ilc20", d, out).sessions == 1 and errors_of(out) == []
 
 
 def test_truncated_file_names_its_last_line(tmp_path):
