@@ -65,7 +65,7 @@ log = logging.getLogger("blenav.train")
 
 #: ``trainer.budget`` defaults (conf/trainer/cpu.yaml repeats them): chosen on validation windows of simulated
 #: campus_floor surveys of several sizes (docs/results-003-crossphone.md), never on test walks.
-BUDGET = {"max_steps": 4000, "val_every_steps": 50, "patience": 20, "min_delta": 0.0, "warmup_steps": 100,
+BUDGET = {"max_steps": 3000, "val_every_steps": 50, "patience": 15, "min_delta": 0.0, "warmup_steps": 100,
           "schedule": "cosine", "min_lr_ratio": 0.02}
 
 
