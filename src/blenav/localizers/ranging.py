@@ -519,7 +519,8 @@ class RangeBaseline(Localizer, PathLossCalibrated):
                     lambda v, i, xy: v + 10.0 * gamma * np.log10(np.maximum(_dist3(xy, z, ab.xyz[i]), 0.1) / d0),
                     len(ab.ids), self.calib_window_s)
                 axw = _correction_at(wr.t_stamp, ax_base, ta, c)  # before a beacon's first: the configured / fitted a_X
-            notes.append(f"online calibration at {len(ft)} visual fix(es)")
+            notes.append(f"online calibration at {len(ft)} visual fix(es)" if len(ft) else
+                         f"{session.id}: no visual fix, so no online calibration (ranges uncalibrated)")
         return off, axw
 
     # -------------------------------------------------------------------------------------- run
