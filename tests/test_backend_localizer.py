@@ -25,7 +25,7 @@ def _method(data):
     return build_localizer("B-end", cfg.methods["B-end"], shared_settings(cfg))
 
 
-def test_backend_localizer_smooths_every_run_and_maps_the_beacons(sim):
+def test_backend_localizer_smooths_the_runs_and_maps_the_beacons(sim):
     from blenav.data import Dataset
     from blenav.filters.calibration import fit_sessions
 
@@ -45,8 +45,9 @@ def test_backend_localizer_smooths_every_run_and_maps_the_beacons(sim):
     assert list(bmap.columns[:5]) == ["anchor_id", "x", "y", "z", "std_m"]
     assert set(bmap["anchor_id"]) == set(s.building.anchors_of("ble")["anchor_id"])
     assert not est.outputs["backend_failures"], est.outputs["backend_failures"]
-    # the two runs' front-ends differ, so do their smoothed trajectories
-    assert not np.allclose(est.position[0], est.position[1])
+    # the two runs' closed-loop front-ends differ; one back-end (per_run: false) smooths their mean
+    assert not np.allclose(est.outputs["front_end"][0], est.outputs["front_end"][1])
+    np.testing.assert_array_equal(est.position[0], est.position[1])
     gt = s.positions_at(est.t)
     rmse = lambda p: float(np.sqrt(np.mean(np.sum((p - gt) ** 2, -1))))  # noqa: E731
     print("RMSE front-end", [round(rmse(p), 2) for p in est.outputs["front_end"]], "smoothed",
@@ -73,3 +74,43 @@ def test_a_misspelt_backend_setting_names_the_method():
     with pytest.raises(ValueError, match="method 'B-end', backend: .*sigm"):
         BackendLocalizer("B-end", None, front_end={"motion": {"_target_": "blenav.filters.motion.RandomWalk"}},
                          backend={"range": {"sigm": 3}})
+
+
+def test_batch_run_in_pieces_equals_run_session(sim):
+    """The closed loop drives the filter through BatchRun.advance: without feedback, pieces give run_session's
+    numbers exactly."""
+    from blenav.data import Dataset
+    from blenav.filters.runner import BatchRun, run_session
+
+    ds = Dataset.open(sim)
+    s = ds.session(ds.session_ids[0])
+    m = _method(sim).front.method
+    whole = run_session(m, s, 2, 7)
+    run = BatchRun(m, s, 2, 7)
+    t0 = run.arrays.t_start
+    for t_end in (t0 + 7.3, t0 + 20.0, np.inf):
+        run.advance(t_end)
+    pieces = run.result()
+    np.testing.assert_array_equal(whole.position, pieces.position)
+    np.testing.assert_array_equal(whole.t, pieces.t)
+
+
+def test_f_end_and_b_end_share_one_closed_loop(sim):
+    """Two methods that differ only in label and estimate compute the loop once per session (ctx.cache); the
+    F-end is the closed-loop filter, the B-end the smoothed trajectory; feedbacks happened."""
+    from blenav.configs import compose
+    from blenav.data import Dataset
+    from blenav.eval.harness import shared_settings
+    from blenav.localizers import RunContext, build_localizer
+
+    cfg = compose("eval", "experiment=backend_000", f"data={sim}",
+                  "methods.F-end.backend.loop.period_s=15", "methods.B-end.backend.loop.period_s=15")
+    ds = Dataset.open(sim)
+    s = ds.session(ds.session_ids[0])
+    ctx = RunContext(cache={})
+    f = build_localizer("F-end", cfg.methods["F-end"], shared_settings(cfg)).run(s, 1, 3, ctx)
+    b = build_localizer("B-end", cfg.methods["B-end"], shared_settings(cfg)).run(s, 1, 3, ctx)
+    np.testing.assert_array_equal(f.position, b.outputs["front_end"])
+    np.testing.assert_array_equal(b.position, f.outputs["smoothed"])
+    assert f.outputs["feedbacks"] >= 2
+    assert sum(1 for k in ctx.cache if k[0] == "closed-loop") == 1

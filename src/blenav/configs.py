@@ -26,6 +26,7 @@ def register_configs() -> None:
     ``filter/schema``         :class:`blenav.filters.engine.FilterConfig`             conf/filter/pf.yaml
     ``attitude/schema``       :class:`blenav.filters.attitude.AttitudeConfig`         conf/attitude/*.yaml
     ``plan_error/schema``     :class:`blenav.eval.plan_errors.PlanErrorConfig`        conf/eval.yaml
+    ``beacon_map/schema``     :class:`blenav.eval.beacon_map.BeaconMapConfig`         conf/eval.yaml
     ``windows/schema``        :class:`blenav.learn.data_config.WindowDataConfig`      conf/windows/default.yaml
     ``windows/mapprior_schema`` :class:`blenav.learn.data_config.MapPriorDataConfig`  conf/windows/mapprior.yaml
     ``backend/schema``        :class:`blenav.backend.config.BackendConfig`            conf/backend/default.yaml
@@ -38,6 +39,7 @@ def register_configs() -> None:
     from hydra.core.config_store import ConfigStore
 
     from blenav.backend.config import BackendConfig
+    from blenav.eval.beacon_map import BeaconMapConfig
     from blenav.eval.plan_errors import PlanErrorConfig
     from blenav.filters.attitude import AttitudeConfig
     from blenav.filters.engine import FilterConfig
@@ -50,6 +52,7 @@ def register_configs() -> None:
     cs.store(group="filter", name="schema", node=FilterConfig)
     cs.store(group="attitude", name="schema", node=AttitudeConfig)
     cs.store(group="plan_error", name="schema", node=PlanErrorConfig)
+    cs.store(group="beacon_map", name="schema", node=BeaconMapConfig)
     cs.store(group="windows", name="schema", node=WindowDataConfig)
     cs.store(group="windows", name="mapprior_schema", node=MapPriorDataConfig)
     cs.store(group="backend", name="schema", node=BackendConfig)

@@ -193,6 +193,21 @@ class MappingConfig:
 
 
 @dataclass
+class LoopConfig:
+    """The closed loop of 000 (Fig. 2, Remark 2): every ``period_s`` the back-end smooths the keyframes of the
+    last ``window_s`` (the map and bias of the previous window as priors), and its beacon map replaces the
+    filter's, its bias corrects the IMU samples the AHRS and the IMU proposal read from then on."""
+
+    enabled: bool = True  # false: open loop (the front-end never hears from the back-end)
+    period_s: float = 30.0  # s between feedbacks
+    window_s: Optional[float] = 30.0  # s of keyframes per solve (None: everything so far, cost grows with time)
+    feed_map: bool = True  # optimized beacons (status 'optimized') replace the filter's map
+    feed_bias: bool = True  # accelerometer and gyroscope biases subtracted from the IMU after each feedback
+    beacon_sigma_floor_m: float = 0.3  # m, smallest per-axis std a carried-over beacon prior gets
+    min_beacon_std_gain: float = 0.0  # m: move a beacon only when its std beats its prior's by this much
+
+
+@dataclass
 class BackendConfig:
     """The radio-inertial smoother of 000 (sec. IV-D, Problem 3) and its mapping mode."""
 
@@ -202,6 +217,7 @@ class BackendConfig:
     init: InitConfig = field(default_factory=InitConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
+    loop: LoopConfig = field(default_factory=LoopConfig)
 
 
 def load_backend_config(path: str | Path | None = None, overrides: list[str] | None = None,

@@ -74,7 +74,8 @@ __all__ = ["Keyframes", "ImuSamples", "RangeObs", "BeaconPriors", "BackendFailur
 class Keyframes:
     """Keyframe times and initial values. t (K,) s increasing; position (K, 3) world m; velocity (K, 3) world
     m/s; q (K, 4) w-first device -> world (ENU) quaternions (the AHRS at t); bias (K, 6) accelerometer m/s^2,
-    gyroscope rad/s (default 0; the prior on B(0) is always centred on 0)."""
+    gyroscope rad/s (default 0; the prior on B(0) is centred on bias[0]: 0 unless a caller carries an earlier
+    estimate over, as the closed loop's windows do)."""
 
     t: np.ndarray
     position: np.ndarray
@@ -396,7 +397,8 @@ class RadioInertialGraph:
         if k == 0:
             g.add(gtsam.PriorFactorPose3(X(0), pose, self.start_pose_noise))
             g.add(gtsam.PriorFactorVector(V(0), kf.velocity[0], self.start_velocity_noise))
-            g.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(), self.start_bias_noise))
+            g.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(kf.bias[0, :3], kf.bias[0, 3:]),
+                                                self.start_bias_noise))
         else:
             g.add(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self.pims[k - 1]))
             g.add(gtsam.PoseRotationPrior3D(X(k), self.rots[k], self.attitude_noise))

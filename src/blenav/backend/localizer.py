@@ -1,49 +1,54 @@
 """The front-end + back-end of 000 (Fig. 2) as one :class:`~blenav.localizers.base.Localizer`: a particle filter
-front-end (:class:`~blenav.localizers.ParticleFilterLocalizer` built from the node ``front_end``), whose position
-and velocity estimates and AHRS attitude initialise the radio-inertial smoother (:func:`blenav.backend.graph.smooth`,
-settings ``backend`` over ``conf/backend/default.yaml``); the smoothed trajectory is the estimate.
+front-end (:class:`~blenav.localizers.ParticleFilterLocalizer` built from the node ``front_end``) and the
+radio-inertial smoother of :mod:`blenav.backend.graph` in the closed loop of :mod:`blenav.backend.loop` (the
+optimized map and the IMU bias fed back to the filter every ``backend.loop.period_s``; ``backend.loop.enabled:
+false`` for the open loop), then one smoothing of the whole session.
 
 Config node (``conf/localizer/backend.yaml``)::
 
     _target_: blenav.backend.localizer.BackendLocalizer
     front_end: {motion: ..., measurements: ..., map: ...}   # a ParticleFilterLocalizer node (no _target_ needed)
-    backend: {solver: {method: lm}, priors: {beacon_sigma_m: 3.0}}   # overrides of BackendConfig
-    per_run: true       # smooth every front-end run (false: one back-end on the runs' mean, copied to all runs)
+    backend: {solver: {method: lm}, loop: {period_s: 30}}  # overrides of BackendConfig
+    estimate: smoothed  # smoothed: the back-end's trajectory (B.-end of 000 Fig. 3); front_end: the closed-loop
+                        # filter's own estimates (F.-end)
+    per_run: false      # true: a back-end (and loop) per run; false: one for all runs, from their mean
     range_from_front_end: true  # the back-end's path loss = the front-end's PathLossRange (after any fit)
 
-``outputs``: ``beacon_map`` (DataFrame anchor_id, x, y, z, std_m, n_ranges, status: the mean over runs of the
-optimized beacons; std_m the root mean variance), ``smoothed`` (R, K, 2) (= position), ``front_end`` (R, K, 2)
-the particle filter's own estimate (the F.-end of 000 Fig. 3, open loop), ``bias`` (R, K, 6) accelerometer m/s^2
-and gyroscope rad/s, ``attitude`` (the front-end's AHRS), ``backend_s`` (R,) seconds of back-end per run,
-``backend_failures`` (list of str). Back-end failures never stop a run: that run keeps the front-end's estimate
-where the back-end had none (see :class:`~blenav.backend.graph.BackendResult`).
+Two methods of an experiment that differ only in ``label`` and ``estimate`` (F-end, B-end) share one computation
+per session (``ctx.cache``).
 
-The closed loop of 000 (the optimized map and bias fed back to the front-end) is not part of this class.
+``outputs``: ``beacon_map`` (DataFrame anchor_id, x, y, z, std_m, n_ranges, status: the final smoothing's map,
+mean over back-ends when ``per_run``), ``smoothed`` (R, K, 2), ``front_end`` (R, K, 2) the closed-loop filter,
+``bias`` (R, K, 6) accelerometer m/s^2 and gyroscope rad/s (the corrections applied + the final smoothing's
+residual), ``attitude`` (the front-end's AHRS), ``backend_s`` (R or 1,) seconds of back-end, ``feedbacks`` (int),
+``backend_failures`` (list of str). Back-end failures never stop a run: where the back-end has no estimate the
+front-end's stands (see :class:`~blenav.backend.graph.BackendResult`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
-import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
+from blenav.eval.beacon_map import mean_map
 from blenav.filters.measurement import PathLossRange
 from blenav.localizers.base import Estimate, Localizer, MissingStream, PathLossCalibrated, RunContext
 
 from .config import load_backend_config
-from .graph import smooth
-from .inputs import beacon_priors, keyframes_from_front_end, path_loss_model, session_attitude, session_imu, session_ranges
+from .inputs import beacon_priors, path_loss_model, session_attitude, session_imu, session_ranges
+from .loop import run_closed_loop
 
 
 class BackendLocalizer(Localizer, PathLossCalibrated):
     """Particle-filter front-end, then the smoothing back-end of 000 (sec. IV-D) on every run."""
 
-    def __init__(self, name: str, shared=None, front_end: Any = None, backend: Any = None, per_run: bool = True,
-                 range_from_front_end: bool = True):
+    def __init__(self, name: str, shared=None, front_end: Any = None, backend: Any = None, per_run: bool = False,
+                 range_from_front_end: bool = True, estimate: str = "smoothed"):
         super().__init__(name, shared)
         from blenav.localizers import ParticleFilterLocalizer
 
@@ -53,12 +58,17 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
         node.pop("_target_", None)
         node.pop("label", None)
         self.front = ParticleFilterLocalizer(name, shared, **node)
+        self._settings = repr((node, shared))  # what F-end / B-end pairs must share to share the computation
         try:
             over = OmegaConf.to_container(backend, resolve=True) if isinstance(backend, DictConfig) else backend
             self.cfg = load_backend_config(node=over or {})
         except ValueError as exc:
             raise ValueError(f"method {name!r}, backend: {exc}") from exc
         self.per_run = bool(per_run)
+        if estimate not in ("smoothed", "front_end"):
+            raise ValueError(f"method {name!r}: estimate must be 'smoothed' (the back-end, B.-end) or 'front_end' "
+                             f"(the closed-loop filter, F.-end), got {estimate!r}")
+        self.estimate = estimate
         self.range_from_front_end = bool(range_from_front_end)
 
     @property
@@ -83,53 +93,82 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
         return path_loss_model(self.cfg)
 
     # ------------------------------------------------------------------ run
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
-        t0 = time.perf_counter()
-        ctx = ctx or RunContext()
+    def _inputs(self, session, ctx: RunContext):
+        """(imu, ranges, beacons, attitude) of the session for the back-end."""
         if not session.has("imu"):
             raise MissingStream("no IMU data, which the back-end's preintegrated IMU factors need")
         if not session.has("rssi"):
             raise MissingStream("no BLE readings (rssi.csv absent or empty) for the back-end's range factors")
-        front = self.front.run(session, n_runs, seed, ctx)
-        att = front.outputs.get("attitude")
-        if att is None:
-            key = ("backend-ahrs", session.id, repr(self.front.method.attitude))
-            if key not in ctx.cache:
-                ctx.cache[key] = session_attitude(session, self.front.method.attitude)
-            q_t, q = ctx.cache[key]
-        else:
-            q_t, q = att["t"], att["q"]
         anchors = session.building.anchors_of("ble")
         if not len(anchors):
             raise MissingStream(f"building {session.building.id} has no BLE anchors for the back-end")
+        if not np.isfinite(anchors[["x", "y", "z"]].to_numpy(float)).all():
+            raise MissingStream(f"building {session.building.id} has BLE anchors without a position; estimate them "
+                                f"first (blenav-map)")
         beacons = beacon_priors(anchors, self.cfg.priors.beacon_sigma_m, self.cfg.priors.beacon_sigma_z_m)
         ranges = session_ranges(session, beacons, self._range_model(), anchors)
-        imu = session_imu(session)
-        R, K = front.position.shape[:2]
-        runs = range(R) if self.per_run else [None]
-        pos = front.position.copy()
-        bias = np.zeros((R, K, 6))
-        maps, secs, fails, notes = [], [], [], []
-        for r in runs:
-            xy = front.position if r is None else front.position[r]
-            kf, kf_notes = keyframes_from_front_end(front.t, xy, q_t, q, self.cfg)
-            res = smooth(self.cfg, kf, imu, ranges, beacons)
-            sm = _to_front_times(front.t, kf.t, res.position[:, :2])
-            sb = _to_front_times(front.t, kf.t, res.bias)
-            target = slice(None) if r is None else r
-            pos[target] = sm
-            bias[target] = sb
-            maps.append(res.beacon_map)
-            secs.append(res.wall_s)
-            fails += [f"run {r if r is not None else 'mean'}: {f}" for f in res.failures]
-            if r in (0, None):
-                notes += [f"back-end: {n}" for n in kf_notes + res.notes]
-        outputs = dict(front.outputs)
-        outputs.update({"smoothed": pos, "front_end": front.position, "bias": bias, "beacon_map": _mean_map(maps),
-                        "backend_s": np.asarray(secs), "backend_failures": fails})
-        notes = list(front.notes) + notes + [f"back-end failure: {f}" for f in fails[:5]]
-        return Estimate(self.name, session.id, front.t, pos, None, front.events, outputs, time.perf_counter() - t0,
-                        notes)
+        key = ("backend-ahrs", session.id, repr(self.front.method.attitude))
+        if key not in ctx.cache:
+            ctx.cache[key] = session_attitude(session, self.front.method.attitude)
+        return session_imu(session), ranges, beacons, ctx.cache[key]
+
+    def _key(self, session, n_runs: int, seed: int) -> tuple:
+        """What the computation depends on: the settings (not label / estimate), the session and its map."""
+        a = session.building.anchors_of("ble")
+        fp = hashlib.sha1(np.ascontiguousarray(a[["x", "y", "z"]].to_numpy(float)).tobytes()).hexdigest()
+        return ("closed-loop", session.id, int(n_runs), int(seed), self.per_run, self.range_from_front_end,
+                self._settings, repr(self.cfg), fp)
+
+    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
+        """The closed loop on ``session`` (computed once per session for F-end / B-end pairs); ``wall_s`` is the
+        whole computation's."""
+        ctx = ctx or RunContext()
+        key = self._key(session, n_runs, seed)
+        shared = ctx.cache.get(key)
+        if shared is None:
+            shared = self._compute(session, n_runs, seed, ctx)
+            ctx.cache[key] = shared
+        t, front, smoothed, bias, outputs, events, notes, wall = shared
+        pos = smoothed if self.estimate == "smoothed" else front
+        outputs = {**outputs, "smoothed": smoothed, "front_end": front, "bias": bias}
+        return Estimate(self.name, session.id, t, pos, None, events, outputs, wall, list(notes))
+
+    def _compute(self, session, n_runs: int, seed: int, ctx: RunContext) -> tuple:
+        t0 = time.perf_counter()
+        imu, ranges, beacons, att = self._inputs(session, ctx)
+        method = self.front.method
+        loops = ([(n_runs, seed)] if not self.per_run
+                 else [(1, int(s)) for s in np.random.SeedSequence(seed).generate_state(n_runs)])
+        fronts, smooths, biases, maps, secs, fails, notes, events = [], [], [], [], [], [], [], []
+        n_feedbacks = 0
+        for i, (R, sd) in enumerate(loops):
+            out = run_closed_loop(method, session, R, sd, self.cfg, imu, ranges, beacons, att, ctx.cache)
+            f = out.front
+            fronts.append(f.position)
+            events += f.events
+            if out.smoothed is not None:
+                sm = _to_front_times(f.t, out.smoothed.t, out.smoothed.position[:, :2])
+                sb = _to_front_times(f.t, out.smoothed.t, out.smoothed.bias) + out.bias_applied
+                smooths.append(np.broadcast_to(sm, f.position.shape).copy())
+                biases.append(np.broadcast_to(sb, (R,) + sb.shape).copy())
+                maps.append(out.smoothed.beacon_map)
+            else:  # no back-end estimate: the front-end's stands
+                smooths.append(f.position.copy())
+                biases.append(np.broadcast_to(out.bias_applied, (R,) + out.bias_applied.shape).copy())
+            secs.append(out.backend_s)
+            n_feedbacks += len(out.feedbacks)
+            fails += [f"run {i}: {x}" if self.per_run else x for x in out.failures]
+            if i == 0:
+                notes += [f"back-end: {n}" for n in out.notes]
+        front = np.concatenate(fronts)
+        smoothed = np.concatenate(smooths)
+        bias = np.concatenate(biases)
+        outputs = {"beacon_map": mean_map(maps) if maps else None, "backend_s": np.asarray(secs),
+                   "feedbacks": n_feedbacks, "backend_failures": fails}
+        if out.front.q_imu is not None:
+            outputs["attitude"] = {"t": out.front.imu_t, "q": out.front.q_imu}
+        notes = list(out.front.map_notes) + notes + [f"back-end failure: {f}" for f in fails[:5]]
+        return out.front.t, front, smoothed, bias, outputs, events, notes, time.perf_counter() - t0
 
 
 def _to_front_times(t: np.ndarray, kf_t: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -138,18 +177,3 @@ def _to_front_times(t: np.ndarray, kf_t: np.ndarray, values: np.ndarray) -> np.n
     if len(kf_t) == len(t) and np.array_equal(kf_t, t):
         return values
     return np.stack([np.interp(t, kf_t, values[:, i]) for i in range(values.shape[1])], axis=-1)
-
-
-def _mean_map(maps: list[pd.DataFrame]) -> pd.DataFrame:
-    """Mean over runs of the beacon maps (x, y, z; std_m as the root mean variance; n_ranges summed; the
-    status of run 0)."""
-    if len(maps) == 1:
-        return maps[0]
-    cat = pd.concat(maps, keys=range(len(maps)), names=["run", "row"])
-    g = cat.groupby("anchor_id", sort=False)
-    out = g[["x", "y", "z"]].mean()
-    out["std_m"] = np.sqrt(g["std_m"].apply(lambda s: float(np.nanmean(s.to_numpy(float) ** 2))
-                                             if s.notna().any() else np.nan))
-    out["n_ranges"] = g["n_ranges"].sum()
-    out["status"] = maps[0].set_index("anchor_id")["status"]
-    return out.reset_index()

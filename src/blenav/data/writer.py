@@ -165,3 +165,20 @@ def write_fixes(session_dir: Path, t, xy, std=None, *, source: str) -> Path:
     write_csv(tmp, out[cols])
     os.replace(tmp, path)
     return path
+
+
+def write_tum(path: Path, t, xy, z=None, q_xyzw=None) -> Path:
+    """A trajectory in the TUM RGB-D format that ``evo`` reads (``evo_ape tum ref.tum est.tum``): one line per
+    pose, ``timestamp tx ty tz qx qy qz qw`` (s, m; quaternion x, y, z, w). ``xy`` (K, 2) world m; ``z`` (K,) m
+    (default 0); ``q_xyzw`` (K, 4) (default identity: a 2-D track carries no orientation). Rows with a
+    non-finite value are left out."""
+    t = np.asarray(t, float)
+    xy = np.asarray(xy, float).reshape(len(t), 2)
+    zz = np.zeros(len(t)) if z is None else np.asarray(z, float).reshape(len(t))
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)) if q_xyzw is None else np.asarray(q_xyzw, float).reshape(len(t), 4)
+    rows = np.column_stack([t, xy, zz, q])
+    rows = rows[np.isfinite(rows).all(axis=1)]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savetxt(path, rows, fmt="%.6f", delimiter=" ")
+    return path

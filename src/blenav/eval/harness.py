@@ -53,6 +53,7 @@ from blenav.filters.runner import MissingStream
 from blenav.localizers import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext,
                                build_localizer)
 from blenav.localizers.confine import confine
+from blenav.eval import beacon_map as BM
 from blenav.eval.plan_errors import PlanErrorConfig, perturb_building
 
 from .common import EvalError, json_default, write_json
@@ -168,23 +169,33 @@ def select_sessions(ds: Dataset, ids, exclude: set = frozenset()) -> list:
     return moving or sessions  # static surveys are calibration data unless they are all there is
 
 
-def plan_error_config(cfg: DictConfig) -> PlanErrorConfig:
-    """``cfg.plan_error`` checked against :class:`PlanErrorConfig` (a misspelt key fails here, also one added
-    with Hydra's ``+``, which bypasses the schema)."""
+def _schema_node(cfg: DictConfig, key: str, schema):
+    """``cfg[key]`` checked against the dataclass ``schema`` (a misspelt key fails here, also one added with
+    Hydra's ``+``, which bypasses the schema)."""
     import difflib
     from dataclasses import fields
 
-    node = cfg.get("plan_error") or {}
-    known = [f.name for f in fields(PlanErrorConfig)]
-    for key in node:
-        if key not in known:
-            near = difflib.get_close_matches(str(key), known, n=1)
-            hint = f" (did you mean plan_error.{near[0]}?)" if near else ""
-            raise EvalError(f"plan_error: unknown key {key!r}{hint}; known: {', '.join(known)}")
+    node = cfg.get(key) or {}
+    known = [f.name for f in fields(schema)]
+    for k in node:
+        if k not in known:
+            near = difflib.get_close_matches(str(k), known, n=1)
+            hint = f" (did you mean {key}.{near[0]}?)" if near else ""
+            raise EvalError(f"{key}: unknown key {k!r}{hint}; known: {', '.join(known)}")
     try:
-        return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(PlanErrorConfig), cfg.get("plan_error") or {}))
+        return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), node))
     except Exception as exc:  # omegaconf's errors for unknown keys / wrong types, or our ValueError
-        raise EvalError(f"plan_error: {exc}") from exc
+        raise EvalError(f"{key}: {exc}") from exc
+
+
+def plan_error_config(cfg: DictConfig) -> PlanErrorConfig:
+    """``cfg.plan_error`` as :class:`PlanErrorConfig`."""
+    return _schema_node(cfg, "plan_error", PlanErrorConfig)
+
+
+def beacon_map_config(cfg: DictConfig) -> BM.BeaconMapConfig:
+    """``cfg.beacon_map`` as :class:`~blenav.eval.beacon_map.BeaconMapConfig`."""
+    return _schema_node(cfg, "beacon_map", BM.BeaconMapConfig)
 
 
 def with_wrong_plans(sessions: list, pe: PlanErrorConfig, out_dir: Path) -> tuple[list, dict]:
@@ -287,13 +298,17 @@ def session_seed(seed: int, index: int) -> int:
 
 
 def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: int, init_s: float, ctx: RunContext,
-               progress) -> MethodOutcome:
+               progress, beacon_map: BM.BeaconMapConfig | None = None) -> MethodOutcome:
     """``method`` on every session (R runs each), scored against the ground truth; sessions where it cannot
-    run (:class:`MissingStream`) are skipped with the reason, other errors name the method and session."""
+    run (:class:`MissingStream`) are skipped with the reason, other errors name the method and session.
+    ``beacon_map`` with ``noise_m > 0``: every run on its own perturbed map (:mod:`blenav.eval.beacon_map`)."""
     oc = MethodOutcome()
     for si, s in enumerate(sessions):
         try:
-            est = method.run(s, runs, session_seed(seed, si), ctx)
+            if beacon_map is not None and beacon_map.perturbed:
+                est = BM.run_per_run_maps(method, s, si, runs, session_seed(seed, si), ctx, beacon_map)
+            else:
+                est = method.run(s, runs, session_seed(seed, si), ctx)
         except MissingStream as exc:  # e.g. no IMU in a fixed-receiver recording: skip, and say so
             oc.skipped[s.id] = str(exc)
             log.warning("skipping %s on %s: %s", name, s.id, exc)
@@ -314,9 +329,25 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
             m["orientation_rmse_deg"] = o
         m["wall_s"] = est.wall_s
         m["recoveries"] = len(est.events)
+        err = beacon_errors(est, s)
+        if err is not None:
+            m["beacon_error_m"] = err
         oc.metrics[s.id], oc.results[s.id] = m, est
         progress(f"{name} / {s.id}")
     return oc
+
+
+def beacon_errors(est: Estimate, session) -> dict | None:
+    """``{prior, optimized}`` mean horizontal beacon errors (m) of a method that returns a beacon map."""
+    if est.outputs.get("beacon_map") is None:
+        return None
+    per_run = est.outputs.get("beacon_error")
+    if per_run is not None:
+        vals = {k: [x for x in v if x is not None] for k, v in per_run.items()}
+        return {k: float(np.mean(v)) if v else None for k, v in vals.items()}
+    truth = BM.true_xy(session.building.anchors)
+    return {"prior": BM.map_error(BM.given_map(session.building), truth),
+            "optimized": BM.map_error(est.outputs["beacon_map"], truth)}
 
 
 # ------------------------------------------------------------------------------------------ aggregate
@@ -337,6 +368,10 @@ def aggregate(oc: MethodOutcome, runs: int) -> dict:
                 "recoveries": sum(len(e.events) for e in ests), "map_notes": notes,
                 "confined": {k: sum(m["confined"][k] for m in oc.metrics.values())
                              for k in ("bbox", "off_free", "free", "estimates")}})
+    errs = [m["beacon_error_m"] for m in oc.metrics.values() if "beacon_error_m" in m]
+    if errs:
+        agg["beacon_error_m"] = {k: float(np.mean([e[k] for e in errs if e[k] is not None]))
+                                 if any(e[k] is not None for e in errs) else None for k in ("prior", "optimized")}
     orient = [m["orientation_rmse_deg"] for m in oc.metrics.values() if "orientation_rmse_deg" in m]
     if orient:
         agg["orientation_rmse_deg"] = float(np.mean(orient))
@@ -362,6 +397,7 @@ def evaluate(cfg: DictConfig) -> dict:
     model_info = attach_models(methods, model_path(cfg))
     sessions, cal_spec = scored_sessions(cfg, ds)
     plan_error = plan_error_config(cfg)
+    bmap = beacon_map_config(cfg)
     runs = int(cfg.runs)
     if runs < 1:
         raise EvalError(f"runs must be >= 1, got {runs}")
@@ -369,6 +405,7 @@ def evaluate(cfg: DictConfig) -> dict:
     plan_info = None
     if plan_error.active:
         sessions, plan_info = with_wrong_plans(sessions, plan_error, out / "plans")
+    sessions, bmap_info = BM.with_source(sessions, bmap)
     provider = build_fix_provider(cfg, methods, out)
     calibration = calibrate({**methods, **(provider.methods if provider else {})}, ds, sessions, cal_spec)
     out.mkdir(parents=True, exist_ok=True)
@@ -379,11 +416,13 @@ def evaluate(cfg: DictConfig) -> dict:
         results["model"] = model_info
     if plan_info is not None:
         results["plan_error"] = {**asdict(plan_error), "buildings": plan_info}
+    if bmap.source != "given" or bmap.perturbed:
+        results["beacon_map"] = {**asdict(bmap), "buildings": bmap_info}
     ctx = RunContext(cache={}, fixes=provider, out=out)  # map geometry per floor, AHRS per session: shared
     outcomes: dict[str, MethodOutcome] = {}
     with _Progress(bool(cfg.get("progress", False)), len(methods) * len(sessions)) as progress:
         for name, method in methods.items():
-            oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress)
+            oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress, bmap)
             results["methods"][name] = aggregate(oc, runs)
             if oc.metrics:
                 outcomes[name] = oc
@@ -414,11 +453,49 @@ def dropped_rows(sessions: list) -> dict:
 def write_outputs(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions, cfg: DictConfig) -> None:
     """results.json, results.md and (unless ``plots=false``) the plots."""
     write_json(out / "results.json", results)
+    write_session_files(out, outcomes, sessions)
     from .report import write_markdown
 
     write_markdown(out / "results.md", results, cfg)
     if cfg.get("plots", True):
         _plots(out, results, outcomes, sessions)
+
+
+def write_session_files(out: Path, outcomes: dict[str, MethodOutcome], sessions) -> None:
+    """Per session: every method's trajectory (run 0) in TUM format, ``OUT/<session>/trajectories/<method>.tum``
+    (``evo_ape tum groundtruth.tum <method>.tum``; the ground truth written beside them), and the corrected
+    anchors of the first method that returns a beacon map, ``OUT/<session>/anchors_optimized.csv`` (anchors.csv
+    columns with the new x, y, z, plus std_m and status), with its IMU bias series ``bias_<method>.csv``."""
+    from blenav.data.writer import write_tum
+
+    by_id = {s.id: s for s in sessions}
+    mapped: set[str] = set()
+    for name, oc in outcomes.items():
+        for sid, est in oc.results.items():
+            s = by_id.get(sid)
+            if s is None:
+                continue
+            d = out / _safe(sid)
+            write_tum(d / "trajectories" / f"{_safe(name)}.tum", est.t, est.position[0])
+            gt = s.groundtruth
+            if len(gt) and not (d / "trajectories" / "groundtruth.tum").exists():
+                write_tum(d / "trajectories" / "groundtruth.tum", gt["t"].to_numpy(float), gt[["x", "y"]].to_numpy(float))
+            bmap = est.outputs.get("beacon_map")
+            if bmap is not None and sid not in mapped:
+                BM.optimized_anchors(s.building, bmap).to_csv(d / "anchors_optimized.csv", index=False)
+                mapped.add(sid)
+                bias = est.outputs.get("bias")
+                if bias is not None:
+                    cols = ["ax_bias", "ay_bias", "az_bias", "gx_bias", "gy_bias", "gz_bias"]
+                    import pandas as pd
+
+                    pd.DataFrame(np.column_stack([est.t, bias[0]]), columns=["t"] + cols).to_csv(
+                        d / f"bias_{_safe(name)}.csv", index=False)
+
+
+def _safe(name: str) -> str:
+    """A method or session name as a file name ('RTT+BLE/online' -> 'RTT+BLE_online')."""
+    return "".join(c if c.isalnum() or c in "+-_.=" else "_" for c in str(name))
 
 
 def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions) -> None:

@@ -10,7 +10,7 @@ the same answer for the same seed.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from typing import Optional
 
@@ -317,55 +317,114 @@ def run_session(method: Method, session: Session, n_runs: int, seed: int,
     ``fixes``: extra position fixes (DataFrame t, x, y, std, source) added in memory to the session's
     ``fixes.csv`` rows (see :class:`~blenav.filters.steps.SessionArrays`).
     """
-    t0 = time.perf_counter()
-    _missing_model(method)
-    rng = np.random.default_rng(seed)
-    if cache is not None and geom is None:
-        gkey = ("geom", session.building.id, str(session.meta.get("floor")), method.map.index)
-        if gkey not in cache:
-            cache[gkey] = MapGeometry.from_building(session.building, session.meta.get("floor"), derive_missing=True,
-                                                    index=method.map.index)
-        geom = cache[gkey]
-    pf, anchors, geom = build_filter(method, session, n_runs, rng, geom)
-    radio = method.measurements_needing("rssi")
-    if radio and not len(anchors.ids):
-        raise MissingStream(f"building {session.building.id} has no BLE anchors for the measurement models of "
-                            f"{method.name}")
-    arrays = SessionArrays.from_session(session, anchors, extra_fixes=fixes)
-    if radio and len(arrays.rssi_t) == 0:
-        raise MissingStream("no usable BLE readings (rssi.csv absent or empty, or every row names an anchor "
-                            "that is not a BLE anchor of the building)")
-    for m in method.measurements_needing("fixes"):
-        check_fixes(m, arrays.fix_source, session.id, method.name)
-    if method.needs_imu and len(arrays.imu_t) == 0:
-        raise MissingStream(f"no IMU data, which the {type(method.motion).__name__} motion model of {method.name} needs")
-    if method.needs_odometry and len(arrays.odo_t) == 0:
-        raise MissingStream(f"no inertial odometry (odometry.csv absent or empty), which {method.name} needs")
-    pf.initializer.start_xy, pf.initializer.start_theta = initial_pose(method, session, arrays)
-    offset = magnetometer_offset(arrays, method)
-    imu = None
-    if method.needs_imu:
-        ikey = ("imu", session.id, repr(method.attitude), repr(method.steps))
-        imu = cache.get(ikey) if cache is not None else None
-        if imu is None:
-            imu = imu_features(arrays, method.attitude, method.steps, offset)
-            if cache is not None:
-                cache[ikey] = imu
-    steps, q = session_steps(arrays, method.filter.rate_hz, method.attitude, method.steps, method.needs_imu, offset,
-                             imu)
-    if not steps:
-        raise ValueError(f"session {session.id} is shorter than one filter step ({1 / method.filter.rate_hz:.2f} s)")
-    pf.initialize(arrays.t_start)
-    K = len(steps)
-    pos = np.empty((n_runs, K, 2))
-    cov = np.empty((n_runs, K, 2, 2))
-    neff = np.empty((n_runs, K))
-    ts = np.empty(K)
-    for k, (t, ctrl, obs) in enumerate(steps):
-        res = pf.step(t, ctrl, obs)
-        ts[k], pos[:, k], cov[:, k], neff[:, k] = t, res.position, res.cov, res.n_eff
-    return RunResult(method.name, session.id, ts, pos, cov, neff, pf.events, q,
-                     arrays.imu_t if q is not None else None, time.perf_counter() - t0, list(geom.notes))
+    run = BatchRun(method, session, n_runs, seed, geom, cache, fixes)
+    run.advance()
+    return run.result()
+
+
+class BatchRun:
+    """:func:`run_session` in pieces: the filter built and initialised, then :meth:`advance` through the
+    session's steps up to a time, so that a caller (the closed loop of :mod:`blenav.backend.loop`) can change
+    the filter between pieces: :meth:`rebind_anchors` (a corrected beacon map), :meth:`correct_imu` (IMU
+    biases, from then on). Without changes, pieces give exactly the numbers of one :func:`run_session`."""
+
+    def __init__(self, method: Method, session: Session, n_runs: int, seed: int,
+                 geom: MapGeometry | None = None, cache: dict | None = None, fixes=None):
+        self.t0 = time.perf_counter()
+        _missing_model(method)
+        self.method, self.session, self.cache = method, session, cache
+        rng = np.random.default_rng(seed)
+        if cache is not None and geom is None:
+            gkey = ("geom", session.building.id, str(session.meta.get("floor")), method.map.index)
+            if gkey not in cache:
+                cache[gkey] = MapGeometry.from_building(session.building, session.meta.get("floor"),
+                                                        derive_missing=True, index=method.map.index)
+            geom = cache[gkey]
+        self.pf, self.anchors, self.geom = pf, anchors, geom = build_filter(method, session, n_runs, rng, geom)
+        radio = method.measurements_needing("rssi")
+        if radio and not len(anchors.ids):
+            raise MissingStream(f"building {session.building.id} has no BLE anchors for the measurement models of "
+                                f"{method.name}")
+        self.arrays = arrays = SessionArrays.from_session(session, anchors, extra_fixes=fixes)
+        if radio and len(arrays.rssi_t) == 0:
+            raise MissingStream("no usable BLE readings (rssi.csv absent or empty, or every row names an anchor "
+                                "that is not a BLE anchor of the building)")
+        for m in method.measurements_needing("fixes"):
+            check_fixes(m, arrays.fix_source, session.id, method.name)
+        if method.needs_imu and len(arrays.imu_t) == 0:
+            raise MissingStream(f"no IMU data, which the {type(method.motion).__name__} motion model of {method.name} "
+                                f"needs")
+        if method.needs_odometry and len(arrays.odo_t) == 0:
+            raise MissingStream(f"no inertial odometry (odometry.csv absent or empty), which {method.name} needs")
+        pf.initializer.start_xy, pf.initializer.start_theta = initial_pose(method, session, arrays)
+        self.mag_offset = magnetometer_offset(arrays, method)
+        imu = None
+        if method.needs_imu:
+            ikey = ("imu", session.id, repr(method.attitude), repr(method.steps))
+            imu = cache.get(ikey) if cache is not None else None
+            if imu is None:
+                imu = imu_features(arrays, method.attitude, method.steps, self.mag_offset)
+                if cache is not None:
+                    cache[ikey] = imu
+        self.steps, self.q = session_steps(arrays, method.filter.rate_hz, method.attitude, method.steps,
+                                           method.needs_imu, self.mag_offset, imu)
+        if not self.steps:
+            raise ValueError(f"session {session.id} is shorter than one filter step "
+                             f"({1 / method.filter.rate_hz:.2f} s)")
+        pf.initialize(arrays.t_start)
+        K = len(self.steps)
+        self.ts = np.array([t for t, _, _ in self.steps])
+        self.pos = np.empty((n_runs, K, 2))
+        self.cov = np.empty((n_runs, K, 2, 2))
+        self.neff = np.empty((n_runs, K))
+        self.k = 0  # steps done
+
+    @property
+    def done(self) -> bool:
+        return self.k >= len(self.steps)
+
+    def advance(self, t_end: float = np.inf) -> int:
+        """Run the steps at times <= ``t_end``; returns the number of steps done so far."""
+        pf, steps = self.pf, self.steps
+        while self.k < len(steps) and steps[self.k][0] <= t_end:
+            t, ctrl, obs = steps[self.k]
+            res = pf.step(t, ctrl, obs)
+            self.pos[:, self.k], self.cov[:, self.k], self.neff[:, self.k] = res.position, res.cov, res.n_eff
+            self.k += 1
+        return self.k
+
+    def rebind_anchors(self, frame) -> None:
+        """Bind the measurement models to a new beacon map (DataFrame anchor_id, kind, x, y, z, ...; the
+        anchors of :attr:`anchors`, same ids in the same order) for the remaining steps."""
+        table = AnchorTable.from_frame(frame, "ble")
+        if list(table.ids) != list(self.anchors.ids):
+            raise ValueError("rebind_anchors: the new map must hold the same BLE anchors in the same order")
+        for m in self.method.measurements:
+            m.bind(table)
+        self.anchors = table
+
+    def correct_imu(self, t_from: float, accel_bias: np.ndarray, gyro_bias: np.ndarray) -> None:
+        """Subtract constant biases (device frame: m/s^2, rad/s) from the IMU samples after ``t_from`` and
+        recompute the AHRS, step detection and the controls of the steps not yet done (the AHRS runs again
+        from the start: its values before ``t_from`` do not change)."""
+        if not self.method.needs_imu or not len(self.arrays.imu_t):
+            return
+        a = self.arrays
+        after = a.imu_t > t_from
+        acc, gyr = a.acc.copy(), a.gyr.copy()
+        acc[after] -= np.asarray(accel_bias, float)
+        gyr[after] -= np.asarray(gyro_bias, float)
+        self.arrays = a = replace(a, acc=np.ascontiguousarray(acc), gyr=np.ascontiguousarray(gyr))
+        m = self.method
+        steps, self.q = session_steps(a, m.filter.rate_hz, m.attitude, m.steps, True, self.mag_offset)
+        self.steps = self.steps[: self.k] + steps[self.k:]
+
+    def result(self) -> RunResult:
+        """The estimates of the steps done so far."""
+        k, m, a = self.k, self.method, self.arrays
+        return RunResult(m.name, self.session.id, self.ts[:k], self.pos[:, :k], self.cov[:, :k], self.neff[:, :k],
+                         self.pf.events, self.q, a.imu_t if self.q is not None else None,
+                         time.perf_counter() - self.t0, list(self.geom.notes))
 
 
 def check_fixes(model, sources: np.ndarray, session_id: str, method_name: str) -> None:

@@ -1,0 +1,86 @@
+"""The beacon map an evaluation hands its methods (blenav.eval.beacon_map): true map, per-run perturbation,
+beacon errors, stacking one-run estimates, corrected anchors, TUM trajectories."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from blenav.eval import beacon_map as BM
+from blenav.localizers.base import Estimate
+from blenav.filters.engine import Event
+
+
+def _building(tmp_path):
+    from helpers import make_tiny_dataset
+
+    from blenav.data import Dataset
+
+    root = make_tiny_dataset(tmp_path / "tiny")
+    return Dataset.open(root).session("walk0")
+
+
+def test_perturbation_is_per_run_paired_and_of_the_stated_size(tmp_path):
+    s = _building(tmp_path)
+    cfg = BM.BeaconMapConfig(noise_m=3.0, vertical=False, seed=4)
+    a0 = s.building.anchors_of("ble")[["x", "y", "z"]].to_numpy(float)
+    b = [BM.perturb(s.building, cfg, 0, r).anchors_of("ble")[["x", "y", "z"]].to_numpy(float) for r in range(400)]
+    # the same (session, run) gives the same map for every method; runs differ
+    np.testing.assert_array_equal(b[0], BM.perturb(s.building, cfg, 0, 0).anchors_of("ble")[["x", "y", "z"]])
+    assert not np.allclose(b[0], b[1])
+    d = np.stack(b) - a0
+    np.testing.assert_array_equal(d[..., 2], 0.0)  # vertical: false
+    assert abs(d[..., :2].std() - 3.0) < 0.15  # 400 runs x 4 beacons x 2 axes
+    # the rtt AP is not moved
+    rtt = [BM.perturb(s.building, cfg, 0, r).anchors_of("wifi_rtt")[["x", "y"]].to_numpy(float) for r in range(2)]
+    np.testing.assert_array_equal(rtt[0], rtt[1])
+
+
+def test_map_error_and_source():
+    truth = pd.DataFrame({"x": [0.0, 10.0], "y": [0.0, 0.0]}, index=pd.Index(["a", "b"]))
+    m = pd.DataFrame({"anchor_id": ["a", "b", "c"], "x": [3.0, 10.0, 99.0], "y": [4.0, 0.0, 0.0]})
+    assert BM.map_error(m, truth) == pytest.approx(2.5)  # (5 + 0) / 2, the unknown 'c' ignored
+    assert BM.map_error(None, truth) is None
+    with pytest.raises(ValueError, match="source"):
+        BM.BeaconMapConfig(source="truth")
+    assert BM.BeaconMapConfig(source=True).source == "true"  # `beacon_map.source=true` on a command line
+
+
+def test_stack_runs_concatenates_run_axes_and_renumbers_events():
+    t = np.arange(3.0)
+    ests = [Estimate("M", "s", t, np.full((1, 3, 2), float(r)), None, [Event(1.0, 0, "recover-local")],
+                     {"smoothed": np.full((1, 3, 2), r), "beacon_map": pd.DataFrame(
+                         {"anchor_id": ["a"], "x": [float(r)], "y": [0.0], "z": [1.0], "std_m": [1.0 + r]}),
+                      "feedbacks": 3}, 2.0, ["n"]) for r in range(3)]
+    out = BM.stack_runs(ests)
+    assert out.position.shape == (3, 3, 2) and out.outputs["smoothed"].shape == (3, 3, 2)
+    np.testing.assert_array_equal(out.position[:, 0, 0], [0, 1, 2])
+    assert [e.run for e in out.events] == [0, 1, 2]
+    assert out.wall_s == 6.0 and out.notes == ["n"] and out.outputs["feedbacks"] == 3
+    bm = out.outputs["beacon_map"]
+    assert bm["x"].iloc[0] == pytest.approx(1.0)
+    assert bm["std_m"].iloc[0] == pytest.approx(np.sqrt((1 + 4 + 9) / 3))
+
+
+def test_optimized_anchors_keep_the_columns_and_move_the_positions(tmp_path):
+    s = _building(tmp_path)
+    a = s.building.anchors_of("ble")
+    bmap = pd.DataFrame({"anchor_id": a["anchor_id"].iloc[:1], "x": [1.5], "y": [2.5], "z": [2.0], "std_m": [0.4],
+                         "status": ["optimized"]})
+    out = BM.optimized_anchors(s.building, bmap)
+    assert list(out.columns[: len(a.columns)]) == list(a.columns)
+    assert out[["x", "y", "z"]].iloc[0].tolist() == [1.5, 2.5, 2.0] and out["std_m"].iloc[0] == 0.4
+    np.testing.assert_array_equal(out[["x", "y"]].iloc[1:].to_numpy(float), a[["x", "y"]].iloc[1:].to_numpy(float))
+    assert out["status"].iloc[1] == ""
+
+
+def test_write_tum_reads_back(tmp_path):
+    from blenav.data.writer import write_tum
+
+    t = np.array([0.0, 0.5, 1.0])
+    xy = np.array([[1.0, 2.0], [np.nan, 0.0], [3.0, 4.0]])
+    p = write_tum(tmp_path / "a" / "x.tum", t, xy)
+    rows = np.loadtxt(p)
+    assert rows.shape == (2, 8)  # the non-finite row is left out
+    np.testing.assert_allclose(rows[1], [1.0, 3.0, 4.0, 0.0, 0.0, 0.0, 0.0, 1.0])
