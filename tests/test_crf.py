@@ -248,3 +248,25 @@ def test_compiled_step_detector_equals_the_project_detector(small):
         got = step_flags(t, acc, cfg, 200.0)
         assert ref.sum() > 20
         np.testing.assert_array_equal(got, ref)
+
+
+def test_online_calibration_uses_the_second_after_each_fix_and_applies_from_its_end():
+    from blenav.crf.calibration import Calibration, CalibrationTrack, online_track
+    from blenav.filters.measurement import AnchorTable
+
+    wifi = AnchorTable(np.array(["ap"]), np.array([[0.0, 0.0, 1.2]]), np.array([np.nan]))
+    ble = AnchorTable(np.array(["b"]), np.array([[4.0, 0.0, 1.2]]), np.array([-60.0]))
+    base = CalibrationTrack.constant(Calibration.empty(1, 1), np.array([-60.0]))
+    fixes = np.array([[10.0, 3.0, 0.0, 1.2, 0.5], [30.0, 6.0, 0.0, 1.2, np.nan]])
+    t = np.array([5.0, 10.2, 10.5, 10.8, 30.5])
+    rtt = (t, np.zeros(5, np.int64), np.array([9.0, 4.4, 4.5, 4.6, 7.0]))  # true 3 m, then 6 m: offsets 1.5, 1.0
+    rssi = (t, np.zeros(5, np.int64), np.array([-50.0, -66.0, -66.0, -66.0, -70.0]))  # 1 m from b, then 2 m
+    yaw = (np.array([10.1, 10.6, 30.2]), np.array([0.3, 0.3, 2.0]))
+    tr = online_track(base, fixes, wifi, ble, 2.0, rtt, rssi, yaw, 1.0)
+    np.testing.assert_allclose(tr.t_avail, [11.0, 31.0])
+    np.testing.assert_allclose(tr.rtt_offset[:, 0], [0.0, 1.5, 1.0])
+    np.testing.assert_allclose(tr.ble_tx[:, 0], [-60.0, -66.0, -70.0 + 20 * np.log10(2.0)])
+    np.testing.assert_allclose(tr.heading_offset, [0.0, 0.2, 0.2])  # no yaw at the second fix: kept
+    np.testing.assert_array_equal(tr.rows(np.array([10.9, 11.0, 40.0])), [0, 1, 2])
+    pooled = online_track(base, fixes, wifi, ble, 2.0, rtt, rssi, yaw, 1.0, pool=True)
+    np.testing.assert_allclose(pooled.rtt_offset[:, 0], [0.0, 1.5, np.median([1.4, 1.5, 1.6, 1.0])])
