@@ -46,9 +46,9 @@ What is written
   of its waypoints on FREE cells would fail the validator's ``groundtruth-in-obstacles`` rule.
 * ``anchors.csv``: one ``kind: ble`` row per iBeacon transmitter heard, **position unknown** (x, y, z empty:
   the data gives none; ``blenav-map`` estimates them). ``anchor_id`` = ``UUID:major:minor:MAC`` (upper case):
-  in this data the iBeacon triple alone does not identify a beacon: the mall's 327 beacons of the three floors
-  all advertise ``9195B3AD-A9D0-4500-85FF-9FB0F65A5201:0:0`` and differ only in MAC (E0:78:A3:...), and
-  other triples are advertised by up to 113 MACs (phones with rotating addresses). ``beacon_id="triple"``
+  in this data the iBeacon triple alone does not identify a beacon: over the three floors 327 MACs advertise
+  ``9195B3AD-A9D0-4500-85FF-9FB0F65A5201:0:0`` (the mall's beacons, almost all rows from MACs E0:78:A3:...),
+  and another triple is advertised by 113 MACs (devices with rotating addresses). ``beacon_id="triple"``
   writes ``UUID:major:minor`` instead. ``floor`` = the floor where it was heard most often (a guess: heard
   on several floors, see ``floors_heard``); ``tx_power_dbm`` = the median advertised measured power (RSSI at
   1 m) when it lies in (-150, 0) dBm, else empty. Extra columns: ``uuid, major, minor, mac, n_rows,
