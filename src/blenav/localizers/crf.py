@@ -34,15 +34,13 @@ Config: ``conf/localizer/crf.yaml`` (CRF) and ``conf/localizer/crf_recursive.yam
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
-from blenav.crf.calibration import (CALIBRATIONS, CalibrationTrack, offline_calibration, online_track,
+from blenav.crf.calibration import (CALIBRATIONS, Calibration, CalibrationTrack, offline_calibration, online_track,
                                     static_sessions)
-from blenav.crf.features import cell_anchor_distances, normalise_log, rssi_log_feature, rtt_log_feature, \
-    visual_log_feature, wrap_angle
+from blenav.crf.features import cell_anchor_distances, rssi_log_feature, rtt_log_feature, visual_log_feature
 from blenav.crf.grid import build_grid
 from blenav.crf.preprocess import anchor_tables, preprocess, session_span, window_count
 from blenav.crf.viterbi import ViterbiDecoder
@@ -212,8 +210,6 @@ class CrfLocalizer(Localizer):
         if "RTT" in self.modalities:
             notes += radio.notes
         ble_prior = np.where(np.isfinite(ble.tx_power_dbm), ble.tx_power_dbm, self.ble_tx_default)
-        from blenav.crf.calibration import Calibration
-
         base = Calibration.empty(len(wifi.ids), len(ble.ids))
         if self.calibration == "offline":
             cal, ids = self._offline(session, ctx, wifi, ble)
@@ -223,14 +219,13 @@ class CrfLocalizer(Localizer):
             base = cal
             notes.append(f"offline calibration from static session(s) {', '.join(ids)}")
         track = CalibrationTrack.constant(base, ble_prior)
-        imu = self._imu(session, ctx) if ("IMU" in self.modalities or
-                                                (self.calibration == "online" and session.has("imu"))) else None
+        imu = self._imu(session, ctx) if "IMU" in self.modalities else None
         vis = session.visual if session.has("visual") else None
         if self.calibration == "online":
             fixes = vis[["t", "x", "y", "z", "yaw"]].to_numpy(float)
             rtt_raw = radio.rtt_raw if "RTT" in self.modalities else None
             rssi_raw = radio.ble_raw if "BLE" in self.modalities else None
-            yaw = (imu[2], imu[3]) if imu is not None and "IMU" in self.modalities else None
+            yaw = (imu[2], imu[3]) if imu is not None else None
             track = online_track(track, fixes, wifi, ble, self.ble_n, rtt_raw, rssi_raw, yaw, self.cal_window_s,
                                  calibrate_heading=self.calibrate_heading, pool=self.calibration_pool)
         rows = track.rows(radio.t)  # the parameters valid at each window's end
