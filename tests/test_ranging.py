@@ -63,6 +63,24 @@ def test_srls_equals_a_brute_force_minimiser_on_random_geometries():
         np.testing.assert_allclose(x[k], xb, atol=1e-4)
 
 
+def test_srls_on_collinear_anchors_equals_brute_force_up_to_the_mirror():
+    """A corridor's APs on one line: A^T A is singular; the cost's minimum is off the line (two mirror points)
+    or on it (ranges shorter than the geometry allows)."""
+    rng = np.random.default_rng(4)
+    for k in range(12):
+        p0, ang = rng.uniform(0, 20, 2), rng.uniform(0, np.pi)
+        u = np.array([np.cos(ang), np.sin(ang)])
+        a = p0 + rng.uniform(-15, 15, (4, 1)) * u
+        x0 = p0 + rng.uniform(-10, 10) * u + (rng.uniform(-6, 6) if k % 3 else 0.0) * np.array([-u[1], u[0]])
+        r2 = (np.linalg.norm(a - x0, axis=1) + rng.normal(0, 1.0, 4)) ** 2
+        x = srls(a, r2[None])[0]
+        xb, fb = _brute_force(a, r2)
+        assert _cost(x, a, r2) <= fb * (1 + 1e-8) + 1e-8, k
+        rel = x - p0
+        mirror = p0 + 2 * (rel @ u) * u - rel
+        assert min(np.linalg.norm(x - xb), np.linalg.norm(mirror - xb)) < 1e-4, k
+
+
 def test_srls_noise_free_is_exact_and_too_few_ranges_give_nan():
     a = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 8.0], [7.0, 9.0]])
     x0 = np.array([[3.0, 4.0], [8.5, 1.0]])

@@ -108,7 +108,9 @@ def render(results: dict, ranges: list[dict] | None = None, command: str = "", s
             "Methods: the range baselines of 004 sec. VI-E (`blenav.localizers.ranging`), RTT ranges only, one 1 s "
             "window per scan: grid-L2 (range least squares over the free 0.5 m cells; it is also the argmax of the "
             "CRF's RTT feature, eq. 6, with one sigma for every AP), grid-L1 (absolute residuals), SRLS (exact "
-            "squared-range least squares, Beck et al. 2008; not confined to the grid). Calibration `none` or "
+            "squared-range least squares, Beck et al. 2008; not confined to the grid; when the APs left in a scan are "
+            "collinear its two mirror solutions are equally good and, the imported floor having no walls, it keeps the "
+            "left one). Calibration `none` or "
             "`offline` (a range offset per AP: the median of measured minus true range over the environment's "
             "train points); `/no-65dBm`: the -65 dBm rule of 004 sec. V-A off (every range kept). A scan with "
             "fewer than 3 usable ranges gets no estimate; `scans` is the share localized.",

@@ -65,6 +65,7 @@ from .base import Estimate, Localizer, PathLossCalibrated, RunContext
 from .centroid import _window_medians
 
 __all__ = ["GridL2Localizer", "GridL1Localizer", "SrlsLocalizer", "RangeBaseline", "WindowRanges", "srls",
+           "collinear_anchors",
            "grid_costs", "free_cells", "wifi_rssi", "rtt_readings", "ble_readings", "rtt_offsets", "ble_levels",
            "online_corrections", "window_ranges", "WIFI_MIN_RSSI_DBM", "BLE_MIN_RSSI_DBM"]
 
@@ -299,8 +300,12 @@ def srls(anchors_xy: np.ndarray, r2: np.ndarray, mask: np.ndarray | None = None,
     eigenvalue of (A^T A)^{-1/2} D (A^T A)^{-1/2} (their Theorem 3.2 / eq. 13); found by bisection, all K
     problems at once. In the "hard case" (no root in I, which needs a special geometry) the bisection ends
     at the interval's left end: the estimate is then the limit y(-1/lambda_1) (approximate, not exact).
-    A rank-deficient A^T A (collinear anchors in 2-D: the position is ambiguous by a reflection) gets a ridge
-    of 1e-9 of its trace, which picks one of the mirror solutions."""
+    Collinear anchors in 2-D (A^T A singular; a corridor's APs): with s the position along their line and h the
+    distance from it, the cost depends on (s, s^2 + h^2) only, so the problem is a least-squares fit of
+    (s, w = s^2 + h^2) subject to w >= s^2 (convex): the unconstrained fit when it has w >= s^2 (then
+    h = sqrt(w - s^2), on the side of the line's left normal -- the mirror image is as good:
+    :func:`collinear_anchors` gives the line, :class:`SrlsLocalizer` picks the mirror on free space), else
+    h = 0 and s the one-dimensional SR-LS on the line. Coincident anchors (no line) give NaN."""
     r2 = np.asarray(r2, float)
     K, A = r2.shape
     a = np.asarray(anchors_xy, float)
@@ -314,6 +319,14 @@ def srls(anchors_xy: np.ndarray, r2: np.ndarray, mask: np.ndarray | None = None,
         if ok.any():
             x[ok] = srls(a[ok], r2[ok], m[ok], iters)
         return x
+    if n == 2:
+        col, centre_c, u = collinear_anchors(a, m)
+        if col.any():
+            x = np.full((K, n), np.nan)
+            if (~col).any():
+                x[~col] = srls(a[~col], r2[~col], m[~col], iters)
+            x[col] = _srls_on_line(a[col], r2[col], m[col], centre_c[col], u[col], iters)
+            return x
     w = m.astype(float)
     # the cost is translation invariant: solve about the used anchors' mean (conditioning), shift back at the end
     centre = np.einsum("ka,kan->kn", w, a) / np.maximum(w.sum(1), 1.0)[:, None]
@@ -326,14 +339,22 @@ def srls(anchors_xy: np.ndarray, r2: np.ndarray, mask: np.ndarray | None = None,
     AtA = AtA + (1e-9 * np.trace(AtA, axis1=1, axis2=2)[:, None, None] + 1e-300) * eye
     D = np.diag(np.r_[np.ones(n), 0.0])
     f = np.r_[np.zeros(n), -0.5]
-    # lambda_1: largest eigenvalue of L^-1 D L^-T with A^T A = L L^T
+    # A^T A = L L^T and L^-1 D L^-T = Q diag(mu) Q^T, so (A^T A + lambda D)^-1 = L^-T Q diag(1 / (1 + lambda mu))
+    # Q^T L^-1: y(lambda) for every lambda from one factorisation, without a solve that fails near the singular
+    # end of I (lambda -> -1 / lambda_1, where 1 + lambda mu_max -> 0); lambda_1 = mu_max.
     L = np.linalg.cholesky(AtA)
     Li = np.linalg.inv(L)
-    lam1 = np.linalg.eigvalsh(Li @ D @ np.swapaxes(Li, 1, 2))[:, -1]
+    mu, Q = np.linalg.eigh(Li @ D @ np.swapaxes(Li, 1, 2))
+    lam1 = mu[:, -1]
     lo = -1.0 / np.maximum(lam1, 1e-300)
+    back = np.swapaxes(Li, 1, 2) @ Q  # (K, n+1, n+1): L^-T Q
+    QtLi = np.swapaxes(Q, 1, 2) @ Li
+    u = np.einsum("kij,kj->ki", QtLi, Atb)
+    v = np.einsum("kij,j->ki", QtLi, f)
 
     def y_of(lam):
-        return np.linalg.solve(AtA + lam[:, None, None] * D, (Atb - lam[:, None] * f)[..., None])[..., 0]
+        den = np.maximum(1.0 + lam[:, None] * mu, 1e-15)
+        return np.einsum("kij,kj->ki", back, (u - lam[:, None] * v) / den)
 
     def phi(lam):
         y = y_of(lam)
@@ -356,6 +377,42 @@ def srls(anchors_xy: np.ndarray, r2: np.ndarray, mask: np.ndarray | None = None,
         hi = np.where(p > 0, hi, mid)
     lam = np.where(hi > lo, hi, lo + np.abs(lo) * 1e-12 + 1e-12)
     return y_of(lam)[:, :n] + centre
+
+
+def collinear_anchors(a: np.ndarray, m: np.ndarray, rtol: float = 1e-9):
+    """Which problems' used anchors lie on one line: ``a`` (K, A, 2) m, ``m`` (K, A) bool. Returns (flag (K,),
+    centre (K, 2) the used anchors' mean, u (K, 2) the line's unit direction). Collinear: the smaller
+    eigenvalue of the anchors' scatter is at most ``rtol`` times the larger (coincident anchors count too)."""
+    w = m.astype(float)
+    centre = np.einsum("ka,kan->kn", w, a) / np.maximum(w.sum(1), 1.0)[:, None]
+    c = (a - centre[:, None, :]) * w[..., None]
+    ev, vec = np.linalg.eigh(np.einsum("kai,kaj->kij", c, c))
+    return ev[:, 0] <= rtol * np.maximum(ev[:, 1], 1e-300), centre, vec[:, :, 1]
+
+
+def _srls_on_line(a, r2, m, centre, u, iters):
+    """SR-LS for collinear anchors (see :func:`srls`): (K, 2) positions, the solution left of the line."""
+    K = len(r2)
+    w = m.astype(float)
+    s_m = np.einsum("kan,kn->ka", a - centre[:, None, :], u)  # positions along the line
+    nrm = np.stack([-u[:, 1], u[:, 0]], axis=1)
+    Am = np.stack([-2.0 * s_m, np.ones_like(s_m)], axis=2) * w[..., None]
+    b = np.where(m, r2 - s_m ** 2, 0.0)
+    AtA = np.einsum("kai,kaj->kij", Am, Am)
+    Atb = np.einsum("kai,ka->ki", Am, b)
+    distinct = np.linalg.det(AtA) > 1e-12 * np.maximum(np.trace(AtA, axis1=1, axis2=2), 1e-300) ** 2
+    y = np.zeros((K, 2))
+    if distinct.any():
+        y[distinct] = np.linalg.solve(AtA[distinct], Atb[distinct][..., None])[..., 0]
+    sv, wv = y[:, 0], y[:, 1]
+    h2 = wv - sv ** 2
+    x = centre + sv[:, None] * u + np.sqrt(np.maximum(h2, 0.0))[:, None] * nrm
+    on_line = distinct & (h2 < 0)
+    if on_line.any():  # the constraint is active: h = 0, one-dimensional SR-LS along the line
+        s1 = srls(s_m[on_line][..., None], np.where(m[on_line], r2[on_line], np.nan), None, iters)[:, 0]
+        x[on_line] = centre[on_line] + s1[:, None] * u[on_line]
+    x[~distinct] = np.nan
+    return x
 
 
 def grid_costs(cells: np.ndarray, anchor_xyz: np.ndarray, d: np.ndarray, device_z: float, loss: str = "l2",
@@ -632,4 +689,16 @@ class SrlsLocalizer(RangeBaseline):
         r2 = d * d - (anchors[None, :, 2] - self.device_z) ** 2
         # a negative range (Android reports some) squared would pretend a distance: such ranges count as 0
         r2 = np.where(np.isfinite(d) & (d < 0), 0.0, r2)
-        return srls(anchors[:, :2], r2)
+        x = srls(anchors[:, :2], r2)
+        # collinear anchors: the mirror image across their line is as good; take the one on free space
+        a = np.broadcast_to(anchors[:, :2], (len(d),) + anchors[:, :2].shape)
+        col, c, u = collinear_anchors(a, np.isfinite(r2))
+        col &= np.isfinite(x).all(axis=1)
+        if col.any():
+            rel = x[col] - c[col]
+            mirror = c[col] + 2.0 * (rel * u[col]).sum(1, keepdims=True) * u[col] - rel
+            floor = session.floor
+            swap = ~floor.is_free(x[col]) & floor.is_free(mirror)
+            idx = np.flatnonzero(col)[swap]
+            x[idx] = mirror[swap]
+        return x
