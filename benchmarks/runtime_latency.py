@@ -120,8 +120,9 @@ def update_times(bundle, session, seed: int = 0) -> tuple[np.ndarray, list]:
     return ms[t >= t[0] + WARM_S] if len(t) else ms, rows
 
 
-def torch_reference(bundle, ckpt: Path, mapprior: Path, session, seed: int):
-    """The PyTorch pipeline of tests/test_bundle.py: batch windows -> torch fixes; torch prior; run_session."""
+def torch_reference(bundle, ckpt: Path, mapprior: Path, session, seed: int, with_fixes: bool = False):
+    """The PyTorch pipeline of tests/test_bundle.py: batch windows -> torch fixes; torch prior; run_session.
+    Returns (t, xy) of the trajectory (and the fixes frame with ``with_fixes``)."""
     import torch
 
     from blenav.features.windows import WindowConfig, session_windows
@@ -143,7 +144,7 @@ def torch_reference(bundle, ckpt: Path, mapprior: Path, session, seed: int):
     ok = (win.S > 0).reshape(len(win.S), -1).any(axis=1)
     fixes = pd.DataFrame({"t": win.t[ok], "x": xy[ok, 0], "y": xy[ok, 1], "std": np.nan, "source": FIX_SOURCE})
     res = run_session(build_method(bundle.settings, load_map_prior(mapprior)), session, 1, seed, fixes=fixes)
-    return res.t, res.position[0]
+    return (res.t, res.position[0], fixes) if with_fixes else (res.t, res.position[0])
 
 
 def stats(ms: np.ndarray) -> dict:
@@ -207,15 +208,25 @@ def main() -> int:
           f"seed {args.seed}:")
     worst = 0.0
     for s in sessions:
-        t_ref, xy_ref = torch_reference(b, paths["ckpt"], paths["mapprior"], s, args.seed)
+        t_ref, xy_ref, fx_ref = torch_reference(b, paths["ckpt"], paths["mapprior"], s, args.seed, with_fixes=True)
         est = b.run_session(s, seed=args.seed)
+        fx = np.array(b.last_fixes)
+        fd = float(np.abs(fx[:, 1:] - fx_ref[["x", "y"]].to_numpy()).max()) if len(fx) == len(fx_ref) else float("nan")
         t = np.array([e.t for e in est])
         _, i, j = np.intersect1d(np.round(t, 6), np.round(t_ref, 6), return_indices=True)
         d = np.hypot(*(np.array([[e.x, e.y] for e in est])[i] - xy_ref[j]).T) * 100
+        first = int(np.argmax(d >= 1.0)) if (d >= 1.0).any() else None
         worst = max(worst, float(d.max()))
-        res["parity"][s.id] = {"steps": int(len(i)), "max_cm": float(d.max()), "median_cm": float(np.median(d))}
-        print(f"  {s.id}: {len(i)} steps, max {d.max():.2e} cm, median {np.median(d):.2e} cm")
-    print(f"  worst {worst:.2e} cm: {'within' if worst < 1.0 else 'OVER'} the 1 cm target")
+        res["parity"][s.id] = {"steps": int(len(i)), "max_cm": float(d.max()), "median_cm": float(np.median(d)),
+                               "within_1cm": float((d < 1.0).mean()), "first_step_over_1cm": first,
+                               "fixes_max_abs_diff_m": fd}
+        print(f"  {s.id}: {len(i)} steps, max {d.max():.2e} cm, median {np.median(d):.2e} cm, "
+              f"{100 * (d < 1.0).mean():.0f} % of steps within 1 cm (first over: "
+              f"{'none' if first is None else f'step {first}'}); fixes differ by at most {fd:.1e} m")
+    print(f"  worst {worst:.2e} cm: {'within' if worst < 1.0 else 'OVER'} the 1 cm target"
+          + ("" if worst < 1.0 else " (the networks agree to float32 noise; the filter's discrete choices -- resampling, "
+             "the obstacle re-initialisation, pixel look-ups -- turn such noise into a different draw of the same "
+             "filter from the first step where one of them flips)"))
     ref = np.array([[e.x, e.y] for e in traj["runtime float"]])
     for name, rows in traj.items():
         if name != "runtime float" and len(rows) == len(ref):
@@ -223,6 +234,21 @@ def main() -> int:
             res["parity"][f"{name} vs runtime float, {sessions[0].id}"] = {"max_cm": float(d.max())}
             print(f"  {name} (push API) vs runtime float on {sessions[0].id}: max {d.max():.2e} cm")
     res["parity_worst_cm"] = worst
+    smooth = json.loads(json.dumps(b.settings))
+    smooth["filter"].update({"ess_threshold": 0.0, "reinit_fraction": None, "estimate": "mean"})
+    bs = dataclasses.replace(b, settings=smooth)
+    worst_s = 0.0
+    for s in sessions:
+        t_ref, xy_ref = torch_reference(bs, paths["ckpt"], paths["mapprior"], s, args.seed)
+        est = bs.run_session(s, seed=args.seed)
+        t = np.array([e.t for e in est])
+        _, i, j = np.intersect1d(np.round(t, 6), np.round(t_ref, 6), return_indices=True)
+        d = np.hypot(*(np.array([[e.x, e.y] for e in est])[i] - xy_ref[j]).T) * 100
+        worst_s = max(worst_s, float(d.max()))
+        res["parity"][f"{s.id} (no discrete choices)"] = {"steps": int(len(i)), "max_cm": float(d.max())}
+    print(f"  the same without the filter's discrete choices (no resampling, no re-initialisation, mean estimate): "
+          f"worst {worst_s:.2e} cm over {len(sessions)} sessions: {'within' if worst_s < 1.0 else 'OVER'} 1 cm")
+    res["parity_no_discrete_worst_cm"] = worst_s
     m = b.manifest.get("measured") or {}
     print("\nvariants (manifest of the bundle; graph latency: one call, one thread):")
     for g, per in (m.get("graphs") or {}).items():

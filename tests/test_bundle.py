@@ -198,16 +198,29 @@ def torch_pipeline(bundle: Bundle, ckpt: Path, mapprior_ckpt: Path, session, see
     fixes = pd.DataFrame({"t": win.t[ok], "x": xy[ok, 0], "y": xy[ok, 1], "std": np.nan, "source": FIX_SOURCE})
     method = build_method(bundle.settings, load_map_prior(mapprior_ckpt))
     res = run_session(method, session, 1, seed, fixes=fixes)
-    return res.t, res.position[0]
+    return res.t, res.position[0], fixes
 
 
 def test_runtime_reproduces_the_pytorch_pipeline_within_1cm(made):
+    """Same seed, same settings except the filter's discrete choices: no resampling, no obstacle re-initialisation,
+    the weighted mean as the estimate. With them (the default) float32 differences between onnxruntime and torch
+    (~1e-6 m) flip a resampling or re-initialisation choice now and then, and from there the two runs are different
+    draws of the same filter (benchmarks/runtime_latency.py reports how often and how far)."""
+    import dataclasses
+
     b = Bundle.open(made["bundle"])
+    settings = json.loads(json.dumps(b.settings))
+    settings["filter"].update({"ess_threshold": 0.0, "reinit_fraction": None, "estimate": "mean"})
+    b = dataclasses.replace(b, settings=settings)
     ds = Dataset.open(made["data"])
     for sid in sorted(ds.session_ids)[:2]:
         s = ds.session(sid)
-        t_ref, xy_ref = torch_pipeline(b, made["loc"], made["mp"], s, seed=5)
+        t_ref, xy_ref, fx_ref = torch_pipeline(b, made["loc"], made["mp"], s, seed=5)
         est = b.run_session(s, seed=5)
+        fx = np.array(b.last_fixes)  # the live windows give the batch windows' fixes, to float32 engine noise
+        assert fx.shape == (len(fx_ref), 3)
+        np.testing.assert_allclose(fx[:, 0], fx_ref["t"], atol=1e-9)
+        np.testing.assert_allclose(fx[:, 1:], fx_ref[["x", "y"]], atol=1e-4)
         t = np.array([e.t for e in est])
         common, i, j = np.intersect1d(np.round(t, 6), np.round(t_ref, 6), return_indices=True)
         assert len(common) >= len(t_ref) - 1 and len(common) > 30

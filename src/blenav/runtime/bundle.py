@@ -287,6 +287,7 @@ class BundleLocalizer:
         self._start_xy = None if start_xy is None else np.asarray(start_xy, float)
         self._start_theta, self._mag_offset = start_theta, mag_offset
         self._init = str(self.method.map.init)
+        self._rssi_models = bool(self.method.measurements_needing("rssi"))
         if self._init == "groundtruth" and self._start_xy is None:
             raise ValueError("the bundle's settings start at a known position (map.init: groundtruth): pass start_xy")
 
@@ -316,6 +317,8 @@ class BundleLocalizer:
         return out
 
     def _feed(self, ev: tuple) -> list[Estimate]:
+        if ev[0] == "rssi" and not self._rssi_models:
+            return []  # the filter weighs the bundle's fixes, not packets: they only feed the localizer's windows
         if self._online is not None:
             return self._rows(self._online.push_event(ev))
         self._pending.append(ev)
