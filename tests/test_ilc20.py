@@ -8,7 +8,6 @@ are computed from the raw lines with plain Python, independently of the importer
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import tarfile

@@ -258,8 +258,9 @@ def _parse_lines(display: str, data: bytes) -> _Walk:
     if not data:
         raise ImportError_(display, None, "file is empty")
     if not data.endswith(b"\n"):
-        raise ImportError_(display, data.count(b"\n") + 1, "the file does not end with a newline, so its last line "
-                           "may be cut short (a number missing digits): the walk was cut while it was written or copied")
+        raise ImportError_(display, data.count(b"\n") + 1, "the file does not end with a newline, so its last "
+                           "line may be cut short (a number missing digits): was the walk cut while it was written "
+                           "or copied?")
     a = np.frombuffer(data, dtype=np.uint8)
     ends = np.flatnonzero(a == 10)
     starts = np.concatenate([[0], ends[:-1] + 1])
