@@ -85,10 +85,13 @@ class RangeConfig:
     max_range_m: float = 10.0  # m, ranges above are discarded (000 sec. IV-B)
     robust: RobustKernel = RobustKernel.huber  # M-estimator against NLOS ranges
     robust_k: float = 1.345  # kernel width in units of sigma_n (Huber 1.345: 95 % efficiency)
-    gate_m: Optional[float] = 5.0  # m: a range is used only when the beacon's prior position is within this of
+    gate_m: Optional[float] = 4.0  # m: a range is used only when the beacon's prior position is within this (plus
+    #   gate_sigmas x the beacon prior's horizontal std: 5 m for the default 0.5 m std) of
     #   the keyframe's initial (front-end) position; None: no gate. The 10 m clamp keeps far beacons' readings
     #   only when they came out short (-5 m on average beyond 6 m in the simulated office), which pulls beacons
     #   towards the path; gating on the *predicted* distance, not the measured one, does not select on the noise
+    gate_sigmas: float = 2.0  # the gate widens by this many of each beacon's prior std (a badly known beacon's
+    #   ranges are not all gated out: a 3 m std map gets a 10 m gate)
     combine: Combine = Combine.median  # all | median: one range per beacon and keyframe (the median)
     max_beacons_per_keyframe: Optional[int] = None  # keep the N beacons with the shortest ranges per keyframe
     #   (the nearest: least affected by the 10 m clamp's truncation); None: all

@@ -341,9 +341,11 @@ class RadioInertialGraph:
         self.n_heard = np.bincount(rj, minlength=len(beacons.ids))  # usable ranges before the gate
         if rc.gate_m is not None and len(kidx):  # validation gate on the predicted distance (initial values)
             pred = np.linalg.norm(kf.position[kidx] - self.beacon_init[rj], axis=-1)
-            inside = pred < rc.gate_m
+            gate = rc.gate_m + rc.gate_sigmas * np.sqrt(np.mean(np.asarray(beacons.sigma, float)[rj, :2] ** 2, axis=-1))
+            inside = pred < gate
             if not inside.all():
-                self.notes.append(f"{np.count_nonzero(~inside)} of {len(inside)} ranges outside the {rc.gate_m:g} m gate "
+                self.notes.append(f"{np.count_nonzero(~inside)} of {len(inside)} ranges outside the {rc.gate_m:g} m "
+                                  f"+ {rc.gate_sigmas:g} sigma gate "
                                   f"(beacon prior to front-end position) left out")
             kidx, rj, rr = kidx[inside], rj[inside], rr[inside]
         self._range_k, self._range_j, self._range_r = select_ranges(kidx, rj, rr,

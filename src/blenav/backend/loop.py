@@ -127,44 +127,12 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
         k0 = run.k
         run.advance(t_next)
         bias_applied[k0:run.k] = applied
-        if run.done or not lc.enabled:
-            t_next += period
-            continue
-        res = run.result()
-        w0 = t_next - float(lc.window_s) if lc.window_s is not None else -np.inf
-        sel = res.t > w0
-        q_t, q = _attitude(run, attitude)
-        if np.count_nonzero(sel) < 2:
-            t_next += period
-            continue
-        kf, _ = keyframes_from_front_end(res.t[sel], res.position[:, sel], q_t, q, cfg)
-        if len(kf.t) < 2:
-            t_next += period
-            continue
-        w_imu, w_ranges = _window(_corrected(run, imu), ranges, float(kf.t[0]), float(kf.t[-1]))
-        t1 = time.perf_counter()
-        try:
-            out = smooth(cfg, kf, w_imu, w_ranges, prior)
-        except ValueError as exc:  # inputs the window cannot use (e.g. no IMU in it): no feedback this time
-            notes.append(f"window ending {t_next - t_start:.0f} s: no feedback ({exc})")
-            t_next += period
-            continue
-        dt = time.perf_counter() - t1
-        backend_s += dt
-        if not out.ok:
-            failures += [f"window ending {t_next - t_start:.0f} s: {f}" for f in out.failures]
-            t_next += period
-            continue
-        moved: list[str] = []
-        if lc.feed_map:
-            prior, moved = carry_map(prior, out.beacon_map, lc.beacon_sigma_floor_m, lc.min_beacon_std_gain)
-            if moved:
-                run.rebind_anchors(map_frame(anchors, prior))
-        inc = np.asarray(out.bias[-1], float) if feed_bias else np.zeros(6)
-        if feed_bias and np.isfinite(inc).all():
-            run.correct_imu(float(res.t[-1]), inc[:3], inc[3:])
-            applied = applied + inc
-        feedbacks.append(Feedback(float(res.t[-1]), moved, inc, dt))
+        if not run.done and lc.enabled:
+            fb, prior = _feedback(run, cfg, imu, ranges, prior, anchors, attitude, t_next, feed_bias, notes, failures)
+            if fb is not None:
+                feedbacks.append(fb)
+                backend_s += fb.solve_s
+                applied = applied + fb.bias_increment
         t_next += period
     front = run.result()
     # B.-end: the whole session from the closed-loop front-end, the original map as prior
@@ -185,6 +153,46 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
                      f"bias applied at the end acc {np.round(applied[:3], 3).tolist()} m/s^2, gyro "
                      f"{np.round(applied[3:], 4).tolist()} rad/s")
     return LoopOutcome(front, smoothed, bias_applied, feedbacks, notes, failures, backend_s)
+
+
+def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeObs, prior: BeaconPriors,
+              anchors: pd.DataFrame, attitude, t_now: float, feed_bias: bool, notes: list, failures: list
+              ) -> tuple[Feedback | None, BeaconPriors]:
+    """One window of the loop at ``t_now``: smooth the last ``loop.window_s`` of keyframes with ``prior`` as the
+    beacon map, feed the optimized beacons and the bias increment back to ``run``. Returns (the feedback or None
+    when the window gave none, the next window's beacon priors)."""
+    lc = cfg.loop
+    res = run.result()
+    w0 = t_now - float(lc.window_s) if lc.window_s is not None else -np.inf
+    sel = res.t > w0
+    if np.count_nonzero(sel) < 2:
+        return None, prior
+    kf, _ = keyframes_from_front_end(res.t[sel], res.position[:, sel], *_attitude(run, attitude), cfg)
+    if len(kf.t) < 2:
+        return None, prior
+    w_imu, w_ranges = _window(_corrected(run, imu), ranges, float(kf.t[0]), float(kf.t[-1]))
+    when = f"window ending {t_now - float(run.arrays.t_start):.0f} s"
+    t1 = time.perf_counter()
+    try:
+        out = smooth(cfg, kf, w_imu, w_ranges, prior)
+    except ValueError as exc:  # inputs the window cannot use (e.g. no IMU in it): no feedback this time
+        notes.append(f"{when}: no feedback ({exc})")
+        return None, prior
+    dt = time.perf_counter() - t1
+    if not out.ok:
+        failures += [f"{when}: {f}" for f in out.failures]
+        return None, prior
+    moved: list[str] = []
+    if lc.feed_map:
+        prior, moved = carry_map(prior, out.beacon_map, lc.beacon_sigma_floor_m, lc.min_beacon_std_gain)
+        if moved:
+            run.rebind_anchors(map_frame(anchors, prior))
+    inc = np.asarray(out.bias[-1], float) if feed_bias else np.zeros(6)
+    if not np.isfinite(inc).all():
+        inc = np.zeros(6)
+    if inc.any():
+        run.correct_imu(float(res.t[-1]), inc[:3], inc[3:])
+    return Feedback(float(res.t[-1]), moved, inc, dt), prior
 
 
 def _attitude(run: BatchRun, attitude) -> tuple[np.ndarray, np.ndarray]:

@@ -85,12 +85,14 @@ def with_source(sessions: list, cfg: BeaconMapConfig) -> tuple[list, dict]:
 
 def perturb(building, cfg: BeaconMapConfig, session_index: int, run: int):
     """``building`` with every BLE anchor moved by N(0, noise_m^2) per axis (z too when ``vertical``), seeded by
-    (seed, session, run)."""
+    (seed, session, run); the stated ``std_m`` is kept."""
     rng = np.random.default_rng([int(cfg.seed), int(session_index), int(run)])
     a = building.anchors.copy()
     ble = (a["kind"] == "ble").to_numpy() if "kind" in a else np.ones(len(a), bool)
     cols = ["x", "y", "z"] if cfg.vertical else ["x", "y"]
     a.loc[ble, cols] = a.loc[ble, cols].to_numpy(float) + cfg.noise_m * rng.standard_normal((int(ble.sum()), len(cols)))
+    # anchors.csv's std_m (the map's stated uncertainty) is left as it was: as in 000, the methods are not told
+    # how wrong the map is (telling the back-end, 3 m priors, made its beacons worse: docs/results-000-002.md)
     return replace(building, anchors=a)
 
 
