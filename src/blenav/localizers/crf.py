@@ -167,8 +167,9 @@ class CrfLocalizer(Localizer):
         return cache[key]
 
     def _offline(self, session, ctx, wifi, ble):
-        key = ("crf-offline", str(session.root.parent.parent), session.meta.get("building"),
-               str(session.meta.get("floor")), self.ble_n, self.ble_min_rssi_dbm, self.rtt_min_wifi_rssi_dbm)
+        # per session: the static sessions are those of the building other than the session itself
+        key = ("crf-offline", str(session.root.parent.parent), session.id, self.ble_n, self.ble_min_rssi_dbm,
+               self.rtt_min_wifi_rssi_dbm)
         cache = ctx.cache if ctx is not None else {}
         if key not in cache:
             stat = static_sessions(session)
