@@ -313,11 +313,61 @@ class MappingResult:
 
 
 # ------------------------------------------------------------------------------------------- the graph
+@dataclass
+class _Screening:
+    """The beacons' readings and the checks before the solve (nb BLE anchors).
+
+    ``n_read`` (nb,) readings per beacon; ``P_all`` {j: (n_j, 3) world m} and ``y_all`` {j: (n_j,) dBm}: the
+    positions and RSSI of every reading of each beacon heard (in the order of the pairs); ``spread`` (nb,) m:
+    minor-axis std of its hearing positions; ``status`` (nb,) object: 'placed' or why not (updated by the solve
+    and the std check); ``active``: indices of the beacons that passed the checks; ``used``: their (beacon,
+    session) pairs; ``sess_used``: the sessions those come from (sorted indices), ``ref`` the reference one."""
+
+    n_read: np.ndarray
+    P_all: dict
+    y_all: dict
+    spread: np.ndarray
+    status: np.ndarray
+    active: np.ndarray
+    used: list
+    sess_used: list
+    ref: int
+
+
+@dataclass
+class _Graph:
+    """The priors of the mapping problem: ``graph`` (gtsam.NonlinearFactorGraph, priors only), ``init``
+    (gtsam.Values), ``guess`` (nb, 3) world m: initial beacon positions (anchors.csv's; x, y of the active ones
+    from their strongest readings unless ``use_map_prior``); which optional variables exist: ``gamma_fixed``
+    (None: G(0) estimated, else the fixed exponent), ``has_body`` (W(0)), ``has_walls`` (M(0)), ``multi`` (O(s)
+    per used session)."""
+
+    graph: object
+    init: object
+    guess: np.ndarray
+    gamma_fixed: float | None
+    has_body: bool
+    has_walls: bool
+    multi: bool
+
+
+@dataclass
+class _Fit:
+    """The shared values at the estimate: ``gamma`` (path-loss exponent; ``cfg.gamma`` when fixed or unsolved),
+    ``gamma_std`` (0 when fixed or without covariance), ``body`` W (dB), ``wall_db`` M (dB per wall; 0 when not
+    modelled), ``offsets`` {session id: receiver offset, dB} (empty with one session)."""
+
+    gamma: float
+    gamma_std: float
+    body: float
+    wall_db: float
+    offsets: dict
+
+
 def map_beacons(sessions, anchors: pd.DataFrame, cfg: MappingConfig) -> MappingResult:
     """Estimate the BLE anchors' positions and RSSI at 1 m from labelled ``sessions`` (all in one building whose
     anchors.csv rows are ``anchors``). Never invents a beacon: see the module docstring for the checks."""
-    import gtsam
-    from gtsam.symbol_shorthand import A, G, L, M, O, W
+    import gtsam  # noqa: F401  (without GTSAM this fails here, before any check)
 
     t0 = time.perf_counter()
     sessions = list(sessions)
@@ -326,7 +376,23 @@ def map_beacons(sessions, anchors: pd.DataFrame, cfg: MappingConfig) -> MappingR
     ble = anchors[anchors["kind"] == "ble"].reset_index(drop=True)
     ids = ble["anchor_id"].astype(str).to_numpy()
     pairs, notes = collect_readings(sessions, ids, cfg)
-    nb = len(ids)
+    sc = _screen(pairs, len(ids), cfg)
+    gp = _priors(ble, sc, cfg)
+    est, cov_of, walls_at_est = _solve(sessions, sc, gp, cfg, notes)
+    fit = _fit_values(est, cov_of, sessions, sc, gp, cfg)
+    resid, cells = _residuals(est, sessions, sc, gp, fit, walls_at_est, cfg)
+    rho = _intra_cell_correlation([resid[j] for j in resid], [cells[j] for j in resid])
+    if resid:
+        notes.append(f"shadowing: intra-cell ({cfg.shadow_corr_m:g} m) correlation of the residuals {rho:.2f}; "
+                     f"stds inflated by the design effect 1 + (m - 1) rho (m: readings per cell)")
+    table, res_std = _beacon_table(ble, ids, sessions, pairs, sc, est, cov_of, fit, resid, cells, rho, cfg)
+    ref_id = _fit_notes(notes, sessions, sc, gp, fit, est, cfg)
+    return MappingResult(table, fit.gamma, fit.gamma_std, fit.offsets, ref_id, res_std, notes, time.perf_counter() - t0)
+
+
+def _screen(pairs: list[_Pair], nb: int, cfg: MappingConfig) -> _Screening:
+    """Readings per beacon (of nb) and the checks before the solve: a beacon needs ``min_readings`` readings
+    heard from positions whose minor-axis spread is at least ``min_spread_m`` (m); the others get the reason."""
     n_read = np.zeros(nb, int)
     for p in pairs:
         n_read[p.j] += len(p.rssi)
@@ -342,7 +408,19 @@ def map_beacons(sessions, anchors: pd.DataFrame, cfg: MappingConfig) -> MappingR
     active = np.flatnonzero(status == "placed")
     sess_used = sorted({p.s for p in pairs if status[p.j] == "placed"})
     ref = sess_used[0] if sess_used else 0
+    used = [p for p in pairs if status[p.j] == "placed"]
+    return _Screening(n_read, P_all, y_all, spread, status, active, used, sess_used, ref)
 
+
+def _priors(ble: pd.DataFrame, sc: _Screening, cfg: MappingConfig) -> _Graph:
+    """The variables, their initial values and broad priors (see the module docstring): per active beacon L(j)
+    (Point3, world m) and A(j) (1-D, dBm; around the common level A(nb) when ``a_x_spread_db``), then G(0),
+    W(0), O(s) (one per used session when there are several) and M(0) (1-D each). ``ble``: the nb BLE rows of
+    anchors.csv (x, y, z in world m)."""
+    import gtsam
+    from gtsam.symbol_shorthand import A, G, L, M, O, W
+
+    nb, active = len(ble), sc.active
     graph = gtsam.NonlinearFactorGraph()
     init = gtsam.Values()
     nm = gtsam.noiseModel
@@ -358,7 +436,7 @@ def map_beacons(sessions, anchors: pd.DataFrame, cfg: MappingConfig) -> MappingR
         graph.add(gtsam.PriorFactorVector(A(nb), np.array([cfg.a_x_prior_dbm]), rssi_prior_noise))
     for j in active:
         if not cfg.use_map_prior:
-            guess[j, :2] = _initial_xy(P_all[j], y_all[j])
+            guess[j, :2] = _initial_xy(sc.P_all[j], sc.y_all[j])
         init.insertPoint3(L(j), guess[j])
         graph.add(gtsam.PriorFactorPoint3(L(j), guess[j], beacon_prior_noise))
         init.insert(A(j), np.array([cfg.a_x_prior_dbm]))
@@ -375,94 +453,157 @@ def map_beacons(sessions, anchors: pd.DataFrame, cfg: MappingConfig) -> MappingR
         body_prior_noise = nm.Isotropic.Sigma(1, cfg.body_db_sigma)  # dB
         init.insert(W(0), np.array([cfg.body_db_prior]))
         graph.add(gtsam.PriorFactorVector(W(0), np.array([cfg.body_db_prior]), body_prior_noise))
-    multi = len(sess_used) > 1
-    for s in sess_used if multi else []:
+    multi = len(sc.sess_used) > 1
+    for s in sc.sess_used if multi else []:
         init.insert(O(s), np.zeros(1))
-        graph.add(gtsam.PriorFactorVector(O(s), np.zeros(1), reference_noise if s == ref else offset_noise))
+        graph.add(gtsam.PriorFactorVector(O(s), np.zeros(1), reference_noise if s == sc.ref else offset_noise))
     has_walls = bool(cfg.walls) and len(active) > 0
     if has_walls:
         wall_prior_noise = nm.Isotropic.Sigma(1, cfg.wall_db_sigma)  # dB per wall
         init.insert(M(0), np.array([cfg.wall_db_prior]))
         graph.add(gtsam.PriorFactorVector(M(0), np.array([cfg.wall_db_prior]), wall_prior_noise))
-    used = [p for p in pairs if status[p.j] == "placed"]
+    return _Graph(graph, init, guess, gamma_fixed, has_body, has_walls, multi)
+
+
+def _measurement_factors(used: list[_Pair], walls: list | None, gp: _Graph, cfg: MappingConfig, unit: dict):
+    """The RSSI factors (a gtsam.NonlinearFactorGraph) of every used (beacon, session) pair: one
+    ``CustomFactor`` of the pair's n readings (n residuals, whitened and robustified inside :func:`rssi_error`,
+    hence unit noise; ``unit`` caches the n-D models), keys in the order it expects. ``walls``: per pair (n,)
+    wall counts, bound (held fixed in one solve), or None."""
+    import gtsam
+    from gtsam.symbol_shorthand import A, G, L, M, O, W
+
+    g = gtsam.NonlinearFactorGraph()
+    for q, p in enumerate(used):
+        keys = ([L(p.j), A(p.j)] + ([G(0)] if gp.gamma_fixed is None else []) + ([W(0)] if gp.has_body else [])
+                + ([M(0)] if gp.has_walls else []) + ([O(p.s)] if gp.multi else []))
+        n = len(p.rssi)
+        if n not in unit:
+            unit[n] = gtsam.noiseModel.Unit.Create(n)  # the residuals are whitened and robustified in rssi_error
+        err = partial(rssi_error, p.P, p.rssi, p.heading, None if walls is None else walls[q],
+                      float(cfg.sigma_db), cfg.robust, float(cfg.robust_k), gp.gamma_fixed, gp.has_body, gp.multi)
+        g.add(gtsam.CustomFactor(unit[n], keys, err))
+    return g
+
+
+def _wall_counts(sessions: list, used: list[_Pair], xyz: np.ndarray, cap: int | None) -> list:
+    """Per used pair, the (n,) walls crossed from its beacon at ``xyz`` (nb, 3) world m (x, y used) to its
+    readings' positions, on its session's floor plan, capped at ``cap``."""
+    return [_walls_on_cells(sessions[p.s].floor, xyz[p.j, :2], p.P[:, :2], cap) for p in used]
+
+
+def _solve(sessions: list, sc: _Screening, gp: _Graph, cfg: MappingConfig, notes: list[str]):
+    """Levenberg-Marquardt on the priors and the RSSI factors; with walls up to ``wall_passes`` solves, each with
+    the wall counts at the previous estimate (stops when fewer than 1 % of them change). Appends one note per
+    solve, or the failure (the active beacons are marked failed when there is no estimate at all). Returns
+    (estimate gtsam.Values or None, the marginal covariance of a key (a function) or None, the wall counts at the
+    estimate: per used pair (n,), or None)."""
+    import gtsam
+    from gtsam.symbol_shorthand import L
+
+    est, cov_of, walls_at_est = None, None, None
+    if not len(sc.active):
+        return est, cov_of, walls_at_est
     unit = {}
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(cfg.max_iterations))
+    params.setRelativeErrorTol(float(cfg.relative_tol))
+    walls = _wall_counts(sessions, sc.used, gp.guess, cfg.max_walls) if gp.has_walls else None
+    walls_at_est = walls
+    values = gp.init
+    try:
+        for it in range(max(int(cfg.wall_passes), 1) if gp.has_walls else 1):
+            full = gtsam.NonlinearFactorGraph()
+            full.push_back(gp.graph)
+            full.push_back(_measurement_factors(sc.used, walls, gp, cfg, unit))
+            opt = gtsam.LevenbergMarquardtOptimizer(full, values, params)
+            est = opt.optimize()
+            notes.append(f"LM{f' (wall pass {it + 1})' if gp.has_walls else ''}: {opt.iterations()} iterations, "
+                         f"error {full.error(values):.4g} -> {full.error(est):.4g}")
+            if not gp.has_walls:
+                break
+            xyz = gp.guess.copy()
+            for jj in sc.active:
+                xyz[jj] = est.atPoint3(L(jj))
+            again = walls_at_est = _wall_counts(sessions, sc.used, xyz, cfg.max_walls)
+            changed = sum(int(np.count_nonzero(a != b)) for a, b in zip(again, walls))
+            total = sum(len(a) for a in again)
+            if changed <= 0.01 * total:  # the counts this solve used still hold at its estimate
+                break
+            walls, values = again, est
+        marg = gtsam.Marginals(full, est)
+        cov_of = marg.marginalCovariance
+    except RuntimeError as exc:
+        msg = " ".join(str(exc).split())[:200]
+        notes.append(f"mapping solve failed: {msg}")
+        if est is None:
+            sc.status[sc.active] = f"solve failed: {msg}"
+    return est, cov_of, walls_at_est
 
-    def measurements(walls: list | None):
-        """The RSSI factors of every used (beacon, session) pair, wall counts bound (held fixed in one solve)."""
-        g = gtsam.NonlinearFactorGraph()
-        for q, p in enumerate(used):
-            keys = ([L(p.j), A(p.j)] + ([G(0)] if gamma_fixed is None else []) + ([W(0)] if has_body else [])
-                    + ([M(0)] if has_walls else []) + ([O(p.s)] if multi else []))
-            n = len(p.rssi)
-            if n not in unit:
-                unit[n] = nm.Unit.Create(n)  # the residuals are whitened and robustified inside the error function
-            err = partial(rssi_error, p.P, p.rssi, p.heading, None if walls is None else walls[q],
-                          float(cfg.sigma_db), cfg.robust, float(cfg.robust_k), gamma_fixed, has_body, multi)
-            g.add(gtsam.CustomFactor(unit[n], keys, err))
-        return g
 
-    def wall_counts(xyz: np.ndarray) -> list:
-        return [_walls_on_cells(sessions[p.s].floor, xyz[p.j, :2], p.P[:, :2], cfg.max_walls) for p in used]
+def _fit_values(est, cov_of, sessions: list, sc: _Screening, gp: _Graph, cfg: MappingConfig) -> _Fit:
+    """The shared values at the estimate ``est`` (gtsam.Values or None; ``cov_of``: marginal covariance or None)."""
+    from gtsam.symbol_shorthand import G, M, O, W
 
-    est, cov_of = None, None
-    if len(active):
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(int(cfg.max_iterations))
-        params.setRelativeErrorTol(float(cfg.relative_tol))
-        walls = wall_counts(guess) if has_walls else None
-        walls_at_est = walls
-        values = init
-        try:
-            for it in range(max(int(cfg.wall_passes), 1) if has_walls else 1):
-                full = gtsam.NonlinearFactorGraph()
-                full.push_back(graph)
-                full.push_back(measurements(walls))
-                opt = gtsam.LevenbergMarquardtOptimizer(full, values, params)
-                est = opt.optimize()
-                notes.append(f"LM{f' (wall pass {it + 1})' if has_walls else ''}: {opt.iterations()} iterations, "
-                             f"error {full.error(values):.4g} -> {full.error(est):.4g}")
-                if not has_walls:
-                    break
-                xyz = guess.copy()
-                for jj in active:
-                    xyz[jj] = est.atPoint3(L(jj))
-                again = walls_at_est = wall_counts(xyz)
-                changed = sum(int(np.count_nonzero(a != b)) for a, b in zip(again, walls))
-                total = sum(len(a) for a in again)
-                if changed <= 0.01 * total:  # the counts this solve used still hold at its estimate
-                    break
-                walls, values = again, est
-            marg = gtsam.Marginals(full, est)
-            cov_of = marg.marginalCovariance
-        except RuntimeError as exc:
-            msg = " ".join(str(exc).split())[:200]
-            notes.append(f"mapping solve failed: {msg}")
-            if est is None:
-                status[active] = f"solve failed: {msg}"
-
-    rows, all_u = [], []
     gamma = float(est.atVector(G(0))[0]) if est is not None and cfg.estimate_gamma else float(cfg.gamma)
     gamma_std = 0.0
     if est is not None and cfg.estimate_gamma and cov_of is not None:
         gamma_std = float(np.sqrt(cov_of(G(0))[0, 0]))
-    body = float(est.atVector(W(0))[0]) if est is not None and has_body else 0.0
-    wall_db = float(est.atVector(M(0))[0]) if est is not None and has_walls else 0.0
+    body = float(est.atVector(W(0))[0]) if est is not None and gp.has_body else 0.0
+    wall_db = float(est.atVector(M(0))[0]) if est is not None and gp.has_walls else 0.0
     offsets = {}
-    if est is not None and multi:
-        offsets = {sessions[s].id: float(est.atVector(O(s))[0]) for s in sess_used}
-    # residuals (dB) at the estimate, and the cells (shadow_corr_m) they were read in
+    if est is not None and gp.multi:
+        offsets = {sessions[s].id: float(est.atVector(O(s))[0]) for s in sc.sess_used}
+    return _Fit(gamma, gamma_std, body, wall_db, offsets)
+
+
+def _residuals(est, sessions: list, sc: _Screening, gp: _Graph, fit: _Fit, walls_at_est: list | None,
+               cfg: MappingConfig) -> tuple[dict, dict]:
+    """Residuals (prediction - reading, dB) at the estimate of each active beacon's readings {j: (n_j,)}, and the
+    ``shadow_corr_m`` cells they were read in {j: (n_j,) int}; both empty without an estimate."""
+    from gtsam.symbol_shorthand import A, L
+
     resid, cells = {}, {}
-    for j in active if est is not None else []:
+    for j in sc.active if est is not None else []:
         l, a_j = np.asarray(est.atPoint3(L(j)), float), float(est.atVector(A(j))[0])
-        resid[j] = np.concatenate([_residual_db(p, l, a_j, gamma, offsets.get(sessions[p.s].id, 0.0), body)
-                                   - (wall_db * walls_at_est[q] if has_walls else 0.0)
-                                   for q, p in enumerate(used) if p.j == j])
-        cells[j] = _cell_ids(P_all[j], cfg.shadow_corr_m)
-    rho = _intra_cell_correlation([resid[j] for j in resid], [cells[j] for j in resid])
-    if resid:
-        notes.append(f"shadowing: intra-cell ({cfg.shadow_corr_m:g} m) correlation of the residuals {rho:.2f}; "
-                     f"stds inflated by the design effect 1 + (m - 1) rho (m: readings per cell)")
-    for j in range(nb):
+        resid[j] = np.concatenate([_residual_db(p, l, a_j, fit.gamma, fit.offsets.get(sessions[p.s].id, 0.0), fit.body)
+                                   - (fit.wall_db * walls_at_est[q] if gp.has_walls else 0.0)
+                                   for q, p in enumerate(sc.used) if p.j == j])
+        cells[j] = _cell_ids(sc.P_all[j], cfg.shadow_corr_m)
+    return resid, cells
+
+
+def _stated_stds(j: int, u: np.ndarray, cells_j: np.ndarray, rho: float, cov_of, cfg: MappingConfig):
+    """(std_m, tx_power_std_db) stated for beacon j: its marginal covariance (horizontal std per axis, m; A(j),
+    dB) times the a-posteriori variance factor of its residuals ``u`` (n,) dB (robust scale against sigma_db,
+    never below 1) and the design effect 1 + (m - 1) rho (m: readings per cell, ``cells_j`` (n,)), then
+    ``std_scale``; NaN without a covariance (``cov_of`` None)."""
+    from gtsam.symbol_shorthand import A, L
+
+    std = a_std = np.nan
+    # a-posteriori variance factor (robust scale of the residuals against sigma_db, never below 1) times
+    # the design effect of cluster sampling: readings within one shadowing cell share their shadowing
+    scale2 = max(1.0, (1.4826 * float(np.median(np.abs(u - np.median(u)))) / cfg.sigma_db) ** 2)
+    m = len(u) / max(len(np.unique(cells_j)), 1)
+    deff = 1.0 + (m - 1.0) * rho
+    if cov_of is not None:
+        c = np.asarray(cov_of(L(j))) * scale2 * deff
+        std = float(np.sqrt(max(np.trace(c[:2, :2]), 0.0) / 2.0)) * cfg.std_scale
+        a_std = float(np.sqrt(cov_of(A(j))[0, 0] * scale2 * deff)) * cfg.std_scale
+    return std, a_std
+
+
+def _beacon_table(ble: pd.DataFrame, ids: np.ndarray, sessions: list, pairs: list[_Pair], sc: _Screening, est,
+                  cov_of, fit: _Fit, resid: dict, cells: dict, rho: float,
+                  cfg: MappingConfig) -> tuple[pd.DataFrame, float]:
+    """The beacons table of :class:`MappingResult` (one row per BLE anchor, see there) and the robust std (dB,
+    1.4826 MAD) of all placed beacons' residuals. A beacon whose stated std is not finite, or above
+    ``max_std_m`` (m), is not placed: its reason goes to ``sc.status``, its position stays the input's."""
+    from gtsam.symbol_shorthand import A, L
+
+    status = sc.status
+    rows, all_u = [], []
+    for j in range(len(ids)):
         xyz = ble.loc[j, ["x", "y", "z"]].to_numpy(float)
         std = a_db = a_std = np.nan
         if status[j] == "placed" and est is not None:
@@ -470,15 +611,7 @@ def map_beacons(sessions, anchors: pd.DataFrame, cfg: MappingConfig) -> MappingR
             a_db = float(est.atVector(A(j))[0])
             u = resid[j]
             all_u.append(u)
-            # a-posteriori variance factor (robust scale of the residuals against sigma_db, never below 1) times
-            # the design effect of cluster sampling: readings within one shadowing cell share their shadowing
-            scale2 = max(1.0, (1.4826 * float(np.median(np.abs(u - np.median(u)))) / cfg.sigma_db) ** 2)
-            m = len(u) / max(len(np.unique(cells[j])), 1)
-            deff = 1.0 + (m - 1.0) * rho
-            if cov_of is not None:
-                c = np.asarray(cov_of(L(j))) * scale2 * deff
-                std = float(np.sqrt(max(np.trace(c[:2, :2]), 0.0) / 2.0)) * cfg.std_scale
-                a_std = float(np.sqrt(cov_of(A(j))[0, 0] * scale2 * deff)) * cfg.std_scale
+            std, a_std = _stated_stds(j, u, cells[j], rho, cov_of, cfg)
             if not np.isfinite(std):
                 status[j] = "no covariance (solve failed)"
             elif std > cfg.max_std_m:
@@ -486,28 +619,36 @@ def map_beacons(sessions, anchors: pd.DataFrame, cfg: MappingConfig) -> MappingR
             if status[j] != "placed":
                 xyz = ble.loc[j, ["x", "y", "z"]].to_numpy(float)
         peak = np.nan
-        if j in y_all:  # the beacon's strong readings (95th percentile, receiver offsets removed)
-            y_corr = np.concatenate([p.rssi - offsets.get(sessions[p.s].id, 0.0) for p in pairs if p.j == j])
+        if j in sc.y_all:  # the beacon's strong readings (95th percentile, receiver offsets removed)
+            y_corr = np.concatenate([p.rssi - fit.offsets.get(sessions[p.s].id, 0.0) for p in pairs if p.j == j])
             peak = float(np.percentile(y_corr, 95))
         rows.append({"anchor_id": ids[j], "x": xyz[0], "y": xyz[1], "z": xyz[2], "std_m": std, "tx_power_dbm": a_db,
                      "peak_dbm": peak,
-                     "tx_power_std_db": a_std, "n_readings": int(n_read[j]), "spread_m": float(spread[j]),
+                     "tx_power_std_db": a_std, "n_readings": int(sc.n_read[j]), "spread_m": float(sc.spread[j]),
                      "placed": status[j] == "placed", "status": status[j]})
     table = pd.DataFrame(rows)
     for c in ("std_m", "tx_power_dbm", "tx_power_std_db"):
         table.loc[~table["placed"], c] = np.nan
     res_std = (1.4826 * float(np.median(np.abs(np.concatenate(all_u) - np.median(np.concatenate(all_u)))))
                if all_u else float("nan"))
-    ref_id = sessions[ref].id if sess_used else ""
-    if multi:
+    return table, res_std
+
+
+def _fit_notes(notes: list[str], sessions: list, sc: _Screening, gp: _Graph, fit: _Fit, est,
+               cfg: MappingConfig) -> str:
+    """Appends the notes on the shared values (receiver offsets, body shadow, wall loss) to ``notes``; returns
+    the reference session's id ('' when no session was used)."""
+    ref = sc.ref
+    ref_id = sessions[ref].id if sc.sess_used else ""
+    if gp.multi:
         notes.append(f"tx_power_dbm is the RSSI at 1 m as session {ref_id}'s receiver ({sessions[ref].device_model}) "
                      f"reads it; receiver offsets of the others: "
-                     + ", ".join(f"{k} {v:+.1f} dB" for k, v in offsets.items() if k != ref_id))
-    if has_body and est is not None:
-        notes.append(f"body shadow W = {body:.1f} dB")
-    if has_walls and est is not None:
-        notes.append(f"wall loss M = {wall_db:.1f} dB per wall (at most {cfg.max_walls} walls)")
-    return MappingResult(table, gamma, gamma_std, offsets, ref_id, res_std, notes, time.perf_counter() - t0)
+                     + ", ".join(f"{k} {v:+.1f} dB" for k, v in fit.offsets.items() if k != ref_id))
+    if gp.has_body and est is not None:
+        notes.append(f"body shadow W = {fit.body:.1f} dB")
+    if gp.has_walls and est is not None:
+        notes.append(f"wall loss M = {fit.wall_db:.1f} dB per wall (at most {cfg.max_walls} walls)")
+    return ref_id
 
 
 def _cell_ids(P: np.ndarray, size_m: float) -> np.ndarray:

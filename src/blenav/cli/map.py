@@ -40,7 +40,6 @@ def _parse(argv):
 
 def _main(argv) -> int:
     args = _parse(argv)
-    import numpy as np
     import yaml
 
     from blenav.backend.config import load_backend_config
@@ -82,44 +81,54 @@ def _main(argv) -> int:
     report = {"dataset": str(Path(args.dataset).resolve()), "sessions": used, "settings": _plain(cfg),
               "buildings": {}}
     for bid, (sess, res) in results.items():
-        src = ds.root / "buildings" / bid
-        shutil.copytree(src, out / "buildings" / bid)
-        anchors = ds.building(bid).anchors
-        table = _anchors_table(anchors, res.beacons, args.keep_unplaced)
-        from blenav.data.writer import write_csv
-
-        write_csv(out / "buildings" / bid / "anchors.csv", table)
-        for s in sess:
-            shutil.copytree(s.root, out / "sessions" / s.id)
-        rows = res.beacons.copy()
-        a = anchors.set_index("anchor_id")
-        truth = all(c in a.columns for c in ("x_true", "y_true"))
-        if truth:
-            tr = a.loc[rows["anchor_id"]]
-            rows["error_m"] = np.where(rows["placed"], np.hypot(rows["x"].to_numpy() - tr["x_true"].to_numpy(float),
-                                                                rows["y"].to_numpy() - tr["y_true"].to_numpy(float)),
-                                       np.nan)
-        report["buildings"][bid] = {
-            "gamma": res.gamma, "gamma_std": res.gamma_std, "reference_session": res.reference_session,
-            "receiver_offsets_db": res.offsets_db, "residual_std_db": res.residual_std_db, "notes": res.notes,
-            "wall_s": res.wall_s,
-            "beacons": json.loads(rows.to_json(orient="records")),
-        }
-        placed = rows[rows["placed"]]
-        print(f"{bid}: placed {len(placed)} of {len(rows)} beacons from {len(sess)} session(s) in {res.wall_s:.1f} s; "
-              f"gamma {res.gamma:.2f}, residual std {res.residual_std_db:.1f} dB")
-        if truth and len(placed):
-            e = placed["error_m"].to_numpy(float)
-            print(f"  error against the true positions: mean {e.mean():.2f} m, median {np.median(e):.2f} m, max "
-                  f"{e.max():.2f} m; median error / std_m {np.median(e / placed['std_m'].to_numpy(float)):.2f}")
-        for r in rows[~rows["placed"]].itertuples():
-            print(f"  not placed: {r.anchor_id}: {r.status}")
+        report["buildings"][bid] = _write_building(ds, out, bid, sess, res, args.keep_unplaced)
     (out / "mapping_report.json").write_text(json.dumps(report, indent=1, default=str) + "\n", encoding="utf-8")
     errors = [i for i in validate(out) if i.is_error]
     if errors:  # a bug of this command, never the user's: say so
         raise RuntimeError(f"{PROG} wrote an invalid dataset {out}: {errors[0]}")
     print(f"wrote {out} (blenav-validate: OK)")
     return 0
+
+
+def _write_building(ds, out: Path, bid: str, sess: list, res, keep_unplaced: bool) -> dict:
+    """Writes building ``bid`` of ``ds`` (its anchors.csv with the estimates ``res``, a MappingResult) and its
+    mapped sessions ``sess`` into the output dataset ``out``, prints the outcome (with the errors against
+    ``x_true, y_true``, m, when anchors.csv has them) and returns the building's entry of mapping_report.json."""
+    import numpy as np
+
+    from blenav.data.writer import write_csv
+
+    src = ds.root / "buildings" / bid
+    shutil.copytree(src, out / "buildings" / bid)
+    anchors = ds.building(bid).anchors
+    table = _anchors_table(anchors, res.beacons, keep_unplaced)
+    write_csv(out / "buildings" / bid / "anchors.csv", table)
+    for s in sess:
+        shutil.copytree(s.root, out / "sessions" / s.id)
+    rows = res.beacons.copy()
+    a = anchors.set_index("anchor_id")
+    truth = all(c in a.columns for c in ("x_true", "y_true"))
+    if truth:
+        tr = a.loc[rows["anchor_id"]]
+        rows["error_m"] = np.where(rows["placed"], np.hypot(rows["x"].to_numpy() - tr["x_true"].to_numpy(float),
+                                                            rows["y"].to_numpy() - tr["y_true"].to_numpy(float)),
+                                   np.nan)
+    entry = {
+        "gamma": res.gamma, "gamma_std": res.gamma_std, "reference_session": res.reference_session,
+        "receiver_offsets_db": res.offsets_db, "residual_std_db": res.residual_std_db, "notes": res.notes,
+        "wall_s": res.wall_s,
+        "beacons": json.loads(rows.to_json(orient="records")),
+    }
+    placed = rows[rows["placed"]]
+    print(f"{bid}: placed {len(placed)} of {len(rows)} beacons from {len(sess)} session(s) in {res.wall_s:.1f} s; "
+          f"gamma {res.gamma:.2f}, residual std {res.residual_std_db:.1f} dB")
+    if truth and len(placed):
+        e = placed["error_m"].to_numpy(float)
+        print(f"  error against the true positions: mean {e.mean():.2f} m, median {np.median(e):.2f} m, max "
+              f"{e.max():.2f} m; median error / std_m {np.median(e / placed['std_m'].to_numpy(float)):.2f}")
+    for r in rows[~rows["placed"]].itertuples():
+        print(f"  not placed: {r.anchor_id}: {r.status}")
+    return entry
 
 
 def _plain(cfg) -> dict:

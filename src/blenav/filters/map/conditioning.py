@@ -85,6 +85,28 @@ def condition(m: MapGeometry, x_xy: np.ndarray, rng: np.random.Generator, sigma:
     out = p.copy()
     c = np.zeros(len(p), dtype=np.int8)
     # 2. rooms
+    k = _condition_rooms(m, ix, p, out, c)
+    # 3. edges
+    rest = np.flatnonzero(k < 0)
+    if len(rest) and m.n_edges:
+        proj, _, e = ix.nearest_edge(p[rest])
+        hit = e >= 0
+        out[rest[hit]] = proj[hit]
+        c[rest[hit]] = CASE_TO_EDGE
+    # 5. obstacles
+    if obstacle == "project":
+        _snap_obstacles(m, out, c)
+    flat[sel] = out
+    case[sel] = c
+    x[..., :2] = flat.reshape(lead + (2,))
+    return (x, case.reshape(lead)) if return_case else x
+
+
+def _condition_rooms(m: MapGeometry, ix, p: np.ndarray, out: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Step 2 of :func:`condition` (eq. 5, rooms) on the jittered particles ``p`` (n, 2) world m: those inside
+    their room's shrunk version keep their place (case ``CASE_IN_SHRUNK``), those on its periphery are projected
+    onto the shrunk room's boundary (``CASE_TO_SHRUNK``); ``out`` (n, 2) m and ``c`` (n,) int8 are updated in
+    place. ``ix``: the spatial index. Returns the room of each particle (n,) int (-1: in no room)."""
     k = ix.room_of(p) if m.n_rooms else np.full(len(p), -1)
     in_room = np.flatnonzero(k >= 0)
     if len(in_room):
@@ -94,21 +116,16 @@ def condition(m: MapGeometry, x_xy: np.ndarray, rng: np.random.Generator, sigma:
         if len(band):
             out[band] = ix.project_shrunk(p[band], k[band])
             c[band] = CASE_TO_SHRUNK
-    # 3. edges
-    rest = np.flatnonzero(k < 0)
-    if len(rest) and m.n_edges:
-        proj, _, e = ix.nearest_edge(p[rest])
-        hit = e >= 0
-        out[rest[hit]] = proj[hit]
-        c[rest[hit]] = CASE_TO_EDGE
-    # 5. obstacles
-    if obstacle == "project":  # compiled: the points and numbers of m.snap_free(out, only=(c > CASE_FAR) | occupied)
-        fl = m.floor
-        ox, oy, res = float(fl.origin[0]), float(fl.origin[1]), float(fl.resolution)
-        bad = K.obstacle_candidates(out, c, fl.occupancy, ox, oy, res, FREE, OCCUPIED)
-        if bad.any():
-            K.snap_to_free(out, bad, ox, oy, res, fl.shape[0], fl.shape[1], m.nearest_free_pixels())
-    flat[sel] = out
-    case[sel] = c
-    x[..., :2] = flat.reshape(lead + (2,))
-    return (x, case.reshape(lead)) if return_case else x
+    return k
+
+
+def _snap_obstacles(m: MapGeometry, out: np.ndarray, c: np.ndarray) -> None:
+    """Step 5 of :func:`condition` (obstacle='project'), in place on the particles ``out`` (n, 2) world m with
+    cases ``c`` (n,) int8: every conditioned one (``c > CASE_FAR``) not in a FREE pixel, and every one in an
+    OCCUPIED pixel, moves to the nearest point of the nearest free pixel. Compiled: the points and numbers of
+    ``m.snap_free(out, only=(c > CASE_FAR) | occupied)``."""
+    fl = m.floor
+    ox, oy, res = float(fl.origin[0]), float(fl.origin[1]), float(fl.resolution)
+    bad = K.obstacle_candidates(out, c, fl.occupancy, ox, oy, res, FREE, OCCUPIED)
+    if bad.any():
+        K.snap_to_free(out, bad, ox, oy, res, fl.shape[0], fl.shape[1], m.nearest_free_pixels())
