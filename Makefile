@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables crf-tables clean-demo
+.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -262,6 +262,20 @@ selfcal-tables: $(STAMP)
 	$(BIN)/python -m blenav.eval.merge docs/results/office_mixed_selfcal.md \
 	    "Self-calibrating receivers on the mixed-phone office (calibrated on the iPhone 7 walk)" \
 	    data/results/office_mixed_selfcal $$(ls -d data/results/office_mixed_owncal/*/ | sed 's|/$$|:own-calibration/|')
+
+# The back-end of Ghaffari Jadidi et al. (issue 14): Fig. 3 (accurate map) and Figs. 4-5 (map perturbed by 3 m per
+# axis) on one simulated 384 s office walk, BACKEND_RUNS runs (every perturbed run loops the back-end: ~1 min each)
+BACKEND_RUNS ?= 5
+BACKEND_DATA ?= data/sim/office_backend
+backend-tables: $(STAMP)
+	test -e $(BACKEND_DATA)/dataset.yaml || $(BIN)/blenav-sim sim=office_45x55 seed=0 out=$(BACKEND_DATA) \
+	    duration_s=384 sessions=1 progress=false
+	$(BIN)/blenav-eval experiment=backend_000 data=$(BACKEND_DATA) runs=$(BACKEND_RUNS) out=data/results/backend_000 \
+	    progress=false
+	$(BIN)/blenav-eval experiment=mapnoise_000 data=$(BACKEND_DATA) runs=$(BACKEND_RUNS) out=data/results/mapnoise_000 \
+	    progress=false
+	cp data/results/backend_000/results.md docs/results/office_backend_000.md
+	cp data/results/mapnoise_000/results.md docs/results/office_mapnoise_000.md
 
 # The CRF of Duembgen et al. (issue 15): Table I and Fig. 11-12 on simulated crf_004 walks (6 walks of 300 s
 # and 2 static surveys for offline calibration; tuning was done on seed 0, these are seed 1)

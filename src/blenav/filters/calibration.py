@@ -38,6 +38,10 @@ def fit_sessions(sessions) -> PathLossFit:
     if not used:
         raise ValueError("no labelled session with RSSI readings to fit the path-loss model on")
     p = pd.concat([q for q in pairs if len(q)], ignore_index=True)
+    p = p[np.isfinite(p["distance_m"].to_numpy(float))]  # beacons without a position (not yet mapped) say nothing
+    if not len(p):
+        raise ValueError(f"no RSSI reading of a beacon with a known position in sessions {used} to fit the "
+                         f"path-loss model on (estimate the beacons first: blenav-map)")
     a, n, std = fit_path_loss(p["distance_m"].to_numpy(), p["rssi"].to_numpy())
     if not (np.isfinite(a) and np.isfinite(n)) or n <= 0:
         raise ValueError(f"path-loss fit failed (a_X={a}, gamma={n}) on sessions {used}")

@@ -207,6 +207,8 @@ def method_anchors(method: Method, session: Session) -> AnchorTable:
             raise MissingStream(f"building {session.building.id} has no BLE anchor(s) {unknown}, which {method.name} "
                                 f"is restricted to")
         frame = frame[frame["anchor_id"].astype(str).isin(want)]
+    if len(frame):  # beacons whose position is unknown (an imported survey; blenav-map estimates them) are unusable
+        frame = frame[np.isfinite(frame[["x", "y", "z"]].to_numpy(float)).all(axis=1) | (frame["kind"] != "ble")]
     return AnchorTable.from_frame(frame, "ble")
 
 
@@ -342,9 +344,15 @@ class BatchRun:
             geom = cache[gkey]
         self.pf, self.anchors, self.geom = pf, anchors, geom = build_filter(method, session, n_runs, rng, geom)
         radio = method.measurements_needing("rssi")
-        if radio and not len(anchors.ids):
-            raise MissingStream(f"building {session.building.id} has no BLE anchors for the measurement models of "
-                                f"{method.name}")
+        self.notes = list(geom.notes)
+        if radio:
+            known, total = len(anchors.ids), int((session.building.anchors_of("ble")["anchor_id"]).nunique())
+            if not known:
+                raise MissingStream(f"building {session.building.id} has no BLE anchors with a position for the "
+                                    f"measurement models of {method.name}"
+                                    + ("; estimate them first (blenav-map)" if total else ""))
+            if known < total and method.beacons is None:
+                self.notes.append(f"{total - known} of {total} BLE anchors have no position and are not used")
         self.arrays = arrays = SessionArrays.from_session(session, anchors, extra_fixes=fixes)
         if radio and len(arrays.rssi_t) == 0:
             raise MissingStream("no usable BLE readings (rssi.csv absent or empty, or every row names an anchor "
@@ -424,7 +432,7 @@ class BatchRun:
         k, m, a = self.k, self.method, self.arrays
         return RunResult(m.name, self.session.id, self.ts[:k], self.pos[:, :k], self.cov[:, :k], self.neff[:, :k],
                          self.pf.events, self.q, a.imu_t if self.q is not None else None,
-                         time.perf_counter() - self.t0, list(self.geom.notes))
+                         time.perf_counter() - self.t0, list(self.notes))
 
 
 def check_fixes(model, sources: np.ndarray, session_id: str, method_name: str) -> None:
