@@ -269,3 +269,22 @@ def test_online_calibration_uses_the_second_after_each_fix_and_applies_from_its_
     np.testing.assert_array_equal(tr.rows(np.array([10.9, 11.0, 40.0])), [0, 1, 2])
     pooled = online_track(base, fixes, wifi, ble, 2.0, rtt, rssi, yaw, 1.0, pool=True)
     np.testing.assert_allclose(pooled.rtt_offset[:, 0], [0.0, 1.5, np.median([1.4, 1.5, 1.6, 1.0])])
+
+
+def test_the_wifi_rssi_rule_applies_when_rtt_csv_has_the_column_and_is_skipped_with_a_note_when_not(renamed, tmp_path):
+    import pandas as pd
+
+    from blenav.crf.preprocess import preprocess
+    from blenav.data import Dataset
+
+    data = Path(shutil.copytree(renamed, tmp_path / "d"))
+    s = next(s for s in Dataset.open(data).sessions() if s.carrier != "static")
+    with_col = preprocess(s)
+    assert with_col.dropped.get("rtt_weak_wifi_rssi", 0) > 0 and not with_col.notes
+    kept = len(with_col.rtt_raw[0])
+    f = s.root / "rtt.csv"
+    pd.read_csv(f).drop(columns=["rssi"]).to_csv(f, index=False)
+    s2 = Dataset.open(data).session(s.id)
+    without = preprocess(s2)
+    assert "no rssi column" in without.notes[0] and len(without.rtt_raw[0]) > kept
+    assert np.isfinite(without.rtt).sum() >= np.isfinite(with_col.rtt).sum()
