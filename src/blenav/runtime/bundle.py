@@ -199,27 +199,25 @@ class WindowFixer:
     nothing heard give none); :meth:`add` a packet; :meth:`flush` closes the open step at the end of the data."""
 
     def __init__(self, graph: LocalizerGraph):
-        from blenav.features.windows import rssi_to_u
-
         w = graph.meta["window"]
         if str(w.get("steps", "time")) != "time":
             raise ValueError("the bundle's localizer was trained on scan windows (a fingerprint survey): it cannot "
                              "localize a stream")
         self.graph, self.hz, self.H = graph, float(w["step_hz"]), int(w["history"])
         self.offset, self.floor_u = float(w["offset_db"]), float(w["floor_u"])
-        self._to_u = rssi_to_u
         self.col = {b: i for i, b in enumerate(graph.beacons)}
         B = len(self.col)
         self.t0: float | None = None
         self.k = 0
-        self.sums, self.counts = np.zeros(B), np.zeros(B)
+        self.sums, self.counts = [0.0] * B, [0.0] * B  # the open step, per beacon (Python floats: cheap per packet)
         self.steps: list[np.ndarray] = []
         self.unknown: dict[str, int] = {}
         self.windows = 0
 
     def _close(self) -> tuple | None:
-        self.steps.append(np.divide(self.sums, self.counts, out=np.zeros_like(self.sums), where=self.counts > 0))
-        self.sums, self.counts = np.zeros_like(self.sums), np.zeros_like(self.counts)
+        sums, counts = np.array(self.sums), np.array(self.counts)
+        self.steps.append(np.divide(sums, counts, out=np.zeros_like(sums), where=counts > 0))
+        self.sums, self.counts = [0.0] * len(self.col), [0.0] * len(self.col)
         k, self.k = self.k, self.k + 1
         if len(self.steps) > self.H:
             self.steps.pop(0)
@@ -250,7 +248,8 @@ class WindowFixer:
         if j is None:
             self.unknown[str(anchor_id)] = self.unknown.get(str(anchor_id), 0) + 1
             return
-        self.sums[j] += float(self._to_u(np.array([float(rssi)]), self.offset, self.floor_u)[0])
+        u = float(rssi) + self.offset  # rssi_to_u, in Python floats (the same IEEE result, NaN stays NaN)
+        self.sums[j] += self.floor_u if u < self.floor_u else u
         self.counts[j] += 1.0
 
     def flush(self) -> list[tuple]:
