@@ -177,6 +177,7 @@ class MappingConfig:
     prior_sigma_m: float = 30.0  # m per axis: broad horizontal prior around the initial guess
     use_map_prior: bool = False  # centre the broad prior on anchors.csv's x, y (else on the initial guess)
     height_sigma_m: float = 0.3  # m: vertical prior around anchors.csv's z (walks on one floor hardly see the height)
+    default_z_m: float = 2.5  # m: the height prior of a beacon whose anchors.csv z is empty (ceiling mount)
     min_readings: int = 30  # readings below which a beacon is not placed (heard too little)
     min_spread_m: float = 1.0  # m: minor-axis std of the hearing positions below which it is not placed
     max_std_m: float = 2.5  # m: placed only when the estimate's (stated) horizontal std is below this

@@ -430,12 +430,13 @@ def _priors(ble: pd.DataFrame, sc: _Screening, cfg: MappingConfig) -> _Graph:
     reference_noise = nm.Isotropic.Sigma(1, 1e-3)  # dB, the reference session's offset held at 0
     beacon_prior_noise = nm.Diagonal.Sigmas(np.array([cfg.prior_sigma_m, cfg.prior_sigma_m, cfg.height_sigma_m]))  # m
     guess = ble[["x", "y", "z"]].to_numpy(float).copy()
+    guess[~np.isfinite(guess[:, 2]), 2] = cfg.default_z_m  # a beacon of unknown height (an imported survey)
     level_spread_noise = None if cfg.a_x_spread_db is None else nm.Isotropic.Sigma(1, cfg.a_x_spread_db)  # dB
     if len(active) and level_spread_noise is not None:  # the deployment's common 1 m level, A(nb)
         init.insert(A(nb), np.array([cfg.a_x_prior_dbm]))
         graph.add(gtsam.PriorFactorVector(A(nb), np.array([cfg.a_x_prior_dbm]), rssi_prior_noise))
     for j in active:
-        if not cfg.use_map_prior:
+        if not cfg.use_map_prior or not np.isfinite(guess[j, :2]).all():  # no map prior, or no position to centre on
             guess[j, :2] = _initial_xy(sc.P_all[j], sc.y_all[j])
         init.insertPoint3(L(j), guess[j])
         graph.add(gtsam.PriorFactorPoint3(L(j), guess[j], beacon_prior_noise))

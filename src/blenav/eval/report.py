@@ -16,7 +16,7 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
              f"{results['runs']} run(s) per session and method, seed {results.get('seed', 0)}. "
              f"Errors are planar, against ground truth interpolated at the estimate times; the first "
              f"{results['init_s']:g} s of each session (global localization) are reported separately.", "",
-             _calibration_line(results), "", *_plan_error_lines(results),
+             _calibration_line(results), "", *_plan_error_lines(results), *_beacon_map_lines(results),
              "| method | RMSE [m] mean +- stderr | RMSE 99% CI | error median | CDF p75 | p90 | max | ATE | EE | "
              "init error mean | orientation RMSE [deg] | recoveries | wall [s] | x real time |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -75,6 +75,23 @@ def _dropped_lines(results: dict) -> list[str]:
         for stream, reasons in streams.items():
             out.append(f"- {sid}, {stream}.csv: " + ", ".join(f"{n} rows ({why})" for why, n in reasons.items()))
     return out
+
+
+def _beacon_map_lines(results: dict) -> list[str]:
+    """The map the methods were given (when not anchors.csv as is) and the beacon errors of the methods that
+    return a map (prior -> optimized, mean horizontal distance to the true positions)."""
+    bm = results.get("beacon_map")
+    lines = []
+    if bm:
+        noise = f", every BLE beacon moved by N(0, {bm['noise_m']:g}^2) m per {'axis' if bm['vertical'] else 'horizontal axis'} " \
+                f"anew in each run (the same draw for every method)" if bm["noise_m"] else ""
+        where = "; ".join(f"{b}: {i}" for b, i in bm.get("buildings", {}).items())
+        lines.append(f"Beacon map (beacon_map): source {bm['source']}{noise}{f' ({where})' if where else ''}.")
+    errs = {n: m["beacon_error_m"] for n, m in results["methods"].items() if m.get("beacon_error_m")}
+    for n, e in errs.items():
+        lines.append(f"Beacon error of {n} (mean horizontal distance to the true positions, over beacons and runs): "
+                     f"given map {_f(e.get('prior'))} m, optimized {_f(e.get('optimized'))} m.")
+    return lines + [""] if lines else []
 
 
 def _plan_error_lines(results: dict) -> list[str]:
