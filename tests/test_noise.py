@@ -38,9 +38,13 @@ def _requests(g):
     return out
 
 
+class _Always(PrefetchedNormals):
+    MIN_PREFETCH = 0  # threaded whatever the block size
+
+
 def test_stream_does_not_depend_on_thread_timing():
-    fast = _requests(PrefetchedNormals(_SlowRng(3, 0.0)))
-    slow = _requests(PrefetchedNormals(_SlowRng(3, 0.02)))
+    fast = _requests(_Always(_SlowRng(3, 0.0)))
+    slow = _requests(_Always(_SlowRng(3, 0.02)))
     assert len(fast) == len(slow)
     for a, b in zip(fast, slow):
         np.testing.assert_array_equal(a, b)
@@ -48,13 +52,26 @@ def test_stream_does_not_depend_on_thread_timing():
 
 def test_one_shape_gives_the_generator_own_sequence():
     """RandomWalk requests one shape per step: the blocks are the generator's plain sequence."""
-    g = PrefetchedNormals(np.random.default_rng(5))
+    g = _Always(np.random.default_rng(5))
     got = np.stack([g.standard_normal((10, 4)) for _ in range(4)])
     ref = np.random.default_rng(5)
     want = np.stack([ref.standard_normal((10, 4)) for _ in range(4)])
     np.testing.assert_array_equal(got, want)
     off = PrefetchedNormals(np.random.default_rng(5), prefetch=False)
     np.testing.assert_array_equal(np.stack([off.standard_normal((10, 4)) for _ in range(4)]), want)
+
+
+def test_small_blocks_stay_in_the_callers_thread(monkeypatch):
+    """A streaming step's few thousand numbers are drawn directly: no worker, the plain Generator's numbers."""
+    import blenav.filters.noise as N
+
+    monkeypatch.setattr(N, "_executor", lambda: (_ for _ in ()).throw(AssertionError("worker used")))
+    g = PrefetchedNormals(np.random.default_rng(8))
+    got = [g.standard_normal((1000, 4)), g.uniform(0, 1, 3), g.standard_normal(5)]
+    ref = np.random.default_rng(8)
+    want = [ref.standard_normal((1000, 4)), ref.uniform(0, 1, 3), ref.standard_normal(5)]
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_motion_stream_is_a_child_and_leaves_the_parent_alone():
