@@ -84,3 +84,64 @@ def test_write_tum_reads_back(tmp_path):
     rows = np.loadtxt(p)
     assert rows.shape == (2, 8)  # the non-finite row is left out
     np.testing.assert_allclose(rows[1], [1.0, 3.0, 4.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+
+
+def _mapper_class():
+    from blenav.localizers import Localizer
+
+    class _Mapper(Localizer):
+        """The ground truth as estimate, and a 'corrected' beacon map that puts every beacon 1 m east of its
+        true position, whatever map it was given."""
+
+        def run(self, session, n_runs, seed, ctx=None):
+            gt = session.groundtruth
+            t = gt["t"].to_numpy(float)
+            xy = gt[["x", "y"]].to_numpy(float)
+            a = session.building.anchors_of("ble")
+            tx = a["x_true"] if "x_true" in a else a["x"]
+            ty = a["y_true"] if "y_true" in a else a["y"]
+            bmap = pd.DataFrame({"anchor_id": a["anchor_id"], "x": tx.to_numpy(float) + 1.0, "y": ty.to_numpy(float),
+                                 "z": a["z"].to_numpy(float), "std_m": 0.5, "status": "optimized"})
+            given = a[["x", "y"]].to_numpy(float)
+            return Estimate(self.name, session.id, t, np.broadcast_to(xy, (n_runs,) + xy.shape).copy(), None,
+                            outputs={"beacon_map": bmap, "given": np.broadcast_to(given, (n_runs,) + given.shape).copy()})
+
+    return _Mapper
+
+
+MapperAtOffset = _mapper_class()
+
+
+def test_harness_perturbs_per_run_scores_beacons_and_writes_the_files(tmp_path):
+    import json
+
+    from helpers import make_tiny_dataset
+
+    from blenav.configs import compose
+    from blenav.eval.harness import evaluate
+
+    data = make_tiny_dataset(tmp_path / "tiny")
+    path = next((data / "buildings").glob("*/anchors.csv"))
+    a = pd.read_csv(path)
+    a["x_true"], a["y_true"], a["z_true"] = a["x"], a["y"], a["z"]  # a simulation's true positions
+    a.to_csv(path, index=False)
+    out = tmp_path / "out"
+    cfg = compose("eval", "experiment=mapfusion_002", f"data={data}", "runs=3", f"out={out}", "plots=false",
+                  "progress=false", "calibration=none", "methods.pf_pl_map=null", "methods.pf_ps=null",
+                  "methods.pf_ps_map=null", "methods.pf_pl_offset=null", "methods.pf_ps_map_offset=null",
+                  "+methods.mapper={_target_: test_beacon_map.MapperAtOffset}", "beacon_map.noise_m=2.0",
+                  "beacon_map.vertical=false")
+    res = evaluate(cfg)
+    m = res["methods"]["mapper"]
+    assert m["beacon_error_m"]["optimized"] == pytest.approx(1.0)
+    assert 1.0 < m["beacon_error_m"]["prior"] < 4.5  # E|N(0, 2^2 I)| = 2.5 m, 3 runs x 4 beacons
+    assert res["beacon_map"]["noise_m"] == 2.0
+    assert "beacon_error_m" not in res["methods"]["PF-PL"]
+    # each run got its own map (the maps a method was given differ between runs)
+    assert res["methods"]["PF-PL"]["rmse_m"]["mean"] > 0
+    d = out / "walk0"
+    anchors = pd.read_csv(d / "anchors_optimized.csv")
+    assert {"std_m", "status"} <= set(anchors.columns) and (anchors["status"] == "optimized").all()
+    assert (d / "trajectories" / "mapper.tum").exists() and (d / "trajectories" / "PF-PL.tum").exists()
+    assert np.loadtxt(d / "trajectories" / "groundtruth.tum").shape[1] == 8
+    assert json.loads((out / "results.json").read_text())["methods"]["mapper"]["beacon_error_m"]
