@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables clean-demo
+.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables mapping-curve clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -283,6 +283,14 @@ backend-tables: $(STAMP)
 CRF_DATA ?= data/sim/crf_004
 crf-tables: $(STAMP)
 	test -e $(CRF_DATA)/dataset.yaml || $(BIN)/blenav-sim sim=crf_004 seed=1 out=$(CRF_DATA) duration_s=300 \
+# Beacon maps from walks (issue 14, sec. 3): blenav-map's error against walking time on 4 simulated 480 s walks
+# (four phones) in the office, cut to their first T minutes in total (~2 min of compute)
+MAPPING_DATA ?= data/sim/office_mapping
+mapping-curve: $(STAMP)
+	test -e $(MAPPING_DATA)/dataset.yaml || $(BIN)/blenav-sim sim=office_45x55 seed=2 out=$(MAPPING_DATA) duration_s=480 \
+	    sessions=4 progress=false 'sim.carriers=[pedestrian]'
+	$(BIN)/python benchmarks/mapping_curve.py $(MAPPING_DATA) --minutes 1,2,4,8,16,32 --out docs/results/mapping_vs_time.md
+
 	    sessions=8 progress=false
 	$(BIN)/blenav-eval experiment=crf_004_table1 data=$(CRF_DATA) out=data/results/crf_004_table1 progress=false
 	$(BIN)/blenav-eval experiment=crf_004_fig12 data=$(CRF_DATA) out=data/results/crf_004_fig12 progress=false
