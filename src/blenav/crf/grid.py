@@ -103,29 +103,11 @@ def grid_from_occupancy(occ: np.ndarray, resolution: float, origin: tuple[float,
     x0, y0 = float(origin[0]), float(origin[1])
     nx = max(1, int(np.ceil(W * resolution / cell_m - 1e-9)))
     ny = max(1, int(np.ceil(H * resolution / cell_m - 1e-9)))
-    # pixels -> cells: free fraction per cell
-    rows, cols = np.mgrid[0:H, 0:W]
-    px = (cols + 0.5) * resolution
-    py = (H - 1 - rows + 0.5) * resolution
-    pcx = np.minimum((px / cell_m).astype(np.int64), nx - 1)
-    pcy = np.minimum((py / cell_m).astype(np.int64), ny - 1)
-    flat = (pcy * nx + pcx).ravel()
-    total = np.bincount(flat, minlength=nx * ny)
-    nfree = np.bincount(flat, weights=free.ravel().astype(float), minlength=nx * ny)
-    frac = np.where(total > 0, nfree / np.maximum(total, 1), 0.0).reshape(ny, nx)
+    frac = _free_fraction(free, resolution, cell_m, nx, ny)
     gcy, gcx = np.mgrid[0:ny, 0:nx]
     cxw = x0 + (gcx + 0.5) * cell_m
     cyw = y0 + (gcy + 0.5) * cell_m
-
-    def is_free(xw, yw):
-        c = np.floor((xw - x0) / resolution).astype(np.int64)
-        r = (H - 1) - np.floor((yw - y0) / resolution).astype(np.int64)
-        ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
-        out = np.zeros(np.shape(xw), bool)
-        out[ok] = free[r[ok], c[ok]]
-        return out
-
-    state = is_free(cxw, cyw) & (frac >= min_free_fraction)
+    state = _is_free(free, resolution, x0, y0, cxw, cyw) & (frac >= min_free_fraction)
     index = np.full((ny, nx), -1, np.int32)
     cy, cx = np.nonzero(state)
     N = len(cy)
@@ -134,11 +116,66 @@ def grid_from_occupancy(occ: np.ndarray, resolution: float, origin: tuple[float,
                          f"{cell_m} m (min_free_fraction {min_free_fraction})")
     index[cy, cx] = np.arange(N, dtype=np.int32)
     xy = np.column_stack([x0 + (cx + 0.5) * cell_m, y0 + (cy + 0.5) * cell_m])
-    # offsets within max_step_m
+    odx, ody = _offsets(cell_m, max_step_m)
+    src, dst, dist, ang = _edges(free, resolution, (x0, y0), cell_m, index, cy, cx, xy, odx, ody)
+    order = np.lexsort((dst, src))
+    src, dst, dist, ang = src[order], dst[order], dist[order], ang[order]
+    src_ptr = np.concatenate([[0], np.cumsum(np.bincount(src, minlength=N))]).astype(np.int64)
+    torder = np.lexsort((src, dst))
+    tgt_ptr = np.concatenate([[0], np.cumsum(np.bincount(dst, minlength=N))]).astype(np.int64)
+    return CrfGrid(float(cell_m), (x0, y0), (ny, nx), index, cy.astype(np.int32), cx.astype(np.int32), xy,
+                   float(max_step_m), src_ptr, dst.astype(np.int32), dist, ang, tgt_ptr,
+                   src[torder].astype(np.int32), torder.astype(np.int64), np.hypot(odx, ody) * cell_m,
+                   np.where((odx != 0) | (ody != 0), np.arctan2(ody, odx), 0.0).astype(float))
+
+
+def _free_fraction(free: np.ndarray, resolution: float, cell_m: float, nx: int, ny: int) -> np.ndarray:
+    """Share of FREE pixels per cell, (ny, nx) in [0, 1] (0 for a cell without pixels).
+
+    ``free`` (H, W) bool, row 0 at the top, ``resolution`` m/pixel; cell (cy, cx) of ``cell_m`` m counts the
+    pixels whose centre falls in it (pixels past the last cell go to the last row/column)."""
+    H, W = free.shape
+    rows, cols = np.mgrid[0:H, 0:W]
+    px = (cols + 0.5) * resolution
+    py = (H - 1 - rows + 0.5) * resolution
+    pcx = np.minimum((px / cell_m).astype(np.int64), nx - 1)
+    pcy = np.minimum((py / cell_m).astype(np.int64), ny - 1)
+    flat = (pcy * nx + pcx).ravel()
+    total = np.bincount(flat, minlength=nx * ny)
+    nfree = np.bincount(flat, weights=free.ravel().astype(float), minlength=nx * ny)
+    return np.where(total > 0, nfree / np.maximum(total, 1), 0.0).reshape(ny, nx)
+
+
+def _is_free(free: np.ndarray, resolution: float, x0: float, y0: float, xw: np.ndarray,
+             yw: np.ndarray) -> np.ndarray:
+    """Whether world points (xw, yw) (any equal shapes, m) lie on a FREE pixel of ``free`` (H, W) bool
+    (``resolution`` m/pixel, lower-left corner at (x0, y0)); False off the image. Same shape as ``xw``."""
+    H, W = free.shape
+    c = np.floor((xw - x0) / resolution).astype(np.int64)
+    r = (H - 1) - np.floor((yw - y0) / resolution).astype(np.int64)
+    ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+    out = np.zeros(np.shape(xw), bool)
+    out[ok] = free[r[ok], c[ok]]
+    return out
+
+
+def _offsets(cell_m: float, max_step_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The D cell offsets (odx, ody), each (D,) int, whose length (cells x ``cell_m``) is within ``max_step_m``
+    m, the zero offset included, in row-major order of (dy, dx)."""
     k = int(np.floor(max_step_m / cell_m + 1e-9))
     ody, odx = np.mgrid[-k:k + 1, -k:k + 1]
     keep = np.hypot(ody, odx) * cell_m <= max_step_m + 1e-9
-    ody, odx = ody[keep], odx[keep]
+    return odx[keep], ody[keep]
+
+
+def _edges(free: np.ndarray, resolution: float, origin: tuple[float, float], cell_m: float, index: np.ndarray,
+           cy: np.ndarray, cx: np.ndarray, xy: np.ndarray, odx: np.ndarray, ody: np.ndarray):
+    """Unsorted transitions (src (E,) int64, dst (E,) int64, dist (E,) m, angle (E,) rad) between the N states
+    (cell rows ``cy``, columns ``cx``, centres ``xy`` (N, 2) m, ids in ``index`` (ny, nx)), one per offset in
+    (``odx``, ``ody``) whose target is a state and whose straight segment stays on FREE pixels (sampled every
+    half pixel or half cell, whichever is smaller)."""
+    ny, nx = index.shape
+    x0, y0 = origin
     step = 0.5 * min(resolution, cell_m)
     srcs, dsts, dists, angs = [], [], [], []
     for dy, dx in zip(ody.tolist(), odx.tolist()):  # one vectorised pass per offset (<= ~50), not per cell
@@ -154,22 +191,10 @@ def grid_from_occupancy(occ: np.ndarray, resolution: float, origin: tuple[float,
             f = np.linspace(0.0, 1.0, n_samp)
             sx = xy[s, 0][:, None] + f[None, :] * dx * cell_m
             sy = xy[s, 1][:, None] + f[None, :] * dy * cell_m
-            clear = is_free(sx, sy).all(axis=1)
+            clear = _is_free(free, resolution, x0, y0, sx, sy).all(axis=1)
             s, t = s[clear], t[clear]
         srcs.append(s)
         dsts.append(t)
         dists.append(np.full(len(s), L))
         angs.append(np.full(len(s), float(np.arctan2(dy, dx)) if L > 0 else 0.0))
-    src = np.concatenate(srcs)
-    dst = np.concatenate(dsts)
-    dist = np.concatenate(dists)
-    ang = np.concatenate(angs)
-    order = np.lexsort((dst, src))
-    src, dst, dist, ang = src[order], dst[order], dist[order], ang[order]
-    src_ptr = np.concatenate([[0], np.cumsum(np.bincount(src, minlength=N))]).astype(np.int64)
-    torder = np.lexsort((src, dst))
-    tgt_ptr = np.concatenate([[0], np.cumsum(np.bincount(dst, minlength=N))]).astype(np.int64)
-    return CrfGrid(float(cell_m), (x0, y0), (ny, nx), index, cy.astype(np.int32), cx.astype(np.int32), xy,
-                   float(max_step_m), src_ptr, dst.astype(np.int32), dist, ang, tgt_ptr,
-                   src[torder].astype(np.int32), torder.astype(np.int64), np.hypot(odx, ody) * cell_m,
-                   np.where((odx != 0) | (ody != 0), np.arctan2(ody, odx), 0.0).astype(float))
+    return np.concatenate(srcs), np.concatenate(dsts), np.concatenate(dists), np.concatenate(angs)

@@ -422,10 +422,52 @@ def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, f
     _, wf_t, wf, wf_c = _table(display, w, "TYPE_WIFI", (2, 3))
     _, bc_t, bc, bc_c = _table(display, w, "TYPE_BEACON", (1, 2, 3, 4))
 
-    sys_times = [a for a in (wf_t, bc_t, wp_t) if len(a)]
-    sensor_times = [a for a in (acc_t, gyr_t, mag_t, rot_t) if len(a)]
-    start = int(w.header["startTime"]) if "startTime" in w.header else None
-    end = int(w.header["endTime"]) if "endTime" in w.header else None
+    t0, offset_ms, (acc_t, gyr_t, mag_t, rot_t), all_t = _walk_clock(
+        display, w.header, (acc_t, gyr_t, mag_t, rot_t), (wf_t, bc_t, wp_t), report, events)
+    sec = _time_text(all_t, t0)
+    streams: dict[str, dict[str, np.ndarray]] = {}   # name -> column -> text cells
+    imu = _imu_stream(acc_t, acc_c, gyr_t, gyr, gyr_c, sec, report, events)
+    if imu is not None:
+        streams["imu"] = imu
+    if len(mag_t):
+        o = _stable_sort(mag_t)
+        streams["mag"] = {"t": sec(mag_t[o]), **{c: _raw(mag_c, o, k) for k, c in enumerate(("mx", "my", "mz"))}}
+    if len(rot_t):
+        streams["orientation"] = _orientation_stream(rot_t, rot, rot_c, sec)
+    if len(bc_t):
+        streams["rssi"] = _beacon_stream(bc_t, bc, bc_c, sec, floor, beacon_id, report, beacons)
+    if len(wf_t):
+        streams["wifi"] = _wifi_stream(wf_t, wf, wf_c, sec, t0, report, bssids)
+    o = _stable_sort(wp_t)
+    wp_xy = wp[o]
+    labelled = len(wp_t) >= 2
+    if labelled:
+        empty = np.full(len(o), "", dtype=object)
+        streams["groundtruth"] = {"t": sec(wp_t[o]), "x": _num_text(wp_xy[:, 0], 6), "y": _num_text(wp_xy[:, 1], 6),
+                                  "z": _num_text(np.full(len(o), floor_z + PHONE_HEIGHT_M), 3), "qw": empty,
+                                  "qx": empty, "qy": empty, "qz": empty, "raw_line": _num_text(wp_l[o], 0)}
+    else:
+        events["walks with fewer than two waypoints (written as unlabelled sessions)"] += 1
+    sid, meta = _walk_meta(w, site, floor, stem, labelled, wp_t[o], wp_xy, sec, t0, offset_ms)
+    for k, v in w.unknown.items():
+        report.drop(f"rows of undocumented record type {k} (not imported)", v)
+    for k, v in w.ignored.items():
+        report.drop(f"rows of {k} (documented, not imported)", v)
+    return sid, meta, streams, wp_xy, w.header
+
+
+def _walk_clock(display: str, header: dict, sensor_t: tuple, sys_t: tuple, report: ImportReport, events: Counter):
+    """The session clock of one walk: (t0 Unix ms the session's zero, offset_ms subtracted from the sensor
+    times, the sensor times (4 arrays (n,) int64 Unix ms, accelerometer, gyroscope, magnetometer, rotation
+    vector) shifted by it, every non-empty time array (sensors shifted, then WiFi, beacon, waypoint)).
+
+    ``sys_t`` (WiFi, beacon, waypoint) are on the system clock with the header's startTime/endTime; sensor
+    times more than SENSOR_CLOCK_TOL_S outside that span are on another clock and are shifted so their first
+    sample is at the system clock's first time. t0 = startTime, or the earliest row when one precedes it."""
+    sys_times = [a for a in sys_t if len(a)]
+    sensor_times = [a for a in sensor_t if len(a)]
+    start = int(header["startTime"]) if "startTime" in header else None
+    end = int(header["endTime"]) if "endTime" in header else None
     if end is None:
         events["walks without an endTime header line (imported; possibly cut at a line end)"] += 1
     lo = ([start] if start is not None else []) + [int(a.min()) for a in sys_times]
@@ -439,105 +481,128 @@ def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, f
         if s_lo < sys_lo - tol or s_hi > sys_hi + tol:
             offset_ms = s_lo - sys_lo
             events["walks whose sensor clock was shifted onto the system clock (sensor_time_offset_s)"] += 1
-    acc_t, gyr_t, mag_t, rot_t = (a - offset_ms for a in (acc_t, gyr_t, mag_t, rot_t))
-    all_t = [a for a in (acc_t, gyr_t, mag_t, rot_t, wf_t, bc_t, wp_t) if len(a)]
+    sensor_t = tuple(a - offset_ms for a in sensor_t)
+    all_t = [a for a in sensor_t + tuple(sys_t) if len(a)]
     first = min(int(a.min()) for a in all_t) if all_t else 0
     t0 = start if start is not None else first
     if first < t0:
         report.notes.append(f"{display}: rows precede startTime by {(t0 - first) / 1000:g} s; the session starts "
                             "at the earliest row")
         t0 = first
+    return t0, offset_ms, sensor_t, all_t
 
-    # session times as text with exactly the millisecond resolution of the raw times, each distinct time
-    # formatted once (the sensor streams share their times, the rows of a WiFi scan theirs)
+
+def _time_text(all_t: list, t0: int):
+    """A function from Unix ms times (n,) int (each one of ``all_t``'s) to session times as text (n,) object,
+    seconds since ``t0`` with exactly the millisecond resolution of the raw times.
+
+    Each distinct time is formatted once (the sensor streams share their times, the rows of a WiFi scan
+    theirs)."""
     uniq = np.unique(np.concatenate(all_t)) if all_t else np.empty(0, np.int64)
     uniq_text = np.array(["%.3f" % x for x in ((uniq - t0) / 1000.0).tolist()], dtype=object)
 
     def sec(t_ms):
         return uniq_text[np.searchsorted(uniq, np.asarray(t_ms, dtype=np.int64))]
 
-    streams: dict[str, dict[str, np.ndarray]] = {}   # name -> column -> text cells
+    return sec
 
-    def raw(cells: pd.DataFrame, order: np.ndarray, field_: int) -> np.ndarray:
-        """The raw text of a numeric field (checked finite by _table), written as read: no float formatting."""
-        return cells[2 + field_].to_numpy(dtype=object)[order]
 
-    # IMU: pair accelerometer and gyroscope rows on equal times, else interpolate the gyroscope
+def _raw(cells: pd.DataFrame, order: np.ndarray, field_: int) -> np.ndarray:
+    """The raw text (n,) of a numeric field (checked finite by _table) of the rows ``order`` (n,), written as
+    read: no float formatting."""
+    return cells[2 + field_].to_numpy(dtype=object)[order]
+
+
+def _imu_stream(acc_t: np.ndarray, acc_c: pd.DataFrame, gyr_t: np.ndarray, gyr: np.ndarray, gyr_c: pd.DataFrame,
+                sec, report: ImportReport, events: Counter) -> dict | None:
+    """imu.csv columns (text cells) from accelerometer and gyroscope rows (times (n,) Unix ms, m/s^2, rad/s):
+    rows paired on equal times, else the gyroscope interpolated at the accelerometer's times (those outside
+    its span dropped). None when either sensor is missing or no row remains."""
     if len(acc_t) and len(gyr_t):
         ia, ig = _stable_sort(acc_t), _stable_sort(gyr_t)
         at, gt = acc_t[ia], gyr_t[ig]
         if len(at) == len(gt) and np.array_equal(at, gt):
-            imu = {"t": sec(at), **{c: raw(acc_c, ia, k) for k, c in enumerate(("ax", "ay", "az"))},
-                   **{c: raw(gyr_c, ig, k) for k, c in enumerate(("gx", "gy", "gz"))}}
+            imu = {"t": sec(at), **{c: _raw(acc_c, ia, k) for k, c in enumerate(("ax", "ay", "az"))},
+                   **{c: _raw(gyr_c, ig, k) for k, c in enumerate(("gx", "gy", "gz"))}}
         else:
             inside = (at >= gt[0]) & (at <= gt[-1])
             report.drop("accelerometer samples outside the gyroscope's time span", int((~inside).sum()))
             ia, at = ia[inside], at[inside]
             g = gyr[ig]
-            imu = {"t": sec(at), **{c: raw(acc_c, ia, k) for k, c in enumerate(("ax", "ay", "az"))},
+            imu = {"t": sec(at), **{c: _raw(acc_c, ia, k) for k, c in enumerate(("ax", "ay", "az"))},
                    **{c: _num_text(np.interp(at, gt, g[:, k]), 7) for k, c in enumerate(("gx", "gy", "gz"))}}
         if len(at):
-            streams["imu"] = imu
+            return imu
     elif len(acc_t) or len(gyr_t):
         events["walks with an accelerometer or a gyroscope but not both (no imu.csv)"] += 1
-    if len(mag_t):
-        o = _stable_sort(mag_t)
-        streams["mag"] = {"t": sec(mag_t[o]), **{c: raw(mag_c, o, k) for k, c in enumerate(("mx", "my", "mz"))}}
-    if len(rot_t):
-        o = _stable_sort(rot_t)
-        n2 = (rot[o] ** 2).sum(axis=1)
-        # |v| <= 1 for a rotation vector; a larger one (rounding) gets qw = 0 and is normalised by the readers
-        qw = np.round(np.sqrt(np.clip(1.0 - n2, 0.0, None)), 7)
-        streams["orientation"] = {"t": sec(rot_t[o]), "qw": _num_text(qw, 7), **{c: raw(rot_c, o, k) for k, c in
-                                                                                  enumerate(("qx", "qy", "qz"))}}
-    if len(bc_t):
-        o = _stable_sort(bc_t)
-        rssi = bc[o, 3]
-        keep = rssi_in_range(rssi)
-        report.drop("iBeacon readings outside (-150, 0) dBm", int((~keep).sum()))
-        o = o[keep]
-        uuid = np.array([x.strip().upper() for x in bc_c[2].to_numpy(dtype=object)[o]], dtype=object)
-        mac = np.array([x.strip().upper() for x in bc_c[8].to_numpy(dtype=object)[o]], dtype=object)
-        major, minor = bc[o, 0].astype(np.int64), bc[o, 1].astype(np.int64)
-        triple = uuid + ":" + major.astype(str).astype(object) + ":" + minor.astype(str).astype(object)
-        ids = triple + ":" + mac if beacon_id == "mac" else triple
-        heard = pd.DataFrame({"id": ids, "uuid": uuid, "major": major, "minor": minor, "mac": mac, "tx": bc[o, 2]})
-        for aid, g in heard.groupby("id", sort=False):
-            b = beacons.get(aid)
-            if b is None:
-                r0 = g.iloc[0]
-                b = beacons[aid] = {"uuid": r0["uuid"], "major": int(r0["major"]), "minor": int(r0["minor"]),
-                                    "mac": r0["mac"] if beacon_id == "mac" else "", "floors": Counter(), "tx": []}
-            b["floors"][floor] += len(g)
-            if len(b["tx"]) < 200:
-                b["tx"] += g["tx"].tolist()[:200]
-        streams["rssi"] = {"t": sec(bc_t[o]), "anchor_id": ids, "rssi": raw(bc_c, o, 4)}
-    if len(wf_t):
-        o = _stable_sort(wf_t)
-        keep = rssi_in_range(wf[o, 0])
-        report.drop("WiFi readings outside (-150, 0) dBm", int((~keep).sum()))
-        o = o[keep]
-        freq = wf[o, 1].copy()
-        bad_f = (freq < WIFI_FREQ_MHZ[0]) | (freq > WIFI_FREQ_MHZ[1])
-        report.drop("WiFi frequencies outside 2000..8000 MHz (written empty)", int(bad_f.sum()))
-        freq[bad_f] = np.nan
-        bssid = np.array([x.strip().lower() for x in wf_c[3].to_numpy(dtype=object)[o]], dtype=object)
-        seen = _floats(wf_c[6].to_numpy(dtype=object))[o]
-        bssids.update(bssid)
-        streams["wifi"] = {"t": sec(wf_t[o]), "bssid": bssid, "rssi_dbm": raw(wf_c, o, 2),
-                           "freq_mhz": _num_text(freq, 0), "ssid": _quote(wf_c[2].to_numpy(dtype=object)[o]),
-                           "t_seen": _num_text((seen - t0) / 1000.0, 3)}
-    o = _stable_sort(wp_t)
-    wp_xy = wp[o]
-    labelled = len(wp_t) >= 2
-    if labelled:
-        empty = np.full(len(o), "", dtype=object)
-        streams["groundtruth"] = {"t": sec(wp_t[o]), "x": _num_text(wp_xy[:, 0], 6), "y": _num_text(wp_xy[:, 1], 6),
-                                  "z": _num_text(np.full(len(o), floor_z + PHONE_HEIGHT_M), 3), "qw": empty,
-                                  "qx": empty, "qy": empty, "qz": empty, "raw_line": _num_text(wp_l[o], 0)}
-    else:
-        events["walks with fewer than two waypoints (written as unlabelled sessions)"] += 1
+    return None
 
+
+def _orientation_stream(rot_t: np.ndarray, rot: np.ndarray, rot_c: pd.DataFrame, sec) -> dict:
+    """orientation.csv columns (text cells) from rotation vector rows (times (n,) Unix ms, (n, 3) x, y, z):
+    qw = sqrt(1 - |v|^2) rounded to 7 decimals, qx..qz as read."""
+    o = _stable_sort(rot_t)
+    n2 = (rot[o] ** 2).sum(axis=1)
+    # |v| <= 1 for a rotation vector; a larger one (rounding) gets qw = 0 and is normalised by the readers
+    qw = np.round(np.sqrt(np.clip(1.0 - n2, 0.0, None)), 7)
+    return {"t": sec(rot_t[o]), "qw": _num_text(qw, 7), **{c: _raw(rot_c, o, k) for k, c in
+                                                           enumerate(("qx", "qy", "qz"))}}
+
+
+def _beacon_stream(bc_t: np.ndarray, bc: np.ndarray, bc_c: pd.DataFrame, sec, floor: str, beacon_id: str,
+                   report: ImportReport, beacons: dict) -> dict:
+    """rssi.csv columns (text cells) from iBeacon rows (times (n,) Unix ms, (n, 4) major, minor, tx power dBm,
+    RSSI dBm); readings outside (-150, 0) dBm dropped. ``beacons`` (anchor id -> uuid, major, minor, mac,
+    rows per floor, up to 200 tx powers) is updated."""
+    o = _stable_sort(bc_t)
+    rssi = bc[o, 3]
+    keep = rssi_in_range(rssi)
+    report.drop("iBeacon readings outside (-150, 0) dBm", int((~keep).sum()))
+    o = o[keep]
+    uuid = np.array([x.strip().upper() for x in bc_c[2].to_numpy(dtype=object)[o]], dtype=object)
+    mac = np.array([x.strip().upper() for x in bc_c[8].to_numpy(dtype=object)[o]], dtype=object)
+    major, minor = bc[o, 0].astype(np.int64), bc[o, 1].astype(np.int64)
+    triple = uuid + ":" + major.astype(str).astype(object) + ":" + minor.astype(str).astype(object)
+    ids = triple + ":" + mac if beacon_id == "mac" else triple
+    heard = pd.DataFrame({"id": ids, "uuid": uuid, "major": major, "minor": minor, "mac": mac, "tx": bc[o, 2]})
+    for aid, g in heard.groupby("id", sort=False):
+        b = beacons.get(aid)
+        if b is None:
+            r0 = g.iloc[0]
+            b = beacons[aid] = {"uuid": r0["uuid"], "major": int(r0["major"]), "minor": int(r0["minor"]),
+                                "mac": r0["mac"] if beacon_id == "mac" else "", "floors": Counter(), "tx": []}
+        b["floors"][floor] += len(g)
+        if len(b["tx"]) < 200:
+            b["tx"] += g["tx"].tolist()[:200]
+    return {"t": sec(bc_t[o]), "anchor_id": ids, "rssi": _raw(bc_c, o, 4)}
+
+
+def _wifi_stream(wf_t: np.ndarray, wf: np.ndarray, wf_c: pd.DataFrame, sec, t0: int, report: ImportReport,
+                 bssids: set) -> dict:
+    """wifi.csv columns (text cells) from WiFi rows (times (n,) Unix ms, (n, 2) RSSI dBm, frequency MHz);
+    readings outside (-150, 0) dBm dropped, frequencies outside WIFI_FREQ_MHZ written empty, ``t_seen`` s since
+    ``t0`` (Unix ms). ``bssids`` gets the (lower-case) BSSIDs heard."""
+    o = _stable_sort(wf_t)
+    keep = rssi_in_range(wf[o, 0])
+    report.drop("WiFi readings outside (-150, 0) dBm", int((~keep).sum()))
+    o = o[keep]
+    freq = wf[o, 1].copy()
+    bad_f = (freq < WIFI_FREQ_MHZ[0]) | (freq > WIFI_FREQ_MHZ[1])
+    report.drop("WiFi frequencies outside 2000..8000 MHz (written empty)", int(bad_f.sum()))
+    freq[bad_f] = np.nan
+    bssid = np.array([x.strip().lower() for x in wf_c[3].to_numpy(dtype=object)[o]], dtype=object)
+    seen = _floats(wf_c[6].to_numpy(dtype=object))[o]
+    bssids.update(bssid)
+    return {"t": sec(wf_t[o]), "bssid": bssid, "rssi_dbm": _raw(wf_c, o, 2),
+            "freq_mhz": _num_text(freq, 0), "ssid": _quote(wf_c[2].to_numpy(dtype=object)[o]),
+            "t_seen": _num_text((seen - t0) / 1000.0, 3)}
+
+
+def _walk_meta(w: _Walk, site: str, floor: str, stem: str, labelled: bool, wp_t: np.ndarray, wp_xy: np.ndarray,
+               sec, t0: int, offset_ms: int) -> tuple[str, dict]:
+    """(session id, session.yaml dict) of one walk; ``wp_t`` (n,) Unix ms and ``wp_xy`` (n, 2) m its waypoints
+    in time order (kept in the yaml when fewer than two, i.e. unlabelled), t0 Unix ms its zero, offset_ms the
+    shift applied to its sensor clock."""
     h = w.header
     brand, model = h.get("Brand", "").strip(), h.get("Model", "").strip()
     sid = _SESSION_ID_RE.sub("-", f"{site}_{floor}_{stem}")
@@ -551,13 +616,8 @@ def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, f
             "start_unix_ms": int(t0), "sensor_time_offset_s": offset_ms / 1000.0,
             "records": {k: int(v) for k, v in sorted((w.counts + w.ignored + w.unknown).items())}}
     if not labelled and len(wp_t):
-        meta["waypoints"] = [[float(a), float(b), float(c)] for a, (b, c) in zip(sec(wp_t[o]), wp_xy)]
-    for k, v in w.unknown.items():
-        report.drop(f"rows of undocumented record type {k} (not imported)", v)
-    for k, v in w.ignored.items():
-        report.drop(f"rows of {k} (documented, not imported)", v)
-    return sid, meta, streams, wp_xy, h
-
+        meta["waypoints"] = [[float(a), float(b), float(c)] for a, (b, c) in zip(sec(wp_t), wp_xy)]
+    return sid, meta
 
 # --------------------------------------------------------------------------------------------------
 # floor plans
@@ -611,6 +671,31 @@ def _polygons(g) -> list[Polygon]:
 
 def _read_plan(info_display: str, info_data: bytes, geo_display: str, geo_data: bytes, floor: str,
                report: ImportReport) -> _Plan:
+    """The floor plan of one floor from its floor_info.json (size in m) and geojson_map.json (outline and
+    unit polygons in longitude/latitude): units in metres of the upstream floor frame and the occupancy
+    raster at RESOLUTION_M m/px."""
+    width, height = _plan_size(info_display, info_data)
+    geoms, props, k = _plan_features(geo_display, geo_data)
+    outline_ll = geoms[k]
+    lon0, lat0, lon1, lat1 = outline_ll.bounds
+    if not (lon1 > lon0 and lat1 > lat0):
+        raise ImportError_(geo_display, None, f"features[{k}]: the floor outline has an empty bounding box")
+
+    def to_m(g):
+        return shapely.transform(g, lambda c: np.column_stack([(c[:, 0] - lon0) / (lon1 - lon0) * width,
+                                                               (c[:, 1] - lat0) / (lat1 - lat0) * height]))
+
+    outline = shapely.make_valid(to_m(outline_ll))
+    lat_mid = math.radians((lat0 + lat1) / 2)
+    scale = (width / ((lon1 - lon0) * M_PER_DEG_LON * math.cos(lat_mid)), height / ((lat1 - lat0) * M_PER_DEG_LAT))
+    units = _plan_units(geoms, props, k, to_m, floor, report)
+    occ = _plan_occupancy(outline, units, width, height)
+    return _Plan(occ, outline, units, width, height, (lon0, lat0, lon1, lat1), scale,
+                 props[k].get("floor_num"))
+
+
+def _plan_size(info_display: str, info_data: bytes) -> tuple[float, float]:
+    """(width, height) m of a floor from floor_info.json ``map_info``, each in (0, 2000]."""
     info = _json(info_display, info_data)
     try:
         width = float(info["map_info"]["width"])
@@ -619,6 +704,12 @@ def _read_plan(info_display: str, info_data: bytes, geo_display: str, geo_data: 
         raise ImportError_(info_display, None, "expected {'map_info': {'width': metres, 'height': metres}}") from None
     if not (math.isfinite(width) and math.isfinite(height) and 0 < width <= 2000 and 0 < height <= 2000):
         raise ImportError_(info_display, None, f"map_info width {width:g} x height {height:g} m is not a floor size")
+    return width, height
+
+
+def _plan_features(geo_display: str, geo_data: bytes) -> tuple[list, list[dict], int]:
+    """(geometries (F,) in longitude/latitude, properties (F,), index of the floor outline: the first feature of
+    type "floor", else 0) of a geojson_map.json FeatureCollection; every coordinate finite."""
     doc = _json(geo_display, geo_data)
     feats = doc.get("features") if isinstance(doc, dict) else None
     if not isinstance(feats, list) or not feats:
@@ -634,18 +725,13 @@ def _read_plan(info_display: str, info_data: bytes, geo_display: str, geo_data: 
         geoms.append(g)
     props = [f.get("properties") or {} for f in feats]
     k = next((i for i, p in enumerate(props) if p.get("type") == "floor"), 0)
-    outline_ll = geoms[k]
-    lon0, lat0, lon1, lat1 = outline_ll.bounds
-    if not (lon1 > lon0 and lat1 > lat0):
-        raise ImportError_(geo_display, None, f"features[{k}]: the floor outline has an empty bounding box")
+    return geoms, props, k
 
-    def to_m(g):
-        return shapely.transform(g, lambda c: np.column_stack([(c[:, 0] - lon0) / (lon1 - lon0) * width,
-                                                               (c[:, 1] - lat0) / (lat1 - lat0) * height]))
 
-    outline = shapely.make_valid(to_m(outline_ll))
-    lat_mid = math.radians((lat0 + lat1) / 2)
-    scale = (width / ((lon1 - lon0) * M_PER_DEG_LON * math.cos(lat_mid)), height / ((lat1 - lat0) * M_PER_DEG_LAT))
+def _plan_units(geoms: list, props: list[dict], k: int, to_m, floor: str, report: ImportReport) -> list:
+    """The unit polygons (id, name, geometry in m) of a floor: every feature but the outline ``k``, mapped by
+    ``to_m`` (longitude/latitude -> m), repaired when invalid; non-polygons and empty ones dropped (counted in
+    ``report``). Ids are the features' ``id`` (else ``<floor>-unit<i>``), made unique with trailing '_'."""
     units, used_ids = [], set()
     for i, (g, p) in enumerate(zip(geoms, props)):
         if i == k:
@@ -668,32 +754,37 @@ def _read_plan(info_display: str, info_data: bytes, geo_display: str, geo_data: 
             uid += "_"
         used_ids.add(uid)
         units.append((uid, str(p.get("name") or p.get("display") or ""), gm))
+    return units
 
+
+def _plan_occupancy(outline, units: list, width: float, height: float) -> np.ndarray:
+    """Occupancy (H, W) int8 at RESOLUTION_M m/px (row 0 at the top) of a ``width`` x ``height`` m floor:
+    FREE inside the outline (m) and outside every unit, UNKNOWN inside a unit, OCCUPIED outside the outline."""
     # rasterise: pixel centre (col + 0.5, row + 0.5) in PIL coordinates -> integer PIL coordinates
     w_px, h_px = int(math.ceil(width / RESOLUTION_M - 1e-9)), int(math.ceil(height / RESOLUTION_M - 1e-9))
+    inside = _raster(_polygons(outline), True, w_px, h_px)
+    in_unit = _raster([p for _, _, g in units for p in _polygons(g)], False, w_px, h_px)
+    return np.where(inside, np.where(in_unit, UNKNOWN, FREE), OCCUPIED).astype(np.int8)
 
-    def ring_px(ring) -> list[tuple[float, float]]:
-        c = np.asarray(ring.coords)
-        px = c[:, 0] / RESOLUTION_M - 0.5
-        py = h_px - c[:, 1] / RESOLUTION_M - 0.5
-        return list(zip(px.tolist(), py.tolist()))
 
-    def raster(polys: list[Polygon], holes: bool) -> np.ndarray:
-        im = Image.new("1", (w_px, h_px), 0)
-        d = ImageDraw.Draw(im)
-        for poly in polys:
-            d.polygon(ring_px(poly.exterior), fill=1)
-            if holes:
-                for r in poly.interiors:
-                    d.polygon(ring_px(r), fill=0)
-        return np.asarray(im, dtype=bool)
+def _ring_px(ring, h_px: int) -> list[tuple[float, float]]:
+    """A ring's vertices (m) as PIL pixel coordinates (x right, y down) of an image ``h_px`` pixels high."""
+    c = np.asarray(ring.coords)
+    px = c[:, 0] / RESOLUTION_M - 0.5
+    py = h_px - c[:, 1] / RESOLUTION_M - 0.5
+    return list(zip(px.tolist(), py.tolist()))
 
-    inside = raster(_polygons(outline), True)
-    in_unit = raster([p for _, _, g in units for p in _polygons(g)], False)
-    occ = np.where(inside, np.where(in_unit, UNKNOWN, FREE), OCCUPIED).astype(np.int8)
-    return _Plan(occ, outline, units, width, height, (lon0, lat0, lon1, lat1), scale,
-                 props[k].get("floor_num"))
 
+def _raster(polys: list[Polygon], holes: bool, w_px: int, h_px: int) -> np.ndarray:
+    """(h_px, w_px) bool: pixels inside one of ``polys`` (m), minus their interior rings when ``holes``."""
+    im = Image.new("1", (w_px, h_px), 0)
+    d = ImageDraw.Draw(im)
+    for poly in polys:
+        d.polygon(_ring_px(poly.exterior, h_px), fill=1)
+        if holes:
+            for r in poly.interiors:
+                d.polygon(_ring_px(r, h_px), fill=0)
+    return np.asarray(im, dtype=bool)
 
 # --------------------------------------------------------------------------------------------------
 # the import
@@ -759,6 +850,49 @@ def import_ilc20(src: Path, out: Path, floors=None, beacon_id: str = "mac") -> I
 
 
 def _import(src: Path, tmp: Path, want, sel, seen_floors, beacon_id: str, report: ImportReport) -> None:
+    """Write the selected walks, one building per site and dataset.yaml into ``tmp``."""
+    got = _import_walks(src, tmp, want, beacon_id, report)
+    if sel is not None:
+        missing = sorted(sel - set(got.acc))
+        if missing:
+            found = ", ".join(f"{s}/{f}" for s, f in sorted(seen_floors)) or "none"
+            raise ImportError_(src, None, f"--floors names {', '.join(f'{s}/{f}' for s, f in missing)}, not found "
+                               f"with walks in the source (floors found: {found})")
+    if not got.acc:
+        raise ImportError_(src, None, "no path files found: expected <site>/<floor>/path_data_files/*.txt or "
+                           "train/<site>/<floor>/*.txt (in a folder, .tar.gz or .zip)")
+
+    by_site: dict[str, list[str]] = defaultdict(list)
+    for site, floor in sorted(got.acc):
+        by_site[site].append(floor)
+    for site, floor_names in by_site.items():
+        _write_site(src, tmp, site, floor_names, got, report)
+    report.notes.append(f"{got.labelled} of {report.sessions} sessions labelled (>= 2 waypoints)")
+    report.notes += [f"{n} {what}" for what, n in sorted(got.events.items())]
+    write_dataset_meta(
+        tmp, "ilc20", "Indoor Location Competition 2.0 walks: IMU, magnetometer, rotation vector, WiFi and iBeacon "
+        "RSSI, surveyed waypoints, floor plans (beacon and AP positions not given)", "MIT",
+        "XYZ10, Inc., location-competition/indoor-location-competition-20 (data/); same format as the 2021 Indoor "
+        "Location & Navigation challenge", importer="blenav.importers.ilc20", source_path=str(src),
+        beacon_id="UUID:major:minor:MAC" if beacon_id == "mac" else "UUID:major:minor")
+
+
+@dataclass
+class _WalkPass:
+    """What the pass over the source's walks gathered for the buildings."""
+
+    meta_files: dict            # ((site, floor), "floor_info" | "geojson_map") -> (display name, bytes)
+    acc: dict                   # (site, floor) -> _FloorAcc, floors with at least one written session
+    beacons: dict               # anchor id -> what was heard (see _beacon_stream)
+    bssids: dict                # site -> set of BSSIDs heard
+    pending_z: dict             # (site, floor) -> floor z (m) the sessions' ground truth was written with
+    events: Counter             # walk-level events -> count
+    labelled: int               # sessions with >= 2 waypoints
+
+
+def _import_walks(src: Path, tmp: Path, want, beacon_id: str, report: ImportReport) -> _WalkPass:
+    """One pass over the source: every selected walk converted and written as a session into ``tmp``, the
+    floors' metadata files kept for the buildings."""
     meta_files: dict[tuple[tuple[str, str], str], tuple[str, bytes]] = {}
     acc: dict[tuple[str, str], _FloorAcc] = defaultdict(_FloorAcc)
     beacons: dict[str, dict] = {}
@@ -792,102 +926,107 @@ def _import(src: Path, tmp: Path, want, sel, seen_floors, beacon_id: str, report
         a.site_name = a.site_name or header.get("SiteName", "")
         a.site_id = a.site_id or header.get("SiteID", "")
         a.floor_id = a.floor_id or header.get("FloorId", "")
-    if sel is not None:
-        missing = sorted(sel - set(acc))
-        if missing:
-            found = ", ".join(f"{s}/{f}" for s, f in sorted(seen_floors)) or "none"
-            raise ImportError_(src, None, f"--floors names {', '.join(f'{s}/{f}' for s, f in missing)}, not found "
-                               f"with walks in the source (floors found: {found})")
-    if not acc:
-        raise ImportError_(src, None, "no path files found: expected <site>/<floor>/path_data_files/*.txt or "
-                           "train/<site>/<floor>/*.txt (in a folder, .tar.gz or .zip)")
+    return _WalkPass(meta_files, acc, beacons, bssids, pending_z, events, labelled)
 
-    by_site: dict[str, list[str]] = defaultdict(list)
-    for site, floor in sorted(acc):
-        by_site[site].append(floor)
-    for site, floor_names in by_site.items():
-        floors, rooms, frames, alignment = [], [], {}, {}
-        ref = None
-        for floor in floor_names:
-            key = (site, floor)
-            info = meta_files.get((key, "floor_info"))
-            geo = meta_files.get((key, "geojson_map"))
-            if info is None or geo is None:
-                lack = " and ".join(n for n, v in (("floor_info.json", info), ("geojson_map.json", geo)) if v is None)
-                raise ImportError_(src, None, f"floor {site}/{floor} has walks but no {lack} (repository layout: "
-                                   f"beside path_data_files/; challenge layout: metadata/{site}/{floor}/)")
-            plan = _read_plan(*info, *geo, floor, report)
-            level = _floor_level(floor, plan.floor_num)
-            z = level * FLOOR_HEIGHT_M
-            if z != pending_z.get(key, z):  # the level came from the GeoJSON: fix the sessions' ground-truth z
-                _rewrite_gt_z(tmp, site, floor, z + PHONE_HEIGHT_M)
-            floors.append({"id": floor, "occupancy": plan.occupancy, "resolution": RESOLUTION_M, "origin": (0.0, 0.0),
-                           "z": z, "filename": f"floor_{floor}.png"})
-            rooms += [{"id": uid, "floor": floor, "geometry": g, "properties": {"name": nm}}
-                      for uid, nm, g in plan.units]
-            lon0, lat0, lon1, lat1 = plan.lonlat_box
-            if ref is None:
-                ref = plan
-            r0 = ref.lonlat_box
-            shift = ((lon0 - r0[0]) / (r0[2] - r0[0]) * ref.width, (lat0 - r0[1]) / (r0[3] - r0[1]) * ref.height)
-            frames[floor] = {"lonlat_bbox": [lon0, lat0, lon1, lat1], "size_m": [plan.width, plan.height],
-                             "origin_shift_m": [round(shift[0], 3), round(shift[1], 3)],
-                             "scale_vs_geodesic": [round(plan.scale_ratio[0], 4), round(plan.scale_ratio[1], 4)]}
-            wps = np.vstack(acc[key].waypoints) if acc[key].waypoints else np.empty((0, 2))
-            n = len(wps)
-            in_outline = float(shapely.contains_xy(plan.outline, wps[:, 0], wps[:, 1]).mean()) if n else float("nan")
-            on_free = float((grid_lookup(plan.occupancy, (0.0, 0.0), wps, RESOLUTION_M, OCCUPIED) == FREE).mean()) \
-                if n else float("nan")
-            if n and plan.units:
-                u = shapely.union_all([g for _, _, g in plan.units])
-                in_unit = float(shapely.contains_xy(u, wps[:, 0], wps[:, 1]).mean())
-            else:
-                in_unit = float("nan") if not n else 0.0
-            # walks whose waypoints lie mostly off walkable cells (inside shops, or a misaligned plan)
-            off = sum(float(np.mean(grid_lookup(plan.occupancy, (0.0, 0.0), w_, RESOLUTION_M, OCCUPIED) != FREE)) > 0.5
-                      for w_ in acc[key].waypoints)
-            alignment[floor] = {"waypoints": n, "walks": acc[key].walks, "inside_outline": round(in_outline, 4),
-                                "on_walkable": round(on_free, 4), "inside_unit": round(in_unit, 4),
-                                "walks_mostly_off_walkable": int(off),
-                                "free_share_of_plan": round(float((plan.occupancy == FREE).mean()), 4)}
-            report.notes.append(
-                f"floor {site}/{floor}: {acc[key].walks} walks, {n} waypoints: {in_outline:.1%} inside the outline, "
-                f"{on_free:.1%} on walkable cells, {in_unit:.1%} inside a unit ({off} walks with most waypoints off "
-                f"walkable cells); plan {plan.width:.1f} x "
-                f"{plan.height:.1f} m, floor_info / geodesic size x {plan.scale_ratio[0]:.3f}, "
-                f"y {plan.scale_ratio[1]:.3f}; {len(plan.units)} units")
-        site_b = {k: v for k, v in beacons.items() if any(f in floor_names for f in v["floors"])}
-        rows = []
-        for aid, b in sorted(site_b.items()):
-            tx = np.asarray(b["tx"], dtype=float)
-            med = float(np.median(tx)) if len(tx) else float("nan")
-            fl = b["floors"].most_common(1)[0][0]
-            rows.append({"anchor_id": aid, "kind": "ble", "x": np.nan, "y": np.nan, "z": np.nan, "floor": fl,
-                         "tx_power_dbm": med if rssi_in_range(np.array([med]))[0] else np.nan,
-                         "channel_model": "iBeacon; position unknown (not in the ILC data)",
-                         "uuid": b["uuid"], "major": b["major"], "minor": b["minor"], "mac": b["mac"],
-                         "n_rows": int(sum(b["floors"].values())),
-                         "floors_heard": ";".join(sorted(b["floors"]))})
-        anchors = pd.DataFrame(rows) if rows else None
-        a0 = acc[(site, floor_names[0])]
-        write_building(tmp, site, a0.site_name or site, floors, anchors, rooms=rooms,
-                       site_id=a0.site_id, floor_frames=frames, alignment=alignment,
-                       floor_plan=(f"rasterised from geojson_map.json at {RESOLUTION_M} m/px: walkable = inside the "
-                                   "floor outline and outside every unit polygon; each floor in its upstream frame "
-                                   "(outline bounding box -> [0, width] x [0, height] m)"),
-                       assumptions=[f"floor z = level x {FLOOR_HEIGHT_M} m", f"phone height {PHONE_HEIGHT_M} m",
-                                    "anchor positions unknown"])
-        report.buildings += 1
-        report.notes.append(f"site {site}: {len(rows)} BLE anchors (position unknown), {len(bssids[site])} WiFi "
-                            "access points (BSSIDs) heard")
-    report.notes.append(f"{labelled} of {report.sessions} sessions labelled (>= 2 waypoints)")
-    report.notes += [f"{n} {what}" for what, n in sorted(events.items())]
-    write_dataset_meta(
-        tmp, "ilc20", "Indoor Location Competition 2.0 walks: IMU, magnetometer, rotation vector, WiFi and iBeacon "
-        "RSSI, surveyed waypoints, floor plans (beacon and AP positions not given)", "MIT",
-        "XYZ10, Inc., location-competition/indoor-location-competition-20 (data/); same format as the 2021 Indoor "
-        "Location & Navigation challenge", importer="blenav.importers.ilc20", source_path=str(src),
-        beacon_id="UUID:major:minor:MAC" if beacon_id == "mac" else "UUID:major:minor")
+
+def _write_site(src: Path, tmp: Path, site: str, floor_names: list[str], w: _WalkPass, report: ImportReport) -> None:
+    """building.yaml, floor images, rooms and anchors of one site into ``tmp``: its floors' plans (in the
+    upstream floor frames; ``floor_frames`` relates them to the first floor's), the waypoints' alignment with
+    each plan, and its BLE anchors (positions unknown)."""
+    floors, rooms, frames, alignment = [], [], {}, {}
+    ref = None
+    for floor in floor_names:
+        key = (site, floor)
+        info = w.meta_files.get((key, "floor_info"))
+        geo = w.meta_files.get((key, "geojson_map"))
+        if info is None or geo is None:
+            lack = " and ".join(n for n, v in (("floor_info.json", info), ("geojson_map.json", geo)) if v is None)
+            raise ImportError_(src, None, f"floor {site}/{floor} has walks but no {lack} (repository layout: "
+                               f"beside path_data_files/; challenge layout: metadata/{site}/{floor}/)")
+        plan = _read_plan(*info, *geo, floor, report)
+        level = _floor_level(floor, plan.floor_num)
+        z = level * FLOOR_HEIGHT_M
+        if z != w.pending_z.get(key, z):  # the level came from the GeoJSON: fix the sessions' ground-truth z
+            _rewrite_gt_z(tmp, site, floor, z + PHONE_HEIGHT_M)
+        floors.append({"id": floor, "occupancy": plan.occupancy, "resolution": RESOLUTION_M, "origin": (0.0, 0.0),
+                       "z": z, "filename": f"floor_{floor}.png"})
+        rooms += [{"id": uid, "floor": floor, "geometry": g, "properties": {"name": nm}}
+                  for uid, nm, g in plan.units]
+        if ref is None:
+            ref = plan
+        frames[floor] = _floor_frame(plan, ref)
+        alignment[floor] = _floor_alignment(plan, w.acc[key], f"{site}/{floor}", report)
+    rows = _site_anchor_rows(w.beacons, floor_names)
+    anchors = pd.DataFrame(rows) if rows else None
+    a0 = w.acc[(site, floor_names[0])]
+    write_building(tmp, site, a0.site_name or site, floors, anchors, rooms=rooms,
+                   site_id=a0.site_id, floor_frames=frames, alignment=alignment,
+                   floor_plan=(f"rasterised from geojson_map.json at {RESOLUTION_M} m/px: walkable = inside the "
+                               "floor outline and outside every unit polygon; each floor in its upstream frame "
+                               "(outline bounding box -> [0, width] x [0, height] m)"),
+                   assumptions=[f"floor z = level x {FLOOR_HEIGHT_M} m", f"phone height {PHONE_HEIGHT_M} m",
+                                "anchor positions unknown"])
+    report.buildings += 1
+    report.notes.append(f"site {site}: {len(rows)} BLE anchors (position unknown), {len(w.bssids[site])} WiFi "
+                        "access points (BSSIDs) heard")
+
+
+def _floor_frame(plan: _Plan, ref: _Plan) -> dict:
+    """building.yaml ``floor_frames`` entry of a floor: its outline's lon/lat bounding box, size (m), the shift
+    (m) of its origin in the frame of the site's first floor ``ref``, and floor_info / geodesic size ratios."""
+    lon0, lat0, lon1, lat1 = plan.lonlat_box
+    r0 = ref.lonlat_box
+    shift = ((lon0 - r0[0]) / (r0[2] - r0[0]) * ref.width, (lat0 - r0[1]) / (r0[3] - r0[1]) * ref.height)
+    return {"lonlat_bbox": [lon0, lat0, lon1, lat1], "size_m": [plan.width, plan.height],
+            "origin_shift_m": [round(shift[0], 3), round(shift[1], 3)],
+            "scale_vs_geodesic": [round(plan.scale_ratio[0], 4), round(plan.scale_ratio[1], 4)]}
+
+
+def _floor_alignment(plan: _Plan, fa: _FloorAcc, name: str, report: ImportReport) -> dict:
+    """building.yaml ``alignment`` entry of floor ``name`` (SITE/FLOOR): how its walks' waypoints (m) sit on the
+    plan (shares inside the outline, on walkable cells, inside a unit; walks mostly off walkable cells), also
+    written as a report note."""
+    wps = np.vstack(fa.waypoints) if fa.waypoints else np.empty((0, 2))
+    n = len(wps)
+    in_outline = float(shapely.contains_xy(plan.outline, wps[:, 0], wps[:, 1]).mean()) if n else float("nan")
+    on_free = float((grid_lookup(plan.occupancy, (0.0, 0.0), wps, RESOLUTION_M, OCCUPIED) == FREE).mean()) \
+        if n else float("nan")
+    if n and plan.units:
+        u = shapely.union_all([g for _, _, g in plan.units])
+        in_unit = float(shapely.contains_xy(u, wps[:, 0], wps[:, 1]).mean())
+    else:
+        in_unit = float("nan") if not n else 0.0
+    # walks whose waypoints lie mostly off walkable cells (inside shops, or a misaligned plan)
+    off = sum(float(np.mean(grid_lookup(plan.occupancy, (0.0, 0.0), w_, RESOLUTION_M, OCCUPIED) != FREE)) > 0.5
+              for w_ in fa.waypoints)
+    report.notes.append(
+        f"floor {name}: {fa.walks} walks, {n} waypoints: {in_outline:.1%} inside the outline, "
+        f"{on_free:.1%} on walkable cells, {in_unit:.1%} inside a unit ({off} walks with most waypoints off "
+        f"walkable cells); plan {plan.width:.1f} x "
+        f"{plan.height:.1f} m, floor_info / geodesic size x {plan.scale_ratio[0]:.3f}, "
+        f"y {plan.scale_ratio[1]:.3f}; {len(plan.units)} units")
+    return {"waypoints": n, "walks": fa.walks, "inside_outline": round(in_outline, 4),
+            "on_walkable": round(on_free, 4), "inside_unit": round(in_unit, 4),
+            "walks_mostly_off_walkable": int(off),
+            "free_share_of_plan": round(float((plan.occupancy == FREE).mean()), 4)}
+
+
+def _site_anchor_rows(beacons: dict, floor_names: list[str]) -> list[dict]:
+    """anchors.csv rows of the iBeacons heard on the site's floors, by anchor id: position unknown (NaN),
+    floor = where heard most, tx power = the median advertised (NaN when outside (-150, 0) dBm)."""
+    site_b = {k: v for k, v in beacons.items() if any(f in floor_names for f in v["floors"])}
+    rows = []
+    for aid, b in sorted(site_b.items()):
+        tx = np.asarray(b["tx"], dtype=float)
+        med = float(np.median(tx)) if len(tx) else float("nan")
+        fl = b["floors"].most_common(1)[0][0]
+        rows.append({"anchor_id": aid, "kind": "ble", "x": np.nan, "y": np.nan, "z": np.nan, "floor": fl,
+                     "tx_power_dbm": med if rssi_in_range(np.array([med]))[0] else np.nan,
+                     "channel_model": "iBeacon; position unknown (not in the ILC data)",
+                     "uuid": b["uuid"], "major": b["major"], "minor": b["minor"], "mac": b["mac"],
+                     "n_rows": int(sum(b["floors"].values())),
+                     "floors_heard": ";".join(sorted(b["floors"]))})
+    return rows
 
 
 def _rewrite_gt_z(root: Path, site: str, floor: str, z: float) -> None:

@@ -327,6 +327,39 @@ def srls(anchors_xy: np.ndarray, r2: np.ndarray, mask: np.ndarray | None = None,
                 x[~col] = srls(a[~col], r2[~col], m[~col], iters)
             x[col] = _srls_on_line(a[col], r2[col], m[col], centre_c[col], u[col], iters)
             return x
+    return _srls_general(a, r2, m, iters)
+
+
+def _srls_general(a: np.ndarray, r2: np.ndarray, m: np.ndarray, iters: int) -> np.ndarray:
+    """SR-LS of :func:`srls` for K problems with at least n + 1 used ranges and a non-singular A^T A: ``a``
+    (K, A, n) anchors m, ``r2`` (K, A) squared ranges m^2, ``m`` (K, A) bool used ranges. Returns (K, n) m.
+
+    y(lambda) = (A^T A + lambda D)^{-1} (A^T b - lambda f) and phi(lambda) = y^T D y + 2 f^T y (Beck et al.
+    eq. 11-13); lambda is phi's root on I = (-1 / lambda_1, inf), by :func:`_srls_bisect`."""
+    n = a.shape[-1]
+    centre, mu, back, u, v, lo = _srls_spectral(a, r2, m)
+
+    def y_of(lam):
+        den = np.maximum(1.0 + lam[:, None] * mu, 1e-15)
+        return np.einsum("kij,kj->ki", back, (u - lam[:, None] * v) / den)
+
+    def phi(lam):
+        y = y_of(lam)
+        return (y[:, :n] ** 2).sum(1) - y[:, n]
+
+    lam = _srls_bisect(phi, lo, iters)
+    return y_of(lam)[:, :n] + centre
+
+
+def _srls_spectral(a: np.ndarray, r2: np.ndarray, m: np.ndarray):
+    """One factorisation of the K generalized trust region subproblems (Beck et al. eq. 11) for y(lambda).
+
+    ``a`` (K, A, n) m, ``r2`` (K, A) m^2, ``m`` (K, A) bool. Returns (centre (K, n) m the used anchors' mean the
+    problems are solved about, mu (K, n+1) the eigenvalues of L^-1 D L^-T ascending, back (K, n+1, n+1) L^-T Q,
+    u (K, n+1) Q^T L^-1 A^T b, v (K, n+1) Q^T L^-1 f, lo (K,) -1 / lambda_1 the left end of I), with
+    A^T A = L L^T (Cholesky, slightly regularised) and L^-1 D L^-T = Q diag(mu) Q^T."""
+    K, A = r2.shape
+    n = a.shape[-1]
     w = m.astype(float)
     # the cost is translation invariant: solve about the used anchors' mean (conditioning), shift back at the end
     centre = np.einsum("ka,kan->kn", w, a) / np.maximum(w.sum(1), 1.0)[:, None]
@@ -351,15 +384,13 @@ def srls(anchors_xy: np.ndarray, r2: np.ndarray, mask: np.ndarray | None = None,
     QtLi = np.swapaxes(Q, 1, 2) @ Li
     u = np.einsum("kij,kj->ki", QtLi, Atb)
     v = np.einsum("kij,j->ki", QtLi, f)
+    return centre, mu, back, u, v, lo
 
-    def y_of(lam):
-        den = np.maximum(1.0 + lam[:, None] * mu, 1e-15)
-        return np.einsum("kij,kj->ki", back, (u - lam[:, None] * v) / den)
 
-    def phi(lam):
-        y = y_of(lam)
-        return (y[:, :n] ** 2).sum(1) - y[:, n]
-
+def _srls_bisect(phi, lo: np.ndarray, iters: int) -> np.ndarray:
+    """The root (K,) of the K strictly decreasing functions ``phi`` ((K,) -> (K,)) on (``lo``, inf), ``lo`` (K,):
+    grow an upper end until phi < 0 there, then ``iters`` bisection steps; in the hard case (no root) the
+    result is just right of ``lo``."""
     scale = np.maximum(np.abs(lo), 1.0)
     hi = scale.copy()
     for _ in range(200):  # phi(hi) < 0: phi -> -||x||^2 ... decreasing; grow hi until the sign changes
@@ -375,8 +406,7 @@ def srls(anchors_xy: np.ndarray, r2: np.ndarray, mask: np.ndarray | None = None,
         p = phi(mid)
         lo_b = np.where(p > 0, mid, lo_b)
         hi = np.where(p > 0, hi, mid)
-    lam = np.where(hi > lo, hi, lo + np.abs(lo) * 1e-12 + 1e-12)
-    return y_of(lam)[:, :n] + centre
+    return np.where(hi > lo, hi, lo + np.abs(lo) * 1e-12 + 1e-12)
 
 
 def collinear_anchors(a: np.ndarray, m: np.ndarray, rtol: float = 1e-9):
