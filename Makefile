@@ -65,16 +65,20 @@ paper-tables: $(STAMP)
 # Roy's Tables 3.3-3.5 on the simulated campus (60 ten-minute walks, four per phone profile; trains four
 # networks twice) and the real cross-phone test on UJI (train A5 + BQ, test S6).
 FUSED_SESSIONS = s012_mate-20-pro_pedestrian,s023_pixel-3axl_pedestrian,s039_mi-9_pedestrian,s044_honor-view-20_pedestrian
+# Roy's training recipe (Adam lr 1e-4, 50 epochs, then 20 semi-supervised epochs at 1e-5) under the step-budget
+# trainer: no step cap, no early stopping, constant lr (the default is the budget of conf/trainer/cpu.yaml)
+THESIS_RECIPE = experiment.learned.locnet.model.lr=1e-4 experiment.learned.locnet_aug.model.lr=1e-4 \
+    experiment.learned.transnet_locnet.model.lr=1e-4 experiment.learned.semi.model.lr=1e-4 \
+    experiment.learned.dlrnn.model.lr=1e-4 trainer.max_epochs=50 trainer.budget.max_steps=-1 \
+    trainer.budget.patience=null trainer.budget.schedule=constant trainer.budget.warmup_steps=0 \
+    experiment.learned.semi.semi.epochs=20 experiment.learned.semi.semi.lr=1e-5
 crossphone-tables: $(STAMP)
 	$(BIN)/blenav-sim sim=campus_floor seed=3 out=data/campus_crossphone duration_s=600 sessions=60 \
 	    'sim.carriers=[pedestrian]' sim.unlabelled_every=0 overwrite=true progress=false
 	$(BIN)/blenav-eval experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003 progress=false
-	$(BIN)/blenav-eval experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003_lr1e-3 \
-	    progress=false plots=false '~experiment.baselines' experiment.learned.locnet.model.lr=1e-3 \
-	    experiment.learned.locnet_aug.model.lr=1e-3 \
-	    experiment.learned.transnet_locnet.model.lr=1e-3 experiment.learned.semi.model.lr=1e-3 \
-	    experiment.learned.dlrnn.model.lr=1e-3
-	$(BIN)/python export.py ckpt=data/results/crossphone_003_lr1e-3/runs/transnet_locnet/last.ckpt out=data/runs/campus_tl.onnx
+	$(BIN)/blenav-eval experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003_thesis \
+	    progress=false plots=false '~experiment.baselines' $(THESIS_RECIPE)
+	$(BIN)/python export.py ckpt=data/results/crossphone_003/runs/transnet_locnet/last.ckpt out=data/runs/campus_tl.onnx
 	$(BIN)/blenav-fixes data/campus_crossphone data/runs/campus_tl.onnx --sessions $(FUSED_SESSIONS)
 	$(BIN)/blenav-eval experiment=fused_003 data=data/campus_crossphone sessions=$(FUSED_SESSIONS) runs=20 \
 	    out=data/results/fused_003 progress=false
@@ -99,7 +103,8 @@ MP_IO_NOISE = sim.odometry.vel_noise_mps=0.3 sim.odometry.vel_noise_tau_s=3
 MP_TEST_006 = s006_pixel-4xl_pedestrian,s014_honor-view-20_pedestrian,s022_pixel-3xl_pedestrian,s030_iphone-7_pedestrian
 MP_TEST_007 = s007_pixel-3xl_pedestrian,s015_iphone-7_pedestrian,s023_pixel-3axl_pedestrian,s031_iphone-8_pedestrian
 MP_FIX_TRAIN = experiment=crossphone_s1 model=transnet_locnet data.holdout=0 \
-    model.lr=1e-3 trainer.max_epochs=$(MP_FIX_EPOCHS) threads=1 trainer.enable_progress_bar=false
+    model.lr=1e-3 trainer.max_epochs=$(MP_FIX_EPOCHS) threads=1 trainer.enable_progress_bar=false \
+    trainer.budget.max_steps=-1 trainer.budget.patience=null trainer.budget.schedule=constant trainer.budget.warmup_steps=0
 MP_FIX_EPOCHS ?= 200
 MP_TEST_A = s006_pixel-4xl_pedestrian,s007_pixel-3xl_pedestrian,s014_honor-view-20_pedestrian,s015_iphone-7_pedestrian
 MP_TEST_B = s022_pixel-3xl_pedestrian,s023_pixel-3axl_pedestrian,s030_iphone-7_pedestrian,s031_iphone-8_pedestrian
