@@ -130,3 +130,35 @@ def test_the_training_dict_lands_in_results_json(two_phones, tmp_path):
     assert tr["best_val_error_m"] > 0 and tr["knn_val_error_m"] > 0
     assert "training" not in res["methods"]["KNN"]
     assert (tmp_path / "o" / "runs" / "locnet" / "training.json").is_file()
+
+
+def test_optuna_sweep_command_finds_and_records_the_best_trial(two_phones, tmp_path):
+    """The documented `-m` command, two tiny trials: each trial's config lies beside its checkpoint and
+    best_trial.yaml names the best (lowest best_val_err_m) one."""
+    pytest.importorskip("hydra_plugins.hydra_optuna_sweeper", reason="hydra-optuna-sweeper not installed "
+                        "(pip install -e '.[sweep]')")
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import yaml
+
+    repo = Path(__file__).resolve().parents[1]
+    sweep = tmp_path / "sweep"
+    cmd = [sys.executable, str(repo / "train.py"), "-m", "hparams_search=crossphone_optuna", "experiment=crossphone_s2",
+           f"data={two_phones}", "data.holdout=0", "data.val_fraction=0.3", "data.test_devices=null",
+           "trainer.budget.max_steps=4", "trainer.budget.val_every_steps=2", "trainer.enable_progress_bar=false",
+           "plots=false", "hydra.sweeper.n_trials=2", "hydra.sweeper.sampler.n_startup_trials=2",
+           f"hydra.sweep.dir={sweep}", f"out={sweep}/" + "${hydra:job.num}"]
+    r = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+    best = yaml.safe_load((sweep / "best_trial.yaml").read_text())
+    vals = {}
+    for t in (0, 1):
+        run = sweep / str(t)
+        assert (run / "last.ckpt").is_file() and (run / "config.yaml").is_file()  # config beside checkpoint
+        vals[t] = json.loads((run / "training.json").read_text())["best_val_error_m"]
+    assert best["trial"] == min(vals, key=vals.get) and best["value"] == pytest.approx(min(vals.values()))
+    assert Path(best["config"]).parent == Path(best["checkpoint"]).parent
+    assert any(o.startswith("model.lr=") for o in best["overrides"])
+    assert (sweep / "optimization_results.yaml").is_file()  # Optuna's own summary
