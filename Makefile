@@ -39,6 +39,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/sim_speed.py
 	$(BIN)/python benchmarks/filter_speed.py
 	$(BIN)/python benchmarks/backend_speed.py
+	$(BIN)/python benchmarks/backend_offset.py
 	$(BIN)/python benchmarks/stream_flat.py
 	$(BIN)/python benchmarks/map_index.py
 	$(BIN)/python benchmarks/onnx_speed.py

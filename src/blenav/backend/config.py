@@ -97,6 +97,9 @@ class RangeConfig:
     #   (the nearest: least affected by the 10 m clamp's truncation); None: all
     min_ranges: int = 2  # a beacon with fewer usable ranges in a session: its range factors are dropped
     device_z: float = 1.2  # m, height of the receiver above the floor (initial z; prior mean of the height)
+    estimate_offset: bool = False  # the receiver's RSSI offset delta (dB) as a variable O(0): range factors
+    #   ||p - l|| 10^(-delta / (10 gamma)) - r (a receiver reading delta dB high sees every range shortened)
+    offset_sigma_db: float = 10.0  # dB, prior std of delta (prior mean 0, or the previous window's estimate)
 
 
 @dataclass

@@ -59,6 +59,7 @@ from __future__ import annotations
 import re
 import time
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import pandas as pd
@@ -106,11 +107,13 @@ class ImuSamples:
 @dataclass
 class RangeObs:
     """Ranges already converted from RSSI and clamped: t (M,) s, anchor (M,) row in :class:`BeaconPriors`,
-    range_m (M,) m."""
+    range_m (M,) m; ``gamma``: the path-loss exponent of the conversion (needed only to estimate the receiver
+    offset, ``range.estimate_offset``)."""
 
     t: np.ndarray
     anchor: np.ndarray
     range_m: np.ndarray
+    gamma: float | None = None
 
 
 @dataclass
@@ -164,6 +167,8 @@ class BackendResult:
     wall_s: float = 0.0
     solve_s: float = 0.0
     n_factors: int = 0
+    offset_db: float = float("nan")  # the receiver's RSSI offset (range.estimate_offset), dB
+    offset_std_db: float = float("nan")
 
     @property
     def ok(self) -> bool:
@@ -297,14 +302,21 @@ class RadioInertialGraph:
     Noise models are built once, each named for what it models (units in comments)."""
 
     def __init__(self, cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors,
-                 beacon_init: np.ndarray | None = None, pims: list | None = None):
+                 beacon_init: np.ndarray | None = None, pims: list | None = None, offset_prior_db: float = 0.0,
+                 offset_init_db: float | None = None):
         """``beacon_init`` (A, 3) world m: initial beacon positions, also used by the range gate (default: the
         prior means; a second pass gives the first pass's estimate); ``pims``: the preintegrated IMU of these
-        keyframe times, when already computed (a second pass)."""
+        keyframe times, when already computed (a second pass); ``offset_prior_db`` / ``offset_init_db``: prior
+        mean and initial value of the receiver offset (``range.estimate_offset``)."""
         gtsam = _gtsam()
         self.gtsam = gtsam
         self.cfg, self.kf, self.beacons = cfg, kf, beacons
         self.beacon_init = np.asarray(beacons.xyz if beacon_init is None else beacon_init, float)
+        self.offset_prior_db = float(offset_prior_db)
+        self.offset_init_db = self.offset_prior_db if offset_init_db is None else float(offset_init_db)
+        if cfg.range.estimate_offset and ranges.gamma is None:
+            raise ValueError("range.estimate_offset needs the path-loss exponent of the ranges (RangeObs.gamma)")
+        self.gamma = ranges.gamma
         self.notes: list[str] = []
         self.failures: list[BackendFailure] = []
         K = len(kf.t)
@@ -401,6 +413,12 @@ class RadioInertialGraph:
             g.add(gtsam.PriorFactorVector(V(0), kf.velocity[0], self.start_velocity_noise))
             g.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(kf.bias[0, :3], kf.bias[0, 3:]),
                                                 self.start_bias_noise))
+            if cfg.range.estimate_offset:  # the receiver's RSSI offset, one for the session
+                from gtsam.symbol_shorthand import O
+
+                v.insert(O(0), np.array([self.offset_init_db]))
+                g.add(gtsam.PriorFactorVector(O(0), np.array([self.offset_prior_db]),
+                                              gtsam.noiseModel.Isotropic.Sigma(1, cfg.range.offset_sigma_db)))  # dB
         else:
             g.add(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self.pims[k - 1]))
             g.add(gtsam.PoseRotationPrior3D(X(k), self.rots[k], self.attitude_noise))
@@ -410,16 +428,27 @@ class RadioInertialGraph:
         lo, hi = self._bounds[k], self._bounds[k + 1]
         for j, r in zip(self._range_j[lo:hi].tolist(), self._range_r[lo:hi].tolist()):
             if self.in_graph[j]:
-                g.add(gtsam.RangeFactor3D(X(k), L(j), r, self.range_noise))
+                g.add(self._range_factor(k, j, r))
                 continue
             pend = self._pending.setdefault(j, [])
             pend.append((k, r))
             if len(pend) >= cfg.range.min_ranges:  # determined enough: the beacon enters with its prior
                 self._add_beacon(j, g, v)
                 for kk, rr in pend:
-                    g.add(gtsam.RangeFactor3D(X(kk), L(j), rr, self.range_noise))
+                    g.add(self._range_factor(kk, j, rr))
                 del self._pending[j]
         return g, v
+
+    def _range_factor(self, k: int, j: int, r: float):
+        """GTSAM's RangeFactor3D ||p_k - l_j|| - r, or with ``range.estimate_offset`` the same range scaled by the
+        receiver offset (:func:`offset_range_error`)."""
+        gtsam = self.gtsam
+        from gtsam.symbol_shorthand import L, O, X
+
+        if not self.cfg.range.estimate_offset:
+            return gtsam.RangeFactor3D(X(k), L(j), r, self.range_noise)
+        return gtsam.CustomFactor(self.range_noise, [X(k), L(j), O(0)],
+                                  partial(offset_range_error, float(r), float(self.gamma)))
 
     def _add_beacon(self, j: int, g, v) -> None:
         gtsam = self.gtsam
@@ -605,7 +634,42 @@ class RadioInertialGraph:
             self.notes.append(f"{len(few)} beacon(s) heard too little for range factors, kept at their prior: "
                               f"{', '.join(few[:8])}{' ...' if len(few) > 8 else ''}")
         bmap = pd.DataFrame(rows, columns=["anchor_id", "x", "y", "z", "std_m", "n_ranges", "n_heard", "status"])
-        return BackendResult(kf.t.copy(), pos, vel, q, bias, pos.copy(), bmap, np.full(K, np.nan))
+        res = BackendResult(kf.t.copy(), pos, vel, q, bias, pos.copy(), bmap, np.full(K, np.nan))
+        if self.cfg.range.estimate_offset and estimate is not None:
+            from gtsam.symbol_shorthand import O
+
+            if estimate.exists(O(0)):
+                res.offset_db = float(estimate.atVector(O(0))[0])
+                if cov is not None:
+                    try:
+                        res.offset_std_db = float(np.sqrt(np.asarray(cov(O(0)))[0, 0]))
+                    except RuntimeError as exc:
+                        self._fail("marginals", exc, None)
+        return res
+
+
+def offset_range_error(r: float, gamma: float, this, values, H) -> np.ndarray:
+    """Range residual with the receiver's RSSI offset delta (dB, key 3): e = ||t - l|| 10^(-delta / (10 gamma)) - r.
+
+    A receiver that reads delta dB above the path-loss model sees every range converted from its RSSI shortened by
+    10^(-delta / (10 gamma)) (000 sec. IV-B's conversion r = d0 10^((a_X - rssi) / (10 gamma))). Keys: X (Pose3),
+    L (Point3), O (1-D). Jacobians: d e / d pose = [0, s u^T R] (GTSAM's Pose3 tangent: rotation, then
+    translation in the body frame), d e / d l = -s u^T, d e / d delta = -s d ln(10) / (10 gamma), with u the unit
+    vector from l to t and s the scale. With delta = 0 it is GTSAM's RangeFactor3D (tests/test_backend_graph.py)."""
+    keys = this.keys()
+    pose = values.atPose3(keys[0])
+    l = np.asarray(values.atPoint3(keys[1]), float)
+    delta = float(values.atVector(keys[2])[0])
+    t = np.asarray(pose.translation(), float)
+    diff = t - l
+    d = max(float(np.sqrt(diff @ diff)), 1e-9)
+    scale = 10.0 ** (-delta / (10.0 * gamma))
+    if H is not None:
+        u = diff / d
+        H[0] = np.concatenate([np.zeros(3), scale * (u @ pose.rotation().matrix())]).reshape(1, 6)
+        H[1] = (-scale * u).reshape(1, 3)
+        H[2] = np.array([[-scale * d * np.log(10.0) / (10.0 * gamma)]])
+    return np.array([scale * d - r])
 
 
 def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -614,14 +678,16 @@ def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
     return quat_to_matrix(q)
 
 
-def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors) -> BackendResult:
+def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors,
+           offset_prior_db: float = 0.0) -> BackendResult:
     """Build the graph of one session and solve it with ``cfg.solver.method``; never raises on a GTSAM failure
     (see :class:`BackendResult`.failures). ``ValueError`` for inputs it cannot use at all (no IMU, < 2
-    keyframes, non-finite front-end values)."""
+    keyframes, non-finite front-end values). ``offset_prior_db``: prior mean of the receiver offset when
+    ``range.estimate_offset``."""
     t0 = time.perf_counter()
     if len(kf.t) < 2:
         raise ValueError(f"the back-end needs at least 2 keyframes, got {len(kf.t)}")
-    graph = RadioInertialGraph(cfg, kf, imu, ranges, beacons)
+    graph = RadioInertialGraph(cfg, kf, imu, ranges, beacons, offset_prior_db=offset_prior_db)
     res = graph.solve()
     passes = int(cfg.solver.passes) if Solver(cfg.solver.method) == Solver.lm else 1  # iSAM2 is online: one pass
     for p in range(passes - 1):
@@ -630,7 +696,9 @@ def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs,
         # again, from this solution: its keyframes and beacons re-gate the ranges and initialise the graph
         again = Keyframes(kf.t, res.position, res.velocity, res.q, res.bias)
         init = res.beacon_map[["x", "y", "z"]].to_numpy(float)
-        graph = RadioInertialGraph(cfg, again, imu, ranges, beacons, beacon_init=init, pims=graph.pims)
+        off0 = res.offset_db if np.isfinite(res.offset_db) else None
+        graph = RadioInertialGraph(cfg, again, imu, ranges, beacons, beacon_init=init, pims=graph.pims,
+                                   offset_prior_db=offset_prior_db, offset_init_db=off0)
         notes = res.notes
         res = graph.solve()
         res.notes = notes + [f"pass {p + 2}: " + n for n in res.notes]

@@ -116,7 +116,7 @@ def session_ranges(session, beacons: BeaconPriors, model: PathLossRange, anchors
                                    if len(beacons.ids) else anchors.iloc[:0])
     r = session.rssi
     if not len(r) or not len(beacons.ids):
-        return RangeObs(np.zeros(0), np.zeros(0, int), np.zeros(0))
+        return RangeObs(np.zeros(0), np.zeros(0, int), np.zeros(0), float(model.gamma))
     idx = table.index_of(r["anchor_id"].astype(str).to_numpy())
     keep = idx >= 0
     t = r["t"].to_numpy(float)[keep]
@@ -127,7 +127,7 @@ def session_ranges(session, beacons: BeaconPriors, model: PathLossRange, anchors
     unclamped.bind(table)
     j, rng = unclamped.ranges(obs)
     kept = rng <= model.max_range_m
-    return RangeObs(t[kept], j[kept], rng[kept])
+    return RangeObs(t[kept], j[kept], rng[kept], float(model.gamma))
 
 
 def session_imu(session) -> ImuSamples:

@@ -139,7 +139,7 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
         method = self.front.method
         loops = ([(n_runs, seed)] if not self.per_run
                  else [(1, int(s)) for s in np.random.SeedSequence(seed).generate_state(n_runs)])
-        fronts, smooths, biases, maps, secs, fails, notes, events = [], [], [], [], [], [], [], []
+        fronts, smooths, biases, maps, secs, fails, notes, events, offsets = [], [], [], [], [], [], [], [], []
         n_feedbacks = 0
         for i, (R, sd) in enumerate(loops):
             out = run_closed_loop(method, session, R, sd, self.cfg, imu, ranges, beacons, att, ctx.cache)
@@ -152,6 +152,7 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
                 smooths.append(np.broadcast_to(sm, f.position.shape).copy())
                 biases.append(np.broadcast_to(sb, (R,) + sb.shape).copy())
                 maps.append(out.smoothed.beacon_map)
+                offsets.append(out.smoothed.offset_db)
             else:  # no back-end estimate: the front-end's stands
                 smooths.append(f.position.copy())
                 biases.append(np.broadcast_to(out.bias_applied, (R,) + out.bias_applied.shape).copy())
@@ -165,6 +166,9 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
         bias = np.concatenate(biases)
         outputs = {"beacon_map": mean_map(maps) if maps else None, "backend_s": np.asarray(secs),
                    "feedbacks": n_feedbacks, "backend_failures": fails}
+        if self.cfg.range.estimate_offset and offsets:
+            outputs["receiver_offset_db"] = float(np.nanmean(offsets)) if np.isfinite(offsets).any() else None
+            notes.append(f"back-end: receiver offset {outputs['receiver_offset_db']} dB (range.estimate_offset)")
         if out.front.q_imu is not None:
             outputs["attitude"] = {"t": out.front.imu_t, "q": out.front.q_imu}
         notes = list(out.front.map_notes) + notes + [f"back-end failure: {f}" for f in fails[:5]]

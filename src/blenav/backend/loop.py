@@ -39,12 +39,14 @@ from .inputs import keyframes_from_front_end
 @dataclass
 class Feedback:
     """One feedback: its time t (s), the beacons moved (ids), the bias increment (6,) accelerometer m/s^2 then
-    gyroscope rad/s, and the window's solve time (s)."""
+    gyroscope rad/s, the window's solve time (s), and the receiver offset (dB, NaN unless
+    ``range.estimate_offset``) now in the filter."""
 
     t: float
     moved: list[str]
     bias_increment: np.ndarray
     solve_s: float
+    offset_db: float = float("nan")
 
 
 @dataclass
@@ -62,11 +64,12 @@ class LoopOutcome:
     backend_s: float = 0.0
 
 
-def _window(imu: ImuSamples, ranges: RangeObs, t0: float, t1: float) -> tuple[ImuSamples, RangeObs]:
+def window_inputs(imu: ImuSamples, ranges: RangeObs, t0: float, t1: float) -> tuple[ImuSamples, RangeObs]:
     """The IMU samples and ranges with t0 <= t <= t1."""
     i = (imu.t >= t0) & (imu.t <= t1)
     r = (ranges.t >= t0) & (ranges.t <= t1)
-    return ImuSamples(imu.t[i], imu.acc[i], imu.gyr[i]), RangeObs(ranges.t[r], ranges.anchor[r], ranges.range_m[r])
+    return ImuSamples(imu.t[i], imu.acc[i], imu.gyr[i]), RangeObs(ranges.t[r], ranges.anchor[r], ranges.range_m[r],
+                                                                  ranges.gamma)
 
 
 def carry_map(prior: BeaconPriors, bmap: pd.DataFrame, floor_m: float, min_gain_m: float) -> tuple[BeaconPriors, list[str]]:
@@ -128,7 +131,8 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
         run.advance(t_next)
         bias_applied[k0:run.k] = applied
         if not run.done and lc.enabled:
-            fb, prior = _feedback(run, cfg, imu, ranges, prior, anchors, attitude, t_next, feed_bias, notes, failures)
+            fb, prior = _feedback(run, cfg, imu, ranges, prior, anchors, attitude, t_next, feed_bias, notes, failures,
+                                  feedbacks[-1].offset_db if feedbacks else 0.0)
             if fb is not None:
                 feedbacks.append(fb)
                 backend_s += fb.solve_s
@@ -156,11 +160,12 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
 
 
 def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeObs, prior: BeaconPriors,
-              anchors: pd.DataFrame, attitude, t_now: float, feed_bias: bool, notes: list, failures: list
-              ) -> tuple[Feedback | None, BeaconPriors]:
+              anchors: pd.DataFrame, attitude, t_now: float, feed_bias: bool, notes: list, failures: list,
+              offset_db: float = 0.0) -> tuple[Feedback | None, BeaconPriors]:
     """One window of the loop at ``t_now``: smooth the last ``loop.window_s`` of keyframes with ``prior`` as the
-    beacon map, feed the optimized beacons and the bias increment back to ``run``. Returns (the feedback or None
-    when the window gave none, the next window's beacon priors)."""
+    beacon map (and ``offset_db``, the receiver offset so far, as the offset's prior mean), feed the optimized
+    beacons, the bias increment and the receiver offset back to ``run``. Returns (the feedback or None when the
+    window gave none, the next window's beacon priors)."""
     lc = cfg.loop
     res = run.result()
     w0 = t_now - float(lc.window_s) if lc.window_s is not None else -np.inf
@@ -170,11 +175,11 @@ def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeO
     kf, _ = keyframes_from_front_end(res.t[sel], res.position[:, sel], *_attitude(run, attitude), cfg)
     if len(kf.t) < 2:
         return None, prior
-    w_imu, w_ranges = _window(_corrected(run, imu), ranges, float(kf.t[0]), float(kf.t[-1]))
+    w_imu, w_ranges = window_inputs(_corrected(run, imu), ranges, float(kf.t[0]), float(kf.t[-1]))
     when = f"window ending {t_now - float(run.arrays.t_start):.0f} s"
     t1 = time.perf_counter()
     try:
-        out = smooth(cfg, kf, w_imu, w_ranges, prior)
+        out = smooth(cfg, kf, w_imu, w_ranges, prior, offset_prior_db=offset_db if np.isfinite(offset_db) else 0.0)
     except ValueError as exc:  # inputs the window cannot use (e.g. no IMU in it): no feedback this time
         notes.append(f"{when}: no feedback ({exc})")
         return None, prior
@@ -192,7 +197,9 @@ def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeO
         inc = np.zeros(6)
     if inc.any():
         run.correct_imu(float(res.t[-1]), inc[:3], inc[3:])
-    return Feedback(float(res.t[-1]), moved, inc, dt), prior
+    if np.isfinite(out.offset_db):
+        run.set_receiver_offset(out.offset_db)
+    return Feedback(float(res.t[-1]), moved, inc, dt, out.offset_db), prior
 
 
 def _attitude(run: BatchRun, attitude) -> tuple[np.ndarray, np.ndarray]:
@@ -210,4 +217,4 @@ def _corrected(run: BatchRun, imu: ImuSamples) -> ImuSamples:
     return imu
 
 
-__all__ = ["Feedback", "LoopOutcome", "run_closed_loop", "carry_map", "map_frame"]
+__all__ = ["Feedback", "LoopOutcome", "run_closed_loop", "carry_map", "map_frame", "window_inputs"]

@@ -81,6 +81,10 @@ class MeasurementModel:
         """Why the model cannot run, or None."""
         return None
 
+    def set_receiver_offset(self, delta_db: float) -> None:
+        """The receiver reads ``delta_db`` dB above its calibration (the back-end's estimate): models that
+        convert RSSI shift their a_X by it (a no-op for the others)."""
+
     def on_resample(self, runs: np.ndarray, idx: np.ndarray) -> None:
         """The engine resampled runs ``runs`` (Q,) with ancestor indices ``idx`` (Q, N): a model that keeps
         per-particle state (e.g. a receiver offset's posterior) reorders it the same way (default: none)."""
@@ -123,6 +127,7 @@ class _PathLoss(MeasurementModel):
     device_z: float = 1.2
     use_anchor_tx_power: bool = True
     calibrated: bool = False  # True: the harness replaces a_x, gamma, d0 by a fit on labelled data
+    rx_offset_db: float = 0.0  # dB added to every anchor's a_X: the receiver's offset (set by the back-end's loop)
     anchors: AnchorTable | None = field(default=None, repr=False)
 
     needs = ("rssi",)
@@ -131,11 +136,16 @@ class _PathLoss(MeasurementModel):
         """Attach the building's anchors (prior map); a later back-end may re-bind a corrected map."""
         self.anchors = anchors
 
+    def set_receiver_offset(self, delta_db: float) -> None:
+        self.rx_offset_db = float(delta_db)
+
     def _ax(self) -> np.ndarray:
         tx = self.anchors.tx_power_dbm
         if self.use_anchor_tx_power:
-            return np.where(np.isfinite(tx), tx, self.a_x)
-        return np.full(len(tx), self.a_x)
+            ax = np.where(np.isfinite(tx), tx, self.a_x)
+        else:
+            ax = np.full(len(tx), self.a_x)
+        return ax + self.rx_offset_db if self.rx_offset_db else ax
 
     def _distances(self, xy: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """(M, P) 3-D distances (m) from the particles (P = R * N, flattened) to the anchors of the step's M

@@ -335,6 +335,8 @@ class BatchRun:
         self.t0 = time.perf_counter()
         _missing_model(method)
         self.method, self.session, self.cache = method, session, cache
+        for m in method.measurements:  # a receiver offset of an earlier run (closed loop) does not carry over
+            m.set_receiver_offset(0.0)
         rng = np.random.default_rng(seed)
         if cache is not None and geom is None:
             gkey = ("geom", session.building.id, str(session.meta.get("floor")), method.map.index)
@@ -410,6 +412,12 @@ class BatchRun:
         for m in self.method.measurements:
             m.bind(table)
         self.anchors = table
+
+    def set_receiver_offset(self, delta_db: float) -> None:
+        """The receiver reads ``delta_db`` dB above the path-loss model: every path-loss measurement model adds it
+        to its a_X for the remaining steps (the back-end's estimate, issue 14 sec. 4)."""
+        for m in self.method.measurements:
+            m.set_receiver_offset(delta_db)
 
     def correct_imu(self, t_from: float, accel_bias: np.ndarray, gyro_bias: np.ndarray) -> None:
         """Subtract constant biases (device frame: m/s^2, rad/s) from the IMU samples after ``t_from`` and
