@@ -122,30 +122,12 @@ def update_times(bundle, session, seed: int = 0) -> tuple[np.ndarray, list]:
 
 
 def torch_reference(bundle, ckpt: Path, mapprior: Path, session, seed: int, with_fixes: bool = False):
-    """The PyTorch pipeline of tests/test_bundle.py: batch windows -> torch fixes; torch prior; run_session.
-    Returns (t, xy) of the trajectory (and the fixes frame with ``with_fixes``)."""
-    import torch
+    """The PyTorch pipeline (blenav.learn.reference.torch_pipeline): (t, xy) of the trajectory, and the fixes
+    frame with ``with_fixes``."""
+    from blenav.learn.reference import torch_pipeline
 
-    from blenav.features.windows import WindowConfig, session_windows
-    from blenav.filters.runner import run_session
-    from blenav.learn.checkpoint import load_module
-    from blenav.learn.export import streaming_net
-    from blenav.learn.mapprior_checkpoint import load_map_prior
-    from blenav.runtime.bundle import FIX_SOURCE, build_method
-
-    module, meta = load_module(ckpt)
-    net = streaming_net(module, meta)
-    w = meta["window"]
-    win = session_windows(session, meta["beacons"], WindowConfig(
-        history=int(w["history"]), step_hz=float(w["step_hz"]), offset_db=float(w["offset_db"]),
-        floor_u=float(w["floor_u"]), beacon_subset=w.get("beacon_subset")))
-    z = torch.zeros(module.locnet.layers, len(win.S), module.locnet.hidden)
-    with torch.no_grad():
-        xy = net(torch.from_numpy(win.S), z, z)[0].numpy().astype(float)
-    ok = (win.S > 0).reshape(len(win.S), -1).any(axis=1)
-    fixes = pd.DataFrame({"t": win.t[ok], "x": xy[ok, 0], "y": xy[ok, 1], "std": np.nan, "source": FIX_SOURCE})
-    res = run_session(build_method(bundle.settings, load_map_prior(mapprior)), session, 1, seed, fixes=fixes)
-    return (res.t, res.position[0], fixes) if with_fixes else (res.t, res.position[0])
+    t, xy, fixes = torch_pipeline(bundle, ckpt, mapprior, session, seed)
+    return (t, xy, fixes) if with_fixes else (t, xy)
 
 
 def stats(ms: np.ndarray) -> dict:

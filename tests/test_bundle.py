@@ -26,7 +26,7 @@ from blenav.data import Dataset
 from blenav.learn.export import export
 from blenav.learn.train import train
 from blenav.runtime import Bundle, BuildingMismatch
-from blenav.runtime.bundle import FIX_SOURCE, MANIFEST, build_method, variant_name
+from blenav.runtime.bundle import MANIFEST, variant_name
 from helpers import simulate_small
 
 pytestmark = pytest.mark.onnx
@@ -175,38 +175,14 @@ def test_refuses_a_changed_file(made, tmp_path):
         Bundle.open(B)
 
 
-def torch_pipeline(bundle: Bundle, ckpt: Path, mapprior_ckpt: Path, session, seed: int):
-    """The PyTorch pipeline: torch LocNet over the session's batch windows -> fixes; torch map prior; run_session."""
-    import torch
-
-    from blenav.features.windows import WindowConfig, session_windows
-    from blenav.filters.runner import run_session
-    from blenav.learn.checkpoint import load_module
-    from blenav.learn.export import streaming_net
-    from blenav.learn.mapprior_checkpoint import load_map_prior
-
-    module, meta = load_module(ckpt)
-    net = streaming_net(module, meta)
-    w = meta["window"]
-    win = session_windows(session, meta["beacons"], WindowConfig(
-        history=int(w["history"]), step_hz=float(w["step_hz"]), offset_db=float(w["offset_db"]),
-        floor_u=float(w["floor_u"]), beacon_subset=w.get("beacon_subset")))
-    z = torch.zeros(module.locnet.layers, len(win.S), module.locnet.hidden)
-    with torch.no_grad():
-        xy = net(torch.from_numpy(win.S), z, z)[0].numpy().astype(float)
-    ok = (win.S > 0).reshape(len(win.S), -1).any(axis=1)
-    fixes = pd.DataFrame({"t": win.t[ok], "x": xy[ok, 0], "y": xy[ok, 1], "std": np.nan, "source": FIX_SOURCE})
-    method = build_method(bundle.settings, load_map_prior(mapprior_ckpt))
-    res = run_session(method, session, 1, seed, fixes=fixes)
-    return res.t, res.position[0], fixes
-
-
 def test_runtime_reproduces_the_pytorch_pipeline_within_1cm(made):
     """Same seed, same settings except the filter's discrete choices: no resampling, no obstacle re-initialisation,
     the weighted mean as the estimate. With them (the default) float32 differences between onnxruntime and torch
     (~1e-6 m) flip a resampling or re-initialisation choice now and then, and from there the two runs are different
     draws of the same filter (benchmarks/runtime_latency.py reports how often and how far)."""
     import dataclasses
+
+    from blenav.learn.reference import torch_pipeline
 
     b = Bundle.open(made["bundle"])
     settings = json.loads(json.dumps(b.settings))
