@@ -51,6 +51,7 @@ import numpy as np
 from blenav.features.mapgrid import pad_to_multiple
 from blenav.onnx_io import blenav_version, check_weights, read_metadata, session
 
+from .map_prior import OnnxBackend
 from .signature import BuildingMismatch, building_signature, check_building
 
 FORMAT = "blenav-bundle/1"
@@ -169,8 +170,9 @@ class LocalizerGraph:
         return xy
 
 
-class _MapBackend:
-    """A bundle's map prior graphs (one variant) as a :class:`blenav.runtime.map_prior.MapPrior` backend."""
+class _MapBackend(OnnxBackend):
+    """A bundle's map prior graphs (one variant) as a :class:`blenav.runtime.map_prior.MapPrior` backend: an
+    :class:`~blenav.runtime.map_prior.OnnxBackend` (its encoders) over the bundle's file names and manifest."""
 
     def __init__(self, root: Path, variant: str, threads: int, digest: str):
         self.meta = json.loads((root / "meta.json").read_text(encoding="utf-8"))
@@ -179,13 +181,6 @@ class _MapBackend:
         self.weights_hash = f"bundle-{variant}:{digest[:16]}"
         self.resolution_m = float(self.meta["resolution_m"])
 
-    def encode_map(self, mask: np.ndarray) -> np.ndarray:
-        h, w = mask.shape
-        padded = pad_to_multiple(mask, int(self.meta["size_multiple"]))
-        return self.map_sess.run(["dmt"], {"mask": padded[None, None]})[0][0, :, :h, :w]
-
-    def encode_trajectory(self, odo_px: np.ndarray) -> np.ndarray:
-        return self.traj_sess.run(["dtv"], {"odometry": (odo_px * self.resolution_m).astype(np.float32)})[0]
 
 
 # --- live windows ------------------------------------------------------------------------------------------
