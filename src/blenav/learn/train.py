@@ -215,6 +215,81 @@ def _prior(out: Path) -> dict:
 TASKS = ("crossphone", "mapprior")
 
 
+def _trainer_settings(cfg: DictConfig, b: dict, dm: WindowDataModule, module) -> tuple[dict, int]:
+    """Lightning Trainer keywords of ``cfg.trainer`` with the step budget ``b`` (max_steps -1: a callback enforces
+    it; validation cadence in steps), and the module's LR schedule set; returns (keywords, max_steps or -1)."""
+    trainer_kw = OmegaConf.to_container(cfg.trainer, resolve=True)
+    trainer_kw.pop("budget", None)
+    if trainer_kw.get("max_epochs") is None:
+        trainer_kw["max_epochs"] = -1  # the step budget decides (Lightning's default would be 1000 epochs)
+    max_steps = int(b["max_steps"]) if b["max_steps"] is not None else -1
+    trainer_kw["max_steps"] = -1  # the budget is a callback (blenav.learn.trainer.StepBudget)
+    spe = _steps_per_epoch(len(dm.sets["train"]), dm.cfg.batch_size)
+    trainer_kw.update(_val_cadence(int(b["val_every_steps"]), spe))
+    total = [t for t in (max_steps if max_steps > 0 else None,
+                         spe * int(trainer_kw["max_epochs"]) if int(trainer_kw["max_epochs"]) > 0 else None) if t]
+    if not total:
+        raise ValueError("no training budget: set trainer.budget.max_steps or trainer.max_epochs")
+    module.schedule = {"kind": b["schedule"], "warmup_steps": int(b["warmup_steps"]), "total_steps": min(total),
+                       "min_lr_ratio": float(b["min_lr_ratio"])}
+    return trainer_kw, max_steps
+
+
+def _supervised_stage(module, dm, out: Path, trainer_kw: dict, b: dict, max_steps: int, monitor, knn_err,
+                      callbacks, title: str, plots: bool):
+    """Fit with the step budget and early stopping; keep the best validation check's weights; write the
+    checkpoint and the training report. Returns (training info, trainer)."""
+    es = None
+    step_budget = StepBudget(max_steps)
+    callbacks_1 = [monitor, step_budget, *(callbacks or [])]
+    if b["patience"] is not None:
+        es = L.pytorch.callbacks.EarlyStopping(monitor="val/loss", patience=int(b["patience"]),
+                                               min_delta=float(b["min_delta"]), mode="min",
+                                               check_on_train_epoch_end=False)
+        callbacks_1.append(es)
+    module.training_info = {"stage": "supervised"}
+    trainer = fit(module, dm, out, trainer_kw, callbacks_1)
+    if monitor.history and monitor.history[-1]["step"] != trainer.global_step or not monitor.history:
+        if dm.sets.get("val") is not None:  # the last steps since the previous check are validated too
+            trainer.validate(module, datamodule=dm, verbose=False)
+    reason = stop_reason(trainer, es, step_budget)
+    if monitor.best_state is not None:  # the weights of the best validation check
+        module.load_state_dict(monitor.best_state)
+    info = training_report(monitor, reason, trainer.global_step, knn_err)
+    module.training_info = info
+    if trainer.is_global_zero:
+        _finish_checkpoint(trainer, module, out, info, monitor)
+    _write_report(out, info, monitor, title, plots)
+    return info, trainer
+
+
+def _semi_stage(module, dm, out: Path, trainer_kw: dict, semi, info: dict, knn_err, callbacks, title: str,
+                plots: bool):
+    """The semi-supervised stage (scenario 3) for ``semi.steps`` optimizer steps (or ``semi.epochs``) after the
+    supervised ones; writes the checkpoint and the report. Returns (training info, trainer)."""
+    start = int(info.get("semi_from_step") if info.get("stage") == "semi" else info["steps"])
+    n_all = len(dm.sets["train"]) + len(dm.sets["unlabelled"])
+    steps = int(semi.get("epochs") or 0) * _steps_per_epoch(n_all, dm.cfg.batch_size) or int(semi.get("steps") or 0)
+    if steps <= 0:
+        raise ValueError("semi: give semi.steps (optimizer steps) or semi.epochs")
+    module.stage, module.semi_lr = "semi", float(semi.lr)
+    dm.semi_from_epoch = 0  # labelled + unlabelled windows in every epoch of this stage
+    kw2 = {**trainer_kw, "max_epochs": -1}
+    module.training_info = {**info, "stage": "semi", "semi_from_step": start, "stop_reason": None}
+    monitor2 = TrainingMonitor()
+    trainer = fit(module, dm, out, kw2, [monitor2, StepBudget(start + steps), *(callbacks or [])])
+    if dm.sets.get("val") is not None and (not monitor2.history or monitor2.history[-1]["step"] != trainer.global_step):
+        trainer.validate(module, datamodule=dm, verbose=False)
+    sup = {k: info.get(k) for k in ("steps", "early_stopped", "stop_reason", "best_val_error_m")}
+    info = {**training_report(monitor2, "semi_steps", trainer.global_step, knn_err, stage="semi"),
+            "semi_from_step": start, "supervised": sup, "early_stopped": bool(sup["early_stopped"])}
+    module.training_info = info
+    if trainer.is_global_zero:
+        _finish_checkpoint(trainer, module, out, info, monitor2)
+    _write_report(out, info, monitor2, title, plots)
+    return info, trainer
+
+
 def train(cfg: DictConfig, callbacks: list | None = None,
           datamodule: WindowDataModule | None = None) -> tuple[dict, dict]:
     """Returns (metrics, objects) like lightning-hydra-template's train(); ``callbacks`` are added to the
@@ -250,20 +325,7 @@ def train(cfg: DictConfig, callbacks: list | None = None,
                          f"data.unlabelled_devices=[...] to device models of this dataset (here: {here})")
     b = budget(cfg)
     module = build_module(cfg, dm)
-    trainer_kw = OmegaConf.to_container(cfg.trainer, resolve=True)
-    trainer_kw.pop("budget", None)
-    if trainer_kw.get("max_epochs") is None:
-        trainer_kw["max_epochs"] = -1  # the step budget decides (Lightning's default would be 1000 epochs)
-    max_steps = int(b["max_steps"]) if b["max_steps"] is not None else -1
-    trainer_kw["max_steps"] = -1  # the budget is a callback (blenav.learn.trainer.StepBudget)
-    spe = _steps_per_epoch(len(dm.sets["train"]), dm.cfg.batch_size)
-    trainer_kw.update(_val_cadence(int(b["val_every_steps"]), spe))
-    total = [t for t in (max_steps if max_steps > 0 else None,
-                         spe * int(trainer_kw["max_epochs"]) if int(trainer_kw["max_epochs"]) > 0 else None) if t]
-    if not total:
-        raise ValueError("no training budget: set trainer.budget.max_steps or trainer.max_epochs")
-    module.schedule = {"kind": b["schedule"], "warmup_steps": int(b["warmup_steps"]), "total_steps": min(total),
-                       "min_lr_ratio": float(b["min_lr_ratio"])}
+    trainer_kw, max_steps = _trainer_settings(cfg, b, dm, module)
     title = f"{(cfg.model or {}).get('name', 'model')} ({out})"
     plots = bool(cfg.get("plots", True))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True), encoding="utf-8")
@@ -275,49 +337,11 @@ def train(cfg: DictConfig, callbacks: list | None = None,
     if prior.get("stage") == "semi" or prior.get("stop_reason") == "early_stopping":
         info = prior
     else:
-        es = None
-        step_budget = StepBudget(max_steps)
-        callbacks_1 = [monitor, step_budget, *(callbacks or [])]
-        if b["patience"] is not None:
-            es = L.pytorch.callbacks.EarlyStopping(monitor="val/loss", patience=int(b["patience"]),
-                                                   min_delta=float(b["min_delta"]), mode="min",
-                                                   check_on_train_epoch_end=False)
-            callbacks_1.append(es)
-        module.training_info = {"stage": "supervised"}
-        trainer = fit(module, dm, out, trainer_kw, callbacks_1)
-        if monitor.history and monitor.history[-1]["step"] != trainer.global_step or not monitor.history:
-            if dm.sets.get("val") is not None:  # the last steps since the previous check are validated too
-                trainer.validate(module, datamodule=dm, verbose=False)
-        reason = stop_reason(trainer, es, step_budget)
-        if monitor.best_state is not None:  # the weights of the best validation check
-            module.load_state_dict(monitor.best_state)
-        info = training_report(monitor, reason, trainer.global_step, knn_err)
-        module.training_info = info
-        if trainer.is_global_zero:
-            _finish_checkpoint(trainer, module, out, info, monitor)
-        _write_report(out, info, monitor, title, plots)
+        info, trainer = _supervised_stage(module, dm, out, trainer_kw, b, max_steps, monitor, knn_err, callbacks,
+                                          title, plots)
     # -- semi-supervised stage (scenario 3)
     if semi:
-        start = int(info.get("semi_from_step") if info.get("stage") == "semi" else info["steps"])
-        n_all = len(dm.sets["train"]) + len(dm.sets["unlabelled"])
-        steps = int(semi.get("epochs") or 0) * _steps_per_epoch(n_all, dm.cfg.batch_size) or int(semi.get("steps") or 0)
-        if steps <= 0:
-            raise ValueError("semi: give semi.steps (optimizer steps) or semi.epochs")
-        module.stage, module.semi_lr = "semi", float(semi.lr)
-        dm.semi_from_epoch = 0  # labelled + unlabelled windows in every epoch of this stage
-        kw2 = {**trainer_kw, "max_epochs": -1}
-        module.training_info = {**info, "stage": "semi", "semi_from_step": start, "stop_reason": None}
-        monitor2 = TrainingMonitor()
-        trainer = fit(module, dm, out, kw2, [monitor2, StepBudget(start + steps), *(callbacks or [])])
-        if dm.sets.get("val") is not None and (not monitor2.history or monitor2.history[-1]["step"] != trainer.global_step):
-            trainer.validate(module, datamodule=dm, verbose=False)
-        sup = {k: info.get(k) for k in ("steps", "early_stopped", "stop_reason", "best_val_error_m")}
-        info = {**training_report(monitor2, "semi_steps", trainer.global_step, knn_err, stage="semi"),
-                "semi_from_step": start, "supervised": sup, "early_stopped": bool(sup["early_stopped"])}
-        module.training_info = info
-        if trainer.is_global_zero:
-            _finish_checkpoint(trainer, module, out, info, monitor2)
-        _write_report(out, info, monitor2, title, plots)
+        info, trainer = _semi_stage(module, dm, out, trainer_kw, semi, info, knn_err, callbacks, title, plots)
     if trainer is None:  # finished before: the checkpoint's weights, a trainer only to test them
         from .checkpoint import read_checkpoint
 
