@@ -150,9 +150,9 @@ class LocalizerGraph:
     """The cross-phone localizer of a bundle in one variant: (K, B, H) windows on the thesis scale -> (K, 2) m,
     each from a zero LSTM state (the export's ``lstm_state`` contract); NaN rows where nothing was heard."""
 
-    def __init__(self, path: Path, meta: dict, threads: int = 1):
+    def __init__(self, path: Path, meta: dict, threads: int = 1, sess=None):
         self.path, self.meta = Path(path), meta
-        self.sess = session(self.path, threads)
+        self.sess = sess if sess is not None else session(self.path, threads)
         ins = self.sess.get_inputs()
         self.n_beacons, self.history = int(ins[0].shape[1]), int(ins[0].shape[2])
         self.layers, self.hidden = int(ins[1].shape[0]), int(ins[1].shape[2])
@@ -411,10 +411,14 @@ class Bundle:
         settings = json.loads((root / SETTINGS).read_text(encoding="utf-8"))
         signature = json.loads((root / BUILDING).read_text(encoding="utf-8"))
         float_path = root / variant_name(LOCALIZER, "float")
-        meta = read_metadata(session(float_path, 1))
+        # the metadata is read from the float graph (the ORT variants may not keep it); the float variant's graph
+        # reuses that session instead of loading the file a second time
+        float_sess = session(float_path, threads if variant == "float" else 1)
+        meta = read_metadata(float_sess)
         if verify:
             check_weights(float_path)
-        graph = LocalizerGraph(root / variant_name(LOCALIZER, variant), meta, threads)
+        graph = LocalizerGraph(root / variant_name(LOCALIZER, variant), meta, threads,
+                               sess=float_sess if variant == "float" else None)
         prior = None
         if (root / MAP_DIR / "meta.json").is_file():
             from .map_prior import MapPrior
@@ -496,8 +500,8 @@ def verify_files(root: Path, manifest: dict) -> None:
         p = root / rel
         if not p.is_file():
             bad.append(f"{rel} missing")
-        elif sha256_file(p) != info.get("sha256"):
-            bad.append(f"{rel} changed (sha256 {sha256_file(p)[:12]}..., manifest {str(info.get('sha256'))[:12]}...)")
+        elif (got := sha256_file(p)) != info.get("sha256"):
+            bad.append(f"{rel} changed (sha256 {got[:12]}..., manifest {str(info.get('sha256'))[:12]}...)")
     if bad:
         raise ValueError(f"bundle {root} is not the one exported: {'; '.join(bad)}; export it again")
 
