@@ -25,8 +25,8 @@ import numpy as np
 
 from blenav.filters.measurement import AnchorTable
 
-__all__ = ["window_medians", "window_count", "rtt_keep_mask", "ble_keep_mask", "RadioWindows", "preprocess",
-           "anchor_tables", "session_span", "anchor_rows"]
+__all__ = ["window_medians", "keyed_medians", "window_count", "rtt_keep_mask", "ble_keep_mask", "RadioWindows",
+           "preprocess", "anchor_tables", "session_span", "anchor_rows"]
 
 
 def window_count(t_start: float, t_end: float, window_s: float) -> int:
@@ -45,19 +45,23 @@ def window_medians(t: np.ndarray, idx: np.ndarray, values: np.ndarray, n_anchors
     values = np.asarray(values, float)
     win = np.floor((t - t_start) / window_s).astype(np.int64)
     ok = (idx >= 0) & (idx < n_anchors) & (win >= 0) & (win < n_windows) & np.isfinite(values)
-    out = np.full(n_windows * n_anchors, np.nan)
-    if not ok.any():
-        return out.reshape(n_windows, n_anchors)
-    key = win[ok] * n_anchors + idx[ok]
-    v = values[ok]
-    order = np.lexsort((v, key))
-    key, v = key[order], v[order]
+    return keyed_medians(win[ok] * n_anchors + idx[ok], values[ok], n_windows * n_anchors).reshape(n_windows, n_anchors)
+
+
+def keyed_medians(key: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
+    """(size,) median of ``values`` (M,) per integer ``key`` (M,) in [0, size), NaN for keys without a value.
+    The median of an even count is the mean of the two middle values. One lexsort, no loop."""
+    out = np.full(size, np.nan)
+    order = np.lexsort((values, key))
+    key, v = key[order], values[order]
+    if len(key) == 0:
+        return out
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     counts = np.diff(np.r_[starts, len(key)])
     lo = starts + (counts - 1) // 2
     hi = starts + counts // 2
     out[key[starts]] = 0.5 * (v[lo] + v[hi])
-    return out.reshape(n_windows, n_anchors)
+    return out
 
 
 def rtt_keep_mask(range_m: np.ndarray, wifi_rssi: np.ndarray | None, min_wifi_rssi_dbm: float | None = -65.0

@@ -22,6 +22,7 @@ import time
 
 import numpy as np
 
+from blenav.crf.preprocess import keyed_medians
 from blenav.filters.calibration import apply_fit
 from blenav.filters.measurement import AnchorTable, PathLossRange
 from blenav.filters.runner import MissingStream
@@ -104,13 +105,4 @@ class WeightedCentroidLocalizer(Localizer, PathLossCalibrated):
 
 def _window_medians(win: np.ndarray, idx: np.ndarray, rssi: np.ndarray, W: int, A: int) -> np.ndarray:
     """(W, A) median RSSI per (window, anchor), NaN where the anchor was not heard in the window."""
-    key = win * A + idx
-    order = np.lexsort((rssi, key))
-    key, vals = key[order], rssi[order]
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    counts = np.diff(np.r_[starts, len(key)])
-    lo = starts + (counts - 1) // 2
-    hi = starts + counts // 2
-    out = np.full(W * A, np.nan)
-    out[key[starts]] = 0.5 * (vals[lo] + vals[hi])
-    return out.reshape(W, A)
+    return keyed_medians(win * A + idx, rssi, W * A).reshape(W, A)
