@@ -162,6 +162,23 @@ def offline_calibration(sessions: list, wifi: AnchorTable, ble: AnchorTable, n: 
     return cal
 
 
+def _fix_window(readings: tuple[np.ndarray, np.ndarray, np.ndarray], anchor_xyz: np.ndarray, v: np.ndarray,
+                t0: float, t1: float, pooled: list | None):
+    """(anchor rows, values, true distances m) of the time-ordered ``readings`` (t, row, value) in [t0, t1)
+    with the fix at ``v`` (3,) m; None when the window is empty. ``pooled`` (three lists): the window is
+    appended and every window so far is returned."""
+    tt, ii, rr = readings
+    w = slice(*np.searchsorted(tt, [t0, t1]))  # readings are in time order
+    if w.stop <= w.start:
+        return None
+    args = [ii[w], rr[w], np.linalg.norm(anchor_xyz[ii[w]] - v, axis=1)]
+    if pooled is None:
+        return args
+    for lst, a in zip(pooled, args):
+        lst.append(a)
+    return [np.concatenate(lst) for lst in pooled]
+
+
 def online_track(base: CalibrationTrack, fixes: np.ndarray, wifi: AnchorTable, ble: AnchorTable, n: float,
                  rtt: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
                  rssi: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
@@ -190,26 +207,14 @@ def online_track(base: CalibrationTrack, fixes: np.ndarray, wifi: AnchorTable, b
         t_av[c] = t1
         off[c + 1], tx[c + 1], hd[c + 1] = off[c], tx[c], hd[c]
         if calibrate_rtt and rtt is not None and len(wifi.ids):
-            tt, ii, rr = rtt
-            w = slice(*np.searchsorted(tt, [t0, t1]))  # readings are in time order
-            if w.stop > w.start:
-                args = [ii[w], rr[w], np.linalg.norm(wifi.xyz[ii[w]] - v, axis=1)]
-                if pool:
-                    for lst, a in zip(acc_rtt, args):
-                        lst.append(a)
-                    args = [np.concatenate(lst) for lst in acc_rtt]
+            args = _fix_window(rtt, wifi.xyz, v, t0, t1, acc_rtt if pool else None)
+            if args is not None:
                 new = rtt_offsets(*args, len(wifi.ids))
                 off[c + 1] = np.where(np.isfinite(new), new, off[c])
         if calibrate_ble and rssi is not None and len(ble.ids):
-            tt, ii, rr = rssi
-            w = slice(*np.searchsorted(tt, [t0, t1]))
-            if w.stop > w.start:
-                args = [ii[w], rr[w], np.linalg.norm(ble.xyz[ii[w]] - v, axis=1)]
-                if pool:
-                    for lst, a in zip(acc_ble, args):
-                        lst.append(a)
-                    args = [np.concatenate(lst) for lst in acc_ble]
-                new = ble_tx_powers(args[0], args[1], args[2], n, len(ble.ids))
+            args = _fix_window(rssi, ble.xyz, v, t0, t1, acc_ble if pool else None)
+            if args is not None:
+                new = ble_tx_powers(*args, n, len(ble.ids))
                 tx[c + 1] = np.where(np.isfinite(new), new, tx[c])
         if calibrate_heading and yaw is not None and np.isfinite(yv):
             tt, yy = yaw
