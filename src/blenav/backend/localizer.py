@@ -89,7 +89,9 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
             for m in self.front.method.measurements:
                 if isinstance(m, PathLossRange):
                     rc = self.cfg.range
-                    return replace(m, sigma_n=rc.sigma_n, max_range_m=rc.max_range_m, anchors=None)
+                    # rx_offset_db=0: the front-end's models may still hold the offset an earlier session's
+                    # closed loop set (BatchRun resets it only when the next filter is built, after this)
+                    return replace(m, sigma_n=rc.sigma_n, max_range_m=rc.max_range_m, anchors=None, rx_offset_db=0.0)
         return path_loss_model(self.cfg)
 
     # ------------------------------------------------------------------ run
