@@ -30,7 +30,7 @@ import numpy as np
 from blenav.filters.measurement import AnchorTable
 
 from .features import wrap_angle
-from .preprocess import ble_keep_mask, rtt_keep_mask
+from .preprocess import ble_keep_mask, keyed_medians, rtt_keep_mask
 
 __all__ = ["Calibration", "CalibrationTrack", "rtt_offsets", "ble_tx_powers", "heading_offset",
            "offline_calibration", "online_track", "static_sessions", "CALIBRATIONS"]
@@ -76,11 +76,8 @@ class CalibrationTrack:
 
 
 def _medians_by_anchor(idx: np.ndarray, values: np.ndarray, n_anchors: int) -> np.ndarray:
-    out = np.full(n_anchors, np.nan)
     ok = (idx >= 0) & np.isfinite(values)
-    for a in np.unique(idx[ok]):  # loop over anchors (a few dozen), not readings
-        out[a] = float(np.median(values[ok][idx[ok] == a]))
-    return out
+    return keyed_medians(idx[ok].astype(np.int64), values[ok], n_anchors)
 
 
 def rtt_offsets(idx: np.ndarray, range_m: np.ndarray, true_dist: np.ndarray, n_anchors: int) -> np.ndarray:
