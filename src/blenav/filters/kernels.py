@@ -410,6 +410,27 @@ def duplicates(idx):
 # ------------------------------------------------------------------------------------ map queries
 
 
+@njit(cache=True, inline="always")
+def _closest_on_segment(x, y, ax, ay, bx, by):
+    """The closest point (qx, qy) of segment a-b to (x, y) and its squared distance (shapes.project_segments'
+    arithmetic: t clamped to [0, 1], a zero-length segment projects to a)."""
+    dx = bx - ax
+    dy = by - ay
+    px = x - ax
+    py = y - ay
+    dd = dx * dx + dy * dy
+    t = (px * dx + py * dy) / (dd if dd > 0 else 1.0)
+    if t < 0.0:
+        t = 0.0
+    elif t > 1.0:
+        t = 1.0
+    qx = ax + t * dx
+    qy = ay + t * dy
+    rx = x - qx
+    ry = y - qy
+    return qx, qy, rx * rx + ry * ry
+
+
 @njit(cache=True)
 def grid_nearest_edge(xy, x0, y0, cell, nx, ny, cell_edges, segs, max_d2):
     """GridIndex.nearest_edge: per point, the closest point on the nearest candidate edge of its 1 m cell
@@ -438,23 +459,7 @@ def grid_nearest_edge(xy, x0, y0, cell, nx, ny, cell_edges, segs, max_d2):
             e = cell_edges[c, k]
             if e < 0:
                 continue
-            ax = segs[e, 0, 0]
-            ay = segs[e, 0, 1]
-            dx = segs[e, 1, 0] - ax
-            dy = segs[e, 1, 1] - ay
-            px = x - ax
-            py = y - ay
-            dd = dx * dx + dy * dy
-            t = (px * dx + py * dy) / (dd if dd > 0 else 1.0)
-            if t < 0.0:
-                t = 0.0
-            elif t > 1.0:
-                t = 1.0
-            qx = ax + t * dx
-            qy = ay + t * dy
-            rx = x - qx
-            ry = y - qy
-            d2 = rx * rx + ry * ry
+            qx, qy, d2 = _closest_on_segment(x, y, segs[e, 0, 0], segs[e, 0, 1], segs[e, 1, 0], segs[e, 1, 1])
             if d2 <= max_d2 and d2 < best:
                 best = d2
                 bx = qx
@@ -498,23 +503,8 @@ def project_rings(xy, k, segs):
         bx = 0.0
         by = 0.0
         for j in range(S):
-            ax = segs[kk, j, 0, 0]
-            ay = segs[kk, j, 0, 1]
-            dx = segs[kk, j, 1, 0] - ax
-            dy = segs[kk, j, 1, 1] - ay
-            px = x - ax
-            py = y - ay
-            dd = dx * dx + dy * dy
-            t = (px * dx + py * dy) / (dd if dd > 0 else 1.0)
-            if t < 0.0:
-                t = 0.0
-            elif t > 1.0:
-                t = 1.0
-            qx = ax + t * dx
-            qy = ay + t * dy
-            rx = x - qx
-            ry = y - qy
-            d2 = rx * rx + ry * ry
+            qx, qy, d2 = _closest_on_segment(x, y, segs[kk, j, 0, 0], segs[kk, j, 0, 1], segs[kk, j, 1, 0],
+                                             segs[kk, j, 1, 1])
             if d2 != d2:
                 d2 = np.inf
             if j == 0 or d2 < best:
