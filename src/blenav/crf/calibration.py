@@ -102,18 +102,22 @@ def heading_offset(yaw_ref: float, yaw_imu: np.ndarray) -> float:
     return float(wrap_angle(c + np.median(wrap_angle(d - c))))
 
 
-def static_sessions(session) -> list:
+def static_sessions(session, cache: dict | None = None) -> list:
     """Labelled static survey sessions (``carrier: static``) of ``session``'s dataset in its building, other
-    than ``session`` itself: the labelled static points of offline calibration."""
+    than ``session`` itself: the labelled static points of offline calibration. ``cache`` (e.g. the run
+    context's): the sessions of a building and floor are opened once, so their streams are read once."""
     from blenav.data import Dataset
 
     root = session.root.parent.parent
     if not (root / "dataset.yaml").is_file():
         return []
-    ds = Dataset.open(root)
-    return [s for s in ds.sessions(labelled=True)
-            if s.carrier == "static" and s.id != session.id and s.meta.get("building") == session.meta.get("building")
-            and str(s.meta.get("floor")) == str(session.meta.get("floor"))]
+    b, f = session.meta.get("building"), str(session.meta.get("floor"))
+    key = ("crf-static-sessions", str(root), b, f)
+    cache = cache if cache is not None else {}
+    if key not in cache:
+        cache[key] = [s for s in Dataset.open(root).sessions(labelled=True)
+                      if s.carrier == "static" and s.meta.get("building") == b and str(s.meta.get("floor")) == f]
+    return [s for s in cache[key] if s.id != session.id]
 
 
 def offline_calibration(sessions: list, wifi: AnchorTable, ble: AnchorTable, n: float,

@@ -172,7 +172,7 @@ class CrfLocalizer(Localizer):
                self.rtt_min_wifi_rssi_dbm)
         cache = ctx.cache if ctx is not None else {}
         if key not in cache:
-            stat = static_sessions(session)
+            stat = static_sessions(session, cache)
             cache[key] = (offline_calibration(stat, wifi, ble, self.ble_n, self.ble_min_rssi_dbm,
                                               self.rtt_min_wifi_rssi_dbm) if stat else None, [s.id for s in stat])
         return cache[key]
