@@ -51,14 +51,14 @@ from blenav.filters.attitude import misalignment_deg
 from blenav.filters.calibration import fit_sessions
 from blenav.filters.runner import MissingStream
 from blenav.localizers import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext,
-                               build_localizer)
+                               Trained, build_localizer)
 from blenav.localizers.confine import confine
 from blenav.eval import beacon_map as BM
 from blenav.eval.plan_errors import PlanErrorConfig, perturb_building
 
 from .common import EvalError, json_default, write_json
 from .fixes import FixProvider
-from .metrics import cdf_band, pool, session_metrics
+from .metrics import cdf_band, pool, session_metrics, waypoint_metrics
 
 log = logging.getLogger("blenav.eval")
 
@@ -230,6 +230,42 @@ def scored_sessions(cfg: DictConfig, ds: Dataset) -> tuple[list, object]:
     return sessions, cal_spec
 
 
+def split_sessions(sessions: list, split) -> tuple[list, list]:
+    """(train, test): per building and floor, a seeded permutation of the walks (by session id, so the
+    split depends only on the seed and the walks), the first ``round(train_fraction * n)`` of them train
+    (at least one, and at least one left to test when a floor has two or more walks)."""
+    frac, seed = float(split.get("train_fraction", 0.5)), int(split.get("seed", 0))
+    if not 0.0 < frac < 1.0:
+        raise EvalError(f"split.train_fraction must be in (0, 1), got {frac}")
+    groups: dict = {}
+    for s in sorted(sessions, key=lambda s: s.id):
+        groups.setdefault((s.building.id, str(s.meta.get("floor"))), []).append(s)
+    train, test = [], []
+    for i, key in enumerate(sorted(groups, key=str)):
+        g = groups[key]
+        order = np.random.default_rng([seed, i]).permutation(len(g))
+        n = min(max(1, int(round(frac * len(g)))), max(len(g) - 1, 1))
+        train += [g[j] for j in order[:n]]
+        test += [g[j] for j in order[n:]]
+    return train, test
+
+
+def fit_trained(methods: dict[str, Localizer], train: list, ctx: RunContext) -> dict:
+    """Train the methods that learn from the dataset (:class:`Trained`) on ``train``; their reports by name
+    (a method whose training data lacks what it needs is reported, and then skipped at run time)."""
+    reports = {}
+    for name, m in methods.items():
+        if isinstance(m, Trained):
+            try:
+                reports[name] = m.fit(train, ctx)
+            except MissingStream as exc:
+                reports[name] = {"unavailable": str(exc)}
+                log.warning("%s cannot be trained: %s", name, exc)
+            except ValueError as exc:
+                raise EvalError(f"method {name}, training: {exc}") from exc
+    return reports
+
+
 # ------------------------------------------------------------------------------------------ calibrate
 def calibrate(methods: dict[str, Localizer], ds: Dataset, sessions: list, spec) -> dict | None:
     """Fit a_X and gamma for the methods that ask for it (:class:`PathLossCalibrated`).
@@ -319,7 +355,10 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
         est, moved = confine(est, s.floor, snap_free=method.uses_floor_plan, cache=ctx.cache)  # stay on the floor
         gt = s.groundtruth
         try:
-            m = session_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), init_s)
+            if s.groundtruth_sparse:  # sparse surveyed waypoints: the estimate interpolated at each waypoint time
+                m = waypoint_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy())
+            else:
+                m = session_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), init_s)
         except ValueError as exc:  # e.g. ground truth of one row, or all at one time: name the file
             raise EvalError(f"method {name}, session {s.id}: {exc} ({s.root / 'groundtruth.csv'}: t "
                             f"{gt['t'].min():g}..{gt['t'].max():g} s)") from exc
@@ -405,10 +444,15 @@ def evaluate(cfg: DictConfig) -> dict:
     plan_info = None
     if plan_error.active:
         sessions, plan_info = with_wrong_plans(sessions, plan_error, out / "plans")
+    train: list = []
+    if cfg.get("split") is not None:  # train on some walks of each floor, score the others
+        train, sessions = split_sessions(sessions, cfg.split)
     sessions, bmap_info = BM.with_source(sessions, bmap)
     provider = build_fix_provider(cfg, methods, out)
     calibration = calibrate({**methods, **(provider.methods if provider else {})}, ds, sessions, cal_spec)
     out.mkdir(parents=True, exist_ok=True)
+    ctx = RunContext(cache={}, fixes=provider, out=out)  # map geometry per floor, AHRS per session: shared
+    training = fit_trained({**methods, **(provider.methods if provider else {})}, train, ctx) if train else {}
     results = {"experiment": cfg.experiment.name, "title": cfg.experiment.get("title", ""), "dataset": str(ds.root),
                "runs": runs, "sessions": [s.id for s in sessions], "init_s": float(cfg.init_s), "seed": int(cfg.seed),
                "calibration": calibration, "methods": {}}
@@ -418,16 +462,22 @@ def evaluate(cfg: DictConfig) -> dict:
         results["plan_error"] = {**asdict(plan_error), "buildings": plan_info}
     if bmap.source != "given" or bmap.perturbed:
         results["beacon_map"] = {**asdict(bmap), "buildings": bmap_info}
-    ctx = RunContext(cache={}, fixes=provider, out=out)  # map geometry per floor, AHRS per session: shared
+    if train:
+        results["split"] = {**OmegaConf.to_container(cfg.split, resolve=True), "train": [s.id for s in train]}
     outcomes: dict[str, MethodOutcome] = {}
     with _Progress(bool(cfg.get("progress", False)), len(methods) * len(sessions)) as progress:
         for name, method in methods.items():
             oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress, bmap)
             results["methods"][name] = aggregate(oc, runs)
+            if training.get(name) is not None:
+                results["methods"][name]["training"] = training[name]
             if oc.metrics:
                 outcomes[name] = oc
     if provider is not None:
         results["fixes"] = provider.describe()
+        fix_training = {r: training[r] for r in provider.methods if training.get(r) is not None}
+        if fix_training:
+            results["fixes"]["training"] = fix_training
     dropped = dropped_rows(sessions)
     if dropped:
         results["dropped"] = dropped

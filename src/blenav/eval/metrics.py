@@ -6,6 +6,10 @@ the estimate times; estimates outside the ground truth's time span are not score
 
 Per run: RMSE over the tracking period; ATE is that RMSE (Roy's absolute trajectory error, the
 estimates being in the world frame no alignment is applied); EE is the error at the last scored step.
+Sparse ground truth (surveyed waypoints, ``groundtruth_kind: waypoints``): the estimate is interpolated
+at each waypoint time instead (:func:`waypoint_metrics`); waypoints outside the estimate's time span are
+not scored, and no position between waypoints is invented.
+
 Across runs: mean, standard deviation, standard error and a 99 % confidence interval of the mean
 (normal approximation, mean +- 2.576 stderr), and pooled error percentiles.
 """
@@ -60,6 +64,37 @@ def session_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.
     }
 
 
+def errors_at_waypoints(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Errors (R, W') of the estimate (R, K, 2), linearly interpolated at the W' waypoint times inside its
+    span [t[0], t[-1]], against the waypoints (W, 2); and those times (W',)."""
+    inside = (gt_t >= t[0]) & (gt_t <= t[-1])
+    tw = gt_t[inside]
+    ix = np.clip(np.searchsorted(t, tw, side="right") - 1, 0, max(len(t) - 2, 0))
+    if len(t) > 1:
+        w = np.clip((tw - t[ix]) / np.maximum(t[ix + 1] - t[ix], 1e-12), 0.0, 1.0)
+        est = pos[:, ix] * (1.0 - w)[None, :, None] + pos[:, ix + 1] * w[None, :, None]
+    else:
+        est = pos[:, ix]
+    return np.linalg.norm(est - gt_xy[inside][None], axis=-1), tw
+
+
+def waypoint_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray) -> dict:
+    """:func:`session_metrics` for sparse ground truth: every waypoint inside the estimate's span is scored
+    (a walk starts at its first waypoint: there is no separate initialisation period)."""
+    err, tw = errors_at_waypoints(t, pos, gt_t, gt_xy)
+    if err.shape[1] == 0:
+        raise ValueError("no waypoint falls inside the estimate's time span")
+    rmse = np.sqrt(np.mean(err ** 2, axis=1))
+    ee = err[:, -1]
+    return {"rmse_m": summary(rmse), "error_m": error_stats(err), "ate_m": float(rmse.mean()), "ee_m": float(ee.mean()),
+            "init_error_m": None, "waypoints": int(err.shape[1]),
+            "_runs": {"rmse": rmse, "ee": ee, "err": err, "t": tw, "err_all": err}}
+
+
+#: thresholds (m) of the share of walks whose mean error is within them (``walks_within_m`` in results)
+WALK_THRESHOLDS_M = (2.0, 5.0)
+
+
 def pool(per_session: dict[str, dict]) -> dict:
     """Aggregate session metrics: RMSE stats over all (session, run) pairs, pooled error percentiles."""
     rmse = np.concatenate([m["_runs"]["rmse"] for m in per_session.values()])
@@ -68,8 +103,10 @@ def pool(per_session: dict[str, dict]) -> dict:
     inits = [m["_runs"]["err_all"][:, : m["_runs"]["err_all"].shape[1] - m["_runs"]["err"].shape[1]].ravel()
              for m in per_session.values()]
     init = np.concatenate(inits) if inits else np.zeros(0)
+    walk_mean = np.concatenate([m["_runs"]["err"].mean(axis=1) for m in per_session.values()])  # (session x run,)
+    within = {f"{d:g}": float(np.mean(walk_mean <= d)) for d in WALK_THRESHOLDS_M}
     return {"rmse_m": summary(rmse), "error_m": error_stats(err), "ate_m": float(rmse.mean()), "ee_m": float(ee.mean()),
-            "init_error_m": error_stats(init) if init.size else None}
+            "init_error_m": error_stats(init) if init.size else None, "walks_within_m": within}
 
 
 def cdf_band(err_runs: list[np.ndarray], grid: np.ndarray, q=(0.05, 0.5, 0.95)) -> np.ndarray:

@@ -12,7 +12,9 @@ Methods that need something from the evaluation declare it by deriving from a ca
 * :class:`PathLossCalibrated`: path-loss parameters fitted on labelled data (``calibration=``);
 * :class:`FixConsumer`: position fixes of named roles (``dense``, ``sparse``) from the experiment's
   ``fixes`` block, handed over in ``ctx.fixes``;
-* :class:`ModelConsumer`: a trained model given by path (``model_path``).
+* :class:`ModelConsumer`: a trained model given by path (``model_path``);
+* :class:`Trained`: a method that learns from the dataset's own labelled train sessions (fingerprinting:
+  KNN, LocNet on WiFi/BLE scans) before it is run on the scored ones (the experiment's ``split``).
 
 A method that cannot run on a session (a stream it needs is absent, a model was not given) raises
 :class:`~blenav.filters.runner.MissingStream` with the reason; the harness then lists the session under
@@ -31,7 +33,7 @@ from blenav.filters.engine import Event
 from blenav.filters.runner import MissingStream
 
 __all__ = ["Estimate", "RunContext", "Localizer", "PathLossCalibrated", "FixConsumer", "ModelConsumer",
-           "MissingStream", "build_localizer", "OUTPUT_KEYS"]
+           "Trained", "MissingStream", "build_localizer", "OUTPUT_KEYS"]
 
 #: The documented keys of :attr:`Estimate.outputs` (a method may add others; these are the ones the
 #: harness and the plots read).
@@ -149,6 +151,18 @@ class ModelConsumer:
 
         ``load(path, loader)``: the evaluation's shared loader, so that methods of one experiment load the
         same file once (``loader(path)`` does the actual loading)."""
+        raise NotImplementedError
+
+
+class Trained:
+    """A method that is trained on labelled sessions of the dataset it is evaluated on (the train walks of
+    the experiment's ``split``), before it runs on the scored (test) sessions."""
+
+    def fit(self, sessions: list, ctx: RunContext) -> dict | None:
+        """Train on ``sessions`` (labelled; a session whose ground truth is sparse waypoints,
+        ``session.groundtruth_sparse``, gives labels only at or between its waypoints, and the method says how it
+        used them). Returns a JSON-able report for ``methods.NAME.training`` in results.json, or None.
+        Raises :class:`MissingStream` when the train sessions lack what the method needs."""
         raise NotImplementedError
 
 

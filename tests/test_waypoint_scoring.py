@@ -1,0 +1,52 @@
+"""Sparse ground truth (surveyed waypoints) and the train/test split by walk of blenav.eval."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from blenav.eval.harness import EvalError, split_sessions
+from blenav.eval.metrics import errors_at_waypoints, pool, waypoint_metrics
+
+
+def test_waypoint_errors_interpolate_the_estimate_not_the_truth():
+    t = np.array([0.0, 1.0, 2.0, 3.0])
+    pos = np.stack([np.stack([t * 2.0, np.zeros(4)], -1), np.stack([t * 2.0, np.ones(4)], -1)])  # (2, 4, 2)
+    gt_t = np.array([-1.0, 0.5, 2.25, 9.0])  # the first and last waypoints lie outside the estimate's span
+    gt_xy = np.array([[0.0, 0.0], [1.0, 0.0], [4.5, 3.0], [0.0, 0.0]])
+    err, tw = errors_at_waypoints(t, pos, gt_t, gt_xy)
+    np.testing.assert_allclose(tw, [0.5, 2.25])
+    np.testing.assert_allclose(err, [[0.0, 3.0], [1.0, 2.0]], atol=1e-12)
+    m = waypoint_metrics(t, pos, gt_t, gt_xy)
+    assert m["waypoints"] == 2 and m["init_error_m"] is None
+    np.testing.assert_allclose(m["rmse_m"]["mean"], np.mean([np.sqrt(4.5), np.sqrt(2.5)]))
+    far = waypoint_metrics(t, pos + np.array([0.0, 3.0]), gt_t, gt_xy)  # run mean errors 1.5 and 2.5 m
+    p = pool({"a": m, "b": far})  # walk (session x run) mean errors 1.5, 1.5, 1.5, 2.5 m
+    assert p["walks_within_m"] == {"2": 0.75, "5": 1.0}
+    with pytest.raises(ValueError, match="no waypoint"):
+        waypoint_metrics(t, pos, np.array([5.0, 6.0]), np.zeros((2, 2)))
+
+
+def _walks(floor, n):
+    b = SimpleNamespace(id="mall")
+    return [SimpleNamespace(id=f"{floor}_{i:02d}", building=b, meta={"floor": floor}) for i in range(n)]
+
+
+def test_split_by_walk_is_seeded_per_floor_and_leaves_a_test_walk():
+    walks = _walks("F1", 7) + _walks("F2", 2) + _walks("B1", 1)
+    cfg = OmegaConf.create({"train_fraction": 0.5, "seed": 3})
+    train, test = split_sessions(walks[::-1], cfg)  # the input order does not matter
+    again, _ = split_sessions(walks, cfg)
+    assert [s.id for s in train] == [s.id for s in again]
+    ids = lambda xs, f: sorted(s.id for s in xs if s.meta["floor"] == f)  # noqa: E731
+    assert len(ids(train, "F1")) == 4 and len(ids(test, "F1")) == 3
+    assert len(ids(train, "F2")) == 1 and len(ids(test, "F2")) == 1
+    assert ids(train, "B1") == ["B1_00"] and ids(test, "B1") == []  # one walk: train only
+    assert not set(ids(train, "F1")) & set(ids(test, "F1"))
+    other, _ = split_sessions(walks, OmegaConf.create({"train_fraction": 0.5, "seed": 4}))
+    assert [s.id for s in other] != [s.id for s in train]
+    with pytest.raises(EvalError, match="train_fraction"):
+        split_sessions(walks, OmegaConf.create({"train_fraction": 1.0}))
