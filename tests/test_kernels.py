@@ -337,3 +337,34 @@ def test_log_normalise_and_ess():
         w, lz = log_normalise(logw)
         assert np.array_equal(w, w_ref, equal_nan=True) and np.array_equal(lz, l_ref, equal_nan=True)
         assert np.array_equal(ess(w), 1.0 / np.sum(w_ref * w_ref, axis=1), equal_nan=True)
+
+
+def _crossed_numpy(wc, p0, p1):
+    """The numpy wall test the kernel replaced (one pass per sample along all steps)."""
+    d = p1 - p0
+    n = int(np.clip(np.ceil(np.max(np.hypot(d[..., 0], d[..., 1]), initial=0.0) / (0.5 * wc.resolution)), 1,
+                    wc.max_samples))
+    h, w = wc._blocked.shape
+    out = np.zeros(p0.shape[:-1], dtype=bool)
+    for tk in np.arange(1, n + 1, dtype=float) / n:
+        col = np.fmin(np.fmax(np.floor(((p0[..., 0] + tk * d[..., 0]) - wc.origin[0]) / wc.resolution), -1), w)
+        rb = np.fmin(np.fmax(np.floor(((p0[..., 1] + tk * d[..., 1]) - wc.origin[1]) / wc.resolution), -1), h)
+        out |= wc._blocked_pad[(h - rb.astype(np.int64)) * (w + 2) + (col.astype(np.int64) + 1)]
+    return out
+
+
+@pytest.mark.parametrize("unknown_blocks", [False, True])
+def test_walls_crossed(unknown_blocks):
+    from blenav.filters.map.walls import WallCrossing
+
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        H, W = rng.integers(5, 120, 2)
+        occ = rng.choice(np.array([-1, 0, 1], np.int8), size=(H, W), p=[0.1, 0.7, 0.2])
+        res, origin = rng.uniform(0.05, 0.5), rng.uniform(-5, 5, 2)
+        wc = WallCrossing(occ, res, origin, unknown_blocks=unknown_blocks)
+        shape = (int(rng.integers(1, 4)), int(rng.integers(1, 400)), 2)
+        p0 = np.stack([rng.uniform(-3, W * res + 3, shape[:2]), rng.uniform(-3, H * res + 3, shape[:2])], -1) + origin
+        p1 = p0 + rng.normal(0, rng.uniform(0.01, 4), shape)  # some steps longer than max_samples half-pixels
+        np.testing.assert_array_equal(wc.crossed(p0, p1), _crossed_numpy(wc, p0, p1))
+        np.testing.assert_array_equal(wc.crossed(p0[0], p0[0]), _crossed_numpy(wc, p0[0], p0[0]))  # zero-length

@@ -771,3 +771,34 @@ def recover_checks(logw, loglik):
         dead[r] = not alive
         best[r] = b
     return dead, best
+
+
+# ------------------------------------------------------------------------------------------ walls
+@njit(cache=True, inline="always")
+def _pad_index(v, lo, hi):
+    """``fmin(fmax(floor(v), lo), hi)`` as an int (NaN -> lo, as numpy's fmax ignores a NaN)."""
+    f = np.floor(v)
+    if not f >= lo:  # also NaN
+        f = lo
+    if f > hi:
+        f = hi
+    return np.int64(f)
+
+
+@njit(cache=True)
+def walls_crossed(x0, y0, dx, dy, n, blocked_pad, h, w, ox, oy, res):
+    """Whether each straight step (x0, y0) -> (x0 + dx, y0 + dy) (flat float64 (N,)) touches a blocked pixel at
+    the samples t = 1/n, ..., 1; ``blocked_pad`` the flattened grid padded by one pixel of off-image.
+    :meth:`blenav.filters.map.walls.WallCrossing.crossed` with the same arithmetic per sample (``k / n``,
+    ``((x0 + t dx) - ox) / res``), stopping at a step's first blocked sample."""
+    out = np.zeros(x0.shape[0], dtype=np.bool_)
+    stride = w + 2
+    for i in range(x0.shape[0]):
+        for k in range(1, n + 1):
+            tk = np.float64(k) / n
+            col = _pad_index(((x0[i] + tk * dx[i]) - ox) / res, -1.0, np.float64(w))
+            rb = _pad_index(((y0[i] + tk * dy[i]) - oy) / res, -1.0, np.float64(h))
+            if blocked_pad[(h - rb) * stride + (col + 1)]:
+                out[i] = True
+                break
+    return out

@@ -1,8 +1,8 @@
 """Wall crossing on an occupancy grid: does a motion step touch an obstacle?
 
 The particle-filter engine's ``walls`` component (``crossed``: the wall-crossing penalty and Roy's
-re-initialisation rule) and an obstacle test (``in_obstacle``). Pure numpy, vectorised over any leading
-shape of particle arrays.
+re-initialisation rule) and an obstacle test (``in_obstacle``), vectorised over any leading shape of
+particle arrays (the step test is a compiled loop, :func:`blenav.filters.kernels.walls_crossed`).
 """
 
 from __future__ import annotations
@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from blenav.data.building import FREE, OCCUPIED, Floor
+
+from .. import kernels as K
 
 
 class WallCrossing:
@@ -63,17 +65,9 @@ class WallCrossing:
         d = p1 - p0
         longest = float(np.max(np.hypot(d[..., 0], d[..., 1]), initial=0.0))
         n = int(np.clip(np.ceil(longest / (0.5 * self.resolution)), 1, self.max_samples))
-        t = np.arange(1, n + 1, dtype=float) / n
-        # one pass per sample along the steps (n <= max_samples), vectorised over all steps: the same points
-        # and pixel arithmetic as _blocked_at on the (..., n, 2) array, without its large temporaries
+        # one compiled pass over the steps (kernels.walls_crossed): the same points and pixel arithmetic as
+        # _blocked_at at t = k / n, without the (..., n, 2) temporaries; a NaN position lands in the padding
         h, w = self._blocked.shape
-        ox, oy = self.origin
-        res = self.resolution
-        x0, y0, dx, dy = p0[..., 0], p0[..., 1], d[..., 0], d[..., 1]
-        out = np.zeros(p0.shape[:-1], dtype=bool)
-        for tk in t:
-            # fmax/fmin: a NaN position lands in the padding (off-image), as in _blocked_at
-            col = np.fmin(np.fmax(np.floor(((x0 + tk * dx) - ox) / res), -1), w).astype(np.int64)
-            rb = np.fmin(np.fmax(np.floor(((y0 + tk * dy) - oy) / res), -1), h).astype(np.int64)  # from the bottom
-            out = out | self._blocked_pad[(h - rb) * (w + 2) + (col + 1)]
-        return out
+        flat = [np.ascontiguousarray(a, dtype=float).ravel() for a in (p0[..., 0], p0[..., 1], d[..., 0], d[..., 1])]
+        out = K.walls_crossed(*flat, n, self._blocked_pad, h, w, self.origin[0], self.origin[1], self.resolution)
+        return out.reshape(p0.shape[:-1])
