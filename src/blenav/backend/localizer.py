@@ -35,13 +35,13 @@ from typing import Any
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from blenav.eval.beacon_map import mean_map
 from blenav.filters.measurement import PathLossRange
 from blenav.localizers.base import Estimate, Localizer, MissingStream, PathLossCalibrated, RunContext
 
 from .config import load_backend_config
 from .inputs import beacon_priors, path_loss_model, session_attitude, session_imu, session_ranges
 from .loop import run_closed_loop
+from .mapping import mean_map
 
 
 class BackendLocalizer(Localizer, PathLossCalibrated):

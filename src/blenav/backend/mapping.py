@@ -67,7 +67,7 @@ import pandas as pd
 
 from .config import MappingConfig, RobustKernel
 
-__all__ = ["MappingResult", "robust_sqrt", "rssi_error", "collect_readings", "map_beacons"]
+__all__ = ["MappingResult", "robust_sqrt", "rssi_error", "collect_readings", "map_beacons", "mean_map"]
 
 LN10 = np.log(10.0)
 D_MIN = 0.5  # m: distances below are floored (the model is not meant for the near field)
@@ -691,3 +691,21 @@ def _residual_db(p: _Pair, l: np.ndarray, a: float, gamma: float, offset: float,
     d = np.maximum(np.linalg.norm(diff, axis=-1), D_MIN)
     cos_t = np.einsum("ij,ij->i", p.heading, diff[:, :2]) / np.maximum(np.hypot(diff[:, 0], diff[:, 1]), 1e-6)
     return a + offset - 10.0 * gamma * np.log10(d) - body_db * 0.5 * (1.0 - cos_t) - p.rssi
+
+
+def mean_map(maps: list[pd.DataFrame]) -> pd.DataFrame:
+    """Mean over maps of x, y, z per anchor; std_m the root mean square of the maps' std_m; other columns of the
+    first map."""
+    if len(maps) == 1:
+        return maps[0]
+    cat = pd.concat(maps, ignore_index=True)
+    g = cat.groupby("anchor_id", sort=False)
+    out = g[["x", "y", "z"]].mean()
+    if "std_m" in cat:
+        out["std_m"] = np.sqrt(g["std_m"].apply(lambda s: float(np.nanmean(s.to_numpy(float) ** 2))
+                                                 if s.notna().any() else np.nan))
+    rest = [c for c in maps[0].columns if c not in ("anchor_id", "x", "y", "z", "std_m")]
+    first = maps[0].set_index("anchor_id")
+    for c in rest:
+        out[c] = first[c]
+    return out.reset_index()

@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 
+from blenav.backend.mapping import mean_map  # noqa: F401  (re-exported: runs' maps averaged)
 from blenav.localizers.base import Estimate
 
 TRUE_COLS = ("x_true", "y_true", "z_true")
@@ -150,24 +151,6 @@ def stack_runs(ests: list[Estimate]) -> Estimate:
     for e in ests:
         notes += [n for n in e.notes if n not in notes]
     return Estimate(e0.method, e0.session, e0.t, pos, cov, events, outputs, sum(e.wall_s for e in ests), notes)
-
-
-def mean_map(maps: list[pd.DataFrame]) -> pd.DataFrame:
-    """Mean over maps of x, y, z per anchor; std_m the root mean square of the maps' std_m; other columns of the
-    first map."""
-    if len(maps) == 1:
-        return maps[0]
-    cat = pd.concat(maps, ignore_index=True)
-    g = cat.groupby("anchor_id", sort=False)
-    out = g[["x", "y", "z"]].mean()
-    if "std_m" in cat:
-        out["std_m"] = np.sqrt(g["std_m"].apply(lambda s: float(np.nanmean(s.to_numpy(float) ** 2))
-                                                 if s.notna().any() else np.nan))
-    rest = [c for c in maps[0].columns if c not in ("anchor_id", "x", "y", "z", "std_m")]
-    first = maps[0].set_index("anchor_id")
-    for c in rest:
-        out[c] = first[c]
-    return out.reset_index()
 
 
 def optimized_anchors(building, bmap: pd.DataFrame) -> pd.DataFrame:
