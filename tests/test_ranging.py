@@ -275,6 +275,13 @@ def test_simulator_outputs_other_than_the_rssi_column_are_unchanged(tmp_path):
             ra, rb = pd.read_csv(a / f), pd.read_csv(b / f)
             assert list(ra.columns) == list(rb.columns) + ["rssi"]
             pd.testing.assert_frame_equal(ra.drop(columns="rssi"), rb)
+        elif f.name == "dataset.yaml":  # it records the simulator's settings (blenav.sim.world.sim_parameters): the switch differs
+            import yaml
+
+            ya, yb = (yaml.safe_load((d / f).read_text()) for d in (a, b))
+            assert ya["simulator"]["config"]["rtt"].pop("write_rssi") is True
+            assert yb["simulator"]["config"]["rtt"].pop("write_rssi") is False
+            assert ya == yb
         else:
             assert (a / f).read_bytes() == (b / f).read_bytes(), f
 

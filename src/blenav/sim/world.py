@@ -192,6 +192,15 @@ def simulate_session(cfg: SimConfig, w: World, i: int, duration_s: float, ss: np
     return meta, streams
 
 
+def sim_parameters(cfg: SimConfig, seed: int) -> dict:
+    """The simulator's resolved settings as plain YAML data (``dataset.yaml`` key ``simulator``: ``preset``,
+    ``seed``, ``config`` = :class:`SimConfig` as a dict), so a consumer (the PCRLB of
+    :mod:`blenav.eval.pcrlb`) knows the channel and motion models the data came from."""
+    import json
+
+    return {"preset": cfg.name, "seed": int(seed), "config": json.loads(json.dumps(asdict(cfg)))}
+
+
 def simulate(cfg: SimConfig, seed: int, out: str | Path, duration_s: float, sessions: int,
              progress: bool = False, overwrite: bool = False, first_session: int = 0) -> Path:
     """Simulate ``sessions`` sessions of ``duration_s`` s and write the dataset to ``out``.
@@ -219,7 +228,8 @@ def simulate(cfg: SimConfig, seed: int, out: str | Path, duration_s: float, sess
     b_children = b_ss.spawn(cfg.buildings)
     write_dataset_meta(out, cfg.name, cfg.description or f"blenav-sim preset {cfg.name}", "CC0-1.0",
                        f"blenav-sim sim={cfg.name} seed={seed} duration_s={duration_s} sessions={sessions}"
-                       + (f" first_session={first_session}" if first_session else ""))
+                       + (f" first_session={first_session}" if first_session else ""),
+                       simulator=sim_parameters(cfg, seed))  # the PCRLB of blenav.eval.pcrlb reads them back
     worlds = []
     for k in range(cfg.buildings):
         w = build_world(cfg, k, b_children[k])

@@ -1,0 +1,136 @@
+"""The PCRLB recursion (blenav.eval.pcrlb) against references: the Kalman filter's covariance on a
+linear-Gaussian model (where the bound is attained), the Fisher information of RSSI and RTT by finite
+differences, and the bound along a tiny simulated session (smaller with more sensors, skipped on real data)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blenav.eval.pcrlb import (LN10, cv_model, fit_process_noise, pcrlb_recursion, range_information,
+                               rssi_information)
+
+
+def kalman_covariances(F, Q, H, R, P0, K):
+    """Posterior covariances P_1..P_K of the Kalman filter (predict, then update with z = H x + N(0, R))."""
+    P, out = P0, []
+    for _ in range(K):
+        P = F @ P @ F.T + Q
+        S = H @ P @ H.T + R
+        G = P @ H.T @ np.linalg.inv(S)
+        P = (np.eye(len(P)) - G @ H) @ P
+        out.append(P)
+    return np.array(out)
+
+
+def test_pcrlb_equals_kalman_covariance_on_linear_gaussian_model():
+    F, Q = cv_model(0.5, 0.3)
+    H = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0]])
+    R = np.array([[0.8, 0.1], [0.1, 0.5]])
+    P0 = np.diag([4.0, 9.0, 1.0, 1.0])
+    K = 40
+    Jz = np.broadcast_to(H.T @ np.linalg.inv(R) @ H, (K, 4, 4)).copy()
+    Jz[::3] = 0.0  # some steps without a measurement
+    P_kf = []
+    P = P0
+    for k in range(K):
+        P = F @ P @ F.T + Q
+        if k % 3:
+            P = kalman_covariances(np.eye(4), np.zeros((4, 4)), H, R, P, 1)[0]
+        P_kf.append(P)
+    J = pcrlb_recursion(F, Q, Jz, np.linalg.inv(P0))
+    np.testing.assert_allclose(np.linalg.inv(J), np.array(P_kf), rtol=1e-9, atol=1e-12)
+
+
+def test_pcrlb_time_varying_model_matches_kalman():
+    rng = np.random.default_rng(3)
+    K = 25
+    F = np.stack([np.eye(2) + 0.1 * rng.standard_normal((2, 2)) for _ in range(K)])
+    A = rng.standard_normal((K, 2, 2))
+    Q = A @ np.transpose(A, (0, 2, 1)) + 0.1 * np.eye(2)
+    H = np.array([[1.0, 0.5]])
+    R = np.array([[0.2]])
+    P0 = np.eye(2) * 3.0
+    P, ref = P0, []
+    for k in range(K):
+        P = F[k] @ P @ F[k].T + Q[k]
+        P = kalman_covariances(np.eye(2), np.zeros((2, 2)), H, R, P, 1)[0]
+        ref.append(P)
+    J = pcrlb_recursion(F, Q, np.broadcast_to(H.T @ H / 0.2, (K, 2, 2)), np.linalg.inv(P0))
+    np.testing.assert_allclose(np.linalg.inv(J), np.array(ref), rtol=1e-9)
+
+
+def test_rssi_information_is_the_gradient_outer_product():
+    """One packet: J = g g^T / sigma^2 with g the finite-difference gradient of the log-distance mean."""
+    a = np.array([[1.0, 2.0, 2.5]])
+    p = np.array([[4.0, -1.0, 1.2]])
+    slope, var = 22.5, 9.0
+
+    def mean(xy):
+        return -slope * np.log10(np.linalg.norm(np.array([*xy, 1.2]) - a[0]))
+
+    h = 1e-6
+    g = np.array([(mean(p[0, :2] + h * e) - mean(p[0, :2] - h * e)) / (2 * h) for e in np.eye(2)])
+    J = rssi_information(np.array([0]), np.array([0]), p, a, 1, slope, var_shadow=0.0, var_white=var)
+    np.testing.assert_allclose(J[0], np.outer(g, g) / var, rtol=1e-6)
+    # n packets of one beacon in one step: the white part averages, the shadowing does not
+    Jn = rssi_information(np.zeros(4, int), np.zeros(4, int), np.repeat(p, 4, 0), a, 1, slope, var_shadow=4.0,
+                          var_white=var)
+    np.testing.assert_allclose(Jn[0], np.outer(g, g) / (4.0 + var / 4), rtol=1e-6)
+    # the issue's 2-D formula (10 n / ln 10)^2 / sigma^2 u u^T / d^2 when the heights agree
+    p2 = np.array([[4.0, -1.0, 2.5]])
+    J2 = rssi_information(np.array([0]), np.array([0]), p2, a, 1, slope, 0.0, var)[0]
+    d = p2[0, :2] - a[0, :2]
+    u = d / np.linalg.norm(d)
+    np.testing.assert_allclose(J2, (slope / LN10) ** 2 / var * np.outer(u, u) / (d @ d), rtol=1e-9)
+
+
+def test_range_information():
+    a = np.array([[0.0, 0.0, 2.0]])
+    p = np.array([[3.0, 4.0, 2.0]])
+    J = range_information(np.array([1]), np.array([0]), p, a, 2, std_m=0.3, std_per_m=0.02)
+    u = np.array([0.6, 0.8])
+    np.testing.assert_allclose(J[1], np.outer(u, u) / (0.3 + 0.02 * 5.0) ** 2)
+    assert not J[0].any()
+
+
+def test_fit_process_noise_recovers_white_acceleration():
+    """A velocity random walk of intensity q sampled at 100 Hz: the fit at dt = 1 s recovers q."""
+    rng = np.random.default_rng(0)
+    q, h, T = 0.2, 0.01, 3000.0
+    n = int(T / h)
+    v = np.cumsum(rng.standard_normal((n, 2)) * np.sqrt(q * h), axis=0)
+    xy = np.cumsum(v * h, axis=0)
+    q_hat = fit_process_noise(np.arange(n) * h, xy, 1.0)
+    assert q_hat == pytest.approx(q, rel=0.1)
+
+
+@pytest.fixture(scope="module")
+def tiny_sim(tmp_path_factory):
+    from blenav.sim.config import make_sim_config
+    from blenav.sim.world import simulate
+
+    cfg = make_sim_config({"name": "quay_lab", "layout": {"width_m": 12.0, "height_m": 9.0, "n_h": 1, "n_v": 0,
+                                                          "layout_seed": 1, "furniture_max": 0},
+                           "n_beacons": 5, "n_rtt_aps": 1, "receivers": ["honor-20-pro"], "carriers": ["pedestrian"]})
+    return simulate(cfg, seed=4, out=tmp_path_factory.mktemp("pcrlb") / "sim", duration_s=30.0, sessions=1)
+
+
+def test_session_bound_on_a_tiny_sim(tiny_sim):
+    from blenav.data import Dataset
+    from blenav.eval.pcrlb import BoundSettings, bound_entry, session_bound, sim_parameters
+
+    ds = Dataset.open(tiny_sim)
+    simcfg = sim_parameters(ds.meta)
+    assert simcfg is not None and simcfg.name == "quay_lab"
+    s = ds.session(ds.session_ids[0])
+    ble = session_bound(s, simcfg, BoundSettings(rtt=False, visual=False))
+    full = session_bound(s, simcfg, BoundSettings())
+    assert np.all(np.isfinite(ble["bound_m"])) and len(ble["t"]) == 29  # 1 s steps over 0..29.9 s
+    assert np.all(full["bound_m"] <= ble["bound_m"] + 1e-9)  # more sensors: never a larger bound
+    assert 0.05 < np.median(ble["bound_m"]) < 10.0
+    e = bound_entry(ds.meta, [s], init_s=5.0)
+    assert e["kind"] == "bound" and e["rmse_m"]["mean"] > 0
+    # real data (no simulator parameters): skipped with the reason
+    sk = bound_entry({"name": "mall"}, [s], init_s=5.0)
+    assert "rmse_m" not in sk and "simulator" in sk["skipped"][s.id]
