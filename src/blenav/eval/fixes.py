@@ -122,7 +122,7 @@ class FixProvider:
             raise MissingStream(f"session {session.id} has no fixes of source {named!r} and no localizer is "
                                 f"configured to compute {role} fixes")
         why = "fixes.%s is null" % role if named is None else f"no fixes of source {named!r} in fixes.csv"
-        if not len(session.rssi):
+        if hasattr(self.localizers[role], "method") and not len(session.rssi):  # others check their own streams
             raise MissingStream(f"session {session.id}: {why} and no rssi.csv to compute {role} BLE fixes from")
         t, xy = self._compute(role, session)
         src = self.computed_source(role)
@@ -132,6 +132,8 @@ class FixProvider:
         return self._mem[key]
 
     def _compute(self, role: str, session) -> tuple[np.ndarray, np.ndarray]:
+        if not hasattr(self.localizers[role], "method"):  # not a particle filter (e.g. fingerprinting): its own times
+            return self._compute_any(role, session)
         m = self.localizers[role].method
         m.beacons = self.beacons_for(role, session)
         if m.beacons is not None:
@@ -169,6 +171,18 @@ class FixProvider:
             write_fixes(session.root, t, xy, source=src)
             log.warning("wrote %d %s fixes into %s/fixes.csv (fixes.write = true)", len(t), src, session.root)
         return t, xy
+
+    def _compute_any(self, role: str, session) -> tuple[np.ndarray, np.ndarray]:
+        """Fixes of a localizer that is not a BLE particle filter (e.g. a trained
+        :class:`~blenav.localizers.fingerprint.FingerprintLocalizer`): its estimates of one run, at its own times
+        (fingerprinting: one per scan), not resampled to ``rate_hz``; kept in memory only (a trained model is
+        not a cache key)."""
+        loc = self.localizers[role]
+        seed = self.seed * 1_000_003 + zlib.crc32(f"{session.id}/{role}".encode())
+        t0 = time.perf_counter()
+        est = loc.run(session, 1, seed)
+        self.compute_s[(role, session.id)] = time.perf_counter() - t0
+        return est.t.copy(), est.position[0].copy()
 
     # ------------------------------------------------------------------ per method
     def prepare(self, method: Method, session) -> pd.DataFrame | None:

@@ -58,6 +58,7 @@ from blenav.eval.plan_errors import PlanErrorConfig, perturb_building
 
 from .common import EvalError, json_default, write_json
 from .fixes import FixProvider
+from .floors import floor_accuracy
 from .metrics import cdf_band, pool, session_metrics, waypoint_metrics
 
 log = logging.getLogger("blenav.eval")
@@ -464,6 +465,12 @@ def evaluate(cfg: DictConfig) -> dict:
         results["beacon_map"] = {**asdict(bmap), "buildings": bmap_info}
     if train:
         results["split"] = {**OmegaConf.to_container(cfg.split, resolve=True), "train": [s.id for s in train]}
+    try:  # which floor each test walk is on, from the train walks' scans (blenav.eval.floors); several floors only
+        fa = floor_accuracy(cfg.get("floor_classifier"), train, sessions)
+    except (ValueError, MissingStream) as exc:
+        raise EvalError(f"floor_classifier: {exc}") from exc
+    if fa is not None:
+        results["floor_accuracy"] = fa
     outcomes: dict[str, MethodOutcome] = {}
     with _Progress(bool(cfg.get("progress", False)), len(methods) * len(sessions)) as progress:
         for name, method in methods.items():

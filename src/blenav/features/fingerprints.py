@@ -1,0 +1,194 @@
+"""RSSI fingerprints of walks: WiFi scans and BLE advertisements as vectors per step, for fingerprinting
+(KNN, LocNet, TransNet+LocNet on real walks: :mod:`blenav.localizers.fingerprint`) and floor classification
+(:mod:`blenav.eval.floors`).
+
+A *feature* is one radio source: a WiFi access point (``wifi:<bssid>``, wifi.csv) or a BLE anchor
+(``ble:<anchor_id>``, rssi.csv). The feature list (the vocabulary, columns of every vector) is fixed when a
+model is fitted: the sources heard in the training walks (:func:`vocabulary`); a source the training walks
+never heard is ignored at run time (it has no column).
+
+Steps (the times at which a vector is formed, :func:`step_times`):
+
+* ``wifi`` and ``both``: one step per WiFi scan (the distinct ``t`` of wifi.csv; an ILC scan is about every
+  2-3 s). The WiFi part of a step is that scan only; the BLE part (``both``) is every advertisement of the
+  ``ble_window_s`` seconds up to the scan time, [t - ble_window_s, t].
+* ``ble``: steps every ``ble_step_s`` seconds from the first advertisement (BLE is heard irregularly, often
+  one beacon per second on the ILC walks), each the advertisements of [t - ble_window_s, t].
+
+Values are on the non-negative scale of the learned localizers (:mod:`blenav.features.windows`):
+u = rssi_dBm - ``fill_dbm`` (``fill_dbm`` = -100 dBm gives the thesis scale u = rssi + 100), a source not
+heard in the step is 0 = the *fill* value ``fill_dbm``; a reading at or below ``fill_dbm`` is kept as a weak
+but heard ``floor_u`` (:func:`blenav.features.windows.rssi_to_u`). Several readings of one source in a step
+are averaged on that scale. A window is H = ``history`` consecutive steps, S (K, F, H), oldest step first,
+the layout :class:`blenav.models.LocNet`, :class:`blenav.models.TransNet` and the baselines of
+:mod:`blenav.learn.baselines` read.
+
+WiFi rows with ``t - t_seen`` above ``wifi_max_age_s`` (Android returns cached results: the ILC importer keeps
+when the phone last heard the access point in ``t_seen``) are dropped when that setting is given.
+
+Labels (:func:`label_windows`): the ground-truth position at the window's end (its last step), interpolated
+linearly between the surveyed waypoints (:meth:`Session.positions_at`) for sparse ground truth; windows ending
+outside the span of the ground truth get NaN (no label: dropped from training).
+
+Torch-free (numpy, pandas).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from numpy.lib.stride_tricks import sliding_window_view
+
+from blenav.filters.runner import MissingStream
+
+from .windows import rssi_to_u
+
+FEATURES = ("wifi", "ble", "both")
+
+
+@dataclass(frozen=True)
+class FingerprintConfig:
+    """How walks become fingerprint windows (see the module docstring); units s and dBm."""
+
+    features: str = "wifi"  # wifi | ble | both
+    history: int = 1  # H steps per window
+    fill_dbm: float = -100.0  # the value of a source not heard (u = 0); u = rssi - fill_dbm
+    floor_u: float = 0.5  # u of a reading at or below fill_dbm (heard, barely)
+    ble_window_s: float = 3.0  # BLE advertisements of [t - ble_window_s, t] form the BLE part of a step
+    ble_step_s: float = 1.0  # features=ble: a step every so many seconds
+    wifi_max_age_s: float | None = None  # drop WiFi rows with t - t_seen above this (None: keep all)
+
+    def __post_init__(self):
+        if self.features not in FEATURES:
+            raise ValueError(f"features must be one of {FEATURES}, got {self.features!r}")
+        if int(self.history) < 1:
+            raise ValueError(f"history must be >= 1 step, got {self.history}")
+        if self.ble_window_s < 0 or self.ble_step_s <= 0:
+            raise ValueError(f"ble_window_s must be >= 0 and ble_step_s > 0, got {self.ble_window_s}, "
+                             f"{self.ble_step_s}")
+
+    @property
+    def uses_wifi(self) -> bool:
+        return self.features in ("wifi", "both")
+
+    @property
+    def uses_ble(self) -> bool:
+        return self.features in ("ble", "both")
+
+
+def readings(session, cfg: FingerprintConfig) -> pd.DataFrame:
+    """The session's readings the config uses: DataFrame ``t`` (s), ``feature`` (``wifi:<bssid>`` /
+    ``ble:<anchor_id>``), ``rssi`` (dBm), ``kind`` (``wifi`` | ``ble``). Raises :class:`MissingStream` when the
+    session has none of the streams the config needs (``both``: neither)."""
+    parts = []
+    have = []
+    if cfg.uses_wifi and (session.root / "wifi.csv").is_file():
+        w = session.wifi
+        if cfg.wifi_max_age_s is not None and "t_seen" in w:
+            age = (w["t"] - w["t_seen"]).to_numpy(float)
+            w = w[~(age > float(cfg.wifi_max_age_s))]
+        if len(w):
+            have.append("wifi")
+            parts.append(pd.DataFrame({"t": w["t"].to_numpy(float), "feature": "wifi:" + w["bssid"].astype(str),
+                                       "rssi": w["rssi_dbm"].to_numpy(float), "kind": "wifi"}))
+    if cfg.uses_ble and (session.root / "rssi.csv").is_file():
+        r = session.rssi
+        if len(r):
+            have.append("ble")
+            parts.append(pd.DataFrame({"t": r["t"].to_numpy(float), "feature": "ble:" + r["anchor_id"].astype(str),
+                                       "rssi": r["rssi"].to_numpy(float), "kind": "ble"}))
+    need = {"wifi": "wifi.csv (WiFi scans)", "ble": "rssi.csv (BLE advertisements)",
+            "both": "wifi.csv (WiFi scans: the steps of features=both)"}[cfg.features]
+    if cfg.features == "both" and "wifi" not in have or not have:
+        raise MissingStream(f"session {session.id} has no {need}")
+    out = pd.concat(parts, ignore_index=True)
+    return out[np.isfinite(out["t"].to_numpy()) & np.isfinite(out["rssi"].to_numpy())]
+
+
+def vocabulary(tables: list[pd.DataFrame], min_count: int = 1, max_features: int | None = None) -> list[str]:
+    """The features of the training readings ``tables``: heard in at least ``min_count`` readings, the
+    ``max_features`` most often heard (ties by name) when given; sorted by name (the columns' order)."""
+    counts = pd.concat([t["feature"] for t in tables], ignore_index=True).value_counts()
+    counts = counts[counts >= int(min_count)]
+    if max_features is not None and len(counts) > int(max_features):
+        order = sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))[:int(max_features)]
+        return sorted(k for k, _ in order)
+    return sorted(counts.index.astype(str))
+
+
+def step_times(rd: pd.DataFrame, cfg: FingerprintConfig) -> np.ndarray:
+    """(K,) s: the step times of one session's readings ``rd`` (see the module docstring)."""
+    if cfg.uses_wifi:
+        return np.unique(rd.loc[rd["kind"] == "wifi", "t"].to_numpy(float))
+    t = rd["t"].to_numpy(float)
+    if not len(t):
+        return np.zeros(0)
+    return t.min() + np.arange(int(np.floor((t.max() - t.min()) / cfg.ble_step_s)) + 1) * cfg.ble_step_s
+
+
+def step_vectors(rd: pd.DataFrame, columns: dict[str, int], tau: np.ndarray, cfg: FingerprintConfig) -> np.ndarray:
+    """(K, F) float32 on the u scale: per step time ``tau`` (K,) and feature (``columns``: name -> column), the
+    mean u of the readings in the step's span (WiFi: the scan at exactly tau_k; BLE: [tau_k - ble_window_s,
+    tau_k]); 0 where not heard. Readings of features outside ``columns`` are ignored.
+
+    Vectorised: each reading covers the consecutive steps k_lo..k_hi (two ``searchsorted``); a difference
+    array over the steps, cumulated, gives sums and counts per step."""
+    K, F = len(tau), len(columns)
+    j = rd["feature"].map(columns).to_numpy()
+    keep = pd.notna(j)
+    if not K or not keep.any():
+        return np.zeros((K, F), np.float32)
+    t = rd["t"].to_numpy(float)[keep]
+    j = j[keep].astype(np.int64)
+    span = np.where(rd["kind"].to_numpy()[keep] == "wifi", 0.0, float(cfg.ble_window_s))
+    lo = np.searchsorted(tau, t, side="left")  # first step at or after the reading
+    hi = np.searchsorted(tau, t + span, side="right")  # one past the last step whose span holds it
+    ok = hi > lo
+    u = rssi_to_u(rd["rssi"].to_numpy(float)[keep], -float(cfg.fill_dbm), cfg.floor_u)
+    d_sum = np.zeros((K + 1, F))
+    d_cnt = np.zeros((K + 1, F))
+    np.add.at(d_sum, (lo[ok], j[ok]), u[ok])
+    np.add.at(d_sum, (hi[ok], j[ok]), -u[ok])
+    np.add.at(d_cnt, (lo[ok], j[ok]), 1.0)
+    np.add.at(d_cnt, (hi[ok], j[ok]), -1.0)
+    sums, cnt = np.cumsum(d_sum, axis=0)[:K], np.rint(np.cumsum(d_cnt, axis=0)[:K])
+    return np.divide(sums, cnt, out=np.zeros((K, F)), where=cnt > 0).astype(np.float32)
+
+
+@dataclass
+class FingerprintWindows:
+    """Windows of one session: S (K, F, H) float32 u scale, t (K,) s (the window's last step), xy (K, 2) m
+    (NaN: no label), heard (K,) bool (any feature heard in the window)."""
+
+    S: np.ndarray
+    t: np.ndarray
+    xy: np.ndarray
+    heard: np.ndarray
+
+
+def session_windows(session, columns: dict[str, int], cfg: FingerprintConfig,
+                    rd: pd.DataFrame | None = None) -> FingerprintWindows:
+    """Every complete window of H steps of ``session`` (:func:`step_vectors`), unlabelled (xy NaN); ``rd``: the
+    session's :func:`readings` when already read."""
+    rd = readings(session, cfg) if rd is None else rd
+    tau = step_times(rd, cfg)
+    steps = step_vectors(rd, columns, tau, cfg)
+    H, F = int(cfg.history), len(columns)
+    if len(tau) < H:
+        return FingerprintWindows(np.zeros((0, F, H), np.float32), np.zeros(0), np.zeros((0, 2)), np.zeros(0, bool))
+    S = np.ascontiguousarray(sliding_window_view(steps, H, axis=0))  # (K-H+1, F, H), oldest step first
+    return FingerprintWindows(S, tau[H - 1:], np.full((len(S), 2), np.nan), (S > 0).any(axis=(1, 2)))
+
+
+def label_windows(session, w: FingerprintWindows) -> tuple[FingerprintWindows, int]:
+    """``w`` with labels: the ground truth at each window's end time (sparse waypoints: interpolated linearly
+    between them), NaN outside the ground truth's time span; returns (windows, how many ended outside)."""
+    gt = session.groundtruth
+    if not len(gt) or not len(w.t):
+        return w, len(w.t)
+    inside = (w.t >= gt["t"].iloc[0]) & (w.t <= gt["t"].iloc[-1])
+    xy = np.full((len(w.t), 2), np.nan)
+    xy[inside] = session.positions_at(w.t[inside])
+    return FingerprintWindows(w.S, w.t, xy, w.heard), int((~inside).sum())

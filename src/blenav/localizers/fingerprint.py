@@ -1,0 +1,248 @@
+"""Fingerprinting on real walks: KNN, LocNet and TransNet+LocNet on WiFi scans, BLE advertisements or both,
+trained on the labelled train walks of the dataset it is evaluated on (the experiment's ``split``).
+
+Config: ``conf/localizer/fingerprint.yaml``::
+
+    _target_: blenav.localizers.fingerprint.FingerprintLocalizer
+    model: knn            # knn | locnet | transnet_locnet
+    features: wifi        # wifi | ble | both
+
+:meth:`FingerprintLocalizer.fit` (the harness calls it with the train walks, :class:`~blenav.localizers.Trained`),
+per building and floor:
+
+1. the readings of every train walk (:func:`blenav.features.fingerprints.readings`); the feature vocabulary
+   (the WiFi access points / BLE anchors heard in at least ``min_count`` readings, the ``max_features`` most
+   heard: ``auto`` = all for KNN, 256 for the networks, whose TransNet statistics are F x F);
+2. windows of H = ``history`` steps (a step = one WiFi scan; BLE: every ``ble_step_s`` s), values
+   u = rssi - ``fill_dbm`` with 0 = not heard (= ``fill_dbm``, -100 dBm by default);
+3. labels: the position at the window's last step time, **interpolated linearly between the surveyed
+   waypoints** (sparse ground truth; :meth:`Session.positions_at`); windows outside the waypoints' time span
+   are dropped (counted in the report), as are windows in which no feature was heard;
+4. ``knn``: :class:`blenav.learn.baselines.KNNBaseline` (k nearest fingerprints, the mean over a window's heard
+   steps, Euclidean on the u scale; the cross-phone evaluation's KNN); ``locnet`` / ``transnet_locnet``: the
+   networks of ``conf/model/<model>.yaml`` trained by :func:`blenav.learn.fingerprint_train.train_network` (the
+   project's trainer: step budget + early stopping of ``conf/trainer/cpu.yaml``, seeded; labels normalised by
+   the network's ``xy_mean`` / ``xy_scale``; inputs u / 100) on a seeded ``val_fraction`` of the train walks
+   held out for validation. Torch is imported only here.
+
+:meth:`FingerprintLocalizer.run`: one estimate per window of the session in which a feature of the
+vocabulary was heard (times: the window's last step, session clock s); the floor's model is the one of the
+session's ``building`` / ``floor`` (session.yaml). With ``hold_ends`` the first estimate is held back to the
+session's start (t = 0, the recording's start) and the last one forward to its last sample (so every waypoint
+of the walk is scored, as for methods that start at the walk's start). Deterministic: R identical runs. ``cov`` (KNN): the covariance of
+the k neighbours' positions plus ``cov_floor_m``^2 I; none for the networks. A session without the stream
+(wifi.csv / rssi.csv) or without a trained floor raises :class:`MissingStream`.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from blenav.features import fingerprints as FP
+from blenav.filters.runner import MissingStream
+
+from .base import Estimate, Localizer, RunContext, Trained
+
+log = logging.getLogger("blenav.localizers.fingerprint")
+
+MODELS = ("knn", "locnet", "transnet_locnet")
+#: features kept by ``max_features: auto`` for the networks (TransNet's SSL loss holds b x F x F x H values)
+NET_MAX_FEATURES = 256
+
+
+def floor_key(session) -> str:
+    """``building/floor`` of a session (the unit a fingerprint model is trained for)."""
+    return f"{session.building.id}/{session.meta.get('floor')}"
+
+
+class _FloorModel:
+    """A fitted model of one floor: columns (feature -> column), predict(S) -> (xy (K, 2) m, cov (K, 2, 2) or
+    None)."""
+
+    def __init__(self, columns: dict[str, int], predict):
+        self.columns, self.predict = columns, predict
+
+
+def knn_model(S: np.ndarray, xy: np.ndarray, k: int, weights: str, cov_floor_m: float):
+    """KNN on windows S (N, F, H) u scale with labels xy (N, 2) m (:class:`~blenav.learn.baselines.KNNBaseline`);
+    returns predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)), cov the neighbours' position covariance
+    (population, uniform weights) + cov_floor_m^2 I."""
+    from blenav.learn.baselines import KNNBaseline, fingerprint
+
+    knn = KNNBaseline(k=k, weights=weights).fit(S, xy)
+    kk = knn.model_.n_neighbors
+
+    def predict(Sq):
+        est = knn.predict(Sq)
+        idx = knn.model_.kneighbors(fingerprint(Sq), n_neighbors=kk, return_distance=False)  # (K, k)
+        d = xy[idx] - xy[idx].mean(axis=1, keepdims=True)  # (K, k, 2)
+        cov = np.einsum("kni,knj->kij", d, d) / kk + float(cov_floor_m) ** 2 * np.eye(2)
+        return est, cov
+
+    return predict
+
+
+class FingerprintLocalizer(Localizer, Trained):
+    """Fingerprinting (KNN / LocNet / TransNet+LocNet) on WiFi, BLE or both; see the module docstring."""
+
+    uses_floor_plan = False  # radio fingerprints only: estimates are not moved into free space
+
+    def __init__(self, name: str, shared=None, model: str = "knn", features: str = "wifi", k: int = 5,
+                 weights: str = "uniform", history: int = 1, fill_dbm: float = -100.0, floor_u: float = 0.5,
+                 ble_window_s: float = 3.0, ble_step_s: float = 1.0, wifi_max_age_s: float | None = None,
+                 min_count: int = 1, max_features="auto", hold_ends: bool = True, cov_floor_m: float = 1.0,
+                 net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
+                 batch_size: int = 256, seed: int = 0, threads: int | None = 1, plots: bool = False):
+        super().__init__(name, shared)
+        if model not in MODELS:
+            raise ValueError(f"method {name!r}: model must be one of {MODELS}, got {model!r}")
+        if int(k) < 1:
+            raise ValueError(f"method {name!r}: k must be >= 1, got {k}")
+        if weights not in ("uniform", "distance"):
+            raise ValueError(f"method {name!r}: weights must be 'uniform' or 'distance', got {weights!r}")
+        if not (max_features == "auto" or max_features is None or int(max_features) >= 1):
+            raise ValueError(f"method {name!r}: max_features must be auto, null or >= 1, got {max_features!r}")
+        try:
+            self.cfg = FP.FingerprintConfig(features=str(features), history=int(history), fill_dbm=float(fill_dbm),
+                                            floor_u=float(floor_u), ble_window_s=float(ble_window_s),
+                                            ble_step_s=float(ble_step_s),
+                                            wifi_max_age_s=None if wifi_max_age_s is None else float(wifi_max_age_s))
+        except ValueError as exc:
+            raise ValueError(f"method {name!r}: {exc}") from None
+        self.model, self.k, self.weights = model, int(k), weights
+        self.min_count, self.hold_ends, self.cov_floor_m = int(min_count), bool(hold_ends), float(cov_floor_m)
+        if max_features == "auto":
+            max_features = None if model == "knn" else NET_MAX_FEATURES
+        self.max_features = None if max_features is None else int(max_features)
+        self.net, self.trainer = dict(net or {}), dict(trainer or {})
+        self.val_fraction, self.batch_size, self.seed = float(val_fraction), int(batch_size), int(seed)
+        self.threads, self.plots = threads, bool(plots)
+        self.floors: dict[str, _FloorModel] = {}
+
+    # ------------------------------------------------------------------ training
+    def fit(self, sessions: list, ctx: RunContext | None = None) -> dict:
+        """Fit one model per building/floor on the labelled ``sessions``; returns the training report
+        (``labels``, ``features``, ``model``, per floor: walks, windows, dropped windows, features, fit_s,
+        and the network's training report)."""
+        groups: dict[str, list] = {}
+        for s in sorted(sessions, key=lambda s: s.id):
+            if s.labelled:
+                groups.setdefault(floor_key(s), []).append(s)
+        if not groups:
+            raise MissingStream(f"{self.name}: no labelled train walk to build fingerprints from")
+        report = {"model": self.model, "features": self.cfg.features, "settings": asdict(self.cfg),
+                  "labels": "position at each window's last step time, interpolated linearly between the surveyed "
+                            "waypoints (Session.positions_at); windows outside the waypoints' span dropped",
+                  "fill": f"a source not heard = {self.cfg.fill_dbm:g} dBm (u = 0)", "floors": {}}
+        self.floors = {}
+        for key, walks in groups.items():
+            report["floors"][key] = self._fit_floor(key, walks, ctx)
+        if not self.floors:
+            raise MissingStream(f"{self.name}: no train walk has {self.cfg.features} readings inside its waypoints")
+        return report
+
+    def _fit_floor(self, key: str, walks: list, ctx) -> dict:
+        t0 = time.perf_counter()
+        tables, used = [], []
+        for s in walks:
+            try:
+                tables.append(FP.readings(s, self.cfg))
+                used.append(s)
+            except MissingStream:
+                continue
+        info = {"train_walks": len(walks), "walks_with_readings": len(used)}
+        if not used:
+            return {**info, "unavailable": f"no train walk has {self.cfg.features} readings"}
+        names = FP.vocabulary(tables, self.min_count, self.max_features)
+        columns = {n: i for i, n in enumerate(names)}
+        S, P, xy, walk_of = [], [], [], []
+        outside = silent = 0
+        for i, (s, rd) in enumerate(zip(used, tables)):
+            w, n_out = FP.label_windows(s, FP.session_windows(s, columns, self.cfg, rd))
+            outside += n_out
+            ok = ~np.isnan(w.xy).any(axis=1)
+            silent += int((ok & ~w.heard).sum())
+            keep = ok & w.heard
+            prev = np.r_[False, keep[1:]]  # windows with a previous window of the same walk (smoothness loss)
+            keep_idx = np.flatnonzero(keep)
+            S.append(w.S[keep_idx])
+            P.append(w.S[np.where(prev[keep_idx], keep_idx - 1, keep_idx)])
+            xy.append(w.xy[keep_idx])
+            walk_of.append(np.full(len(keep_idx), i))
+        S, P, xy, walk_of = (np.concatenate(a) for a in (S, P, xy, walk_of))
+        info.update({"windows": int(len(S)), "dropped_outside_waypoints": int(outside), "dropped_nothing_heard": silent,
+                     "n_features": len(names),
+                     "n_features_kind": {k: sum(n.startswith(k + ":") for n in names) for k in ("wifi", "ble")}})
+        if len(S) < 2:
+            return {**info, "unavailable": f"{len(S)} labelled windows (need 2)"}
+        if self.model == "knn":
+            predict = knn_model(S, xy, self.k, self.weights, self.cov_floor_m)
+        else:
+            predict = self._fit_network(key, S, P, xy, walk_of, used, names, ctx, info)
+        self.floors[key] = _FloorModel(columns, predict)
+        info["fit_s"] = time.perf_counter() - t0
+        log.info("%s: %s fitted on %d windows of %d walks, %d features (%.1f s)", self.name, key, len(S), len(used),
+                 len(names), info["fit_s"])
+        return info
+
+    def _fit_network(self, key, S, P, xy, walk_of, used, names, ctx, info):
+        from blenav.learn.fingerprint_train import train_network  # torch: only on the learned path
+
+        root = Path(ctx.out) if ctx is not None and ctx.out is not None else Path(tempfile.mkdtemp(prefix="fp_"))
+        out = root / "fingerprint" / self.name.replace("/", "_").replace(" ", "_") / key.replace("/", "_")
+        net_predict, rep = train_network(S, P, xy, walk_of, used, names, self.cfg, self.model, out, seed=self.seed,
+                                         net=self.net, trainer=self.trainer, val_fraction=self.val_fraction,
+                                         batch_size=self.batch_size, threads=self.threads, plots=self.plots)
+        info["training"] = rep
+
+        def predict(Sq):
+            return net_predict(Sq), None
+
+        return predict
+
+    # ------------------------------------------------------------------ running
+    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
+        t0 = time.perf_counter()
+        key = floor_key(session)
+        if key not in self.floors:
+            why = "was not fitted (no train walks: the experiment needs a split)" if not self.floors else \
+                f"has no model for floor {key} (trained: {sorted(self.floors)})"
+            raise MissingStream(f"{self.name} {why}")
+        fm = self.floors[key]
+        w = FP.session_windows(session, fm.columns, self.cfg)
+        if not w.heard.any():
+            raise MissingStream(f"session {session.id}: no {self.cfg.features} source of the training walks heard")
+        S, t = w.S[w.heard], w.t[w.heard]
+        xy, cov = fm.predict(S)
+        if not np.isfinite(xy).all():
+            raise ValueError(f"{self.name}: non-finite position on session {session.id}")
+        if self.hold_ends:
+            t, xy, cov = self._hold(session, t, xy, cov)
+        R = int(n_runs)
+        pos = np.broadcast_to(xy, (R,) + xy.shape).copy()
+        covr = None if cov is None else np.broadcast_to(cov, (R,) + cov.shape).copy()
+        return Estimate(self.name, session.id, t, pos, covr, wall_s=time.perf_counter() - t0,
+                        notes=[f"{self.model} on {self.cfg.features} fingerprints, {len(fm.columns)} features "
+                               f"(floor {key})"])
+
+    @staticmethod
+    def _hold(session, t, xy, cov):
+        """Hold the first estimate back to the session's start (t = 0 on the session clock, the recording's start,
+        or its first sample when earlier) and the last forward to its last sample (imu, wifi, rssi)."""
+        spans = [(float(d["t"].min()), float(d["t"].max())) for d in
+                 (session.stream(n) for n in ("imu", "wifi", "rssi") if (session.root / f"{n}.csv").is_file())
+                 if len(d)]
+        t_first = min([a for a, _ in spans] + [t[0], 0.0])
+        t_last = max([b for _, b in spans] + [t[-1]])
+        lead, tail = int(t_first < t[0]), int(t_last > t[-1])
+        t = np.r_[[t_first] if lead else [], t, [t_last] if tail else []]
+        xy = np.concatenate([xy[:1]] * lead + [xy] + [xy[-1:]] * tail)
+        if cov is not None:
+            cov = np.concatenate([cov[:1]] * lead + [cov] + [cov[-1:]] * tail)
+        return t, xy, cov

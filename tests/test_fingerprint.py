@@ -1,0 +1,172 @@
+"""Fingerprinting on real-walk datasets (blenav.localizers.fingerprint, blenav.features.fingerprints) and the floor
+classifier (blenav.eval.floors): synthetic ILC path files with position-coded access points (exact neighbours),
+the harness with a train/test split, and a few real walks of ../shared (marker ``realdata``)."""
+
+from __future__ import annotations
+
+import tarfile
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from blenav.configs import compose
+from blenav.data import Dataset
+from blenav.eval.floors import classify_floors
+from blenav.eval.harness import evaluate
+from blenav.features import fingerprints as FP
+from blenav.importers import run_import
+from blenav.localizers import MissingStream
+from blenav.localizers.fingerprint import FingerprintLocalizer
+from test_ilc20 import walk_lines, write_floor, write_walk
+
+START = 1_600_000_000_000
+
+
+def coded_walk(start: int, y: float, ap_prefix: str = "aa:00") -> list[str]:
+    """A 6 s walk along x at 4 m/s from (5, y) (waypoints at 0.01, 2.51, 5.01 s: 5, 15, 25 m); at the scan of
+    second s (t = s + 0.5) access point ``<prefix>:0c``, c = min(s, 4), is heard at -50 dBm besides the importer
+    test's two (the last scan, after the last waypoint, repeats the code of the one before)."""
+    extra = []
+    for s in range(6):
+        t = start + 1000 * s + 500
+        extra.append((t, f"{t}\tTYPE_WIFI\tcoded\t{ap_prefix}:00:00:0{min(s, 4)}\t-50\t2412\t{t - 100}"))
+    return walk_lines(start=start, waypoints=((5.0, y), (15.0, y), (25.0, y)), extra=extra)
+
+
+@pytest.fixture
+def coded(tmp_path):
+    """walkA at y = 5 m, walkB at y = 7 m (both trained on), walkC at y = 5 m (tested)."""
+    d = write_floor(tmp_path / "raw")
+    for name, y, k in (("walkA", 5.0, 0), ("walkB", 7.0, 1), ("walkC", 5.0, 2)):
+        write_walk(d, name, coded_walk(START + k * 100_000, y))
+    run_import("ilc20", d, tmp_path / "ds")
+    return Dataset.open(tmp_path / "ds")
+
+
+def test_step_vectors_average_a_scan_and_a_ble_window():
+    rd = pd.DataFrame({"t": [1.0, 1.0, 2.0, 0.5, 1.8, 2.9], "feature": ["wifi:a", "wifi:b", "wifi:a", "ble:x", "ble:x", "ble:x"],
+                       "rssi": [-40.0, -70.0, -60.0, -80.0, -60.0, -101.0], "kind": ["wifi"] * 3 + ["ble"] * 3})
+    cfg = FP.FingerprintConfig(features="both", ble_window_s=1.0)
+    tau = FP.step_times(rd, cfg)
+    np.testing.assert_allclose(tau, [1.0, 2.0])
+    V = FP.step_vectors(rd, {"ble:x": 0, "wifi:a": 1, "wifi:b": 2}, tau, cfg)
+    # step 1: the scan at 1.0 s, BLE of [0, 1] s (20); step 2: the scan at 2.0 s, BLE of [1, 2] s (40)
+    np.testing.assert_allclose(V, [[20.0, 60.0, 30.0], [40.0, 40.0, 0.0]])
+    ble = FP.FingerprintConfig(features="ble", ble_window_s=2.0, ble_step_s=1.0)
+    tb = FP.step_times(rd[rd["kind"] == "ble"], ble)
+    np.testing.assert_allclose(tb, [0.5, 1.5, 2.5])
+    Vb = FP.step_vectors(rd[rd["kind"] == "ble"], {"ble:x": 0}, tb, ble)
+    # [-1.5, 0.5]: 20; [-0.5, 1.5]: 20; [0.5, 2.5]: (20 + 40) / 2; -101 dBm is heard, barely (floor_u)
+    np.testing.assert_allclose(Vb[:, 0], [20.0, 20.0, 30.0])
+    np.testing.assert_allclose(FP.step_vectors(rd[rd["kind"] == "ble"], {"ble:x": 0}, np.array([3.0]), ble), [[20.25]])
+    assert FP.vocabulary([rd], min_count=2) == ["ble:x", "wifi:a"]
+    assert FP.vocabulary([rd], max_features=1) == ["ble:x"]
+
+
+def test_knn_finds_the_exact_neighbours(coded):
+    train = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")]
+    test = coded.session("mall_F1_walkC")
+    one = FingerprintLocalizer("KNN-1", k=1, hold_ends=False)
+    rep = one.fit(train[:1])
+    fl = rep["floors"]["mall/F1"]
+    # scans at 0.5 .. 5.5 s; the one at 5.5 s lies after the last waypoint (5.01 s): dropped from training
+    assert fl["windows"] == 5 and fl["dropped_outside_waypoints"] == 1 and fl["n_features"] == 7
+    est = one.run(test, 3, seed=0)
+    np.testing.assert_allclose(est.t[:5], [0.5, 1.5, 2.5, 3.5, 4.5])
+    assert est.position.shape == (3, 6, 2) and np.array_equal(est.position[0], est.position[2])
+    want = np.stack([5.0 + 4.0 * (est.t[:5] - 0.01), np.full(5, 5.0)], -1)  # the train walk's labels
+    np.testing.assert_allclose(est.position[0, :5], want, atol=1e-9)
+    # k = 2 over two walks: the mean of the two identical fingerprints' positions (y = 5 and 7), their spread
+    two = FingerprintLocalizer("KNN-2", k=2, cov_floor_m=0.5, hold_ends=True)
+    two.fit(train)
+    est = two.run(test, 1, seed=0)
+    inner = (est.t > 0.4) & (est.t < 4.6)
+    np.testing.assert_allclose(est.position[0, inner, 1], 6.0, atol=1e-9)
+    np.testing.assert_allclose(est.cov[0, inner], np.broadcast_to([[0.25, 0.0], [0.0, 1.25]], (5, 2, 2)), atol=1e-9)
+    assert est.t[0] == 0.0 and est.t[-1] > 5.5  # held to the session's start and its last sample
+    with pytest.raises(MissingStream, match="no model for floor"):
+        two.floors = {"other/F9": two.floors["mall/F1"]}
+        two.run(test, 1, seed=0)
+
+
+def test_fit_and_run_through_the_harness_with_a_split(tmp_path):
+    d = write_floor(tmp_path / "raw")
+    for k in range(3):  # three walks of one geometry: whichever two train, the third is found exactly
+        write_walk(d, f"walk{k}", coded_walk(START + k * 100_000, 5.0))
+    run_import("ilc20", d, tmp_path / "ds")
+    cfg = compose("eval", "experiment=mapfusion_002", f"data={tmp_path / 'ds'}", "runs=2", f"out={tmp_path / 'out'}",
+                  "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
+                  "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
+                  "methods.pf_ps_map_offset=null", "+split.train_fraction=0.6", "+split.seed=0",
+                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1", "methods.knn.label=KNN-WiFi")
+    res = evaluate(cfg)
+    m = res["methods"]["KNN-WiFi"]
+    assert len(res["split"]["train"]) == 2 and len(res["sessions"]) == 1
+    tr = m["training"]
+    assert "interpolated linearly between the surveyed waypoints" in tr["labels"]
+    assert tr["floors"]["mall/F1"]["train_walks"] == 2
+    # waypoints at 0.01 / 2.51 / 5.01 s (x = 5, 15, 25 m): the first held from the scan at 0.5 s (x = 6.96),
+    # the second exact, the third between the scans at 4.5 and 5.5 s, both found at x = 22.96 m (the last scan
+    # repeats the code of the one before)
+    assert m["error_m"]["mean"] == pytest.approx((1.96 + 0.0 + 2.04) / 3, abs=1e-6)
+
+
+def _two_floors(tmp_path):
+    raw = tmp_path / "raw"
+    for f, prefix in (("F1", "aa:01"), ("F2", "bb:02")):
+        d = write_floor(raw, floor=f)
+        for k in range(3):
+            write_walk(d, f"w{f}{k}", coded_walk(START + (10 * (f == "F2") + k) * 100_000, 5.0 + k, prefix))
+    run_import("ilc20", raw / "mall", tmp_path / "ds")
+    return Dataset.open(tmp_path / "ds")
+
+
+def test_floor_classifier_on_two_floors(tmp_path):
+    ds = _two_floors(tmp_path)
+    ss = list(ds.sessions())
+    train = [s for s in ss if s.id.endswith(("0", "1"))]
+    test = [s for s in ss if s.id.endswith("2")]
+    res = classify_floors(train, test, features="wifi", k=1)
+    # the two shared access points are on both floors; the coded ones decide
+    assert res["accuracy"] == 1.0 and res["walks"] == 2 and res["scan_accuracy"] == 1.0
+    assert res["confusion"] == {"mall/F1": {"mall/F1": 1}, "mall/F2": {"mall/F2": 1}}
+    with pytest.raises(ValueError, match="two or more"):
+        classify_floors(train[:1], test)
+    cfg = compose("eval", "experiment=mapfusion_002", f"data={ds.root}", "runs=1", f"out={tmp_path / 'out'}",
+                  "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
+                  "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
+                  "methods.pf_ps_map_offset=null", "split={train_fraction: 0.6, seed: 0}",
+                  "floor_classifier={features: wifi, k: 1}", "+localizer@methods.knn=fingerprint")
+    fa = evaluate(cfg)["floor_accuracy"]
+    assert fa["accuracy"] == 1.0 and fa["walks"] == 2 and set(fa["per_floor"]) == {"mall/F1", "mall/F2"}
+
+
+@pytest.mark.realdata
+def test_real_walks_knn_wifi(raw_dir, tmp_path):
+    """Twelve walks of site1/F1 unpacked into a temporary folder: KNN on WiFi trained on 8, run on 4."""
+    tgz = raw_dir / "ilc20" / "site1_F1.tar.gz"
+    if not tgz.is_file():
+        pytest.skip(f"{tgz} is absent")
+    root, n = tmp_path / "raw", 0
+    with tarfile.open(tgz, "r|gz") as tf:
+        for m in tf:
+            take = m.name.endswith(("floor_info.json", "geojson_map.json")) or (m.name.endswith(".txt") and n < 12)
+            if m.isfile() and take:
+                p = root / m.name
+                p.parent.mkdir(parents=True, exist_ok=True)
+                p.write_bytes(tf.extractfile(m).read())
+                n += m.name.endswith(".txt")
+    run_import("ilc20", root / "site1" / "F1", tmp_path / "ds")
+    ss = list(Dataset.open(tmp_path / "ds").sessions(labelled=True))
+    loc = FingerprintLocalizer("KNN-WiFi", features="wifi", k=3)
+    rep = loc.fit(ss[:8])
+    fl = rep["floors"]["site1/F1"]
+    assert fl["windows"] > 50 and fl["n_features"] > 100
+    for s in ss[8:]:
+        est = loc.run(s, 1, seed=0)
+        gt = s.groundtruth
+        assert est.t[0] <= gt["t"].iloc[0] and est.t[-1] >= gt["t"].iloc[-1]
+        # positions stay within the span of the train walks' waypoints (a mean of labels)
+        lab = np.concatenate([t.groundtruth[["x", "y"]].to_numpy() for t in ss[:8]])
+        assert (est.position[0] >= lab.min(axis=0) - 1e-9).all() and (est.position[0] <= lab.max(axis=0) + 1e-9).all()
