@@ -53,6 +53,27 @@ ROOM_COLOR = "tab:purple"
 ROUTE_COLOR = "tab:green"
 
 
+def legend_in_figure(fig: Figure, ax: Axes, n_entries: int, inside: str | None = None, max_inside: int = 6,
+                     rows: int = 22) -> None:
+    """The legend of ``ax``: inside the axes at ``inside`` when it has at most ``max_inside`` entries, else
+    beside the axes in the figure's right margin (``loc='outside right upper'``, which constrained layout
+    makes room for), in as many columns of at most ``rows`` entries as needed: never cut off by the figure."""
+    handles, labels = ax.get_legend_handles_labels()
+    if not handles:
+        return
+    if inside is not None and n_entries <= max_inside:
+        ax.legend(handles, labels, loc=inside, fontsize=8)
+        return
+    fig.legend(handles, labels, loc="outside right upper", fontsize=7, ncols=max(1, math.ceil(len(handles) / rows)),
+               frameon=False)
+
+
+def survey_points(x: np.ndarray, y: np.ndarray, decimals: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct (x, y) positions of a static survey's ground truth (rounded to ``decimals``)."""
+    xy = np.unique(np.round(np.column_stack([x, y]), decimals), axis=0)
+    return xy[:, 0], xy[:, 1]
+
+
 def new_figure(width_in: float, height_in: float) -> Figure:
     """A figure on an Agg canvas (no pyplot, no global backend), with constrained layout."""
     fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout="constrained")
@@ -170,6 +191,9 @@ def plot_tracks(ax: Axes, sessions: Iterable[Session], *, legend: bool = True) -
     for k, ((s, gt), c) in enumerate(zip(tracks, colors)):
         x, y = gt["x"].to_numpy(), gt["y"].to_numpy()
         label = f"{s.id} ({s.device_model}, {s.carrier})" if k < MAX_LEGEND_SESSIONS else None
+        if s.carrier == "static":  # a survey jumps between points: its points, not a line through walls
+            ax.scatter(*survey_points(x, y), s=12, marker="s", color=c, zorder=6, label=label)
+            continue
         ax.plot(x, y, color=c, lw=1.2, alpha=0.9, zorder=6, label=label)
         ax.plot(x[:1], y[:1], marker="o", ms=4, color=c, zorder=7)
     if legend:
@@ -356,7 +380,7 @@ def figure_error_cdf(grid: np.ndarray, cdfs: dict[str, np.ndarray], title: str =
     ax.set_ylim(0, 1)
     ax.set_xlim(grid[0], grid[-1])
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="lower right")
+    legend_in_figure(fig, ax, len(cdfs), inside="lower right")
     ax.set_title(title or "error CDF (median over runs, 5-95 % band)", fontsize=9)
     return fig
 
@@ -405,7 +429,7 @@ def figure_error_over_time(err_t: dict[str, tuple[np.ndarray, np.ndarray]], init
     ax.set_ylabel("position error [m]")
     ax.set_title(f"error over time, session {session_id}", fontsize=9)
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right", fontsize=8)
+    legend_in_figure(fig, ax, len(err_t) + 1, inside="upper right")
     return fig
 
 
@@ -419,10 +443,18 @@ def figure_trajectories(session: Session, tracks: dict[str, tuple[np.ndarray, np
     ax = fig.subplots()
     plot_floor(ax, b, session.meta.get("floor"), anchor_labels=False)
     gt = session.groundtruth
-    ax.plot(gt["x"], gt["y"], color="k", lw=2.0, label="ground truth")
+    static = session.carrier == "static"  # a survey: points (the device jumps between them), not lines through walls
+    if static:
+        ax.scatter(*survey_points(gt["x"].to_numpy(), gt["y"].to_numpy()), s=30, marker="s", color="k",
+                   label="ground truth (survey points)", zorder=6)
+    else:
+        ax.plot(gt["x"], gt["y"], color="k", lw=2.0, label="ground truth")
     for (name, (t, p)), c in zip(tracks.items(), session_colors(len(tracks))):
-        ax.plot(p[:, 0], p[:, 1], color=c, lw=1.0, alpha=0.9, label=name)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+        if static:
+            ax.scatter(p[:, 0], p[:, 1], s=6, color=c, alpha=0.7, label=name, zorder=5)
+        else:
+            ax.plot(p[:, 0], p[:, 1], color=c, lw=1.0, alpha=0.9, label=name)
+    legend_in_figure(fig, ax, len(tracks) + 1)
     ax.set_title(f"trajectories, session {session.id} (first run)", fontsize=9)
     return fig
 
@@ -459,4 +491,63 @@ def figure_learning_curves(history: Sequence[dict], knn_val_err_m: float | None 
     ax2.grid(True, alpha=0.3)
     ax2.legend(fontsize=7)
     fig.suptitle(title or "learning curves", fontsize=9)
+    return fig
+
+
+# --------------------------------------------------------------------------- leaderboard
+
+#: one colour per method family of the leaderboard (conf/experiment/leaderboard.yaml ``experiment.families``)
+FAMILY_COLORS = {"PF classical": "tab:blue", "map fusion": "tab:green", "back-end": "tab:purple", "CRF": "tab:orange",
+                 "learned": "tab:red", "fingerprint": "tab:brown", "bound": "black", "other": "tab:gray"}
+_FAMILY_STYLES = ["-", "--", ":", "-."]
+
+
+def figure_leaderboard_cdf(grid: np.ndarray, cdfs: dict[str, np.ndarray], families: dict[str, str], title: str = "",
+                           rmse: dict[str, float] | None = None, bound_rmse: float | None = None,
+                           bound_cdf: np.ndarray | None = None) -> Figure:
+    """The leaderboard's error CDF: one colour per method family (:data:`FAMILY_COLORS`), methods of one family
+    told apart by line style and width; ``cdfs[name]`` (G,) the median CDF over runs, ``rmse[name]`` shown in
+    the legend; the bound as the CDF of an estimator that attains it (``bound_cdf`` (G,), black dashed) and its
+    RMSE as a vertical line. The legend, grouped by family, sits in the figure's right margin."""
+    rmse = rmse or {}
+    fig = new_figure(10.0, 5.2)
+    ax = fig.subplots()
+    order = sorted(cdfs, key=lambda n: rmse.get(n, np.inf))
+    seen: dict[str, int] = {}
+    for name in sorted(order, key=lambda n: (list(FAMILY_COLORS).index(families.get(n, "other"))
+                                             if families.get(n, "other") in FAMILY_COLORS else 99, rmse.get(n, np.inf))):
+        fam = families.get(name, "other")
+        k = seen.get(fam, 0)
+        seen[fam] = k + 1
+        lab = f"{name} ({rmse[name]:.2f} m)" if name in rmse else name
+        ax.plot(grid, cdfs[name], color=FAMILY_COLORS.get(fam, "tab:gray"), ls=_FAMILY_STYLES[k % 4],
+                lw=2.2 if k < 4 else 1.2, label=f"{fam}: {lab}")
+    if bound_cdf is not None:
+        ax.plot(grid, bound_cdf, color="black", ls="--", lw=2.0,
+                label="bound: PCRLB" + (f" ({bound_rmse:.2f} m RMSE)" if bound_rmse is not None else ""))
+    if bound_rmse is not None:
+        ax.axvline(bound_rmse, color="black", lw=0.8, ls=":")
+    ax.set_xlabel("position error [m]")
+    ax.set_ylabel("fraction of estimates")
+    ax.set_ylim(0, 1)
+    ax.set_xlim(grid[0], grid[-1])
+    ax.grid(True, alpha=0.3)
+    legend_in_figure(fig, ax, len(cdfs) + (bound_cdf is not None), rows=26)
+    ax.set_title(title or "leaderboard: error CDF (median over runs), one colour per family", fontsize=9)
+    return fig
+
+
+def figure_bound_over_time(curves: dict[str, dict]) -> Figure:
+    """The PCRLB (sqrt of the trace of the position block of J_k^-1, m) over time per session;
+    ``curves[session] = {"t" (K,), "bound_m" (K,)}``."""
+    fig = new_figure(8.0, 3.8)
+    ax = fig.subplots()
+    for (sid, c), col in zip(curves.items(), session_colors(len(curves))):
+        ax.plot(c["t"], c["bound_m"], color=col, lw=1.2, label=sid)
+    ax.set_yscale("log")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("PCRLB of the position error [m]")
+    ax.grid(True, alpha=0.3, which="both")
+    legend_in_figure(fig, ax, len(curves), inside="upper right")
+    ax.set_title("posterior Cramer-Rao lower bound along the true trajectories", fontsize=9)
     return fig

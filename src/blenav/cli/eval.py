@@ -25,6 +25,8 @@ def summary_lines(res: dict) -> list[str]:
     for name, m in res["methods"].items():
         if "rmse_m" not in m:
             out.append(f"{name:12s} skipped on {len(m['skipped'])} session(s): {next(iter(m['skipped'].values()))}")
+        elif m.get("kind") == "bound":  # the leaderboard's PCRLB (blenav.eval.pcrlb): no estimates, no timing
+            out.append(f"{name:12s} RMSE {m['rmse_m']['mean']:.2f} m  (lower bound on the position error)")
         elif "per_device" in m:  # a window-level comparison (crossphone): absolute error per window
             e = m["error_m"]
             out.append(f"{name:22s} error mean {e['mean']:.2f} m  median {e['median']:.2f}  p90 {e['p90']:.2f}  "

@@ -59,6 +59,7 @@ from blenav.eval.plan_errors import PlanErrorConfig, perturb_building
 from .common import EvalError, json_default, write_json
 from .fixes import FixProvider
 from .floors import floor_accuracy
+from .leaderboard import PeakMemory
 from .metrics import cdf_band, pool, session_metrics, waypoint_metrics
 
 log = logging.getLogger("blenav.eval")
@@ -474,8 +475,11 @@ def evaluate(cfg: DictConfig) -> dict:
     outcomes: dict[str, MethodOutcome] = {}
     with _Progress(bool(cfg.get("progress", False)), len(methods) * len(sessions)) as progress:
         for name, method in methods.items():
-            oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress, bmap)
+            with PeakMemory(cfg.get("peak_memory", "none")) as mem:  # blenav.eval.leaderboard: rss | tracemalloc | none
+                oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress, bmap)
             results["methods"][name] = aggregate(oc, runs)
+            if mem.result() is not None and oc.metrics:
+                results["methods"][name]["peak_memory"] = mem.result()
             if training.get(name) is not None:
                 results["methods"][name]["training"] = training[name]
             if oc.metrics:
@@ -488,6 +492,10 @@ def evaluate(cfg: DictConfig) -> dict:
     dropped = dropped_rows(sessions)
     if dropped:
         results["dropped"] = dropped
+    if cfg.experiment.get("kind") == "leaderboard":  # the PCRLB row, families, leaderboard CDF (blenav.eval.leaderboard)
+        from .leaderboard import finish
+
+        finish(results, outcomes, ds, sessions, cfg, out)
     write_outputs(out, results, outcomes, sessions, cfg)
     return results
 

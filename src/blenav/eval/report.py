@@ -10,6 +10,10 @@ def _f(v, nd=2) -> str:
 
 
 def write_markdown(path: Path, results: dict, cfg=None) -> None:
+    if cfg is not None and "experiment" in cfg and cfg.experiment.get("kind") == "leaderboard":
+        from .leaderboard import write_markdown as leaderboard_markdown  # one table sorted by RMSE, with the PCRLB
+
+        return leaderboard_markdown(path, results, cfg)
     ms = results["methods"]
     lines = [f"# {results['experiment']}: {results.get('title', '')}", "",
              f"Dataset `{results['dataset']}`, {len(results['sessions'])} labelled session(s), "

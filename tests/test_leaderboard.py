@@ -1,0 +1,109 @@
+"""blenav-eval experiment=leaderboard: every method of the project composes, the table / PCRLB / peak memory /
+families / TUM trajectories / CDF are written, the PCRLB is skipped on data without simulator parameters, and
+the fleet merge (blenav.eval.merge --leaderboard) writes one table. Tiny sims (seconds); the slow methods
+(back-end, CRF) are switched off in the run test, but are built (so checked) by the composition test."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+
+from blenav.configs import compose
+from blenav.eval.harness import build_methods, evaluate
+from helpers import simulate_small
+
+SLOW = ("F-end", "B-end", "crf", "crf_recursive", "DR", "IMU", "grid_l1", "srls", "pf_pl_offset", "pf_ps_map_offset",
+        "pf_pl_map")
+
+
+def cfg(*overrides):
+    return compose("eval", *["progress=false", *overrides])
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """One 25 s pedestrian walk with non-default building and receiver names."""
+    return simulate_small(tmp_path_factory.mktemp("lb") / "sim", 6, 25, 1, "sim.name=dock_hall",
+                          "sim.receivers=[redmi-note8]")
+
+
+def test_every_family_is_built_and_labelled():
+    c = cfg("experiment=leaderboard", "data=unused")
+    methods = build_methods(c)
+    fam = {label for labels in c.experiment.families.values() for label in labels}
+    missing = [m for m in methods if m not in fam]
+    assert not missing, f"methods without a family: {missing}"
+    for want in ("RW", "IMU", "PF-PS+MAP", "F-end", "B-end", "CRF", "grid-L2", "SRLS", "centroid", "IO+map", "PF-FIX+MAP"):
+        assert want in methods
+
+
+def test_leaderboard_on_a_tiny_sim(tiny, tmp_path):
+    out = tmp_path / "lb"
+    res = evaluate(cfg("experiment=leaderboard", f"data={tiny}", "runs=2", f"out={out}", "init_s=5",
+                       *[f"methods.{k}=null" for k in SLOW]))
+    ms = json.loads((out / "results.json").read_text())["methods"]
+    assert set(ms) == set(res["methods"])
+    ran = [n for n, m in ms.items() if "rmse_m" in m and m.get("kind") != "bound"]
+    assert {"RW", "PF-PL", "PF-PS+MAP", "grid-L2", "centroid"} <= set(ran)
+    for n in ran:
+        m = ms[n]
+        assert m["family"] != "other" and m["peak_memory"]["peak_memory_mb"] >= 0
+        assert np.isfinite(m["realtime_factor"]) and set(m["error_m"]) >= {"mean", "median", "p75", "p90"}
+        assert (out / next(iter(m["per_session"])) / "trajectories" / f"{n}.tum").is_file(), n  # evo's TUM format
+    # learned rows without a model / fixes: skipped with the reason
+    assert "model_path" in next(iter(ms["IO+map"]["skipped"].values()))
+    assert "fixes" in next(iter(ms["PF-FIX+MAP"]["skipped"].values()))
+    b = ms["PCRLB"]
+    assert b["kind"] == "bound" and b["family"] == "bound" and 0 < b["rmse_m"]["mean"] < min(ms[n]["rmse_m"]["mean"] for n in ran)
+    assert b["best"]["method"] in ran and b["best"]["ratio"] > 1
+    md = (out / "results.md").read_text()
+    assert "| - | PCRLB | bound |" in md and "## Skipped" in md and "x the bound" in md
+    assert md.index("| 1 | " + b["best"]["method"] + " |") < md.index("| - | PCRLB |")  # sorted by RMSE, the bound last
+    for png in ("leaderboard_cdf.png", "pcrlb_over_time.png", "trajectories.png"):
+        with Image.open(out / png) as im:
+            assert im.size[0] > 500
+
+    # real data (no simulator parameters in dataset.yaml): the PCRLB is skipped with the reason
+    real = tmp_path / "real"
+    shutil.copytree(tiny, real)
+    meta = yaml.safe_load((real / "dataset.yaml").read_text())
+    meta.pop("simulator")
+    (real / "dataset.yaml").write_text(yaml.safe_dump(meta))
+    res2 = evaluate(cfg("experiment=leaderboard", f"data={real}", "runs=1", f"out={tmp_path / 'lb2'}", "init_s=5",
+                        "plots=false", *[f"methods.{k}=null" for k in SLOW], "methods.pf_ps=null", "methods.grid_l2=null"))
+    assert "rmse_m" not in res2["methods"]["PCRLB"] and "simulator" in next(iter(res2["methods"]["PCRLB"]["skipped"].values()))
+    assert "PCRLB: not a simulated dataset" in (tmp_path / "lb2" / "results.md").read_text()
+
+    # the fleet merge: both folders in one table
+    from blenav.eval.merge import main as merge_main
+
+    assert merge_main(["--leaderboard", str(tmp_path / "fleet.md"), "Fleet", str(out), str(tmp_path / "lb2")]) == 0
+    merged = json.loads((tmp_path / "fleet.json").read_text())
+    assert [d["name"] for d in merged["datasets"]] == ["sim", "real"]
+    assert set(merged["methods"]["RW"]["rmse_m"]) == {"sim", "real"} and merged["methods"]["RW"]["sessions"] == 2
+    assert "sim" in merged["best"] and "real" not in merged["best"]
+    assert "| - | PCRLB | bound |" in (tmp_path / "fleet.md").read_text()
+
+
+def test_peak_memory_counts_reused_heap():
+    """Memory a method takes from the heap freed by an earlier one is counted as its own (malloc_trim)."""
+    from blenav.eval.leaderboard import PeakMemory, rss_probe_available
+
+    if not rss_probe_available():
+        pytest.skip("no writable /proc/self/clear_refs (not Linux)")
+    x = [np.ones(1000) for _ in range(10000)]  # ~80 MB of small blocks, freed into the heap
+    del x
+    with PeakMemory("rss") as m:
+        y = [np.ones(1000) for _ in range(4000)]  # ~32 MB
+        del y
+    assert 20 < m.result()["peak_memory_mb"] < 80
+    with PeakMemory("none") as m:
+        pass
+    assert m.result() is None
+    with pytest.raises(ValueError, match="peak_memory"):
+        PeakMemory("psutil")
