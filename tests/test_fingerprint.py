@@ -170,3 +170,37 @@ def test_real_walks_knn_wifi(raw_dir, tmp_path):
         # positions stay within the span of the train walks' waypoints (a mean of labels)
         lab = np.concatenate([t.groundtruth[["x", "y"]].to_numpy() for t in ss[:8]])
         assert (est.position[0] >= lab.min(axis=0) - 1e-9).all() and (est.position[0] <= lab.max(axis=0) + 1e-9).all()
+
+
+def test_fingerprint_fixes_through_the_fix_provider(tmp_path):
+    """``fixes.compute`` = a fingerprint localizer: trained on the train walks by the harness (provider.methods),
+    its estimates at the scan times are the dense fixes, scored as a track equal to the method itself."""
+    d = write_floor(tmp_path / "raw")
+    for k in range(3):
+        write_walk(d, f"walk{k}", coded_walk(START + k * 100_000, 5.0))
+    run_import("ilc20", d, tmp_path / "ds")
+    cfg = compose("eval", "experiment=mapfusion_002", f"data={tmp_path / 'ds'}", "runs=1", f"out={tmp_path / 'out'}",
+                  "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
+                  "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
+                  "methods.pf_ps_map_offset=null", "split={train_fraction: 0.6, seed: 0}",
+                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1",
+                  "+localizer@methods.track=fix_track", "+fixes={dense: null}",
+                  "+fixes.compute={_target_: blenav.localizers.fingerprint.FingerprintLocalizer, k: 1}")
+    res = evaluate(cfg)
+    assert res["fixes"]["training"]["ps-dense"]["floors"]["mall/F1"]["train_walks"] == 2
+    track, knn = res["methods"]["track"]["error_m"], res["methods"]["KNN-WiFi"]["error_m"]
+    assert track["mean"] == pytest.approx(knn["mean"], abs=1e-9) and track["mean"] == pytest.approx(4.0 / 3, abs=1e-6)
+
+
+def test_locnet_trains_with_the_project_trainer(coded, tmp_path):
+    """LocNet on WiFi windows through blenav.learn.train (step budget, report); a short budget, numbers finite."""
+    from blenav.localizers import RunContext
+
+    loc = FingerprintLocalizer("LocNet-WiFi", model="locnet", val_fraction=0.5, seed=3,
+                               trainer={"budget": {"max_steps": 20, "val_every_steps": 5, "warmup_steps": 2}})
+    rep = loc.fit([coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], RunContext(out=tmp_path))
+    tr = rep["floors"]["mall/F1"]["training"]
+    assert tr["steps"] == 20 and tr["train_windows"] == 5 and tr["val_windows"] == 5 and tr["val_walks"] == 1
+    assert (tmp_path / "fingerprint" / "LocNet-WiFi" / "mall_F1" / "training.json").is_file()
+    est = loc.run(coded.session("mall_F1_walkC"), 2, seed=0)
+    assert est.cov is None and np.isfinite(est.position).all() and np.array_equal(est.position[0], est.position[1])

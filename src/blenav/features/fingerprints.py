@@ -58,7 +58,7 @@ class FingerprintConfig:
     floor_u: float = 0.5  # u of a reading at or below fill_dbm (heard, barely)
     ble_window_s: float = 3.0  # BLE advertisements of [t - ble_window_s, t] form the BLE part of a step
     ble_step_s: float = 1.0  # features=ble: a step every so many seconds
-    wifi_max_age_s: float | None = None  # drop WiFi rows with t - t_seen above this (None: keep all)
+    wifi_max_age_s: float | None = 5.0  # drop WiFi rows with t - t_seen above this (None: keep all)
 
     def __post_init__(self):
         if self.features not in FEATURES:

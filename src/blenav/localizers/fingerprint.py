@@ -95,7 +95,7 @@ class FingerprintLocalizer(Localizer, Trained):
 
     def __init__(self, name: str, shared=None, model: str = "knn", features: str = "wifi", k: int = 5,
                  weights: str = "uniform", history: int = 1, fill_dbm: float = -100.0, floor_u: float = 0.5,
-                 ble_window_s: float = 3.0, ble_step_s: float = 1.0, wifi_max_age_s: float | None = None,
+                 ble_window_s: float = 3.0, ble_step_s: float = 1.0, wifi_max_age_s: float | None = 5.0,
                  min_count: int = 1, max_features="auto", hold_ends: bool = True, cov_floor_m: float = 1.0,
                  net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
                  batch_size: int = 256, seed: int = 0, threads: int | None = 1, plots: bool = False):
