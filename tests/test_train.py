@@ -65,7 +65,7 @@ def test_a_run_interrupted_mid_way_resumes_from_its_last_epoch(two_phones, tmp_p
 
     common = ["model=locnet", f"data.path={two_phones}", f"out={tmp_path / 'run'}", "data.batch_size=32",
               "trainer.enable_progress_bar=false", "model.locnet.hidden=16", "model.locnet.fc_hidden=8",
-              "trainer.max_epochs=3"]
+              "trainer.max_epochs=3", "trainer.budget.val_every_steps=1"]  # last.ckpt at the validation cadence
     with pytest.raises(_Crash):
         train(cfg(*common), callbacks=[CrashAtEpoch1()])
     state = _finite_checkpoint(tmp_path / "run" / "last.ckpt")

@@ -5,6 +5,7 @@ results.json. Tiny data (the 'small' simulated building), seconds each."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import lightning as L
 import numpy as np
@@ -162,3 +163,58 @@ def test_optuna_sweep_command_finds_and_records_the_best_trial(two_phones, tmp_p
     assert Path(best["config"]).parent == Path(best["checkpoint"]).parent
     assert any(o.startswith("model.lr=") for o in best["overrides"])
     assert (sweep / "optimization_results.yaml").is_file()  # Optuna's own summary
+
+
+@pytest.mark.parametrize("heard", [0.15, 0.85])
+def test_ssl_loss_both_forms_match_the_equations_with_gradients(heard, monkeypatch):
+    """ssl_loss (sparse form below losses.DENSE_ABOVE heard, the fused dense autograd form above it, here also in
+    chunks of 3 windows) gives the value and the gradient of the direct form of eqs. 3.2-3.4."""
+    from blenav.learn import losses
+
+    gen = torch.Generator().manual_seed(7)
+    S = (torch.rand(10, 9, 4, generator=gen) * 0.6 * (torch.rand(10, 9, 4, generator=gen) < heard)).double()
+    M = torch.rand(9, 9, generator=gen).double() * 0.5
+    g0 = torch.rand(10, 9, 4, generator=gen).double() * 0.6
+    monkeypatch.setattr(losses, "_ssl_fused", lambda g, S, M, tau: losses._SSLDense.apply(
+        g, torch.exp((S - torch.diagonal(M)[None, :, None]) / tau), M, 3))
+    out = []
+    for f in (losses.ssl_loss, losses.ssl_loss_dense):
+        g = g0.clone().requires_grad_()
+        L_ = f(g, S, M)
+        L_.backward()
+        out.append((L_.item(), g.grad))
+    assert out[0][0] == pytest.approx(out[1][0], rel=1e-10)
+    torch.testing.assert_close(out[0][1], out[1][1], rtol=1e-9, atol=1e-12)
+    with torch.no_grad():  # validation: no gradient computed, same value
+        assert losses.ssl_loss(g0, S, M).item() == pytest.approx(out[1][0], rel=1e-10)
+
+
+def test_last_checkpoint_follows_the_validation_cadence():
+    """OUT/last.ckpt every check_val_every_n_epoch epochs (a checkpoint per 9-step epoch of a 2k survey was waste)."""
+    from blenav.learn.train import _val_cadence
+    from blenav.learn.trainer import last_checkpoint
+
+    assert _val_cadence(50, 10) == {"check_val_every_n_epoch": 5, "val_check_interval": 1.0}
+    assert _val_cadence(50, 200) == {"check_val_every_n_epoch": 1, "val_check_interval": 50}
+    assert last_checkpoint(Path("x"), 5)._every_n_epochs == 5 and last_checkpoint(Path("x"))._every_n_epochs == 1
+
+
+def test_validation_windows_are_capped_by_a_seeded_subset(two_phones, tmp_path):
+    """data.val_max_windows keeps that many of the validation windows (the same ones for the same seed, labels
+    with their windows); KNN's validation error is computed on the same subset."""
+    from blenav.learn.data import WindowDataModule
+    from blenav.learn.train import data_config, knn_val_error
+
+    def dm(*extra):
+        d = WindowDataModule(data_config(cfg(two_phones, tmp_path, *extra)))
+        d.setup()
+        return d
+
+    full, a, b = dm("data.val_max_windows=null"), dm("data.val_max_windows=7"), dm("data.val_max_windows=7")
+    assert len(full.sets["val"]) > 7 and len(a.sets["val"]) == 7
+    S, xy = full.sets["val"].tensors[0], full.sets["val"].tensors[2]
+    for s, x in zip(a.sets["val"].tensors[0], a.sets["val"].tensors[2]):  # rows of the full set, label kept
+        i = int(torch.nonzero((S == s).all(dim=(1, 2)))[0])
+        assert torch.equal(xy[i], x)
+    torch.testing.assert_close(a.sets["val"].tensors[0], b.sets["val"].tensors[0])
+    assert knn_val_error(a) != knn_val_error(full)

@@ -17,6 +17,7 @@ beacon was heard (a window with no beacon heard gives no fix; how many there wer
      "source" ("trained: OUT/runs/KEY" | "reused: OUT/runs/KEY" | "model: FILE.onnx" | "fitted"),
      "training" (learned methods trained here): {"steps", "early_stopped", "stop_reason", "best_val_error_m",
                  "knn_val_error_m" (KNN, k = 5, on the same validation windows), "converged", "best_step",
+                 "train_windows", "val_windows" (labelled windows trained / validated on),
                  "warnings" (worse than KNN on validation, stopped before converging), "learning_curves" (png)}}
 
 Every learned method's run also leaves ``OUT/runs/KEY/training.json`` and ``learning_curves.png`` (the training
@@ -104,7 +105,7 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path, dm) -
 
 #: ``methods.NAME.training`` of a learned method (blenav.learn.train.training_report)
 TRAINING_KEYS = ("steps", "early_stopped", "stop_reason", "best_val_error_m", "knn_val_error_m", "converged",
-                 "best_step", "warnings")
+                 "best_step", "train_windows", "val_windows", "warnings")
 
 
 def _check_reuse(ck: Path, dm, model: DictConfig | None = None) -> int | None:

@@ -4,7 +4,8 @@ Windows come from :func:`blenav.features.windows.session_windows` on one buildin
 order are the model's rows; ``beacons`` = k or a list keeps only a subset, see
 :func:`blenav.features.windows.select_beacons`, and ``sessions`` restricts the sessions used), divided by :data:`blenav.features.scale.U_SCALE`. Each window carries the
 previous window of its session (``S_prev``) for the position-smoothness loss. Validation sessions are
-a seeded fraction of the training sessions (whole sessions, never windows of one walk on both sides).
+a seeded fraction of the training sessions (whole sessions, never windows of one walk on both sides); at most
+``val_max_windows`` of their windows are kept (a seeded subset), so a validation check has a bounded cost.
 Splits follow :func:`blenav.features.windows.split_by_device`. For the semi-supervised stage (scenario 3 of
 Roy) the training loader adds the unlabelled windows (labels NaN) from epoch ``semi_from_epoch`` on.
 """
@@ -103,6 +104,10 @@ class WindowDataModule(L.LightningDataModule):
                      "test": _tensors([s for s in groups["test"] if s.labelled], self.beacons, wcfg, True),
                      "unlabelled": _tensors(groups["unlabelled"], self.beacons, wcfg, False),
                      "known": _tensors([s for s in train if s.device_model in known], self.beacons, wcfg, True)}
+        v = self.sets["val"]
+        if v is not None and c.val_max_windows is not None and len(v) > int(c.val_max_windows):
+            keep = np.sort(np.random.default_rng([c.seed, 2]).choice(len(v), int(c.val_max_windows), replace=False))
+            self.sets["val"] = TensorDataset(*(t[torch.from_numpy(keep)] for t in v.tensors))
         if self.sets["train"] is None:
             raise ValueError(f"{c.path}: no labelled training windows for devices {c.train_devices or 'all'}")
 

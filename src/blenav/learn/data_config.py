@@ -41,6 +41,9 @@ class WindowDataConfig:
     holdout: float = 0.25  # share of a trained-and-tested device's labelled sessions kept for testing
     unlabelled_share: float = 0.5
     val_fraction: float = 0.2
+    # validation windows at most (a seeded subset of the validation sessions' windows; None: all): a validation
+    # check then costs the same on a 50k-window survey as on a 2k one (issue 16)
+    val_max_windows: int | None = 2048
     history: int = 5
     step_hz: float = 1.0
     steps: WindowSteps = WindowSteps.time  # scan: fingerprint surveys, H consecutive scans at one point

@@ -25,6 +25,7 @@ from .checkpoint import SAFE_GLOBALS, load_file
 from .schedule import SCHEDULES, lr_factor  # noqa: F401  (re-exported: the step budget's pieces live here)
 
 LAST = "last.ckpt"
+CKPT_EVERY = "ckpt_every_n_epochs"  # a key of fit()'s trainer_kw: OUT/last.ckpt every so many epochs
 
 
 def start_run(seed: int, out: str | Path) -> Path:
@@ -35,12 +36,15 @@ def start_run(seed: int, out: str | Path) -> Path:
     return out
 
 
-def last_checkpoint(out: Path) -> L.Callback:
-    """OUT/last.ckpt after *every* epoch, so an interrupted run resumes from its last finished epoch
-    (Lightning 2.6 writes ``save_last`` only with a top-k checkpoint, i.e. with save_top_k=0 only when fit
-    ends); no version counter: a resumed or copied-in run (scenario 3 from scenario 2) overwrites it."""
+def last_checkpoint(out: Path, every_n_epochs: int = 1) -> L.Callback:
+    """OUT/last.ckpt after every ``every_n_epochs``-th epoch (default every epoch), so an interrupted run resumes
+    from its last saved epoch (Lightning 2.6 writes ``save_last`` only with a top-k checkpoint, i.e. with
+    save_top_k=0 only when fit ends); no version counter: a resumed or copied-in run (scenario 3 from scenario 2)
+    overwrites it. The cross-phone task saves with its validation cadence: on a small survey an epoch is a few
+    steps, and a checkpoint per epoch cost about a fifth of the run (issue 16)."""
     return L.pytorch.callbacks.ModelCheckpoint(dirpath=out, filename="last", save_top_k=1, monitor=None,
-                                               every_n_epochs=1, enable_version_counter=False,
+                                               every_n_epochs=max(1, int(every_n_epochs)),
+                                               enable_version_counter=False,
                                                save_on_train_epoch_end=True)  # whatever the validation cadence
 
 
@@ -56,9 +60,11 @@ def fit(module: L.LightningModule, datamodule: L.LightningDataModule, out: Path,
         callbacks: list | tuple = (), run: bool = True) -> L.Trainer:
     """A Trainer with ``trainer_kw``, :func:`last_checkpoint` first and then ``callbacks``, :func:`loggers`;
     fit, resuming from OUT/last.ckpt when it exists (``run`` False: the trainer only, nothing fitted, e.g. to
-    test a finished run). Returns the trainer."""
-    trainer_kw = {k: v for k, v in trainer_kw.items() if k != "budget"}  # blenav's step budget, not Lightning's
-    trainer = L.Trainer(**trainer_kw, default_root_dir=out, callbacks=[last_checkpoint(out), *callbacks],
+    test a finished run). ``trainer_kw["ckpt_every_n_epochs"]`` (blenav's, not Lightning's): the checkpoint's
+    cadence in epochs (default 1). Returns the trainer."""
+    every = int(trainer_kw.get(CKPT_EVERY) or 1)
+    trainer_kw = {k: v for k, v in trainer_kw.items() if k not in ("budget", CKPT_EVERY)}  # blenav's, not Lightning's
+    trainer = L.Trainer(**trainer_kw, default_root_dir=out, callbacks=[last_checkpoint(out, every), *callbacks],
                         logger=loggers(out), enable_model_summary=False)
     if not run:
         return trainer
