@@ -29,7 +29,8 @@ def _main(argv: list[str] | None) -> int:
         options = {"floors": args.floors} if args.floors is not None else {}
         report = run_import(args.kind, args.src, args.out, **options)
     except (ImportError_, DatasetError) as exc:
-        print(f"blenav-import: error: {exc}", file=sys.stderr)
+        # one line: a DatasetError from the validator holds one error per line
+        print(f"blenav-import: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     print(report)
     return 0

@@ -16,7 +16,8 @@ import shapely
 from shapely.geometry import Polygon
 
 from blenav.data import FREE, OCCUPIED, UNKNOWN, DatasetError, validate
-from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM
+from blenav.data.building import FLOOR_MAX_SIDE_M
+from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM, T_MAX_S
 
 from . import ImportError_, ImportReport
 
@@ -132,6 +133,35 @@ def source_line(src: Path, default: str) -> str:
             if line.strip():
                 return line.strip()
     return default
+
+
+#: raise_far's arguments for times in seconds
+FAR_TIME = dict(limit=T_MAX_S, unit="s", bound="any session lasts")
+
+
+def raise_far(path: Path, xy: np.ndarray, line_of: int | Callable[[int, int], int], names: Sequence[str],
+              limit: float = FLOOR_MAX_SIDE_M, unit: str = "m", bound: str = "any floor is large") -> None:
+    """Raise at the first value of ``xy`` (n, k) further than ``limit`` from the median of its column.
+
+    Positions (m, default): no floor is larger than ``FLOOR_MAX_SIDE_M`` (2 km, the validator's 'floor-size'
+    bound), so the value is corrupt or in another unit, and an occupancy grid covering it would not fit in memory
+    (1e9 m: a MemoryError; 1e308: an OverflowError). Times: ``limit=T_MAX_S, unit="s", bound="any session
+    lasts"`` (a 1e308 s time made every other session time infinite). ``line_of``: the file line of row 0 (row
+    ``r`` is line ``r + line_of``), or ``(r, c) -> line``; ``names[c]``: how the message names column ``c``.
+    """
+    xy = np.asarray(xy, dtype=float)
+    if not len(xy):
+        return
+    xy = xy.reshape(len(xy), -1)
+    med = np.median(xy, axis=0)
+    with np.errstate(invalid="ignore", over="ignore"):
+        far = ~(np.abs(xy - med) <= limit)
+    if far.any():
+        r, c = (int(i) for i in np.argwhere(far)[0])
+        line = line_of(r, c) if callable(line_of) else r + line_of
+        raise ImportError_(path, line, f"{names[c]}: {xy[r, c]:g} {unit} lies {abs(xy[r, c] - med[c]):g} {unit} from "
+                           f"the median of the others ({med[c]:g} {unit}), further than {bound} ({limit:g} {unit}): "
+                           "a corrupt value, or another unit?")
 
 
 # --------------------------------------------------------------------------------------------------

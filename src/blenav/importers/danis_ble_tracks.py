@@ -115,11 +115,13 @@ from blenav.data.writer import write_building, write_dataset_meta, write_session
 
 from . import ImportError_, ImportReport
 from ._common import (
+    FAR_TIME,
     check_out,
     drop_rssi,
     first_true,
     grid_lookup,
     parse_numbers,
+    raise_far,
     read_cells,
     read_lines,
     source_line,
@@ -208,6 +210,7 @@ def read_track(path: Path) -> pd.DataFrame:
         df[c] = v.astype(object)
     numeric = [k for k, c in enumerate(TRACK_COLUMNS) if c not in ("receiver", "transmitter")]
     v = parse_numbers(path, cells[:, numeric], first, [TRACK_COLUMNS[k] for k in numeric])
+    raise_far(path, v[:, :1], first, ("column 'unix_s'",), **FAR_TIME)
     for j, k in enumerate(numeric):
         df[TRACK_COLUMNS[k]] = v[:, j]
     return df

@@ -96,6 +96,7 @@ from ._common import (
     parse_numbers,
     raise_at,
     raise_bad_rssi,
+    raise_far,
     read_cells,
     read_lines,
     validate_or_raise,
@@ -154,6 +155,8 @@ def _read_ap_positions(path: Path) -> dict[str, tuple[np.ndarray, int]]:
         want = len(ENVIRONMENTS[env][2])
         if len(x) != want:
             raise ImportError_(path, lx, f"{env}: {len(x)} AP positions, expected {want}")
+        raise_far(path, np.column_stack([x, y]) * GRID_M, lambda r, c: (lx, ly)[c],
+                  (f"{env}: AP X (x {GRID_M} m)", f"{env}: AP Y (x {GRID_M} m)"))
         out[env] = (np.column_stack([x, y]), lx)
 
     for i, raw in enumerate(lines, start=1):  # a dozen lines
@@ -189,6 +192,7 @@ def _read_ap_positions(path: Path) -> dict[str, tuple[np.ndarray, int]]:
 def _read_split(path: Path) -> _Split:
     cells, first = read_cells(path, len(HEADER), header=HEADER, require_rows=True)
     v = parse_numbers(path, cells[:, :-1], first, HEADER[:-1])
+    raise_far(path, v[:, :2] * GRID_M, first, (f"column 'X' (x {GRID_M} m)", f"column 'Y' (x {GRID_M} m)"))
     rtt, rss = v[:, 2:2 + N_AP_COLUMNS], v[:, 2 + N_AP_COLUMNS:]
     raise_bad_rssi(path, rss, first, RSS_NOT_RECEIVED_DBM, lambda c: f"column {HEADER[2 + N_AP_COLUMNS + c]!r}:",
                    "not-received code -200")

@@ -130,6 +130,7 @@ from blenav.data.writer import write_building, write_dataset_meta, write_session
 
 from . import ImportError_, ImportReport
 from ._common import (
+    FAR_TIME,
     check_out,
     drop_rssi,
     first_true,
@@ -137,6 +138,7 @@ from ._common import (
     parse_numbers,
     pixel_centres,
     raise_at,
+    raise_far,
     read_cells,
     read_lines,
     source_line,
@@ -185,6 +187,7 @@ def read_anchors(path: Path) -> pd.DataFrame:
 def read_layout(path: Path) -> Polygon:
     cells, first = read_cells(path, 2, header=("x", "y"), require_rows=True)
     xy = parse_numbers(path, cells, first, ("x", "y"))
+    raise_far(path, xy, first, ("column 'x'", "column 'y'"))
     poly = Polygon(xy)
     if len(xy) < 4 or not poly.is_valid or poly.area <= 0:
         raise ImportError_(path, None, "the wall vertices do not form a valid polygon")
@@ -224,6 +227,7 @@ def read_system_log(path: Path, report: ImportReport) -> pd.DataFrame:
     if r is not None:
         c = int(np.flatnonzero(badcell[r])[0])
         raise ImportError_(path, r + 1, f"field {c + 1}: {tok.iat[r, c]!r} is not an integer")
+    raise_far(path, num[:, :1] / 1000.0, 1, ("field 1 (ts, unix ms / 1000)",), **FAR_TIME)
     b, u = num[:, 5].astype(np.int64), num[:, 6].astype(np.int64)
     expected = 7 + 8 * b + 4 * u
     bad = first_true((b < 0) | (u < 0) | (ntok != expected))
@@ -297,6 +301,7 @@ def read_df(path: Path, position: tuple[str, ...]) -> _Df:
     col = {n: k for k, n in enumerate(names)}
     index = parse_numbers(path, cells[:, :1], 2, ("(index)",), integer=True)[:, 0]
     ts = parse_numbers(path, cells[:, [col["ts"]]], 2, ("ts",))[:, 0]
+    raise_far(path, ts / 1e9, 2, ("column 'ts' (unix ns / 1e9)",), **FAR_TIME)
     raise_at(path, np.diff(ts) < 0, 3, lambda r, c: "'ts' goes backwards (earlier than the line before)")
     pv = parse_numbers(path, cells[:, [col[c] for c in position]], 2, position)
     pos = {c: pv[:, k] for k, c in enumerate(position)}

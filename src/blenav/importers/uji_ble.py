@@ -74,11 +74,11 @@ Raw-data facts a user should know (checked on the copy described in SOURCE.txt)
 Bad input
 ---------
 Any malformed line (wrong column count, blank line, non-numeric or non-finite value, RSS neither 100
-nor in (-150, 0) dBm, a time of 0 where an RSS was recorded or vice versa, an id that does not decode
-to a known phone/power/campaign, a time going backwards inside a session, a header that is not the
-expected one) or different row counts between the rss/tms/crd/ids files raises
-:class:`~blenav.importers.ImportError_` naming the file and the 1-based line. Nothing is written
-unless the whole source parses.
+nor in (-150, 0) dBm, a position more than 2 km from the others, a time of 0 where an RSS was
+recorded or vice versa, an id that does not decode to a known phone/power/campaign, a time going
+backwards inside a session, a header that is not the expected one) or different row counts between
+the rss/tms/crd/ids files raises :class:`~blenav.importers.ImportError_` naming the file and the 1-based
+line. Nothing is written unless the whole source parses.
 
 The strict CSV helpers, :func:`~blenav.importers._common.occupancy_grid` and the output checks are
 shared by all importers (:mod:`blenav.importers._common`).
@@ -104,6 +104,7 @@ from ._common import (
     parse_numbers,
     raise_at,
     raise_bad_rssi,
+    raise_far,
     read_cells,
     validate_or_raise,
 )
@@ -161,6 +162,7 @@ def _read_zone(src: Path, zone: str) -> _Zone:
     dup = pd.Series(bid).duplicated().to_numpy()
     raise_at(dep_path, dup, first, lambda r, c: f"beacon id {bid[r]!r} appears twice")
     bxy = parse_numbers(dep_path, cells[:, 1:], first, ("x", "y"))
+    raise_far(dep_path, bxy, first, ("column 'x'", "column 'y'"))
     nb = len(bid)
     per_beacon = f" (one per beacon row of {dep_path.parent.name}/{dep_path.name})"
 
@@ -173,6 +175,7 @@ def _read_zone(src: Path, zone: str) -> _Zone:
     tms_f = parse_numbers(tms_path, c, f, names, integer=True)
     c, f = read_cells(crd_path, 2)
     crd = parse_numbers(crd_path, c, f, ("x", "y"))
+    raise_far(crd_path, crd, f, ("x", "y"))
     c, f = read_cells(ids_path, 1)
     ids = parse_numbers(ids_path, c, f, ("id",), integer=True)[:, 0]
     n = len(rss)
@@ -211,6 +214,7 @@ def _read_obstacles(path: Path) -> tuple[list[Polygon], np.ndarray]:
     if len(cells) == 0:
         return [], np.empty((0, 2))
     v = parse_numbers(path, cells, first, ("id", "x", "y", "type"))
+    raise_far(path, v[:, 1:3], first, ("column 'x'", "column 'y'"))
     oid = v[:, 0]
     polys = []
     for k in pd.unique(oid):  # one iteration per obstacle (tens), not per row
