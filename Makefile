@@ -303,6 +303,27 @@ crf-tables: $(STAMP)
 	$(BIN)/python -m blenav.crf.tables data/results/crf_004_table1 data/results/crf_004_fig12 \
 	    docs/results/crf_004_tables.md
 
+# Issue 18 sec. 2: the leaderboard -- every method of the project and the PCRLB -- over a fleet of datasets as one
+# Hydra multirun (joblib launcher, LB_JOBS datasets at a time), merged into LB_OUT/fleet.md: a simulated office with
+# non-default names (LB_SIM, simulated when missing) and LB_REAL, e.g. an imported ILC dataset (optional; the PCRLB is
+# skipped there). LB_RUNS runs per session and method; LB_ARGS more overrides (model_path=DIR, '+split={...}').
+# docs/results-leaderboard.md
+LB_OUT ?= data/results/leaderboard
+LB_SIM ?= data/sim/leaderboard_wharf
+LB_REAL ?=
+LB_RUNS ?= 10
+LB_JOBS ?= 1
+LB_ARGS ?=
+lb_comma := ,
+leaderboard: $(STAMP)
+	test -e $(LB_SIM)/dataset.yaml || $(BIN)/blenav-sim sim=small sim.name=wharf_lab \
+	    'sim.receivers=[honor-20-pro,redmi-note8]' seed=2 out=$(LB_SIM) duration_s=120 sessions=2 progress=false
+	$(BIN)/blenav-eval -m experiment=leaderboard data=$(LB_SIM)$(if $(LB_REAL),$(lb_comma)$(LB_REAL)) runs=$(LB_RUNS) \
+	    'out=$(LB_OUT)/$${hydra:job.num}' hydra/launcher=joblib hydra.launcher.n_jobs=$(LB_JOBS) \
+	    hydra.sweep.dir=$(LB_OUT)/.multirun progress=false $(LB_ARGS)
+	$(BIN)/python -m blenav.eval.merge --leaderboard $(LB_OUT)/fleet.md "Leaderboard over the fleet (make leaderboard)" \
+	    $(LB_OUT)
+
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md
 

@@ -61,8 +61,10 @@ def test_leaderboard_on_a_tiny_sim(tiny, tmp_path):
     b = ms["PCRLB"]
     assert b["kind"] == "bound" and b["family"] == "bound" and 0 < b["rmse_m"]["mean"] < min(ms[n]["rmse_m"]["mean"] for n in ran)
     assert b["best"]["method"] in ran and b["best"]["ratio"] > 1
+    ble = ms["PCRLB-BLE"]  # BLE alone: less information than BLE + RTT + visual fixes
+    assert ble["kind"] == "bound" and ble["rmse_m"]["mean"] >= b["rmse_m"]["mean"] - 1e-9
     md = (out / "results.md").read_text()
-    assert "| - | PCRLB | bound |" in md and "## Skipped" in md and "x the bound" in md
+    assert "| - | PCRLB | bound |" in md and "## Skipped" in md and "x PCRLB (" in md and "| - | PCRLB-BLE | bound |" in md
     assert md.index("| 1 | " + b["best"]["method"] + " |") < md.index("| - | PCRLB |")  # sorted by RMSE, the bound last
     for png in ("leaderboard_cdf.png", "pcrlb_over_time.png", "trajectories.png"):
         with Image.open(out / png) as im:

@@ -503,51 +503,52 @@ _FAMILY_STYLES = ["-", "--", ":", "-."]
 
 
 def figure_leaderboard_cdf(grid: np.ndarray, cdfs: dict[str, np.ndarray], families: dict[str, str], title: str = "",
-                           rmse: dict[str, float] | None = None, bound_rmse: float | None = None,
-                           bound_cdf: np.ndarray | None = None) -> Figure:
+                           rmse: dict[str, float] | None = None,
+                           bounds: dict[str, tuple[float, np.ndarray]] | None = None) -> Figure:
     """The leaderboard's error CDF: one colour per method family (:data:`FAMILY_COLORS`), methods of one family
-    told apart by line style and width; ``cdfs[name]`` (G,) the median CDF over runs, ``rmse[name]`` shown in
-    the legend; the bound as the CDF of an estimator that attains it (``bound_cdf`` (G,), black dashed) and its
-    RMSE as a vertical line. The legend, grouped by family, sits in the figure's right margin."""
+    told apart by line style; ``cdfs[name]`` (G,) the median CDF over runs, ``rmse[name]`` shown in the
+    legend; ``bounds[name] = (RMSE, CDF (G,))``: a bound as the error CDF of an estimator that attains it
+    (black, dashed / dotted) and its RMSE as a thin vertical line. The legend, grouped by family and sorted by
+    RMSE within it, sits in the figure's right margin."""
     rmse = rmse or {}
     fig = new_figure(10.0, 5.2)
     ax = fig.subplots()
-    order = sorted(cdfs, key=lambda n: rmse.get(n, np.inf))
+    fam_rank = {f: i for i, f in enumerate(FAMILY_COLORS)}
     seen: dict[str, int] = {}
-    for name in sorted(order, key=lambda n: (list(FAMILY_COLORS).index(families.get(n, "other"))
-                                             if families.get(n, "other") in FAMILY_COLORS else 99, rmse.get(n, np.inf))):
+    for name in sorted(cdfs, key=lambda n: (fam_rank.get(families.get(n, "other"), 99), rmse.get(n, np.inf))):
         fam = families.get(name, "other")
         k = seen.get(fam, 0)
         seen[fam] = k + 1
         lab = f"{name} ({rmse[name]:.2f} m)" if name in rmse else name
         ax.plot(grid, cdfs[name], color=FAMILY_COLORS.get(fam, "tab:gray"), ls=_FAMILY_STYLES[k % 4],
-                lw=2.2 if k < 4 else 1.2, label=f"{fam}: {lab}")
-    if bound_cdf is not None:
-        ax.plot(grid, bound_cdf, color="black", ls="--", lw=2.0,
-                label="bound: PCRLB" + (f" ({bound_rmse:.2f} m RMSE)" if bound_rmse is not None else ""))
-    if bound_rmse is not None:
-        ax.axvline(bound_rmse, color="black", lw=0.8, ls=":")
+                lw=2.0 if k < 4 else 1.0, label=f"{fam}: {lab}")
+    for k, (name, (b_rmse, b_cdf)) in enumerate((bounds or {}).items()):
+        ls = "--" if k == 0 else ":"
+        ax.plot(grid, b_cdf, color="black", ls=ls, lw=2.0, label=f"bound: {name} ({b_rmse:.2f} m RMSE)")
+        ax.axvline(b_rmse, color="black", lw=0.7, ls=ls)
     ax.set_xlabel("position error [m]")
     ax.set_ylabel("fraction of estimates")
     ax.set_ylim(0, 1)
     ax.set_xlim(grid[0], grid[-1])
     ax.grid(True, alpha=0.3)
-    legend_in_figure(fig, ax, len(cdfs) + (bound_cdf is not None), rows=26)
+    legend_in_figure(fig, ax, len(cdfs) + len(bounds or {}), rows=26)
     ax.set_title(title or "leaderboard: error CDF (median over runs), one colour per family", fontsize=9)
     return fig
 
 
-def figure_bound_over_time(curves: dict[str, dict]) -> Figure:
-    """The PCRLB (sqrt of the trace of the position block of J_k^-1, m) over time per session;
-    ``curves[session] = {"t" (K,), "bound_m" (K,)}``."""
+def figure_bound_over_time(curves: dict[str, dict], curves_ble: dict[str, dict] | None = None) -> Figure:
+    """The PCRLB (sqrt of the trace of the position block of J_k^-1, m) over time per session (solid) and,
+    when given, the BLE-only bound (dashed); ``curves[session] = {"t" (K,), "bound_m" (K,)}``."""
     fig = new_figure(8.0, 3.8)
     ax = fig.subplots()
     for (sid, c), col in zip(curves.items(), session_colors(len(curves))):
-        ax.plot(c["t"], c["bound_m"], color=col, lw=1.2, label=sid)
+        ax.plot(c["t"], c["bound_m"], color=col, lw=1.2, label=f"{sid}: PCRLB")
+        if curves_ble and sid in curves_ble:
+            ax.plot(curves_ble[sid]["t"], curves_ble[sid]["bound_m"], color=col, lw=1.0, ls="--", label=f"{sid}: BLE only")
     ax.set_yscale("log")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("PCRLB of the position error [m]")
     ax.grid(True, alpha=0.3, which="both")
-    legend_in_figure(fig, ax, len(curves), inside="upper right")
+    legend_in_figure(fig, ax, 2 * len(curves), inside="upper right")
     ax.set_title("posterior Cramer-Rao lower bound along the true trajectories", fontsize=9)
     return fig

@@ -131,24 +131,38 @@ def bound_settings(cfg):
 
 
 def finish(results: dict, outcomes: dict, ds, sessions: list, cfg, out: Path) -> None:
-    """Add the PCRLB entry and the families to ``results`` and draw the leaderboard CDF (``plots``)."""
+    """Add the bound entries and the families to ``results`` and draw the leaderboard CDF (``plots``).
+
+    ``PCRLB``: the bound with every measurement the ``bound`` block switches on (BLE RSSI, RTT, visual fixes);
+    ``PCRLB-BLE``: the same with BLE RSSI alone, the information the BLE-only filters have (only when the
+    first uses more than BLE). Each has ``best``: the best method's RMSE and its ratio to the bound."""
+    from dataclasses import replace
+
     from .pcrlb import bound_entry
 
-    entry = bound_entry(ds.meta, sessions, float(cfg.init_s), bound_settings(cfg), seed=int(cfg.seed))
-    curves, errors = entry.pop("_curves", {}), entry.pop("_errors", None)
-    results["methods"]["PCRLB"] = entry
+    st = bound_settings(cfg)
+    variants = {"PCRLB": st}
+    if st.rssi and (st.rtt or st.visual):
+        variants["PCRLB-BLE"] = replace(st, rtt=False, visual=False)
+    curves, errors = {}, {}
+    for name, settings in variants.items():
+        entry = bound_entry(ds.meta, sessions, float(cfg.init_s), settings, seed=int(cfg.seed))
+        curves[name], errors[name] = entry.pop("_curves", {}), entry.pop("_errors", None)
+        results["methods"][name] = entry
     fam = families(cfg)
     for name, m in results["methods"].items():
         m["family"] = "bound" if m.get("kind") == "bound" else family_of(name, fam)
     ran = {n: m["rmse_m"]["mean"] for n, m in results["methods"].items() if "rmse_m" in m and m.get("kind") != "bound"}
-    if "rmse_m" in entry and ran:  # how far the best method is from what any estimator could do
-        best = min(ran, key=ran.get)
-        entry["best"] = {"method": best, "rmse_m": ran[best], "ratio": ran[best] / max(entry["rmse_m"]["mean"], 1e-12)}
+    for name in variants:  # how far the best method is from what any estimator could do
+        entry = results["methods"][name]
+        if "rmse_m" in entry and ran:
+            best = min(ran, key=ran.get)
+            entry["best"] = {"method": best, "rmse_m": ran[best], "ratio": ran[best] / max(entry["rmse_m"]["mean"], 1e-12)}
     if cfg.get("plots", True):
         _plot(out, results, outcomes, curves, errors)
 
 
-def _plot(out: Path, results: dict, outcomes: dict, curves: dict, errors) -> None:
+def _plot(out: Path, results: dict, outcomes: dict, curves: dict, errors: dict) -> None:
     from blenav import plotting
 
     from .metrics import cdf_band
@@ -161,17 +175,18 @@ def _plot(out: Path, results: dict, outcomes: dict, curves: dict, errors) -> Non
         R = next(iter(oc.metrics.values()))["_runs"]["err"].shape[0]
         per_run = [np.concatenate([m["_runs"]["err"][r] for m in oc.metrics.values()]) for r in range(R)]
         cdfs[name] = cdf_band(per_run, grid)[1]
-    bound = results["methods"].get("PCRLB", {})
-    bound_cdf = None
-    if errors is not None and len(errors):  # the efficient estimator's error CDF (errors ~ N(0, J^-1) per step)
-        bound_cdf = np.searchsorted(np.sort(errors), grid, side="right") / len(errors)
+    bounds = {}
+    for name, e in errors.items():  # an efficient estimator's error CDF (errors ~ N(0, J^-1) per step)
+        if e is not None and len(e):
+            bounds[name] = (results["methods"][name]["rmse_m"]["mean"],
+                            np.searchsorted(np.sort(e), grid, side="right") / len(e))
     fam = {n: m.get("family", "other") for n, m in results["methods"].items()}
     rmse = {n: m["rmse_m"]["mean"] for n, m in results["methods"].items() if "rmse_m" in m}
-    fig = plotting.figure_leaderboard_cdf(grid, cdfs, fam, results.get("title", ""), rmse=rmse,
-                                          bound_rmse=bound.get("rmse_m", {}).get("mean"), bound_cdf=bound_cdf)
+    fig = plotting.figure_leaderboard_cdf(grid, cdfs, fam, results.get("title", ""), rmse=rmse, bounds=bounds)
     plotting.save_figure(fig, out / "leaderboard_cdf.png")
-    if curves:
-        plotting.save_figure(plotting.figure_bound_over_time(curves), out / "pcrlb_over_time.png")
+    if curves.get("PCRLB"):
+        plotting.save_figure(plotting.figure_bound_over_time(curves["PCRLB"], curves.get("PCRLB-BLE")),
+                             out / "pcrlb_over_time.png")
 
 
 # ------------------------------------------------------------------------------------------ results.md
@@ -179,14 +194,14 @@ def _f(v, nd=2) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
 
 
-FAMILY_ORDER = ["PF classical", "map fusion", "back-end", "CRF", "learned", "fingerprint", "bound", "other"]
 
 
 def write_markdown(path: Path, results: dict, cfg=None) -> None:
-    """results.md of the leaderboard: one table sorted by RMSE (the bound last), then the skipped methods."""
+    """results.md of the leaderboard: one table sorted by RMSE (the bounds last), then the skipped methods."""
     ms = results["methods"]
     ran = {n: m for n, m in ms.items() if "rmse_m" in m and m.get("kind") != "bound"}
-    bound = ms.get("PCRLB") or {}
+    bounds = {n: m for n, m in ms.items() if m.get("kind") == "bound"}
+    scored = {n: m for n, m in bounds.items() if "rmse_m" in m}
     order = sorted(ran, key=lambda n: ran[n]["rmse_m"]["mean"])
     how = next((m["peak_memory"]["how"] for m in ran.values() if m.get("peak_memory")), None)
     lines = [f"# {results['experiment']}: {results.get('title', '')}", "",
@@ -206,18 +221,19 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
         lines.append(f"| {i} | {name} | {m.get('family', '-')} | {_f(e['mean'])} | {_f(e['median'])} | {_f(e['p75'])} | "
                      f"{_f(e['p90'])} | {_f(r['mean'])} +- {_f(r['stderr'], 3)} | [{_f(r['ci99'][0])}, {_f(r['ci99'][1])}] | "
                      f"{_f(m['ate_m'])} | {_f(m['realtime_factor'], 0)} | {pm} |")
-    if "rmse_m" in bound:
-        r, e = bound["rmse_m"], bound["error_m"]
-        lines.append(f"| - | PCRLB | bound | {_f(e['mean'])}* | {_f(e['median'])}* | {_f(e['p75'])}* | {_f(e['p90'])}* | "
+    for name, b in scored.items():
+        r, e = b["rmse_m"], b["error_m"]
+        lines.append(f"| - | {name} | bound | {_f(e['mean'])}* | {_f(e['median'])}* | {_f(e['p75'])}* | {_f(e['p90'])}* | "
                      f"{_f(r['mean'])} +- {_f(r['stderr'], 3)} | [{_f(r['ci99'][0])}, {_f(r['ci99'][1])}] | "
-                     f"{_f(bound['ate_m'])} | - | - |")
-    lines += ["", _bound_text(bound, ran, order)]
+                     f"{_f(b['ate_m'])} | - | - |")
+    lines += ["", _bound_text(scored)] if scored else []
     if how:
         lines += ["", f"Peak memory: {how} (MB: +increase, and in brackets the process's peak resident memory while "
                   "the method ran; data streams and floor-plan caches shared by the methods are counted in the first "
                   "method that loads them)."]
-    lines += ["", "x real time: seconds of data per second of computing, all runs (one core, this machine)."]
-    skipped = {n: m["skipped"] for n, m in ms.items() if "skipped" in m and n != "PCRLB"}
+    lines += ["", "x real time: seconds of data per second of computing, all runs (one core, this machine; training of "
+              "the fingerprint rows not included)."]
+    skipped = {n: m["skipped"] for n, m in ms.items() if "skipped" in m and m.get("kind") != "bound"}
     if skipped:
         lines += ["", "## Skipped", ""]
         for n, sk in skipped.items():
@@ -228,39 +244,45 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
     for n, why in (model.get("unavailable") or {}).items():
         if n not in skipped:
             lines.append(f"- {n}: {why}")
-    if "skipped" in bound and "rmse_m" not in bound:
-        lines += ["", "PCRLB: " + "; ".join(sorted(set(bound["skipped"].values()))) + "."]
+    for n, b in bounds.items():
+        if "skipped" in b and "rmse_m" not in b:
+            lines += ["", f"{n}: " + "; ".join(sorted(set(b["skipped"].values()))) + "."]
     if ran:
-        lines += ["", "## Per session (RMSE mean over runs, m)", "", "| session | " + " | ".join(order) +
-                  (" | PCRLB |" if "per_session" in bound else " |"), "|---|" + "---|" * (len(order) + ("per_session" in bound))]
+        cols = order + list(scored)
+        lines += ["", "## Per session (RMSE mean over runs, m)", "", "| session | " + " | ".join(cols) + " |",
+                  "|---|" + "---|" * len(cols)]
         for sid in results["sessions"]:
-            cells = [_f(ran[n]["per_session"][sid]["rmse_m"]["mean"]) if sid in ran[n]["per_session"] else "skipped"
-                     for n in order]
-            if "per_session" in bound:
-                cells.append(_f(bound["per_session"][sid]["rmse_m"]["mean"]) if sid in bound["per_session"] else "-")
+            cells = [_f(ms[n]["per_session"][sid]["rmse_m"]["mean"]) if sid in ms[n].get("per_session", {}) else
+                     ("skipped" if n in ran else "-") for n in cols]
             lines.append(f"| {sid} | " + " | ".join(cells) + " |")
-    lines += ["", "Plots: leaderboard_cdf.png (median error CDF over runs, one colour per family; the bound as the "
-              "error CDF of an estimator that attains it), pcrlb_over_time.png (simulated data), error_cdf.png, "
+    lines += ["", "Plots: leaderboard_cdf.png (median error CDF over runs, one colour per family; the bounds as the "
+              "error CDF of an estimator that attains them), pcrlb_over_time.png (simulated data), error_cdf.png, "
               "rmse_box.png, error_over_time.png, trajectories.png. Trajectories of every method: "
               "OUT/<session>/trajectories/<method>.tum (evo_ape tum groundtruth.tum <method>.tum)."]
     Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
-def _bound_text(bound: dict, ran: dict, order: list[str]) -> str:
-    if "rmse_m" not in bound:
-        return ""
-    b = bound["rmse_m"]["mean"]
-    s = bound.get("settings", {})
-    used = ", ".join(k for k in ("rssi", "rtt", "visual") if s.get(k)) or "none"
-    text = (f"PCRLB: the posterior Cramer-Rao lower bound of the position error (Tichavsky et al. 1998) along the "
-            f"true trajectories, from the simulator's own channel models (measurements: {used}) and a "
-            f"constant-velocity motion prior fitted to the simulated walks (blenav.eval.pcrlb): RMSE "
-            f"{b:.2f} m. The columns marked * are those of an estimator that attains the bound (errors drawn from "
-            f"N(0, J^-1) at each step). The bound counts no inertial, odometry or floor-plan information (methods "
-            f"using them are not bound by it) and treats the channel parameters as known and shadowing as "
-            f"independent between {s.get('dt_s', 1):g} s steps: every simplification lowers it.")
-    best = bound.get("best")
-    if best:
-        verdict = "within" if best["ratio"] <= 1.5 else "NOT within"
-        text += f" Best method: {best['method']} at {best['rmse_m']:.2f} m, {best['ratio']:.1f}x the bound ({verdict} 1.5x)."
-    return text
+def _bound_text(scored: dict) -> str:
+    parts = []
+    for name, bound in scored.items():
+        b = bound["rmse_m"]["mean"]
+        s = bound.get("settings", {})
+        used = ", ".join(k for k in ("rssi", "rtt", "visual") if s.get(k)) or "none"
+        if name == "PCRLB":
+            parts.append(
+                f"{name}: the posterior Cramer-Rao lower bound of the position error (Tichavsky et al. 1998) along the "
+                f"true trajectories, from the simulator's own channel models (measurements: {used}) and a "
+                f"constant-velocity motion prior fitted to the simulated walks (blenav.eval.pcrlb): RMSE {b:.2f} m. "
+                "The columns marked * are those of an estimator that attains the bound (errors drawn from N(0, J^-1) "
+                "at each step). The bound counts no inertial, odometry or floor-plan information (methods using them "
+                "are not bound by it) and treats the channel parameters as known and shadowing as independent between "
+                f"{s.get('dt_s', 1):g} s steps: every simplification lowers it.")
+        else:
+            parts.append(f"{name}: the same bound from the BLE RSSI alone (the information the BLE-only filters use): "
+                         f"RMSE {b:.2f} m.")
+        best = bound.get("best")
+        if best:
+            verdict = "within" if best["ratio"] <= 1.5 else "NOT within"
+            parts[-1] += (f" Best method: {best['method']} at {best['rmse_m']:.2f} m, {best['ratio']:.1f}x {name} "
+                          f"({verdict} 1.5x).")
+    return "\n\n".join(parts)
