@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables mapping-curve clean-demo
+.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables mapping-curve realwalks-tables clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -334,6 +334,36 @@ feng-tables: $(STAMP)
 	rm -rf data/feng_wifi_rtt && $(BIN)/blenav-import feng_wifi_rtt $(FENG_RAW) data/feng_wifi_rtt
 	$(BIN)/blenav-eval experiment=crf_004_feng data=data/feng_wifi_rtt out=data/results/crf_004_feng progress=false
 	$(BIN)/python -m blenav.eval.feng_rtt data/results/crf_004_feng/results.json docs/results/feng_rtt.md "make feng-tables"
+
+# Issue 17 sec. 2: every method on the ILC 2.0 real walks (three floors of site1), per floor, from the raw archives:
+# import, beacon map from the train walks only (blenav-map), experiment=realwalks with a map prior trained on
+# simulated procedural buildings (trained once, reused), the floor classifier on the three floors in one dataset,
+# then docs/results/ilc20_<floor>.md, docs/results-ilc20.md and the README table. RW_RUNS runs per walk.
+RW_RAW ?= ../shared/data/raw/ilc20
+RW_DATA ?= data/ilc20
+RW_OUT ?= data/results/realwalks
+RW_RUNS ?= 2
+RW_FLOORS ?= F1 F2 B1
+RW_PRIOR ?= data/runs/realwalks_mapprior_onnx
+RW_PRIOR_SIM = sim=procedural seed=4 duration_s=200 'sim.carriers=[pedestrian]' sim.unlabelled_every=0 sessions=16
+realwalks-tables: $(STAMP)
+	test -e $(RW_PRIOR)/meta.json || { \
+	  $(BIN)/blenav-sim $(RW_PRIOR_SIM) out=data/realwalks_prior_sim overwrite=true progress=false && \
+	  $(BIN)/python train.py experiment=mapprior data=data/realwalks_prior_sim out=data/runs/realwalks_mapprior \
+	      'data.val_buildings=[procedural_006,procedural_007]' trainer.max_epochs=15 && \
+	  $(BIN)/python export.py ckpt=data/runs/realwalks_mapprior/last.ckpt out=$(RW_PRIOR); }
+	for F in $(RW_FLOORS); do \
+	  rm -rf $(RW_DATA)/imported_$$F $(RW_DATA)/$$F && \
+	  $(BIN)/blenav-import ilc20 $(RW_RAW)/site1_$$F.tar.gz $(RW_DATA)/imported_$$F && \
+	  $(BIN)/blenav-map $(RW_DATA)/imported_$$F --out $(RW_DATA)/$$F \
+	      --sessions $$($(BIN)/python -m blenav.eval.realwalks train-ids $(RW_DATA)/imported_$$F) && \
+	  $(BIN)/blenav-eval experiment=realwalks data=$(RW_DATA)/$$F runs=$(RW_RUNS) model_path=$(RW_PRIOR) \
+	      out=$(RW_OUT)/$$F progress=false || exit 1; done
+	rm -rf $(RW_DATA)/raw_site $(RW_DATA)/site1 && mkdir -p $(RW_DATA)/raw_site
+	for F in $(RW_FLOORS); do tar -xzf $(RW_RAW)/site1_$$F.tar.gz -C $(RW_DATA)/raw_site || exit 1; done
+	$(BIN)/blenav-import ilc20 $(RW_DATA)/raw_site/site1 $(RW_DATA)/site1
+	$(BIN)/blenav-eval experiment=realwalks_floors data=$(RW_DATA)/site1 runs=1 out=$(RW_OUT)/floors progress=false
+	$(BIN)/python -m blenav.eval.realwalks tables $(RW_OUT) docs/results-ilc20.md $(RW_OUT)/floors README.md
 
 clean-demo:
 	rm -rf $(DEMO)

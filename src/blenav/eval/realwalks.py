@@ -1,0 +1,445 @@
+"""Real phone walks (issue 17, the ILC 2.0 recordings): Roy's odometry filters on PDR odometry, fused with
+the fixes of a fingerprint localizer trained on the dataset's own train walks.
+
+:class:`RealWalkPF` is a :class:`~blenav.localizers.ParticleFilterLocalizer` (the same config node: ``motion``,
+``measurements``, ``map``, ``filter``, ...) with two additions for walks that have no ``odometry.csv`` and no
+``fixes.csv``:
+
+``odometry`` (optional)
+    ``{heading: orientation | ahrs, step_length: 0.7 | null, declination_deg: 0, rate_hz: 10}``: the
+    session gets, in memory, a PDR odometry track (:func:`blenav.filters.motion_pdr.pdr_track`: detected
+    steps along the phone's heading, world-aligned because the heading is magnetic-north referenced and
+    the floor frame is east/north) in place of ``odometry.csv``, so that Roy's odometry increment (eq. 3.7)
+    and the learned map prior (eq. 3.8), which read odometry, run on a phone walk. ``heading:
+    orientation`` uses the phone's rotation vector (``orientation.csv``; the walk is skipped with the
+    reason when it has none), ``ahrs`` blenav's Madgwick AHRS with magnetometer. ``step_length: null``
+    fits one step length on the train walks (:meth:`fit`: the surveyed path length between their first
+    and last waypoints over the steps detected there; 0.7 m until fitted / without train walks).
+``fixes_from`` (optional)
+    The config node of another localizer (e.g. ``blenav.localizers.fingerprint.FingerprintLocalizer``,
+    KNN on WiFi scans): it is trained on the train walks when it is :class:`~blenav.localizers.Trained`
+    (once per distinct node, shared by every row naming the same node through the run context's cache),
+    run once per session (run 0, seed fixed per session), and its estimates, taken every
+    ``fixes_rate_hz`` (default: every estimate), become position fixes of source ``fixes_source`` (default
+    ``fp``) for the filter's :class:`~blenav.filters.measurement.FixLikelihood` (Roy eq. 3.9). With
+    ``map.init: fix`` the filter starts around the first of them (no ground truth used).
+
+``hold_ends`` (default true): the first and last estimates are held to the session's first and last sensor sample
+(IMU, RSSI, WiFi), so that a walk shorter than two filter steps still has an estimate at every waypoint (as
+the fingerprint localizers' ``hold_ends``).
+
+Everything else is the particle filter's: ``map.init: groundtruth`` starts at the first surveyed waypoint
+(the ground truth interpolated at the session start, i.e. the first waypoint when the walk starts there).
+"""
+
+from __future__ import annotations
+
+import logging
+import zlib
+
+import numpy as np
+import pandas as pd
+
+from blenav.filters.attitude import AttitudeConfig, estimate_attitude
+from blenav.filters.motion_pdr import pdr_track, step_flags
+from blenav.filters.runner import MissingStream, run_session
+from blenav.filters.steps import StepDetectorConfig
+from blenav.localizers.base import Estimate, RunContext, Trained, build_localizer
+from blenav.localizers.particle import ParticleFilterLocalizer
+
+log = logging.getLogger("blenav.eval.realwalks")
+
+__all__ = ["RealWalkPF", "pdr_odometry", "with_odometry", "fit_step_length", "train_ids", "floor_table", "verdicts",
+           "summary_table"]
+
+HEADINGS = ("orientation", "ahrs")
+DEFAULT_STEP_M = 0.7
+
+
+def _orientation_track(session, heading: str, att: AttitudeConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(q_t (Q,) s, q (Q, 4) w, x, y, z): the device->world orientation the PDR heading comes from."""
+    if heading == "orientation":
+        o = session.orientation if (session.root / "orientation.csv").is_file() else None
+        if o is None or not len(o):
+            raise MissingStream(f"session {session.id} has no orientation.csv (the phone's rotation vector), which "
+                                f"the PDR heading 'orientation' needs")
+        return o["t"].to_numpy(float), o[["qw", "qx", "qy", "qz"]].to_numpy(float)
+    imu, mag = session.imu, session.mag
+    q = estimate_attitude(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float),
+                          imu[["gx", "gy", "gz"]].to_numpy(float), mag["t"].to_numpy(float) if len(mag) else None,
+                          mag[["mx", "my", "mz"]].to_numpy(float) if len(mag) else None, att)
+    return imu["t"].to_numpy(float), q
+
+
+def pdr_odometry(session, heading: str = "orientation", step_length: float = DEFAULT_STEP_M,
+                 declination_deg: float = 0.0, rate_hz: float = 10.0, att: AttitudeConfig | None = None,
+                 steps: StepDetectorConfig | None = None, cache: dict | None = None) -> pd.DataFrame:
+    """The session's PDR odometry (DataFrame t, x, y: s, world-aligned m from 0), as ``odometry.csv`` holds it.
+
+    ``declination_deg``: added to the heading (magnetic north east of the floor's +y axis). Raises
+    :class:`MissingStream` without IMU data or (``heading='orientation'``) without orientation.csv."""
+    if heading not in HEADINGS:
+        raise ValueError(f"odometry.heading must be one of {HEADINGS}, got {heading!r}")
+    key = ("rw-pdr", session.id, heading, float(step_length), float(declination_deg), float(rate_hz), repr(att),
+           repr(steps))
+    if cache is not None and key in cache:
+        return cache[key]
+    imu = session.imu
+    if len(imu) < 2:
+        raise MissingStream(f"session {session.id} has no IMU data, which the PDR odometry needs")
+    q_t, q = _orientation_track(session, heading, att or AttitudeConfig())
+    t, xy = pdr_track(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), q_t, q, step_length, steps,
+                      rate_hz, np.radians(declination_deg))
+    df = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1]})
+    if cache is not None:
+        cache[key] = df
+    return df
+
+
+def with_odometry(session, odometry: pd.DataFrame):
+    """A view of ``session`` whose ``odometry`` stream is ``odometry`` (t, x, y), the other streams shared (read
+    once); the dataset is not touched."""
+    from dataclasses import replace
+
+    view = replace(session)
+    streams = session.__dict__.setdefault("_streams", {})
+    view.__dict__["_streams"] = _Overlay(streams, {"odometry": odometry})
+    view.__dict__["_dropped"] = session.__dict__.setdefault("_dropped", {})
+    if "_home" in session.__dict__:
+        view.__dict__["_home"] = session.__dict__["_home"]
+    return view
+
+
+class _Overlay(dict):
+    """A stream cache that answers some streams from ``fixed`` and stores the others in the original ``base``
+    (so that a view reads each file once, as the session does)."""
+
+    def __init__(self, base: dict, fixed: dict):
+        super().__init__(fixed)
+        self.base = base
+
+    def __contains__(self, k):
+        return dict.__contains__(self, k) or k in self.base
+
+    def __getitem__(self, k):
+        return dict.__getitem__(self, k) if dict.__contains__(self, k) else self.base[k]
+
+    def __setitem__(self, k, v):
+        if dict.__contains__(self, k):
+            return
+        self.base[k] = v
+
+
+def fit_step_length(sessions: list, steps: StepDetectorConfig | None = None) -> dict:
+    """One step length (m) for the walker of ``sessions`` (labelled): the surveyed path length between each walk's
+    first and last waypoint (straight lines between waypoints, so a lower bound of the walked length) summed over
+    the walks, over the steps detected in those spans. Returns ``{"step_length_m", "walks", "steps", "path_m"}``."""
+    path = n = 0.0
+    used = 0
+    for s in sessions:
+        gt, imu = s.groundtruth, s.imu
+        if len(gt) < 2 or len(imu) < 2:
+            continue
+        flags = step_flags(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), steps)
+        t_steps = imu["t"].to_numpy(float)[flags]
+        t0, t1 = float(gt["t"].iloc[0]), float(gt["t"].iloc[-1])
+        k = int(((t_steps > t0) & (t_steps <= t1)).sum())
+        d = np.diff(gt[["x", "y"]].to_numpy(float), axis=0)
+        path += float(np.hypot(d[:, 0], d[:, 1]).sum())
+        n += k
+        used += 1
+    if n < 10:
+        raise MissingStream(f"fewer than 10 steps detected between the waypoints of {used} train walk(s): no step "
+                            f"length to fit")
+    return {"step_length_m": path / n, "walks": used, "steps": int(n), "path_m": path}
+
+
+class RealWalkPF(ParticleFilterLocalizer, Trained):
+    """A particle filter on real walks: PDR odometry in memory and fixes from a trained localizer (module doc)."""
+
+    def __init__(self, name: str, shared=None, odometry=None, fixes_from=None, fixes_source: str = "fp",
+                 fixes_rate_hz: float | None = None, hold_ends: bool = True, **pf):
+        super().__init__(name, shared, **pf)
+        self.hold_ends = bool(hold_ends)
+        odo = dict(odometry or {})
+        unknown = set(odo) - {"heading", "step_length", "declination_deg", "rate_hz"}
+        if unknown:
+            raise ValueError(f"method {name!r}, odometry: unknown key(s) {sorted(unknown)}; known: heading, "
+                             f"step_length, declination_deg, rate_hz")
+        self.odometry = odo if odometry is not None else None
+        if self.odometry is not None and self.odometry.get("heading", "orientation") not in HEADINGS:
+            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS}, got "
+                             f"{self.odometry['heading']!r}")
+        self.step_length = odo.get("step_length", DEFAULT_STEP_M)
+        self.fitted_step: float | None = None
+        self.fixes_node = fixes_from
+        self.fixes_source = str(fixes_source)
+        self.fixes_rate_hz = fixes_rate_hz
+        self.fixes_loc = None
+        self._fixes_key = None
+        if fixes_from is not None:
+            import json
+
+            self._fixes_key = ("rw-fixes-localizer", json.dumps(fixes_from, sort_keys=True, default=str))
+            self.fixes_loc = build_localizer(f"{name} (fixes)", fixes_from, shared)
+
+    # ------------------------------------------------------------------ training
+    def fit(self, sessions: list, ctx: RunContext) -> dict | None:
+        report = {}
+        if self.odometry is not None and self.step_length is None:
+            key = ("rw-step-length", tuple(s.id for s in sessions))
+            if key not in ctx.cache:
+                ctx.cache[key] = fit_step_length(sessions, self.method.steps)
+            report["step_length"] = ctx.cache[key]
+            self.fitted_step = float(ctx.cache[key]["step_length_m"])
+        if self.fixes_loc is not None:
+            key = self._fixes_key + (tuple(s.id for s in sessions),)
+            if key not in ctx.cache:  # one training per distinct fixes localizer, shared by the rows naming it
+                rep = self.fixes_loc.fit(sessions, ctx) if isinstance(self.fixes_loc, Trained) else None
+                ctx.cache[key] = (self.fixes_loc, rep)
+            self.fixes_loc, rep = ctx.cache[key]
+            report["fixes"] = {"localizer": self.fixes_loc.name, "training": rep, "shared": True}
+        return report or None
+
+    # ------------------------------------------------------------------ run
+    def _step(self) -> float:
+        if self.step_length is not None:
+            return float(self.step_length)
+        return self.fitted_step if self.fitted_step is not None else DEFAULT_STEP_M
+
+    def session_view(self, session, ctx: RunContext):
+        """The session as the filter sees it: with PDR odometry when ``odometry`` is set."""
+        if self.odometry is None:
+            return session
+        o = self.odometry
+        df = pdr_odometry(session, o.get("heading", "orientation"), self._step(), float(o.get("declination_deg", 0.0)),
+                          float(o.get("rate_hz", 10.0)), self.method.attitude, self.method.steps, ctx.cache)
+        return with_odometry(session, df)
+
+    def fixes_for(self, session, ctx: RunContext) -> pd.DataFrame:
+        """The fixes of ``fixes_from`` on ``session`` (t, x, y, std NaN, source), computed once per session."""
+        key = ("rw-fixes", self._fixes_key, session.id, self.fixes_rate_hz)
+        if key not in ctx.cache:
+            seed = zlib.crc32(f"{session.id}/fixes".encode())
+            est = self.fixes_loc.run(session, 1, seed, ctx)
+            t, xy = est.t, est.position[0]
+            ok = np.isfinite(xy).all(axis=1)
+            t, xy = t[ok], xy[ok]
+            if self.fixes_rate_hz:
+                grid = np.arange(t[0], t[-1] + 1e-9, 1.0 / float(self.fixes_rate_hz)) if len(t) else t
+                idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, max(len(t) - 1, 0))
+                t, xy = grid, xy[idx]
+            if not len(t):
+                raise MissingStream(f"{self.fixes_loc.name} gave no position on session {session.id}")
+            ctx.cache[key] = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1], "std": np.nan,
+                                           "source": self.fixes_source})
+        return ctx.cache[key]
+
+    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
+        ctx = ctx or RunContext()
+        view = self.session_view(session, ctx)
+        extra = self.fixes_for(session, ctx) if self.fixes_loc is not None else None
+        if ctx.fixes is not None and self.fix_roles():
+            more = ctx.fixes.prepare(self.method, view)
+            extra = more if extra is None else pd.concat([extra, more], ignore_index=True) if more is not None else extra
+        res = run_session(self.method, view, n_runs, seed, cache=ctx.cache, fixes=extra)
+        outputs = {"n_eff": res.n_eff}
+        if res.q_imu is not None:
+            outputs["attitude"] = {"t": res.imu_t, "q": res.q_imu}
+        t, pos, cov = res.t, res.position, res.cov
+        if self.hold_ends and len(t):  # a short walk: the first / last estimate held to the session's first / last sample
+            t0, t1 = _session_span(session)
+            if t0 < t[0]:
+                t, pos, cov = np.r_[t0, t], np.concatenate([pos[:, :1], pos], 1), np.concatenate([cov[:, :1], cov], 1)
+            if t1 > t[-1]:
+                t, pos, cov = np.r_[t, t1], np.concatenate([pos, pos[:, -1:]], 1), np.concatenate([cov, cov[:, -1:]], 1)
+        notes = list(res.map_notes)
+        if self.odometry is not None:
+            notes.append(f"PDR odometry: heading from {self.odometry.get('heading', 'orientation')}, step "
+                         f"{self._step():.3f} m")
+        return Estimate(self.name, session.id, t, pos, cov, res.events, outputs, res.wall_s, notes)
+
+
+def _session_span(session) -> tuple[float, float]:
+    """(first, last) sensor time (s) of the session: IMU, BLE RSSI and WiFi rows (no ground truth)."""
+    ts = [session.stream(n)["t"] for n in ("imu", "rssi", "wifi") if (session.root / f"{n}.csv").is_file()]
+    ts = [x for x in ts if len(x)]
+    return (float(min(x.min() for x in ts)), float(max(x.max() for x in ts))) if ts else (np.inf, -np.inf)
+
+
+# ------------------------------------------------------------------------------------------ tables
+def train_ids(data: str, train_fraction: float = 0.5, seed: int = 0) -> list[str]:
+    """The train walks of ``experiment=realwalks`` on the dataset ``data`` (the harness's own split, so that a
+    beacon map estimated from them by ``blenav-map --sessions`` sees no test walk)."""
+    from omegaconf import OmegaConf
+
+    from blenav.data import Dataset
+
+    from .harness import select_sessions, split_sessions
+
+    sessions = select_sessions(Dataset.open(data), None)
+    train, _ = split_sessions(sessions, OmegaConf.create({"train_fraction": train_fraction, "seed": seed}))
+    return [s.id for s in train]
+
+
+#: the rows of the summary table, in order (labels of conf/experiment/realwalks.yaml)
+SUMMARY_ROWS = ("KNN-WiFi", "KNN-BLE", "KNN-WiFi+BLE", "LocNet-WiFi", "TransNet+LocNet-WiFi", "PDR",
+                "PDR (rotation vector)", "PDR (AHRS odometry)", "PDR+map", "PDR+learned-map", "WiFi+PDR",
+                "WiFi+PDR+map", "WiFi+PDR+learned-map", "BLE+PDR", "BLE+PDR+map", "BLE+PDR+learned-map",
+                "WiFi+BLE+PDR+learned-map", "PF-PL", "PF-PS", "PF-PS+MAP", "IMU", "CRF BLE+IMU")
+
+FINGERPRINT_ROWS = ("KNN-WiFi", "KNN-BLE", "KNN-WiFi+BLE", "LocNet-WiFi", "TransNet+LocNet-WiFi")
+FUSED_ROWS = ("WiFi+PDR", "WiFi+PDR+map", "WiFi+PDR+learned-map", "BLE+PDR", "BLE+PDR+map", "BLE+PDR+learned-map",
+              "WiFi+BLE+PDR+learned-map")
+#: the map-prior outcomes of issue 17 (left open by the map-prior issue): (question, row a, row b); a beats b
+#: when its mean error is lower
+OUTCOMES = (("sparse BLE + odometry + learned map vs dense BLE (WiFi+BLE fixes)", "BLE+PDR+learned-map", "KNN-WiFi+BLE"),
+            ("sparse BLE + odometry + learned map vs odometry + learned map", "BLE+PDR+learned-map", "PDR+learned-map"),
+            ("sparse BLE + odometry + learned map vs sparse BLE + odometry", "BLE+PDR+learned-map", "BLE+PDR"),
+            ("learned map prior vs heuristic map PF (PDR odometry)", "PDR+learned-map", "PDR+map"),
+            ("learned map prior vs heuristic map PF (BLE fixes + PDR)", "BLE+PDR+learned-map", "BLE+PDR+map"),
+            ("learned map prior vs heuristic map PF (WiFi fixes + PDR)", "WiFi+PDR+learned-map", "WiFi+PDR+map"))
+
+
+def _mean(results: dict, row: str) -> float | None:
+    m = results["methods"].get(row) or {}
+    e = m.get("error_m") or {}
+    v = e.get("mean")
+    return float(v) if v is not None and np.isfinite(v) else None
+
+
+def _fmt(v, pct: bool = False) -> str:
+    if v is None:
+        return "--"
+    return f"{100 * v:.0f} %" if pct else f"{v:.2f}"
+
+
+def floor_table(results: dict) -> str:
+    """Markdown: one row per method of a realwalks results.json (error_m over the test walks' waypoints, m;
+    share of walks within 2 m / 5 m), skipped methods with the first reason."""
+    lines = ["| method | mean | median | p90 | walks within 2 m | within 5 m | walks |", "|---|---|---|---|---|---|---|"]
+    names = [r for r in SUMMARY_ROWS if r in results["methods"]] + [r for r in results["methods"] if r not in SUMMARY_ROWS]
+    for name in names:
+        m = results["methods"][name]
+        e = m.get("error_m")
+        if not e:
+            reason = next(iter((m.get("skipped") or {}).values()), "not run")
+            lines.append(f"| {name} | skipped: {str(reason)[:110]} | | | | | |")
+            continue
+        w = m.get("walks_within_m") or {}
+        n = len(m.get("per_session") or {})
+        lines.append(f"| {name} | {_fmt(e.get('mean'))} | {_fmt(e.get('median'))} | {_fmt(e.get('p90'))} | "
+                     f"{_fmt(w.get('2'), True)} | {_fmt(w.get('5'), True)} | {n} |")
+    return "\n".join(lines)
+
+
+def verdicts(results: dict) -> list[str]:
+    """Markdown bullets: whether the best fused row beats the best fingerprint row and PDR+map, and the
+    map-prior outcomes (mean errors, m)."""
+    out = []
+    best = lambda rows: min(((_mean(results, r), r) for r in rows if _mean(results, r) is not None), default=None)
+    bf, bp = best(FUSED_ROWS), best(FINGERPRINT_ROWS)
+    pm = _mean(results, "PDR+map")
+    if bf and bp:
+        out.append(f"best fused {bf[1]} {bf[0]:.2f} m vs best fingerprint {bp[1]} {bp[0]:.2f} m: "
+                   f"{'fusion better' if bf[0] < bp[0] else 'fusion NOT better'}")
+    if bf and pm is not None:
+        out.append(f"best fused {bf[1]} {bf[0]:.2f} m vs PDR+map {pm:.2f} m: "
+                   f"{'fusion better' if bf[0] < pm else 'fusion NOT better'}")
+    for q, a, b in OUTCOMES:
+        va, vb = _mean(results, a), _mean(results, b)
+        if va is None or vb is None:
+            out.append(f"{q}: not measured ({a if va is None else b} did not run)")
+        else:
+            out.append(f"{q}: {a} {va:.2f} m vs {b} {vb:.2f} m -> {a if va < vb else b} better")
+    return out
+
+
+def summary_table(results_by_floor: dict) -> str:
+    """Markdown: mean error (m) per method and floor (columns: the floors), plus the verdicts per floor."""
+    floors = list(results_by_floor)
+    lines = ["| method | " + " | ".join(f"{f} mean / p90" for f in floors) + " |",
+             "|---|" + "---|" * len(floors)]
+    for row in SUMMARY_ROWS:
+        cells = []
+        for f in floors:
+            m = results_by_floor[f]["methods"].get(row) or {}
+            e = m.get("error_m")
+            cells.append(f"{_fmt(e.get('mean'))} / {_fmt(e.get('p90'))}" if e else "skipped" if m else "--")
+        if any(c not in ("--",) for c in cells):
+            lines.append(f"| {row} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def floor_markdown(results: dict, floor: str, command: str) -> str:
+    """docs/results/ilc20_<floor>.md: the floor's table, the verdicts, the split and what was trained."""
+    m = results["methods"]
+    step = next((v["training"]["step_length"] for v in m.values() if (v.get("training") or {}).get("step_length")), None)
+    lines = [f"# Real walks, ILC 2.0 site1 {floor}: every method on the same test walks", "",
+             f"Generated by `{command}` ([summary](../results-ilc20.md)). {len(results['sessions'])} test walks, "
+             f"{len(results.get('split', {}).get('train', []))} train walks (split {results.get('split', {}).get('train_fraction')}, "
+             f"seed {results.get('split', {}).get('seed')}), {results['runs']} run(s) per walk and method; errors in metres at "
+             f"the test walks' surveyed waypoints (the estimate interpolated at the waypoint times), pooled over the "
+             f"waypoints; 'walks within' = share of (walk, run) pairs whose mean waypoint error is within 2 m / 5 m.",
+             ""]
+    if step:
+        lines += [f"PDR step length fitted on the train walks: {step['step_length_m']:.3f} m ({step['steps']} steps over "
+                  f"{step['path_m']:.0f} m of surveyed path between waypoints, {step['walks']} walks).", ""]
+    if results.get("model"):
+        lines += [f"Map prior: `{results['model'].get('path')}`; unavailable for: "
+                  f"{', '.join(results['model'].get('unavailable', {})) or 'none'}.", ""]
+    lines += [floor_table(results), "", "## Verdicts (mean error)", ""] + [f"- {v}" for v in verdicts(results)]
+    return "\n".join(lines) + "\n"
+
+
+def write_tables(out_root: str, summary_md: str, command: str = "make realwalks-tables",
+                 floors_dir: str | None = None, readme: str | None = None) -> str:
+    """Per floor (``out_root/<floor>/results.json``): docs/results/ilc20_<floor>.md beside ``summary_md``; then the
+    summary (``summary_md``) and, with ``readme``, the table between the README's realwalks markers."""
+    from pathlib import Path
+    import json
+
+    root, summary = Path(out_root), Path(summary_md)
+    by_floor = {}
+    for d in sorted(p for p in root.iterdir() if (p / "results.json").is_file() and p.name != "floors"):
+        r = json.loads((d / "results.json").read_text())
+        by_floor[d.name] = r
+        (summary.parent / "results").mkdir(parents=True, exist_ok=True)
+        (summary.parent / "results" / f"ilc20_{d.name}.md").write_text(floor_markdown(r, d.name, command))
+    table = summary_table(by_floor)
+    fa = None
+    if floors_dir and (Path(floors_dir) / "results.json").is_file():
+        fa = json.loads((Path(floors_dir) / "results.json").read_text()).get("floor_accuracy")
+    parts = [f"Mean / p90 error (m) at the test walks' waypoints, per floor (`{command}`):", "", table, ""]
+    if fa is not None:
+        parts += [f"Floor classifier (which floor a test walk is on, from its scans; all three floors in one dataset): "
+                  f"`floor_accuracy` = {json.dumps(fa)}", ""]
+    for f, r in by_floor.items():
+        parts += [f"{f}:"] + [f"- {v}" for v in verdicts(r)] + [""]
+    body = "\n".join(parts)
+    text = summary.read_text() if summary.is_file() else ""
+    start, end = "<!-- realwalks-table -->", "<!-- /realwalks-table -->"
+    if start in text and end in text:
+        text = text.split(start)[0] + start + "\n" + body + "\n" + end + text.split(end, 1)[1]
+    else:
+        text = text + f"\n{start}\n{body}\n{end}\n"
+    summary.write_text(text)
+    if readme:
+        rp = Path(readme)
+        rt = rp.read_text()
+        if start in rt and end in rt:
+            rp.write_text(rt.split(start)[0] + start + "\n" + table + "\n" + end + rt.split(end, 1)[1])
+    return body
+
+
+if __name__ == "__main__":  # python -m blenav.eval.realwalks train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README]
+    import sys
+
+    cmd, args = (sys.argv[1], sys.argv[2:]) if len(sys.argv) > 1 else ("", [])
+    if cmd == "train-ids" and len(args) == 1:
+        print(",".join(train_ids(args[0])))
+    elif cmd == "tables" and 2 <= len(args) <= 4:
+        print(write_tables(args[0], args[1], floors_dir=args[2] if len(args) > 2 else None,
+                           readme=args[3] if len(args) > 3 else None))
+    else:
+        sys.exit("usage: python -m blenav.eval.realwalks train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README]")

@@ -1,0 +1,119 @@
+"""experiment=realwalks (issue 17 section 2): PDR odometry, the fused rows, the contract keys on real walks."""
+
+from __future__ import annotations
+
+import math
+import tarfile
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from helpers import simulate_small
+
+from blenav.configs import compose
+from blenav.eval.harness import evaluate
+from blenav.filters.motion_pdr import pdr_track
+from blenav.filters.steps import StepDetectorConfig
+
+CONTRACT = ("KNN-WiFi", "LocNet-WiFi", "PDR", "PDR+map", "PDR+learned-map", "WiFi+PDR+map", "WiFi+PDR+learned-map",
+            "BLE+PDR+learned-map")
+
+
+def _cfg(*overrides):
+    return compose("eval", "progress=false", "plots=false", *overrides)
+
+
+def test_pdr_track_walks_steps_along_the_heading():
+    """Steps (acceleration bursts every 0.5 s) along a heading of 30 deg: the track is n steps of L metres at 30 deg."""
+    t = np.arange(0.0, 10.0, 0.01)
+    acc = np.zeros((len(t), 3))
+    acc[:, 2] = 9.80665 + 3.0 * (np.sin(2 * np.pi * 2.0 * t) > 0.7)  # 2 steps per second, about 0.1 s above 1.2
+    yaw = np.radians(30.0)  # device +y at 30 deg CCW from world +x: rotate about z by yaw - 90 deg
+    half = (yaw - np.pi / 2) / 2
+    q = np.tile([np.cos(half), 0.0, 0.0, np.sin(half)], (len(t), 1))
+    tt, xy = pdr_track(t, acc, t, q, step_length=0.5, cfg=StepDetectorConfig(min_interval_s=0.3))
+    n = round(np.hypot(*xy[-1]) / 0.5)
+    assert n == 20  # 2 Hz for 10 s
+    assert math.isclose(np.degrees(np.arctan2(xy[-1, 1], xy[-1, 0])), 30.0, abs_tol=1e-6)
+    assert np.all(np.diff(tt) > 0) and xy[0].tolist() == [0.0, 0.0]
+
+
+def _as_waypoint_walks(root):
+    """Turn a simulated dataset into ILC-like walks: ground truth every 5 s only (groundtruth_kind: waypoints), the
+    ground-truth orientation as the phone's orientation.csv, no odometry.csv."""
+    for d in sorted((root / "sessions").iterdir()):
+        gt = pd.read_csv(d / "groundtruth.csv")
+        gt[["t", "qw", "qx", "qy", "qz"]].to_csv(d / "orientation.csv", index=False)
+        keep = np.r_[np.flatnonzero(np.diff(np.floor(gt["t"].to_numpy() / 5.0), prepend=-1) > 0)]
+        gt.iloc[keep].assign(qw=np.nan, qx=np.nan, qy=np.nan, qz=np.nan).to_csv(d / "groundtruth.csv", index=False)
+        (d / "odometry.csv").unlink(missing_ok=True)
+        meta = yaml.safe_load((d / "session.yaml").read_text())
+        meta.update(groundtruth_kind="waypoints", orientation_frame="enu-magnetic")
+        (d / "session.yaml").write_text(yaml.safe_dump(meta))
+    return root
+
+
+def test_realwalks_on_simulated_waypoint_walks(tmp_path):
+    """The experiment on 4 simulated walks turned into waypoint walks: the inertial, BLE-fingerprint and fused rows
+    run and give finite errors at the waypoints; WiFi rows are skipped with the reason (no wifi.csv)."""
+    data = _as_waypoint_walks(simulate_small(tmp_path / "d", 3, 40, 4))
+    res = evaluate(_cfg("experiment=realwalks", f"data={data}", "runs=1", f"out={tmp_path / 'o'}",
+                        "methods.locnet_wifi=null", "methods.transnet_wifi=null", "methods.crf=null",
+                        "methods.imu=null", "methods.pf_pl=null", "methods.pf_ps=null", "filter.n_particles=200"))
+    assert res["split"]["train_fraction"] == 0.5 and len(res["split"]["train"]) == 2 and len(res["sessions"]) == 2
+    m = res["methods"]
+    for row in ("PDR", "PDR (rotation vector)", "PDR+map", "KNN-BLE", "BLE+PDR", "BLE+PDR+map", "PF-PS+MAP"):
+        e = m[row]["error_m"]
+        assert all(np.isfinite(e[k]) for k in ("mean", "median", "p90")), row
+        assert set(m[row]["walks_within_m"]) == {"2", "5"}
+    assert 0.3 < m["PDR (rotation vector)"]["training"]["step_length"]["step_length_m"] < 1.5
+    assert "wifi" in str(m["KNN-WiFi"]["skipped"]).lower() and "error_m" not in m["WiFi+PDR"]
+    assert "model_path" in str(m["PDR+learned-map"]["skipped"])  # no map prior given: skipped with the reason
+
+
+def _unpack_walks(raw_dir, tmp_path, floor="F1", n=6):
+    tgz = raw_dir / "ilc20" / f"site1_{floor}.tar.gz"
+    if not tgz.is_file():
+        pytest.skip(f"{tgz} is absent")
+    root = tmp_path / "raw"
+    walks = 0
+    with tarfile.open(tgz, "r|gz") as tf:
+        for mem in tf:
+            take = mem.name.endswith(("floor_info.json", "geojson_map.json")) or (mem.name.endswith(".txt") and walks < n)
+            if mem.isfile() and take:
+                p = root / mem.name
+                p.parent.mkdir(parents=True, exist_ok=True)
+                p.write_bytes(tf.extractfile(mem).read())
+                walks += mem.name.endswith(".txt")
+    return root / "site1" / floor
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_realwalks_contract_on_real_walks(raw_dir, tmp_path):
+    """Six F1 walks unpacked into a temporary folder, imported, the experiment with a stand-in map prior (the
+    feasibility prior, no network): every contract key has finite error_m mean/median/p90 over the test walks."""
+    from blenav.importers import run_import
+
+    floor = _unpack_walks(raw_dir, tmp_path)
+    data = tmp_path / "ds"
+    run_import("ilc20", floor, data)
+    from blenav.filters import map_prior
+
+    orig = map_prior.load_prior
+    map_prior.load_prior = lambda path: map_prior.FeasibilityPrior()
+    try:
+        res = evaluate(_cfg("experiment=realwalks", f"data={data}", "runs=1", f"out={tmp_path / 'o'}",
+                            "model_path=feasibility", "methods.transnet_wifi.trainer={budget: {max_steps: 20}}",
+                            "methods.locnet_wifi.trainer={budget: {max_steps: 20}}", "filter.n_particles=200"))
+    finally:
+        map_prior.load_prior = orig
+    assert len(res["sessions"]) == 3
+    for row in CONTRACT:
+        e = res["methods"][row].get("error_m")
+        assert e is not None, (row, res["methods"][row].get("skipped"))
+        assert all(np.isfinite(e[k]) for k in ("mean", "median", "p90")), row
+    # no beacon map in a fresh import: the range-based rows are skipped with the reason
+    assert "blenav-map" in str(res["methods"]["PF-PS+MAP"]["skipped"])
