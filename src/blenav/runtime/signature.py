@@ -7,10 +7,14 @@ A *building signature* (:func:`building_signature`) is a JSON-able dict:
 - ``beacon_xy``: {id: [x, y, floor]} world metres of each BLE anchor (a moved beacon changes what its RSSI
   means, so it counts as a difference);
 - ``floors``: {floor id: sha256 hex of the floor plan} (:func:`floor_plan_hash`), ``plan_sha256``: the sha256
-  of all of them (sorted by floor id).
+  of all of them (sorted by floor id);
+- ``floor_facts``: {floor id: shape (H, W) px, resolution (m/px), origin (m), free and occupied pixel counts}
+  (:func:`floor_facts`), so that a refusal can say *how* a plan differs, not only that its hash does (optional:
+  bundles written before it have none, and their refusals name the hashes only).
 
 :func:`compare` lists what differs between the bundle's signature and a building's (missing and extra beacon
-ids, beacons moved by more than ``tol_m``, floors missing, extra or with another plan hash);
+ids, beacons moved by more than ``tol_m``, floors missing, extra or with another plan hash -- and then what changed
+in it: size, resolution, origin, or which pixels are free or occupied);
 :func:`check_building` raises :class:`BuildingMismatch` (a ValueError) with all of it in one message.
 
 A floor plan's hash covers what the filter and the map prior read: the occupancy grid (FREE / OCCUPIED /
@@ -24,6 +28,7 @@ import hashlib
 
 import numpy as np
 
+from blenav.data import FREE, OCCUPIED
 from blenav.features.windows import beacon_order
 
 TOL_M = 0.01  # a beacon moved by more than this (m) counts as a difference
@@ -43,6 +48,36 @@ def floor_plan_hash(floor) -> str:
     return h.hexdigest()
 
 
+def floor_facts(floor) -> dict:
+    """What a refusal says about a floor plan: ``shape`` [H, W] px, ``resolution`` m/px, ``origin`` [x, y] m, and the
+    numbers of ``free`` and ``occupied`` pixels."""
+    occ = np.asarray(floor.occupancy, dtype=np.int8)
+    return {"shape": [int(v) for v in occ.shape], "resolution": float(floor.resolution),
+            "origin": [float(floor.origin[0]), float(floor.origin[1])], "free": int(np.count_nonzero(occ == FREE)),
+            "occupied": int(np.count_nonzero(occ == OCCUPIED))}
+
+
+def plan_change(want: dict | None, have: dict | None) -> str:
+    """How the building's floor plan ``have`` differs from the bundle's ``want`` (:func:`floor_facts`); empty when
+    either is unknown."""
+    if not want or not have:
+        return ""
+    out = []
+    if want["shape"] != have["shape"]:
+        out.append(f"{want['shape'][1]} x {want['shape'][0]} px -> {have['shape'][1]} x {have['shape'][0]} px")
+    if not np.isclose(want["resolution"], have["resolution"], rtol=0, atol=1e-9):
+        out.append(f"resolution {want['resolution']:g} -> {have['resolution']:g} m/px")
+    if not np.allclose(want["origin"], have["origin"], rtol=0, atol=1e-6):
+        out.append(f"origin ({want['origin'][0]:g}, {want['origin'][1]:g}) -> ({have['origin'][0]:g}, "
+                   f"{have['origin'][1]:g}) m")
+    if out:
+        return "; ".join(out)
+    d_occ, d_free = have["occupied"] - want["occupied"], have["free"] - want["free"]
+    counts = ", ".join(f"{abs(d)} px {'more' if d > 0 else 'fewer'} {what}" for d, what in
+                       ((d_occ, "occupied"), (d_free, "free")) if d) or "as many free and occupied pixels, elsewhere"
+    return f"same size, resolution and origin; {counts}"
+
+
 def building_signature(building) -> dict:
     """The signature (see the module docstring) of a :class:`blenav.data.Building`."""
     ids = beacon_order(building)
@@ -55,7 +90,9 @@ def building_signature(building) -> dict:
                                   None if fl is None or (isinstance(fl, float) and np.isnan(fl)) else str(fl)]
     floors = {str(fid): floor_plan_hash(f) for fid, f in sorted(building.floors.items(), key=lambda kv: str(kv[0]))}
     total = hashlib.sha256("|".join(f"{k}:{v}" for k, v in floors.items()).encode()).hexdigest()
-    return {"building": str(building.id), "beacons": ids, "beacon_xy": xy, "floors": floors, "plan_sha256": total}
+    facts = {str(fid): floor_facts(f) for fid, f in sorted(building.floors.items(), key=lambda kv: str(kv[0]))}
+    return {"building": str(building.id), "beacons": ids, "beacon_xy": xy, "floors": floors, "plan_sha256": total,
+            "floor_facts": facts}
 
 
 def _few(ids, n: int = 8) -> str:
@@ -90,8 +127,11 @@ def compare(want: dict, have: dict, tol_m: float = TOL_M) -> list[str]:
             out.append(f"floor(s) {_few(gone)} of the bundle missing from the building")
         if new:
             out.append(f"floor(s) {_few(new)} the bundle does not know")
+        wfacts, hfacts = want.get("floor_facts") or {}, have.get("floor_facts") or {}
         for f in changed:
-            out.append(f"floor {f}: another floor plan (plan hash {hf[f][:12]}..., bundle's {wf[f][:12]}...)")
+            how = plan_change(wfacts.get(f), hfacts.get(f))
+            out.append(f"floor {f}: another floor plan (plan hash {hf[f][:12]}..., bundle's {wf[f][:12]}...)"
+                       + (f": {how}" if how else ""))
     return out
 
 
