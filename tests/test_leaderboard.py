@@ -66,7 +66,7 @@ def test_leaderboard_on_a_tiny_sim(tiny, tmp_path):
     md = (out / "results.md").read_text()
     assert "| - | PCRLB | bound |" in md and "## Skipped" in md and "x PCRLB (" in md and "| - | PCRLB-BLE | bound |" in md
     assert md.index("| 1 | " + b["best"]["method"] + " |") < md.index("| - | PCRLB |")  # sorted by RMSE, the bound last
-    for png in ("leaderboard_cdf.png", "pcrlb_over_time.png", "trajectories.png"):
+    for png in ("leaderboard_cdf.png", "pcrlb_over_time.png", "trajectories.png", "leaderboard_trajectories.png"):
         with Image.open(out / png) as im:
             assert im.size[0] > 500
 
@@ -109,3 +109,27 @@ def test_peak_memory_counts_reused_heap():
     assert m.result() is None
     with pytest.raises(ValueError, match="peak_memory"):
         PeakMemory("psutil")
+
+
+def test_static_survey_drawn_as_points_and_legend_inside_the_figure(tmp_path):
+    """A static survey jumps between points: drawn as points, not a line through walls; a long legend sits in
+    the figure's margin, inside the saved image."""
+    from blenav.data import Dataset
+    from blenav.plotting import figure_trajectories, new_figure, plot_tracks, save_figure
+
+    out = simulate_small(tmp_path / "survey", 1, 30, 1, "sim.carriers=[static]", "sim.name=quay_survey")
+    s = Dataset.open(out).session(Dataset.open(out).session_ids[0])
+    assert s.carrier == "static"
+    fig = new_figure(6, 4)
+    ax = fig.subplots()
+    plot_tracks(ax, [s], legend=False)
+    assert not ax.lines and len(ax.collections) == 1  # points only
+    gt = s.groundtruth
+    tracks = {f"method {k}": (gt["t"].to_numpy(), gt[["x", "y"]].to_numpy() + k * 0.1) for k in range(30)}
+    fig = figure_trajectories(s, tracks)
+    assert not [ln for ln in fig.axes[0].lines if ln.get_label() == "ground truth"]
+    legend = fig.legends[0]
+    save_figure(fig, tmp_path / "t.png")
+    bb = legend.get_window_extent(fig.canvas.get_renderer())
+    W, H = fig.canvas.get_width_height()
+    assert bb.x0 >= 0 and bb.y0 >= 0 and bb.x1 <= W + 1 and bb.y1 <= H + 1  # the whole legend is in the image

@@ -160,6 +160,29 @@ def finish(results: dict, outcomes: dict, ds, sessions: list, cfg, out: Path) ->
             entry["best"] = {"method": best, "rmse_m": ran[best], "ratio": ran[best] / max(entry["rmse_m"]["mean"], 1e-12)}
     if cfg.get("plots", True):
         _plot(out, results, outcomes, curves, errors)
+        _plot_best_tracks(out, results, outcomes, sessions)
+
+
+def _plot_best_tracks(out: Path, results: dict, outcomes: dict, sessions: list) -> None:
+    """leaderboard_trajectories.png: the first session with the best method of each family (first run), a
+    picture one reads at a glance (trajectories.png draws every method)."""
+    from blenav import plotting
+
+    ms = results["methods"]
+    best: dict[str, str] = {}
+    for n, m in ms.items():
+        if "rmse_m" in m and m.get("kind") != "bound" and n in outcomes:
+            f = m.get("family", "other")
+            if f not in best or m["rmse_m"]["mean"] < ms[best[f]]["rmse_m"]["mean"]:
+                best[f] = n
+    s = next((s for s in sessions if any(s.id in outcomes[n].results for n in best.values())), None)
+    if s is None:
+        return
+    tracks = {f"{n} ({f})": (outcomes[n].results[s.id].t, outcomes[n].results[s.id].position[0])
+              for f, n in best.items() if s.id in outcomes[n].results}
+    fig = plotting.figure_trajectories(s, tracks)
+    fig.axes[0].set_title(f"best method per family, session {s.id} (first run)", fontsize=9)
+    plotting.save_figure(fig, out / "leaderboard_trajectories.png")
 
 
 def _plot(out: Path, results: dict, outcomes: dict, curves: dict, errors: dict) -> None:
@@ -256,7 +279,8 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
                      ("skipped" if n in ran else "-") for n in cols]
             lines.append(f"| {sid} | " + " | ".join(cells) + " |")
     lines += ["", "Plots: leaderboard_cdf.png (median error CDF over runs, one colour per family; the bounds as the "
-              "error CDF of an estimator that attains them), pcrlb_over_time.png (simulated data), error_cdf.png, "
+              "error CDF of an estimator that attains them), leaderboard_trajectories.png (the best method of each "
+              "family), pcrlb_over_time.png (simulated data), error_cdf.png, "
               "rmse_box.png, error_over_time.png, trajectories.png. Trajectories of every method: "
               "OUT/<session>/trajectories/<method>.tum (evo_ape tum groundtruth.tum <method>.tum)."]
     Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
