@@ -44,6 +44,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/map_index.py
 	$(BIN)/python benchmarks/onnx_speed.py
 	$(BIN)/python benchmarks/runtime_latency.py
+	$(BIN)/python benchmarks/soak.py
 	$(BIN)/python benchmarks/crossphone_train.py
 	$(BIN)/python benchmarks/mapprior_train.py
 	$(BIN)/python benchmarks/ilc20_import.py
