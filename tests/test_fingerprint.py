@@ -204,3 +204,23 @@ def test_locnet_trains_with_the_project_trainer(coded, tmp_path):
     assert (tmp_path / "fingerprint" / "LocNet-WiFi" / "mall_F1" / "training.json").is_file()
     est = loc.run(coded.session("mall_F1_walkC"), 2, seed=0)
     assert est.cov is None and np.isfinite(est.position).all() and np.array_equal(est.position[0], est.position[1])
+
+
+def test_named_train_walks_through_the_harness(tmp_path):
+    """split: {train: [ids]}: those walks train the fingerprint rows and are not scored; the others are."""
+    d = write_floor(tmp_path / "raw")
+    for k in range(3):
+        write_walk(d, f"walk{k}", coded_walk(START + k * 100_000, 5.0))
+    run_import("ilc20", d, tmp_path / "ds")
+    ids = Dataset.open(tmp_path / "ds").session_ids
+    over = ["runs=1", "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
+            "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null", "methods.pf_ps_map_offset=null",
+            "+localizer@methods.knn=fingerprint", "methods.knn.k=1", "methods.knn.label=KNN-WiFi"]
+    cfg = compose("eval", "experiment=mapfusion_002", f"data={tmp_path / 'ds'}", f"out={tmp_path / 'out'}", *over,
+                  f"split={{train: [{ids[0]}, {ids[2]}]}}")
+    res = evaluate(cfg)
+    assert res["split"]["train"] == [ids[0], ids[2]] and res["sessions"] == [ids[1]]
+    assert res["methods"]["KNN-WiFi"]["training"]["floors"]["mall/F1"]["train_walks"] == 2
+    with pytest.raises(Exception, match="nothing left to score"):
+        evaluate(compose("eval", "experiment=mapfusion_002", f"data={tmp_path / 'ds'}", f"out={tmp_path / 'o2'}", *over,
+                         f"sessions=[{ids[1]}]", f"split={{train: [{ids[1]}]}}"))

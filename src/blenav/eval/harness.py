@@ -447,7 +447,12 @@ def evaluate(cfg: DictConfig) -> dict:
     if plan_error.active:
         sessions, plan_info = with_wrong_plans(sessions, plan_error, out / "plans")
     train: list = []
-    if cfg.get("split") is not None:  # train on some walks of each floor, score the others
+    if cfg.get("split") is not None and cfg.split.get("train"):  # named train walks, not scored
+        train = select_sessions(ds, [str(i) for i in cfg.split.train])
+        sessions = [s for s in sessions if s.id not in {t.id for t in train}]
+        if not sessions:
+            raise EvalError("split.train names every evaluated session: nothing left to score")
+    elif cfg.get("split") is not None:  # train on some walks of each floor, score the others
         train, sessions = split_sessions(sessions, cfg.split)
     sessions, bmap_info = BM.with_source(sessions, bmap)
     provider = build_fix_provider(cfg, methods, out)
