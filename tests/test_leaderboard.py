@@ -133,3 +133,30 @@ def test_static_survey_drawn_as_points_and_legend_inside_the_figure(tmp_path):
     bb = legend.get_window_extent(fig.canvas.get_renderer())
     W, H = fig.canvas.get_width_height()
     assert bb.x0 >= 0 and bb.y0 >= 0 and bb.x1 <= W + 1 and bb.y1 <= H + 1  # the whole legend is in the image
+
+
+def test_fleet_as_a_hydra_multirun_then_merged(tiny, tmp_path):
+    """blenav-eval -m ... data=A,B with the joblib launcher: one output folder per dataset, merged into one
+    table by python -m blenav.eval.merge --leaderboard (only the fast centroid row kept)."""
+    import subprocess
+    import sys
+
+    from blenav.configs import compose as _compose
+
+    keep = "centroid"
+    off = [f"methods.{k}=null" for k in _compose("eval", "experiment=leaderboard").methods if k != keep]
+    second = tmp_path / "second"
+    shutil.copytree(tiny, second)
+    fleet = tmp_path / "fleet"
+    cmd = [sys.executable, "-m", "blenav.cli.eval", "-m", "experiment=leaderboard", f"data={tiny},{second}", "runs=1",
+           f"out={fleet}/${{hydra:job.num}}", "hydra/launcher=joblib", "hydra.launcher.n_jobs=1",
+           f"hydra.sweep.dir={fleet}/.multirun", "progress=false", "plots=false", "init_s=5", *off]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (fleet / "0" / "results.json").is_file() and (fleet / "1" / "results.json").is_file()
+    r = subprocess.run([sys.executable, "-m", "blenav.eval.merge", "--leaderboard", str(tmp_path / "fleet.md"), "Fleet",
+                        str(fleet)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    merged = json.loads((tmp_path / "fleet.json").read_text())
+    assert [d["folder"] for d in merged["datasets"]] == [str(fleet / "0"), str(fleet / "1")]
+    assert merged["methods"]["centroid"]["datasets"] == 2 and merged["methods"]["PCRLB"]["datasets"] == 2
