@@ -4,13 +4,16 @@ Issue 18, section 4. One :class:`blenav.runtime.BundleLocalizer` (the bundle's s
 fixes from the bundle's localizer, its map prior) receives ``--hours`` of samples (default 8 h) in time order through
 ``push_event``, as an app would. The process's resident memory (RSS, /proc/self/status VmRSS) is read every simulated
 ``--sample-min`` minutes (default 10); the cost of each update (the wall time of the push calls between two
-estimates, as benchmarks/runtime_latency.py times it) is kept per step. Printed:
+estimates, as benchmarks/runtime_latency.py times it: wall and process CPU time, the latter less sensitive to other
+processes on the machine) is kept per step. The bundle is built in a child process, so that the soak's process holds
+what an app holds (onnxruntime, numpy; no torch, and no heap left over from training). Printed:
 
-- RSS at every sample, its least-squares slope (MB per simulated hour) after the reference hour and over the whole
-  run, and its growth from the end of the reference hour (the first hour: imports, graph sessions, numba and the
-  filter's buffers settle there) to the end;
-- the per-step cost: median of the reference hour, of the last hour, their ratio (flat: about 1), and the slope of
-  the per-block medians (ms per simulated hour);
+- RSS and the number of Python objects the garbage collector tracks at every sample, the RSS's least-squares
+  slope (MB per simulated hour) after the reference hour and over the whole run, and its growth from the end of
+  the reference hour (the first hour: imports, graph sessions, numba and the filter's buffers settle there) to the
+  end;
+- the per-step cost (wall and CPU): median of the reference hour, of the last hour, their ratio (flat: about 1),
+  the medians of every hour, and the slope of the per-block medians (ms per simulated hour);
 - every estimate finite (counted).
 
 The data are **synthetic-but-realistic, not an 8-hour simulation**: the simulator's walk of ``--tile`` seconds
@@ -30,6 +33,7 @@ import gc
 import importlib.util
 import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -116,16 +120,22 @@ def main() -> int:
     ap.add_argument("--data", help="a dataset with a session in the bundle's building (default: simulate one)")
     ap.add_argument("--seed", type=int, default=21, help="the simulator's seed (21: runtime_latency.py's building)")
     ap.add_argument("--json", help="also write the figures here")
+    ap.add_argument("--build-to", help=argparse.SUPPRESS)  # the child process that builds the bundle
     args = ap.parse_args()
     rl = _runtime_latency()
+    if args.build_to:
+        print(rl.build(Path(args.build_to))["bundle"])
+        return 0
     pinned = rl.pin_one_core()
     from blenav.filters.runner import replay
     from blenav.runtime import Bundle
 
     tmp = tempfile.TemporaryDirectory(prefix="soak_")
     if args.bundle is None:
-        print("building a small bundle (simulate, train briefly, export: runtime_latency.build) ...", flush=True)
-        bundle_dir = rl.build(Path(tmp.name))["bundle"]
+        print("building a small bundle in a child process (simulate, train briefly, export: runtime_latency.build) ...",
+              flush=True)
+        subprocess.run([sys.executable, __file__, "--build-to", tmp.name], check=True, stdout=subprocess.DEVNULL)
+        bundle_dir = Path(tmp.name) / "B"
     else:
         bundle_dir = Path(args.bundle)
     b = Bundle.open(bundle_dir)
@@ -139,7 +149,8 @@ def main() -> int:
     n_steps = int(seconds * float(b.settings["filter"]["rate_hz"])) + 16
     step_t = np.full(n_steps, np.nan)  # preallocated: the soak's own bookkeeping does not grow
     step_ms = np.full(n_steps, np.nan)
-    samples: list[tuple[float, float]] = []
+    step_cpu = np.full(n_steps, np.nan)
+    samples: list[tuple[float, float, int]] = []
     fs = b.settings["filter"]
     prior = ", map prior" if b.prior is not None else ""
     print(f"bundle {bundle_dir}: {fs['n_particles']} particles at {fs['rate_hz']:g} Hz, BLE fixes{prior}; {pinned}")
@@ -147,52 +158,58 @@ def main() -> int:
           f"time (palindrome, continuous positions) with time offsets to {args.hours:g} h; events {', '.join(kinds)}",
           flush=True)
     gc.collect()
-    samples.append((0.0, rss_mb()))
+    samples.append((0.0, rss_mb(), len(gc.get_objects())))
     next_sample = sample_s
-    k, acc, n_bad, n_est, t_last = 0, 0.0, 0, 0, t_first
+    k, acc, cpu, n_bad, n_est, t_last = 0, 0.0, 0.0, 0, 0, t_first
     wall0 = time.perf_counter()
     for ev in palindrome(events, seconds):
         rel = ev[1] - t_first
         while rel >= next_sample:  # the RSS at each sample time (simulated clock)
-            samples.append((next_sample / 3600.0, rss_mb()))
+            samples.append((next_sample / 3600.0, rss_mb(), len(gc.get_objects())))
             h = next_sample / 3600.0
             if abs(h - round(h)) < 1e-9:
                 print(f"  {h:5.2f} h simulated, RSS {samples[-1][1]:7.1f} MB, {k:,} steps, "
                       f"{time.perf_counter() - wall0:6.0f} s wall", flush=True)
             next_sample += sample_s
-        c0 = time.perf_counter()
+        c0, p0 = time.perf_counter(), time.process_time()
         out = loc.push_event(ev)
         acc += time.perf_counter() - c0
+        cpu += time.process_time() - p0
         t_last = ev[1]
         if out:
             n_est += len(out)
             n_bad += sum(1 for r in out if not (np.isfinite(r.x) and np.isfinite(r.y) and np.isfinite(r.std)))
             if k < n_steps:
-                step_t[k], step_ms[k] = out[-1].t - t_first, acc * 1e3 / len(out)
+                step_t[k], step_ms[k], step_cpu[k] = out[-1].t - t_first, acc * 1e3 / len(out), cpu * 1e3 / len(out)
                 k += 1
-            acc = 0.0
+            acc = cpu = 0.0
     out = loc.close(t_last)
     n_est += len(out)
     wall = time.perf_counter() - wall0
-    samples.append((seconds / 3600.0, rss_mb()))
-    step_t, step_ms = step_t[:k] / 3600.0, step_ms[:k]
+    samples.append((seconds / 3600.0, rss_mb(), len(gc.get_objects())))
+    step_t, step_ms, step_cpu = step_t[:k] / 3600.0, step_ms[:k], step_cpu[:k]
     h_s = np.array([s[0] for s in samples])
     mb = np.array([s[1] for s in samples])
+    objs = np.array([s[2] for s in samples])
     ref = args.reference_h
     after = h_s >= ref - 1e-9
     rss_ref = float(mb[after][0])
     slope_after, slope_all = fit(h_s[after], mb[after]), fit(h_s, mb)
-    first = step_ms[step_t < ref]
-    last = step_ms[step_t >= args.hours - 1.0]
+    first, first_cpu = step_ms[step_t < ref], step_cpu[step_t < ref]
+    last, last_cpu = step_ms[step_t >= args.hours - 1.0], step_cpu[step_t >= args.hours - 1.0]
     blocks = np.floor(step_t * 3600.0 / sample_s)
     med = np.array([np.median(step_ms[blocks == j]) for j in np.unique(blocks)])
     mid = (np.unique(blocks) + 0.5) * sample_s / 3600.0
     slope_ms = fit(mid[mid >= ref], med[mid >= ref])
-    hourly = [float(np.median(step_ms[(step_t >= h) & (step_t < h + 1)])) for h in range(int(np.ceil(args.hours)))
-              if ((step_t >= h) & (step_t < h + 1)).any()]
+    hours = [(step_t >= h) & (step_t < h + 1) for h in range(int(np.ceil(args.hours)))]
+    hourly = [float(np.median(step_ms[m])) for m in hours if m.any()]
+    hourly_cpu = [float(np.median(step_cpu[m])) for m in hours if m.any()]
     print(f"\n{args.hours:g} h simulated ({k:,} filter steps, {n_est:,} estimates, {n_bad} not finite) in {wall:.0f} s "
           f"wall ({args.hours * 3600.0 / wall:.0f}x real time); load average {os.getloadavg()[0]:.2f}")
     print(f"RSS sampled every {args.sample_min:g} simulated min (MB): " + ", ".join(f"{v:.1f}" for v in mb))
+    print(f"Python objects tracked by the gc at the same times: {objs[0]:,} at the start, {int(objs[after][0]):,} "
+          f"after the reference, {objs[-1]:,} at the end ({int(objs[-1] - objs[after][0]):+,} after the reference); "
+          f"torch imported in this process: {'yes' if 'torch' in sys.modules else 'no'}")
     print(f"RSS: {mb[0]:.1f} MB at the start, {rss_ref:.1f} MB after the reference (first {ref:g} h), {mb[-1]:.1f} MB "
           f"at the end: growth {mb[-1] - rss_ref:+.1f} MB ({100 * (mb[-1] - rss_ref) / rss_ref:+.1f} %) after the "
           f"reference; "
@@ -202,14 +219,20 @@ def main() -> int:
           f"{np.median(last) / np.median(first):.3f} (flat: ~1); p90 {np.percentile(first, 90):.3f} -> "
           f"{np.percentile(last, 90):.3f} ms; slope of the {args.sample_min:g}-min medians after the reference "
           f"{slope_ms * 1e3:+.2f} us per simulated hour")
-    print("per-step cost, median per simulated hour (ms): " + ", ".join(f"{v:.3f}" for v in hourly))
+    print(f"per-step CPU time (process), median: reference {np.median(first_cpu):.3f} ms, last hour "
+          f"{np.median(last_cpu):.3f} ms, ratio last/reference {np.median(last_cpu) / np.median(first_cpu):.3f}")
+    print("per-step cost, median per simulated hour (ms, wall): " + ", ".join(f"{v:.3f}" for v in hourly))
+    print("per-step cost, median per simulated hour (ms, CPU):  " + ", ".join(f"{v:.3f}" for v in hourly_cpu))
     res = {"hours": args.hours, "steps": k, "estimates": n_est, "not_finite": n_bad, "wall_s": wall,
            "data": f"synthetic-but-realistic: {where}, palindrome-looped", "rss_samples": samples,
            "rss_slope_mb_per_h_after_reference": slope_after, "rss_slope_mb_per_h": slope_all,
            "rss_growth_mb_after_reference": float(mb[-1] - rss_ref), "reference_h": ref,
            "step_ms_median_reference": float(np.median(first)), "step_ms_median_last_hour": float(np.median(last)),
            "step_ratio_last_vs_reference": float(np.median(last) / np.median(first)),
-           "step_ms_slope_per_h": slope_ms, "step_ms_median_per_hour": hourly, "pinned": pinned}
+           "step_ms_slope_per_h": slope_ms, "step_ms_median_per_hour": hourly,
+           "step_cpu_ms_median_reference": float(np.median(first_cpu)),
+           "step_cpu_ms_median_last_hour": float(np.median(last_cpu)), "step_cpu_ms_median_per_hour": hourly_cpu,
+           "gc_objects": [int(v) for v in objs], "torch_imported": "torch" in sys.modules, "pinned": pinned}
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     tmp.cleanup()
