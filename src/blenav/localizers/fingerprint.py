@@ -124,6 +124,7 @@ class FingerprintLocalizer(Localizer, Trained):
         self.val_fraction, self.batch_size, self.seed = float(val_fraction), int(batch_size), int(seed)
         self.threads, self.plots = threads, bool(plots)
         self.floors: dict[str, _FloorModel] = {}
+        self._unfitted = "was not fitted (no train walks: the experiment needs a split)"  # why run() cannot
 
     # ------------------------------------------------------------------ training
     def fit(self, sessions: list, ctx: RunContext | None = None) -> dict:
@@ -135,6 +136,7 @@ class FingerprintLocalizer(Localizer, Trained):
             if s.labelled:
                 groups.setdefault(floor_key(s), []).append(s)
         if not groups:
+            self._unfitted = "was not fitted: no labelled train walk to build fingerprints from"
             raise MissingStream(f"{self.name}: no labelled train walk to build fingerprints from")
         report = {"model": self.model, "features": self.cfg.features, "settings": asdict(self.cfg),
                   "labels": "position at each window's last step time, interpolated linearly between the surveyed "
@@ -144,6 +146,7 @@ class FingerprintLocalizer(Localizer, Trained):
         for key, walks in groups.items():
             report["floors"][key] = self._fit_floor(key, walks, ctx)
         if not self.floors:
+            self._unfitted = f"was not fitted: no train walk has {self.cfg.features} readings inside its waypoints"
             raise MissingStream(f"{self.name}: no train walk has {self.cfg.features} readings inside its waypoints")
         return report
 
@@ -211,7 +214,7 @@ class FingerprintLocalizer(Localizer, Trained):
         t0 = time.perf_counter()
         key = floor_key(session)
         if key not in self.floors:
-            why = "was not fitted (no train walks: the experiment needs a split)" if not self.floors else \
+            why = self._unfitted if not self.floors else \
                 f"has no model for floor {key} (trained: {sorted(self.floors)})"
             raise MissingStream(f"{self.name} {why}")
         fm = self.floors[key]
