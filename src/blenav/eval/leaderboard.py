@@ -261,8 +261,9 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
         lines += ["", "## Skipped", ""]
         for n, sk in skipped.items():
             whole = "rmse_m" not in ms[n]
+            why = (ms[n].get("training") or {}).get("unavailable")  # a Trained method that could not be trained
             lines.append(f"- {n} ({ms[n].get('family', '-')}): {'skipped' if whole else 'skipped on'} "
-                         f"{len(sk)} session(s): " + "; ".join(sorted(set(sk.values()))))
+                         f"{len(sk)} session(s): " + (f"training: {why}" if why else "; ".join(sorted(set(sk.values())))))
     model = results.get("model") or {}
     for n, why in (model.get("unavailable") or {}).items():
         if n not in skipped:
@@ -309,4 +310,6 @@ def _bound_text(scored: dict) -> str:
             verdict = "within" if best["ratio"] <= 1.5 else "NOT within"
             parts[-1] += (f" Best method: {best['method']} at {best['rmse_m']:.2f} m, {best['ratio']:.1f}x {name} "
                           f"({verdict} 1.5x).")
+    parts.append("What keeps a method above the bound (unknown beacon powers and receiver offset, wall and body "
+                 "losses it does not model, information it does not use) is discussed in docs/results-leaderboard.md.")
     return "\n\n".join(parts)
