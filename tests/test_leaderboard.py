@@ -133,6 +133,7 @@ def test_static_survey_drawn_as_points_and_legend_inside_the_figure(tmp_path):
     bb = legend.get_window_extent(fig.canvas.get_renderer())
     W, H = fig.canvas.get_width_height()
     assert bb.x0 >= 0 and bb.y0 >= 0 and bb.x1 <= W + 1 and bb.y1 <= H + 1  # the whole legend is in the image
+    assert fig.axes[0].yaxis.label.get_window_extent(fig.canvas.get_renderer()).x0 >= 0  # and the y label
 
 
 def test_fleet_as_a_hydra_multirun_then_merged(tiny, tmp_path):

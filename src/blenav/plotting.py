@@ -455,6 +455,7 @@ def figure_trajectories(session: Session, tracks: dict[str, tuple[np.ndarray, np
         else:
             ax.plot(p[:, 0], p[:, 1], color=c, lw=1.0, alpha=0.9, label=name)
     legend_in_figure(fig, ax, len(tracks) + 1)
+    ax.set_anchor("W")  # the equal aspect narrows the axes: keep them (and the y label) at the left, beside the legend
     ax.set_title(f"trajectories, session {session.id} (first run)", fontsize=9)
     return fig
 
