@@ -201,6 +201,8 @@ def main() -> int:
     med = np.array([np.median(step_ms[blocks == j]) for j in np.unique(blocks)])
     mid = (np.unique(blocks) + 0.5) * sample_s / 3600.0
     slope_ms = fit(mid[mid >= ref], med[mid >= ref])
+    fixes = getattr(loc, "fixes", [])  # the bundle keeps every fix it made (run_session's last_fixes)
+    fix_mb = (sys.getsizeof(fixes) + sum(sys.getsizeof(f) + sum(sys.getsizeof(v) for v in f) for f in fixes)) / 2**20
     hours = [(step_t >= h) & (step_t < h + 1) for h in range(int(np.ceil(args.hours)))]
     hourly = [float(np.median(step_ms[m])) for m in hours if m.any()]
     hourly_cpu = [float(np.median(step_cpu[m])) for m in hours if m.any()]
@@ -209,11 +211,11 @@ def main() -> int:
     print(f"RSS sampled every {args.sample_min:g} simulated min (MB): " + ", ".join(f"{v:.1f}" for v in mb))
     print(f"Python objects tracked by the gc at the same times: {objs[0]:,} at the start, {int(objs[after][0]):,} "
           f"after the reference, {objs[-1]:,} at the end ({int(objs[-1] - objs[after][0]):+,} after the reference); "
-          f"torch imported in this process: {'yes' if 'torch' in sys.modules else 'no'}")
+          f"the localizer's fix log (BundleLocalizer.fixes) holds {len(fixes):,} fixes, {fix_mb:.1f} MB; torch "
+          f"imported in this process: {'yes' if 'torch' in sys.modules else 'no'}")
     print(f"RSS: {mb[0]:.1f} MB at the start, {rss_ref:.1f} MB after the reference (first {ref:g} h), {mb[-1]:.1f} MB "
           f"at the end: growth {mb[-1] - rss_ref:+.1f} MB ({100 * (mb[-1] - rss_ref) / rss_ref:+.1f} %) after the "
-          f"reference; "
-          f"slope {slope_after:+.3f} MB/h after the reference ({slope_all:+.3f} MB/h over the whole run)")
+          f"reference; slope {slope_after:+.3f} MB/h after the reference ({slope_all:+.3f} MB/h over the whole run)")
     print(f"per-step cost (update = push calls between two estimates), median: reference (first {ref:g} h) "
           f"{np.median(first):.3f} ms, last hour {np.median(last):.3f} ms, ratio last/reference "
           f"{np.median(last) / np.median(first):.3f} (flat: ~1); p90 {np.percentile(first, 90):.3f} -> "
@@ -232,7 +234,8 @@ def main() -> int:
            "step_ms_slope_per_h": slope_ms, "step_ms_median_per_hour": hourly,
            "step_cpu_ms_median_reference": float(np.median(first_cpu)),
            "step_cpu_ms_median_last_hour": float(np.median(last_cpu)), "step_cpu_ms_median_per_hour": hourly_cpu,
-           "gc_objects": [int(v) for v in objs], "torch_imported": "torch" in sys.modules, "pinned": pinned}
+           "gc_objects": [int(v) for v in objs], "fix_log": {"fixes": len(fixes), "mb": fix_mb},
+           "torch_imported": "torch" in sys.modules, "pinned": pinned}
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     tmp.cleanup()
