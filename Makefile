@@ -18,13 +18,33 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# The whole loop, CPU-sized (under 5 minutes on 2 cores; docs/demo.md): simulate an office walked by DEMO_SESSIONS
+# phones; train TransNet+LocNet from its Hydra config with Lightning on all walks but the last DEMO_TEST; export the
+# runtime bundle (ONNX, ORT, int8); run it torch-free on the first held-out walk (a phone it never saw); write the
+# network's fixes for the held-out walks; the leaderboard of learned vs classical methods on them, with the PCRLB.
+# Full size: make demo DEMO_SESSIONS=16 DEMO_DURATION=384 DEMO_STEPS=3000 DEMO_RUNS=20
+DEMO_SESSIONS ?= 8
+DEMO_TEST     ?= 2
+DEMO_DURATION ?= 150
+DEMO_STEPS    ?= 300
+DEMO_RUNS     ?= 3
 demo: $(STAMP)
-	$(BIN)/blenav-sim sim=office_45x55 seed=0 out=$(DEMO)/dataset duration_s=240 sessions=3 \
-	    'sim.carriers=[pedestrian,robot,static]' overwrite=true
+	$(BIN)/blenav-sim sim=office_45x55 seed=0 out=$(DEMO)/dataset duration_s=$(DEMO_DURATION) sessions=$(DEMO_SESSIONS) \
+	    'sim.carriers=[pedestrian]' overwrite=true
 	$(BIN)/blenav-validate $(DEMO)/dataset
 	$(BIN)/blenav-plot $(DEMO)/dataset --out $(DEMO)/report
-	$(BIN)/blenav-eval experiment=mapfusion_002 data=$(DEMO)/dataset runs=20 out=$(DEMO)/report/mapfusion_002
-	@echo "demo report: $(DEMO)/report (dataset plots, results.md and plots of the localization comparison)"
+	set -e; S="$$(ls $(DEMO)/dataset/sessions)"; N=$$(echo $$S | wc -w); K=$$((N - $(DEMO_TEST))); \
+	TRAIN=$$(echo $$S | cut -d' ' -f1-$$K | tr ' ' ,); TEST=$$(echo $$S | cut -d' ' -f$$((K + 1))-$$N | tr ' ' ,); \
+	rm -rf $(DEMO)/run $(DEMO)/bundle; \
+	$(BIN)/python train.py model=transnet_locnet data=$(DEMO)/dataset out=$(DEMO)/run "data.sessions=[$$TRAIN]" \
+	    trainer.budget.max_steps=$(DEMO_STEPS); \
+	$(BIN)/python export.py bundle=true ckpt=$(DEMO)/run/last.ckpt out=$(DEMO)/bundle eval_sessions=1; \
+	$(BIN)/blenav-localize $(DEMO)/bundle $(DEMO)/dataset/sessions/$${TEST%%,*} --out $(DEMO)/report/bundle_$${TEST%%,*}.csv; \
+	$(BIN)/blenav-fixes $(DEMO)/dataset $(DEMO)/bundle/localizer.onnx --sessions $$TEST; \
+	$(BIN)/blenav-eval experiment=leaderboard data=$(DEMO)/dataset runs=$(DEMO_RUNS) "sessions=[$$TEST]" \
+	    "split={train: [$$TRAIN]}" out=$(DEMO)/report/leaderboard
+	@echo "demo report: $(DEMO)/report (dataset plots; run/: training report and learning curves; bundle/: the app's"
+	@echo "  models; bundle_*.csv: the torch-free track; leaderboard/: results.md, leaderboard_cdf.png, trajectories)"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -342,13 +362,14 @@ feng-tables: $(STAMP)
 	$(BIN)/python -m blenav.eval.feng_rtt data/results/crf_004_feng/results.json docs/results/feng_rtt.md "make feng-tables"
 
 # Issue 17 sec. 2: every method on the ILC 2.0 real walks (three floors of site1), per floor, from the raw archives:
-# import, beacon map from the train walks only (blenav-map), experiment=realwalks with a map prior trained on
+# import, beacon map from the train walks only (blenav-map writes only the walks it maps: the full import gets its
+# anchors.csv, unplaced beacons kept without a position for the fingerprints), experiment=realwalks with a map prior trained on
 # simulated procedural buildings (trained once, reused), the floor classifier on the three floors in one dataset,
 # then docs/results/ilc20_<floor>.md, docs/results-ilc20.md and the README table. RW_RUNS runs per walk.
 RW_RAW ?= ../shared/data/raw/ilc20
 RW_DATA ?= data/ilc20
 RW_OUT ?= data/results/realwalks
-RW_RUNS ?= 2
+RW_RUNS ?= 1
 RW_FLOORS ?= F1 F2 B1
 RW_PRIOR ?= data/runs/realwalks_mapprior_onnx
 RW_PRIOR_SIM = sim=procedural seed=4 duration_s=200 'sim.carriers=[pedestrian]' sim.unlabelled_every=0 sessions=16
@@ -359,10 +380,12 @@ realwalks-tables: $(STAMP)
 	      'data.val_buildings=[procedural_006,procedural_007]' trainer.max_epochs=15 && \
 	  $(BIN)/python export.py ckpt=data/runs/realwalks_mapprior/last.ckpt out=$(RW_PRIOR); }
 	for F in $(RW_FLOORS); do \
-	  rm -rf $(RW_DATA)/imported_$$F $(RW_DATA)/$$F && \
+	  rm -rf $(RW_DATA)/imported_$$F $(RW_DATA)/mapped_$$F $(RW_DATA)/$$F && \
 	  $(BIN)/blenav-import ilc20 $(RW_RAW)/site1_$$F.tar.gz $(RW_DATA)/imported_$$F && \
-	  $(BIN)/blenav-map $(RW_DATA)/imported_$$F --out $(RW_DATA)/$$F \
+	  $(BIN)/blenav-map $(RW_DATA)/imported_$$F --out $(RW_DATA)/mapped_$$F --keep-unplaced \
 	      --sessions $$($(BIN)/python -m blenav.eval.realwalks train-ids $(RW_DATA)/imported_$$F) && \
+	  cp -r $(RW_DATA)/imported_$$F $(RW_DATA)/$$F && \
+	  cp $(RW_DATA)/mapped_$$F/buildings/site1/anchors.csv $(RW_DATA)/$$F/buildings/site1/anchors.csv && \
 	  $(BIN)/blenav-eval experiment=realwalks data=$(RW_DATA)/$$F runs=$(RW_RUNS) model_path=$(RW_PRIOR) \
 	      out=$(RW_OUT)/$$F progress=false || exit 1; done
 	rm -rf $(RW_DATA)/raw_site $(RW_DATA)/site1 && mkdir -p $(RW_DATA)/raw_site

@@ -22,7 +22,9 @@ the fixes of a fingerprint localizer trained on the dataset's own train walks.
     run once per session (run 0, seed fixed per session), and its estimates, taken every
     ``fixes_rate_hz`` (default: every estimate), become position fixes of source ``fixes_source`` (default
     ``fp``) for the filter's :class:`~blenav.filters.measurement.FixLikelihood` (Roy eq. 3.9). With
-    ``map.init: fix`` the filter starts around the first of them (no ground truth used).
+    ``map.init: fix`` the filter starts around the first of them (no ground truth used). ``fixes_std: true`` gives each
+    fix the localizer's own standard deviation (:attr:`Estimate.std`, e.g. the KNN neighbours' spread), which a
+    fix likelihood with ``use_std: true`` uses instead of its fixed sigma.
 
 ``hold_ends`` (default true): the first and last estimates are held to the session's first and last sensor sample
 (IMU, RSSI, WiFi), so that a walk shorter than two filter steps still has an estimate at every waypoint (as
@@ -158,7 +160,7 @@ class RealWalkPF(ParticleFilterLocalizer, Trained):
     """A particle filter on real walks: PDR odometry in memory and fixes from a trained localizer (module doc)."""
 
     def __init__(self, name: str, shared=None, odometry=None, fixes_from=None, fixes_source: str = "fp",
-                 fixes_rate_hz: float | None = None, hold_ends: bool = True, **pf):
+                 fixes_rate_hz: float | None = None, fixes_std: bool = False, hold_ends: bool = True, **pf):
         super().__init__(name, shared, **pf)
         self.hold_ends = bool(hold_ends)
         odo = dict(odometry or {})
@@ -175,6 +177,7 @@ class RealWalkPF(ParticleFilterLocalizer, Trained):
         self.fixes_node = fixes_from
         self.fixes_source = str(fixes_source)
         self.fixes_rate_hz = fixes_rate_hz
+        self.fixes_std = bool(fixes_std)
         self.fixes_loc = None
         self._fixes_key = None
         if fixes_from is not None:
@@ -218,20 +221,21 @@ class RealWalkPF(ParticleFilterLocalizer, Trained):
 
     def fixes_for(self, session, ctx: RunContext) -> pd.DataFrame:
         """The fixes of ``fixes_from`` on ``session`` (t, x, y, std NaN, source), computed once per session."""
-        key = ("rw-fixes", self._fixes_key, session.id, self.fixes_rate_hz)
+        key = ("rw-fixes", self._fixes_key, session.id, self.fixes_rate_hz, self.fixes_std)
         if key not in ctx.cache:
             seed = zlib.crc32(f"{session.id}/fixes".encode())
             est = self.fixes_loc.run(session, 1, seed, ctx)
             t, xy = est.t, est.position[0]
+            sd = est.std[0] if (self.fixes_std and est.std is not None) else np.full(len(t), np.nan)
             ok = np.isfinite(xy).all(axis=1)
-            t, xy = t[ok], xy[ok]
+            t, xy, sd = t[ok], xy[ok], sd[ok]
             if self.fixes_rate_hz:
                 grid = np.arange(t[0], t[-1] + 1e-9, 1.0 / float(self.fixes_rate_hz)) if len(t) else t
                 idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, max(len(t) - 1, 0))
-                t, xy = grid, xy[idx]
+                t, xy, sd = grid, xy[idx], sd[idx]
             if not len(t):
                 raise MissingStream(f"{self.fixes_loc.name} gave no position on session {session.id}")
-            ctx.cache[key] = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1], "std": np.nan,
+            ctx.cache[key] = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1], "std": sd,
                                            "source": self.fixes_source})
         return ctx.cache[key]
 
