@@ -224,3 +224,18 @@ def test_named_train_walks_through_the_harness(tmp_path):
     with pytest.raises(Exception, match="nothing left to score"):
         evaluate(compose("eval", "experiment=mapfusion_002", f"data={tmp_path / 'ds'}", f"out={tmp_path / 'o2'}", *over,
                          f"sessions=[{ids[1]}]", f"split={{train: [{ids[1]}]}}"))
+
+
+def test_cosine_knn_is_not_drawn_to_short_scan_lists():
+    """A scan heard strongly everywhere at the test point (A) against one that lists a single access point (B):
+    Euclidean KNN on u picks B (|t - B| = 43.6 < |t - A| = 52.0), cosine picks A (same direction as t)."""
+    from blenav.localizers.fingerprint import knn_model
+
+    S = np.array([[60.0, 60.0, 60.0], [20.0, 0.0, 0.0]])[:, :, None]  # (N=2, F=3, H=1)
+    xy = np.array([[0.0, 0.0], [100.0, 0.0]])
+    t = np.array([[[30.0], [30.0], [30.0]]])
+    np.testing.assert_allclose(knn_model(S, xy, 1, "uniform", 1.0, "euclidean")(t)[0], [[100.0, 0.0]])
+    est, cov = knn_model(S, xy, 1, "uniform", 1.0, "cosine")(t)
+    np.testing.assert_allclose(est, [[0.0, 0.0]])
+    np.testing.assert_allclose(cov, [np.eye(2)])  # one neighbour: no spread, the floor only
+    np.testing.assert_allclose(FP.unit_windows(np.zeros((1, 3, 2))), 0.0)

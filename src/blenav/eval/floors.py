@@ -2,9 +2,10 @@
 
 :func:`classify_floors` fits a k-nearest-neighbour classifier (Euclidean, on the fingerprint scale of
 :mod:`blenav.features.fingerprints`: u = rssi - ``fill_dbm``, 0 = not heard, one vector per WiFi scan, or per
-``ble_step_s`` BLE step) on every scan of the train walks, labelled with the walk's ``building/floor``
-(session.yaml), classifies every scan of each test walk, and gives the walk the floor most of its scans
-vote for (a tie goes to the floor whose votes have the smaller mean neighbour distance). Scans in which no
+``ble_step_s`` BLE step, scaled to unit norm: cosine similarity, see
+:func:`~blenav.features.fingerprints.unit_windows`) on every scan of the train walks, labelled with the walk's
+``building/floor`` (session.yaml), classifies every scan of each test walk, and gives the walk the floor most of
+its scans vote for (a tie goes to the floor whose votes have the smaller mean neighbour distance). Scans in which no
 feature of the training vocabulary was heard do not vote; a walk without any voting scan is counted as
 wrong (``no_scan``). The experiment node::
 
@@ -40,7 +41,7 @@ def _scan_vectors(sessions: list, columns: dict[str, int], cfg: FP.FingerprintCo
         except MissingStream:
             out.append(None)
             continue
-        out.append(w.S[w.heard, :, -1])  # (K, F): one vector per heard step
+        out.append(FP.unit_windows(w.S[w.heard, :, -1]))  # (K, F): one unit vector per heard step
     return out
 
 
@@ -70,7 +71,7 @@ def classify_floors(train: list, test: list, features: str = "wifi", k: int = 5,
     X, y = [], []
     for s, rd in zip(used, tables):
         w = FP.session_windows(s, columns, cfg, rd)
-        X.append(w.S[w.heard, :, -1])
+        X.append(FP.unit_windows(w.S[w.heard, :, -1]))
         y.append(np.full(int(w.heard.sum()), floors.index(floor_of(s))))
     X, y = np.concatenate(X), np.concatenate(y)
     clf = KNeighborsClassifier(n_neighbors=min(int(k), len(X))).fit(X, y)

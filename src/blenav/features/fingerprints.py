@@ -157,6 +157,16 @@ def step_vectors(rd: pd.DataFrame, columns: dict[str, int], tau: np.ndarray, cfg
     return np.divide(sums, cnt, out=np.zeros((K, F)), where=cnt > 0).astype(np.float32)
 
 
+def unit_windows(S: np.ndarray) -> np.ndarray:
+    """Windows S (N, F, H) (or vectors (N, F)) scaled to unit Euclidean norm over F x H (all-zero ones stay 0):
+    Euclidean distance between them is then a function of the cosine similarity, so a scan that lists fewer access
+    points (a shorter vector) is not nearer to every other one (the hubs of plain Euclidean KNN on sparse scans:
+    on site1 one F1 region with short scan lists was the nearest neighbour of whole test walks, 100 m away)."""
+    flat = S.reshape(len(S), -1)
+    n = np.sqrt(np.einsum("nf,nf->n", flat, flat, dtype=float))
+    return (S / np.where(n > 0, n, 1.0).reshape((-1,) + (1,) * (S.ndim - 1))).astype(S.dtype)
+
+
 @dataclass
 class FingerprintWindows:
     """Windows of one session: S (K, F, H) float32 u scale, t (K,) s (the window's last step), xy (K, 2) m

@@ -19,7 +19,9 @@ per building and floor:
    waypoints** (sparse ground truth; :meth:`Session.positions_at`); windows outside the waypoints' time span
    are dropped (counted in the report), as are windows in which no feature was heard;
 4. ``knn``: :class:`blenav.learn.baselines.KNNBaseline` (k nearest fingerprints, the mean over a window's heard
-   steps, Euclidean on the u scale; the cross-phone evaluation's KNN); ``locnet`` / ``transnet_locnet``: the
+   steps; the cross-phone evaluation's KNN) on windows scaled to unit norm (``metric: cosine``, the default:
+   a scan listing few access points is otherwise the nearest neighbour of everything) or on the u scale as it is
+   (``euclidean``); ``locnet`` / ``transnet_locnet``: the
    networks of ``conf/model/<model>.yaml`` trained by :func:`blenav.learn.fingerprint_train.train_network` (the
    project's trainer: step budget + early stopping of ``conf/trainer/cpu.yaml``, seeded; labels normalised by
    the network's ``xy_mean`` / ``xy_scale``; inputs u / 100) on a seeded ``val_fraction`` of the train walks
@@ -29,9 +31,9 @@ per building and floor:
 vocabulary was heard (times: the window's last step, session clock s); the floor's model is the one of the
 session's ``building`` / ``floor`` (session.yaml). With ``hold_ends`` the first estimate is held back to the
 session's start (t = 0, the recording's start) and the last one forward to its last sample (so every waypoint
-of the walk is scored, as for methods that start at the walk's start). Deterministic: R identical runs. ``cov`` (KNN): the covariance of
-the k neighbours' positions plus ``cov_floor_m``^2 I; none for the networks. A session without the stream
-(wifi.csv / rssi.csv) or without a trained floor raises :class:`MissingStream`.
+of the walk is scored, as for methods that start at the walk's start). Deterministic: R identical runs.
+``cov`` (KNN): the covariance of the k neighbours' positions plus ``cov_floor_m``^2 I; none for the networks.
+A session without the stream (wifi.csv / rssi.csv) or without a trained floor raises :class:`MissingStream`.
 """
 
 from __future__ import annotations
@@ -69,16 +71,21 @@ class _FloorModel:
         self.columns, self.predict = columns, predict
 
 
-def knn_model(S: np.ndarray, xy: np.ndarray, k: int, weights: str, cov_floor_m: float):
-    """KNN on windows S (N, F, H) u scale with labels xy (N, 2) m (:class:`~blenav.learn.baselines.KNNBaseline`);
-    returns predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)), cov the neighbours' position covariance
-    (population, uniform weights) + cov_floor_m^2 I."""
+def knn_model(S: np.ndarray, xy: np.ndarray, k: int, weights: str, cov_floor_m: float, metric: str = "cosine"):
+    """KNN on windows S (N, F, H) u scale with labels xy (N, 2) m (:class:`~blenav.learn.baselines.KNNBaseline`,
+    on :func:`~blenav.features.fingerprints.unit_windows` when ``metric`` is ``cosine``, on S itself when
+    ``euclidean``); returns predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)), cov the neighbours' position
+    covariance (population, uniform weights) + cov_floor_m^2 I."""
     from blenav.learn.baselines import KNNBaseline, fingerprint
 
-    knn = KNNBaseline(k=k, weights=weights).fit(S, xy)
+    if metric not in ("cosine", "euclidean"):
+        raise ValueError(f"metric must be 'cosine' or 'euclidean', got {metric!r}")
+    scale = FP.unit_windows if metric == "cosine" else (lambda a: a)
+    knn = KNNBaseline(k=k, weights=weights).fit(scale(S), xy)
     kk = knn.model_.n_neighbors
 
     def predict(Sq):
+        Sq = scale(Sq)
         est = knn.predict(Sq)
         idx = knn.model_.kneighbors(fingerprint(Sq), n_neighbors=kk, return_distance=False)  # (K, k)
         d = xy[idx] - xy[idx].mean(axis=1, keepdims=True)  # (K, k, 2)
@@ -94,9 +101,9 @@ class FingerprintLocalizer(Localizer, Trained):
     uses_floor_plan = False  # radio fingerprints only: estimates are not moved into free space
 
     def __init__(self, name: str, shared=None, model: str = "knn", features: str = "wifi", k: int = 5,
-                 weights: str = "uniform", history: int = 1, fill_dbm: float = -100.0, floor_u: float = 0.5,
-                 ble_window_s: float = 3.0, ble_step_s: float = 1.0, wifi_max_age_s: float | None = 5.0,
-                 min_count: int = 1, max_features="auto", hold_ends: bool = True, cov_floor_m: float = 1.0,
+                 weights: str = "uniform", metric: str = "cosine", history: int = 1, fill_dbm: float = -100.0,
+                 floor_u: float = 0.5, ble_window_s: float = 3.0, ble_step_s: float = 1.0,
+                 wifi_max_age_s: float | None = 5.0, min_count: int = 1, max_features="auto", hold_ends: bool = True, cov_floor_m: float = 1.0,
                  net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
                  batch_size: int = 256, seed: int = 0, threads: int | None = 1, plots: bool = False):
         super().__init__(name, shared)
@@ -115,7 +122,9 @@ class FingerprintLocalizer(Localizer, Trained):
                                             wifi_max_age_s=None if wifi_max_age_s is None else float(wifi_max_age_s))
         except ValueError as exc:
             raise ValueError(f"method {name!r}: {exc}") from None
-        self.model, self.k, self.weights = model, int(k), weights
+        if metric not in ("cosine", "euclidean"):
+            raise ValueError(f"method {name!r}: metric must be 'cosine' or 'euclidean', got {metric!r}")
+        self.model, self.k, self.weights, self.metric = model, int(k), weights, metric
         self.min_count, self.hold_ends, self.cov_floor_m = int(min_count), bool(hold_ends), float(cov_floor_m)
         if max_features == "auto":
             max_features = None if model == "knn" else NET_MAX_FEATURES
@@ -185,7 +194,7 @@ class FingerprintLocalizer(Localizer, Trained):
         if len(S) < 2:
             return {**info, "unavailable": f"{len(S)} labelled windows (need 2)"}
         if self.model == "knn":
-            predict = knn_model(S, xy, self.k, self.weights, self.cov_floor_m)
+            predict = knn_model(S, xy, self.k, self.weights, self.cov_floor_m, self.metric)
         else:
             predict = self._fit_network(key, S, P, xy, walk_of, used, names, ctx, info)
         self.floors[key] = _FloorModel(columns, predict)
