@@ -252,6 +252,29 @@ def split_sessions(sessions: list, split) -> tuple[list, list]:
     return train, test
 
 
+def train_test(cfg: DictConfig, ds: Dataset, sessions: list) -> tuple[list, list]:
+    """(train walks, scored walks) of the experiment's ``split``: ``{train: [ids]}`` names the train walks (not
+    scored), ``{train_fraction, seed}`` splits each floor's walks (:func:`split_sessions`); no split: ([], sessions)."""
+    split = cfg.get("split")
+    if split is None:
+        return [], sessions
+    if split.get("train"):
+        train = select_sessions(ds, [str(i) for i in split.train])
+        test = [s for s in sessions if s.id not in {t.id for t in train}]
+        if not test:
+            raise EvalError("split.train names every evaluated session: nothing left to score")
+        return train, test
+    return split_sessions(sessions, split)
+
+
+def _floor_accuracy(cfg: DictConfig, train: list, sessions: list) -> dict | None:
+    """Which floor each test walk is on, from the train walks' scans (:mod:`blenav.eval.floors`; several floors)."""
+    try:
+        return floor_accuracy(cfg.get("floor_classifier"), train, sessions)
+    except (ValueError, MissingStream) as exc:
+        raise EvalError(f"floor_classifier: {exc}") from exc
+
+
 def fit_trained(methods: dict[str, Localizer], train: list, ctx: RunContext) -> dict:
     """Train the methods that learn from the dataset (:class:`Trained`) on ``train``; their reports by name
     (a method whose training data lacks what it needs is reported, and then skipped at run time)."""
@@ -446,14 +469,7 @@ def evaluate(cfg: DictConfig) -> dict:
     plan_info = None
     if plan_error.active:
         sessions, plan_info = with_wrong_plans(sessions, plan_error, out / "plans")
-    train: list = []
-    if cfg.get("split") is not None and cfg.split.get("train"):  # named train walks, not scored
-        train = select_sessions(ds, [str(i) for i in cfg.split.train])
-        sessions = [s for s in sessions if s.id not in {t.id for t in train}]
-        if not sessions:
-            raise EvalError("split.train names every evaluated session: nothing left to score")
-    elif cfg.get("split") is not None:  # train on some walks of each floor, score the others
-        train, sessions = split_sessions(sessions, cfg.split)
+    train, sessions = train_test(cfg, ds, sessions)
     sessions, bmap_info = BM.with_source(sessions, bmap)
     provider = build_fix_provider(cfg, methods, out)
     calibration = calibrate({**methods, **(provider.methods if provider else {})}, ds, sessions, cal_spec)
@@ -471,10 +487,7 @@ def evaluate(cfg: DictConfig) -> dict:
         results["beacon_map"] = {**asdict(bmap), "buildings": bmap_info}
     if train:
         results["split"] = {**OmegaConf.to_container(cfg.split, resolve=True), "train": [s.id for s in train]}
-    try:  # which floor each test walk is on, from the train walks' scans (blenav.eval.floors); several floors only
-        fa = floor_accuracy(cfg.get("floor_classifier"), train, sessions)
-    except (ValueError, MissingStream) as exc:
-        raise EvalError(f"floor_classifier: {exc}") from exc
+    fa = _floor_accuracy(cfg, train, sessions)
     if fa is not None:
         results["floor_accuracy"] = fa
     outcomes: dict[str, MethodOutcome] = {}
