@@ -388,8 +388,11 @@ def _f_imu_nan(root, t, p, k, which):
 
 
 def _f_header_only(root, t, p, zero_bytes):
-    ls = _lines(p)
-    _write(p, ls[: t.header]) if not zero_bytes else p.write_bytes(b"")
+    """An empty file: its header lines only, or no bytes at all (an empty session, a file never written)."""
+    if zero_bytes:
+        p.write_bytes(b"")
+    else:
+        _write(p, _lines(p)[: t.header])
     return None
 
 
