@@ -117,3 +117,24 @@ def test_realwalks_contract_on_real_walks(raw_dir, tmp_path):
         assert all(np.isfinite(e[k]) for k in ("mean", "median", "p90")), row
     # no beacon map in a fresh import: the range-based rows are skipped with the reason
     assert "blenav-map" in str(res["methods"]["PF-PS+MAP"]["skipped"])
+
+
+def test_odometry_view_and_held_ends(tiny_dataset):
+    """with_odometry: the view reads the given odometry, the session keeps its own (none here) and shares the streams
+    read once; RealWalkPF holds its first / last estimate to the session's first / last sensor sample."""
+    from blenav.data import Dataset
+    from blenav.eval.realwalks import RealWalkPF, with_odometry
+    from blenav.localizers import RunContext
+
+    s = Dataset.open(tiny_dataset).session("walk0")
+    odo = pd.DataFrame({"t": [0.0, 10.0, 19.0], "x": [0.0, 5.0, 9.0], "y": [0.0, 0.0, 1.0]})
+    v = with_odometry(s, odo)
+    assert v.odometry is odo and len(s.odometry) == 0
+    assert v.imu is s.imu  # read once, shared
+    pf = RealWalkPF("IO", None, motion={"_target_": "blenav.filters.motion.OdometryIncrement", "theta0": 0.0},
+                    map={"init": "groundtruth"}, filter={"n_particles": 50, "rate_hz": 1.0},
+                    odometry={"heading": "ahrs", "step_length": 0.7})
+    est = pf.run(s, 2, 0, RunContext())
+    assert est.t[0] == pytest.approx(float(s.imu["t"].min())) and est.t[-1] == pytest.approx(float(s.imu["t"].max()))
+    np.testing.assert_array_equal(est.position[:, 0], est.position[:, 1])  # the first estimate held
+    assert np.isfinite(est.position).all() and any("PDR odometry" in n for n in est.notes)
