@@ -94,10 +94,10 @@ THESIS_RECIPE = experiment.learned.locnet.model.lr=1e-4 experiment.learned.locne
     experiment.learned.dlrnn.model.lr=1e-4 trainer.max_epochs=50 trainer.budget.max_steps=-1 \
     trainer.budget.patience=null trainer.budget.schedule=constant trainer.budget.warmup_steps=0 \
     experiment.learned.semi.semi.epochs=20 experiment.learned.semi.semi.lr=1e-5
-# issue 16: the smallest simulated survey at which TransNet+LocNet overtakes KNN (walks of 60/120/240 s, two
+# issue 16: the smallest simulated survey at which TransNet+LocNet overtakes KNN (walks of 15/30/60/240 s, two
 # seeds; one TransNet+LocNet training per point, heavy: docs/results-003-crossphone.md)
 crossphone-sweep: $(STAMP)
-	nice -n 10 $(BIN)/python benchmarks/crossphone_sweep.py --seeds 16,17 --durations 60,120,240
+	nice -n 10 $(BIN)/python benchmarks/crossphone_sweep.py --seeds 16,17 --durations 15,30,60,240
 
 crossphone-tables: $(STAMP)
 	$(BIN)/blenav-sim sim=campus_floor seed=3 out=data/campus_crossphone duration_s=600 sessions=60 \

@@ -11,7 +11,7 @@ unseen ones (the unlabelled one included: no label of it was used) and overall, 
 reason; at the end, the smallest walk length at which TransNet+LocNet is ahead of KNN on the unseen receivers
 and overall for every seed.
 
-    .venv/bin/python benchmarks/crossphone_sweep.py [--durations 60,120,240] [--seeds 16,17] [--root DIR]
+    .venv/bin/python benchmarks/crossphone_sweep.py [--durations 15,30,60,240] [--seeds 16,17] [--root DIR]
     make crossphone-sweep
 
 Heavy: one TransNet+LocNet training per point (a few minutes each on this CPU); run it under ``nice -n 10``.
@@ -65,7 +65,7 @@ def pooled(method: dict, devices: list[str]) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--durations", default="60,120,240", help="walk lengths in s (four walks per receiver)")
+    ap.add_argument("--durations", default="15,30,60,240", help="walk lengths in s (four walks per receiver)")
     ap.add_argument("--seeds", default="16,17")
     ap.add_argument("--root", default="data/issue16/sweep")
     ap.add_argument("--all-methods", action="store_true", help="train every learned method, not only TransNet+LocNet")
