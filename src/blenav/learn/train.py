@@ -23,7 +23,8 @@ KNN's (k = 5, fingerprint means) on the same validation windows, warnings), ``OU
 windows or stopped before its validation loss levelled off. ``OUT/config.yaml`` is the resolved config of
 the run (a hyper-parameter sweep's best trial is found beside its checkpoint).
 
-Leaves ``OUT/last.ckpt`` (and metrics in ``OUT/logs/.../metrics.csv`` via Lightning's CSVLogger, plus
+Leaves ``OUT/last.ckpt``, written at the validation cadence (every ``check_val_every_n_epoch`` epochs) and at the
+end (and metrics in ``OUT/logs/.../metrics.csv`` via Lightning's CSVLogger, plus
 TensorBoard event files when tensorboard is installed). A run interrupted and started again with the same
 ``out`` resumes from ``OUT/last.ckpt``: optimizer and schedule state, step counters, early-stopping counter
 and learning curve included (the run itself, shared with the map prior's training, is
