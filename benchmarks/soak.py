@@ -201,7 +201,7 @@ def main() -> int:
     med = np.array([np.median(step_ms[blocks == j]) for j in np.unique(blocks)])
     mid = (np.unique(blocks) + 0.5) * sample_s / 3600.0
     slope_ms = fit(mid[mid >= ref], med[mid >= ref])
-    fixes = getattr(loc, "fixes", [])  # the bundle keeps every fix it made (run_session's last_fixes)
+    fixes = getattr(loc, "fixes", [])  # the live fix log: the latest keep_fixes fixes (run_session keeps all)
     fix_mb = (sys.getsizeof(fixes) + sum(sys.getsizeof(f) + sum(sys.getsizeof(v) for v in f) for f in fixes)) / 2**20
     hours = [(step_t >= h) & (step_t < h + 1) for h in range(int(np.ceil(args.hours)))]
     hourly = [float(np.median(step_ms[m])) for m in hours if m.any()]

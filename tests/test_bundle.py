@@ -108,7 +108,7 @@ def test_push_api_matches_replay(made):
 
     b = Bundle.open(made["bundle"])
     s = Dataset.open(made["data"]).session(sorted(Dataset.open(made["data"]).session_ids)[1])
-    loc = b.localizer(s.building, seed=3)
+    loc = b.localizer(s.building, seed=3, keep_fixes=5)  # a live fix log of the latest 5 fixes: same rows
     rows, t_end = [], 0.0
     for ev in replay(s):
         if ev[0] == "rssi":
@@ -121,6 +121,7 @@ def test_push_api_matches_replay(made):
     rows += loc.close(t_end)
     ref = b.run_session(s, seed=3)
     assert len(rows) == len(ref) and np.allclose(np.array(rows), np.array(ref))
+    assert len(b.last_fixes) > 5 and list(loc.fixes) == b.last_fixes[-5:]  # bounded live log, full replay log
 
 
 def _copy_building(made, tmp_path, change):

@@ -41,6 +41,7 @@ import math
 import platform
 import shutil
 import time
+from collections import deque
 from dataclasses import dataclass, fields
 from pathlib import Path
 from types import SimpleNamespace
@@ -264,17 +265,19 @@ class BundleLocalizer:
     the first); ``seed``: the filter's random generator; ``start_xy`` / ``start_theta``: a known start for
     ``map.init: groundtruth`` / ``map.heading: groundtruth`` settings; ``t_start``: the clock time the filter
     starts at (default: the first IMU, RSSI or odometry sample pushed); ``mag_offset``: the magnetometer's
-    hard-iron offset (uT) for settings whose motion model runs an AHRS."""
+    hard-iron offset (uT) for settings whose motion model runs an AHRS; ``keep_fixes``: how many of the latest
+    fixes :attr:`fixes` holds, (t, x, y) each (None: every fix, as :meth:`Bundle.run_session` keeps for parity; a
+    live app keeps memory flat with the default, benchmarks/soak.py)."""
 
     def __init__(self, bundle: "Bundle", building, floor=None, seed: int = 0, start_xy=None, start_theta=None,
-                 t_start: float | None = None, mag_offset=None):
+                 t_start: float | None = None, mag_offset=None, keep_fixes: int | None = 1000):
         bundle.check_building(building)
         fid = floor if floor is not None else next(iter(building.floors))
         self._ctx = SimpleNamespace(id="live", building=building, meta={"floor": fid}, floor=building.floor(fid))
         self.bundle, self.seed = bundle, int(seed)
         self.method = bundle.method()
         self.fixer = WindowFixer(bundle.graph)
-        self.fixes: list[tuple] = []
+        self.fixes: deque[tuple] = deque(maxlen=keep_fixes)
         self._online = None
         self._pending: list[tuple] = []
         self._t_start = t_start
@@ -463,7 +466,7 @@ class Bundle:
         firsts = [float(f["t"].iloc[0]) for f in (session.imu, session.rssi, session.odometry) if len(f)]
         # the batch filter's start: the first IMU, RSSI or odometry sample (even when the motion model reads no IMU)
         loc = self.localizer(session.building, floor=session.meta.get("floor"), seed=seed,
-                             t_start=min(firsts) if firsts else None)
+                             t_start=min(firsts) if firsts else None, keep_fixes=None)
         need_imu = loc.method.needs_imu
         out: list[Estimate] = []
         t_end = None
@@ -489,7 +492,7 @@ class Bundle:
             out.append(r)
             if on_estimate is not None:
                 on_estimate(r)
-        self.last_fixes = loc.fixes
+        self.last_fixes = list(loc.fixes)
         return out
 
 
