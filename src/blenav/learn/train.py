@@ -189,6 +189,18 @@ def _write_report(out: Path, info: dict, monitor: TrainingMonitor, title: str, p
         plotting.save_figure(fig, out / "learning_curves.png")
 
 
+def _final_step_checkpoint(trainer, out: Path) -> None:
+    """OUT/last.ckpt of the final step, written by the trainer when the run's last one is older (its cadence
+    follows the validation checks). Called on *every* rank: under DDP ``Trainer.save_checkpoint`` is a collective
+    (rank 0 writes, all wait), so calling it on rank 0 alone would hang the run."""
+    from .checkpoint import read_checkpoint
+
+    ck_path = out / LAST
+    ck = read_checkpoint(ck_path, require_meta=False) if ck_path.is_file() else None
+    if ck is None or int(ck.get("global_step", -1)) != int(trainer.global_step):
+        trainer.save_checkpoint(ck_path)
+
+
 def _finish_checkpoint(trainer, module, out: Path, info: dict, monitor: TrainingMonitor) -> None:
     """OUT/last.ckpt of a finished fit: the module's weights now (the best validation check's), the training
     report and the monitor's final curve. Lightning's own last.ckpt of the final step is amended (its loop
@@ -196,10 +208,7 @@ def _finish_checkpoint(trainer, module, out: Path, info: dict, monitor: Training
     from .checkpoint import read_checkpoint
 
     ck_path = out / LAST
-    ck = read_checkpoint(ck_path, require_meta=False) if ck_path.is_file() else None
-    if ck is None or int(ck.get("global_step", -1)) != int(trainer.global_step):
-        trainer.save_checkpoint(ck_path)
-        ck = read_checkpoint(ck_path, require_meta=False)
+    ck = read_checkpoint(ck_path, require_meta=False)  # _final_step_checkpoint wrote it on every rank
     ck["state_dict"] = {k: v.detach().cpu().clone() for k, v in module.state_dict().items()}
     ck["blenav_training"] = info
     ck.setdefault("callbacks", {})[monitor.state_key] = monitor.state_dict()
@@ -266,6 +275,7 @@ def _supervised_stage(module, dm, out: Path, trainer_kw: dict, b: dict, max_step
     info = training_report(monitor, reason, trainer.global_step, knn_err)
     info.update(_window_counts(dm))
     module.training_info = info
+    _final_step_checkpoint(trainer, out)
     if trainer.is_global_zero:
         _finish_checkpoint(trainer, module, out, info, monitor)
     _write_report(out, info, monitor, title, plots)
@@ -293,6 +303,7 @@ def _semi_stage(module, dm, out: Path, trainer_kw: dict, semi, info: dict, knn_e
     info = {**training_report(monitor2, "semi_steps", trainer.global_step, knn_err, stage="semi"),
             **_window_counts(dm), "semi_from_step": start, "supervised": sup, "early_stopped": bool(sup["early_stopped"])}
     module.training_info = info
+    _final_step_checkpoint(trainer, out)
     if trainer.is_global_zero:
         _finish_checkpoint(trainer, module, out, info, monitor2)
     _write_report(out, info, monitor2, title, plots)
