@@ -38,6 +38,7 @@ import pandas as pd
 from blenav.filters.measurement import FixLikelihood
 from blenav.filters.runner import Method, MissingStream, run_session
 from blenav.features.windows import spread_beacons
+from blenav.localizers import ParticleFilterLocalizer
 
 log = logging.getLogger("blenav.eval.fixes")
 
@@ -122,18 +123,23 @@ class FixProvider:
             raise MissingStream(f"session {session.id} has no fixes of source {named!r} and no localizer is "
                                 f"configured to compute {role} fixes")
         why = "fixes.%s is null" % role if named is None else f"no fixes of source {named!r} in fixes.csv"
-        if hasattr(self.localizers[role], "method") and not len(session.rssi):  # others check their own streams
+        pf = self._ble_filter(role)
+        if pf and not len(session.rssi):  # other localizers check their own streams
             raise MissingStream(f"session {session.id}: {why} and no rssi.csv to compute {role} BLE fixes from")
-        t, xy = self._compute(role, session)
+        t, xy = self._compute(role, session) if pf else self._compute_any(role, session)
         src = self.computed_source(role)
         self._computed.add(key)
-        self.used[role][session.id] = f"computed from rssi.csv as {src!r} ({why})"
+        by = "from rssi.csv" if pf else f"by {self.localizers[role].name}"
+        self.used[role][session.id] = f"computed {by} as {src!r} ({why})"
         self._mem[key] = (t, xy, src)
         return self._mem[key]
 
+    def _ble_filter(self, role: str) -> bool:
+        """Whether ``role``'s localizer is a BLE particle filter (fixes at ``rate_hz`` from rssi.csv, cached on disk);
+        any other localizer (e.g. fingerprinting) gives its own estimates (:meth:`_compute_any`)."""
+        return isinstance(self.localizers[role], ParticleFilterLocalizer)
+
     def _compute(self, role: str, session) -> tuple[np.ndarray, np.ndarray]:
-        if not hasattr(self.localizers[role], "method"):  # not a particle filter (e.g. fingerprinting): its own times
-            return self._compute_any(role, session)
         m = self.localizers[role].method
         m.beacons = self.beacons_for(role, session)
         if m.beacons is not None:

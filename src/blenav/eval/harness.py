@@ -472,10 +472,11 @@ def evaluate(cfg: DictConfig) -> dict:
     train, sessions = train_test(cfg, ds, sessions)
     sessions, bmap_info = BM.with_source(sessions, bmap)
     provider = build_fix_provider(cfg, methods, out)
-    calibration = calibrate({**methods, **(provider.methods if provider else {})}, ds, sessions, cal_spec)
+    every = {**methods, **(provider.methods if provider else {})}  # the fix localizers are calibrated and trained too
+    calibration = calibrate(every, ds, sessions, cal_spec)
     out.mkdir(parents=True, exist_ok=True)
     ctx = RunContext(cache={}, fixes=provider, out=out)  # map geometry per floor, AHRS per session: shared
-    training = fit_trained({**methods, **(provider.methods if provider else {})}, train, ctx) if train else {}
+    training = fit_trained(every, train, ctx) if train else {}
     results = {"experiment": cfg.experiment.name, "title": cfg.experiment.get("title", ""), "dataset": str(ds.root),
                "runs": runs, "sessions": [s.id for s in sessions], "init_s": float(cfg.init_s), "seed": int(cfg.seed),
                "calibration": calibration, "methods": {}}

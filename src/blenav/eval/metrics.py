@@ -54,6 +54,12 @@ def session_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.
     track = tt >= tt[0] + init_s
     if not track.any():  # a session shorter than the init period: score everything, say so
         track = np.ones_like(tt, bool)
+    return _scored(err, tt, track)
+
+
+def _scored(err: np.ndarray, tt: np.ndarray, track: np.ndarray) -> dict:
+    """The metrics of errors ``err`` (R, K') at times ``tt`` (K',), the ``track`` (K',) ones scored as tracking,
+    the others as initialisation."""
     rmse = np.sqrt(np.mean(err[:, track] ** 2, axis=1))
     ee = err[:, np.flatnonzero(track)[-1]]
     init = err[:, ~track]
@@ -84,11 +90,7 @@ def waypoint_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np
     err, tw = errors_at_waypoints(t, pos, gt_t, gt_xy)
     if err.shape[1] == 0:
         raise ValueError("no waypoint falls inside the estimate's time span")
-    rmse = np.sqrt(np.mean(err ** 2, axis=1))
-    ee = err[:, -1]
-    return {"rmse_m": summary(rmse), "error_m": error_stats(err), "ate_m": float(rmse.mean()), "ee_m": float(ee.mean()),
-            "init_error_m": None, "waypoints": int(err.shape[1]),
-            "_runs": {"rmse": rmse, "ee": ee, "err": err, "t": tw, "err_all": err}}
+    return {**_scored(err, tw, np.ones(len(tw), bool)), "waypoints": int(err.shape[1])}
 
 
 #: thresholds (m) of the share of walks whose mean error is within them (``walks_within_m`` in results)
