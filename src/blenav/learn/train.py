@@ -190,31 +190,24 @@ def _write_report(out: Path, info: dict, monitor: TrainingMonitor, title: str, p
 
 
 def _final_step_checkpoint(trainer, out: Path) -> None:
-    """OUT/last.ckpt of the final step, written by the trainer when the run's last one is older (its cadence
-    follows the validation checks). Called on *every* rank: under DDP ``Trainer.save_checkpoint`` is a collective
-    (rank 0 writes, all wait), so calling it on rank 0 alone would hang the run."""
+    """OUT/last.ckpt of the final step (its loop state resumes correctly when the budget is raised later), written
+    on *every* rank: under DDP ``Trainer.save_checkpoint`` is a collective (rank 0 writes, all wait), so calling it
+    on rank 0 alone hung the run. Unconditional: one write is cheaper than loading the last one to compare steps."""
+    trainer.save_checkpoint(out / LAST)
+
+
+def _finish_checkpoint(module, out: Path, info: dict, monitor: TrainingMonitor) -> None:
+    """OUT/last.ckpt of a finished fit (the final step's, :func:`_final_step_checkpoint`) amended with the module's
+    weights now (the best validation check's), the training report and the monitor's final curve."""
     from .checkpoint import read_checkpoint
 
-    ck_path = out / LAST
-    ck = read_checkpoint(ck_path, require_meta=False) if ck_path.is_file() else None
-    if ck is None or int(ck.get("global_step", -1)) != int(trainer.global_step):
-        trainer.save_checkpoint(ck_path)
-
-
-def _finish_checkpoint(trainer, module, out: Path, info: dict, monitor: TrainingMonitor) -> None:
-    """OUT/last.ckpt of a finished fit: the module's weights now (the best validation check's), the training
-    report and the monitor's final curve. Lightning's own last.ckpt of the final step is amended (its loop
-    state resumes correctly when the budget is raised later); without one, the trainer writes a new file."""
-    from .checkpoint import read_checkpoint
-
-    ck_path = out / LAST
-    ck = read_checkpoint(ck_path, require_meta=False)  # _final_step_checkpoint wrote it on every rank
+    ck = read_checkpoint(out / LAST, require_meta=False)
     ck["state_dict"] = {k: v.detach().cpu().clone() for k, v in module.state_dict().items()}
     ck["blenav_training"] = info
     ck.setdefault("callbacks", {})[monitor.state_key] = monitor.state_dict()
-    tmp = ck_path.with_suffix(".tmp")
+    tmp = (out / LAST).with_suffix(".tmp")
     torch.save(ck, tmp)
-    tmp.replace(ck_path)
+    tmp.replace(out / LAST)
 
 
 def _prior(out: Path) -> dict:
@@ -277,7 +270,7 @@ def _supervised_stage(module, dm, out: Path, trainer_kw: dict, b: dict, max_step
     module.training_info = info
     _final_step_checkpoint(trainer, out)
     if trainer.is_global_zero:
-        _finish_checkpoint(trainer, module, out, info, monitor)
+        _finish_checkpoint(module, out, info, monitor)
     _write_report(out, info, monitor, title, plots)
     return info, trainer
 
@@ -305,7 +298,7 @@ def _semi_stage(module, dm, out: Path, trainer_kw: dict, semi, info: dict, knn_e
     module.training_info = info
     _final_step_checkpoint(trainer, out)
     if trainer.is_global_zero:
-        _finish_checkpoint(trainer, module, out, info, monitor2)
+        _finish_checkpoint(module, out, info, monitor2)
     _write_report(out, info, monitor2, title, plots)
     return info, trainer
 

@@ -59,11 +59,6 @@ MODELS = ("knn", "locnet", "transnet_locnet")
 NET_MAX_FEATURES = 256
 
 
-def floor_key(session) -> str:
-    """``building/floor`` of a session (the unit a fingerprint model is trained for)."""
-    return f"{session.building.id}/{session.meta.get('floor')}"
-
-
 class _FloorModel:
     """A fitted model of one floor: columns (feature -> column), predict(S) -> (xy (K, 2) m, cov (K, 2, 2) or
     None)."""
@@ -87,9 +82,10 @@ def knn_model(S: np.ndarray, xy: np.ndarray, k: int, weights: str, cov_floor_m: 
 
     def predict(Sq):
         Sq = scale(Sq)
-        est = knn.predict(Sq)
-        idx = knn.model_.kneighbors(fingerprint(Sq), n_neighbors=kk, return_distance=False)  # (K, k)
-        d = xy[idx] - xy[idx].mean(axis=1, keepdims=True)  # (K, k, 2)
+        idx = knn.model_.kneighbors(fingerprint(Sq), n_neighbors=kk, return_distance=False)  # (K, k): one search
+        mean = xy[idx].mean(axis=1, keepdims=True)  # (K, 1, 2): KNeighborsRegressor's uniform prediction
+        est = mean[:, 0] if weights == "uniform" else knn.predict(Sq)
+        d = xy[idx] - mean  # (K, k, 2)
         cov = np.einsum("kni,knj->kij", d, d) / kk + float(cov_floor_m) ** 2 * np.eye(2)
         return est, cov
 
@@ -144,7 +140,7 @@ class FingerprintLocalizer(Localizer, Trained):
         groups: dict[str, list] = {}
         for s in sorted(sessions, key=lambda s: s.id):
             if s.labelled:
-                groups.setdefault(floor_key(s), []).append(s)
+                groups.setdefault(FP.floor_of(s), []).append(s)
         if not groups:
             self._unfitted = "was not fitted: no labelled train walk to build fingerprints from"
             raise MissingStream(f"{self.name}: no labelled train walk to build fingerprints from")
@@ -222,7 +218,7 @@ class FingerprintLocalizer(Localizer, Trained):
     # ------------------------------------------------------------------ running
     def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
         t0 = time.perf_counter()
-        key = floor_key(session)
+        key = FP.floor_of(session)
         if key not in self.floors:
             why = self._unfitted if not self.floors else \
                 f"has no model for floor {key} (trained: {sorted(self.floors)})"
