@@ -235,7 +235,7 @@ def test_rows_without_their_streams_are_skipped_with_the_reason(renamed, tmp_pat
 
 
 def test_compiled_step_detector_equals_the_project_detector(small):
-    from blenav.crf.steps_jit import step_flags
+    from blenav.filters.steps import step_flags
     from blenav.data import Dataset
     from blenav.filters.steps import StepDetector, StepDetectorConfig
 

@@ -25,12 +25,7 @@ import numpy as np
 from blenav.features import fingerprints as FP
 from blenav.filters.runner import MissingStream
 
-__all__ = ["classify_floors", "floor_of"]
-
-
-def floor_of(session) -> str:
-    """The ``building/floor`` label of a session."""
-    return f"{session.building.id}/{session.meta.get('floor')}"
+__all__ = ["classify_floors", "floor_accuracy"]
 
 
 def _scan_vectors(sessions: list, columns: dict[str, int], cfg: FP.FingerprintConfig) -> list[np.ndarray | None]:
@@ -55,7 +50,7 @@ def classify_floors(train: list, test: list, features: str = "wifi", k: int = 5,
 
     t0 = time.perf_counter()
     cfg = FP.FingerprintConfig(features=str(features), **{**settings, "history": 1})
-    floors = sorted({floor_of(s) for s in train})
+    floors = sorted({FP.floor_of(s) for s in train})
     if len(floors) < 2:
         raise ValueError(f"floor_classifier: the train walks are on {len(floors)} floor(s) {floors}; need two or more")
     tables, used = [], []
@@ -72,13 +67,13 @@ def classify_floors(train: list, test: list, features: str = "wifi", k: int = 5,
     for s, rd in zip(used, tables):
         w = FP.session_windows(s, columns, cfg, rd)
         X.append(FP.unit_windows(w.S[w.heard, :, -1]))
-        y.append(np.full(int(w.heard.sum()), floors.index(floor_of(s))))
+        y.append(np.full(int(w.heard.sum()), floors.index(FP.floor_of(s))))
     X, y = np.concatenate(X), np.concatenate(y)
     clf = KNeighborsClassifier(n_neighbors=min(int(k), len(X))).fit(X, y)
     walk_ok, scans_ok, scans_n = [], 0, 0
     confusion: dict[str, dict[str, int]] = {}
     for s, V in zip(test, _scan_vectors(test, columns, cfg)):
-        truth = floor_of(s)
+        truth = FP.floor_of(s)
         if V is None or not len(V):
             pred = "no_scan"
         else:
@@ -115,7 +110,7 @@ def floor_accuracy(node, train: list, test: list) -> dict | None:
     from omegaconf import DictConfig, OmegaConf
 
     kw = OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else dict(node)
-    if len({floor_of(s) for s in list(train) + list(test)}) < 2:
+    if len({FP.floor_of(s) for s in list(train) + list(test)}) < 2:
         return None
     if not train:
         raise ValueError("floor_classifier needs train walks: give the experiment a split {train_fraction, seed}")

@@ -43,9 +43,9 @@ import numpy as np
 import pandas as pd
 
 from blenav.filters.attitude import AttitudeConfig, estimate_attitude
-from blenav.filters.motion_pdr import pdr_track, step_flags
+from blenav.filters.motion_pdr import pdr_track
 from blenav.filters.runner import MissingStream, run_session
-from blenav.filters.steps import StepDetectorConfig
+from blenav.filters.steps import StepDetectorConfig, detect_steps
 from blenav.localizers.base import Estimate, RunContext, Trained, build_localizer
 from blenav.localizers.particle import ParticleFilterLocalizer
 
@@ -142,7 +142,7 @@ def fit_step_length(sessions: list, steps: StepDetectorConfig | None = None) -> 
         gt, imu = s.groundtruth, s.imu
         if len(gt) < 2 or len(imu) < 2:
             continue
-        flags = step_flags(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), steps)
+        flags = detect_steps(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), steps)
         t_steps = imu["t"].to_numpy(float)[flags]
         t0, t1 = float(gt["t"].iloc[0]), float(gt["t"].iloc[-1])
         k = int(((t_steps > t0) & (t_steps <= t1)).sum())
@@ -190,7 +190,7 @@ class RealWalkPF(ParticleFilterLocalizer, Trained):
     def fit(self, sessions: list, ctx: RunContext) -> dict | None:
         report = {}
         if self.odometry is not None and self.step_length is None:
-            key = ("rw-step-length", tuple(s.id for s in sessions))
+            key = ("rw-step-length", tuple(s.id for s in sessions), repr(self.method.steps))  # per detector
             if key not in ctx.cache:
                 ctx.cache[key] = fit_step_length(sessions, self.method.steps)
             report["step_length"] = ctx.cache[key]

@@ -48,6 +48,11 @@ from .windows import rssi_to_u
 FEATURES = ("wifi", "ble", "both")
 
 
+def floor_of(session) -> str:
+    """``building/floor`` of a session: the unit a fingerprint model (and the floor classifier) is trained for."""
+    return f"{session.building.id}/{session.meta.get('floor')}"
+
+
 @dataclass(frozen=True)
 class FingerprintConfig:
     """How walks become fingerprint windows (see the module docstring); units s and dBm."""

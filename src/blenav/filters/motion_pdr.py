@@ -5,7 +5,7 @@ Roy's map-prior filter (eq. 3.7, :class:`blenav.filters.motion.OdometryIncrement
 has none, but it has steps and a heading: this module turns them into that track, so that every
 odometry-based row runs on a phone walk (the ILC 2.0 recordings, issue 17).
 
-Track: every step detected at IMU time t_i (:class:`blenav.filters.steps.StepDetector`, the detector of
+Track: every step detected at IMU time t_i (:func:`blenav.filters.steps.detect_steps`, the detector of
 the filters' PDR motion model) moves the walker ``step_length`` metres along the heading psi(t_i); the
 track is sampled at every step and at ``rate_hz`` in between (constant position between steps):
 
@@ -27,20 +27,9 @@ from __future__ import annotations
 import numpy as np
 
 from .attitude import yaw_of_device_forward
-from .steps import StepDetector, StepDetectorConfig
+from .steps import StepDetectorConfig, detect_steps
 
-__all__ = ["step_flags", "pdr_track", "heading_at"]
-
-
-def step_flags(imu_t: np.ndarray, acc: np.ndarray, cfg: StepDetectorConfig | None = None) -> np.ndarray:
-    """(T,) bool: the IMU samples at which :class:`StepDetector` detects a step (causal). ``imu_t`` (T,) s,
-    ``acc`` (T, 3) m/s^2 device frame."""
-    cfg = cfg or StepDetectorConfig()
-    dt = np.diff(imu_t)
-    dt = dt[dt > 0]
-    rate = 1.0 / np.median(dt) if len(dt) else 100.0
-    det = StepDetector(cfg, rate)
-    return np.fromiter((det.update(t, a) for t, a in zip(imu_t, acc)), bool, len(imu_t))
+__all__ = ["pdr_track", "heading_at"]
 
 
 def heading_at(t: np.ndarray, q_t: np.ndarray, q: np.ndarray, offset_rad: float = 0.0) -> np.ndarray:
@@ -65,7 +54,7 @@ def pdr_track(imu_t: np.ndarray, acc: np.ndarray, q_t: np.ndarray, q: np.ndarray
         raise ValueError("pdr_track: fewer than two IMU samples")
     if not (np.isfinite(step_length) and step_length > 0):
         raise ValueError(f"pdr_track: step_length must be a positive number of metres, got {step_length!r}")
-    flags = step_flags(imu_t, np.asarray(acc, float), cfg)
+    flags = detect_steps(imu_t, np.asarray(acc, float), cfg)
     ts = imu_t[flags]
     psi = heading_at(ts, np.asarray(q_t, float), q, offset_rad)
     steps = step_length * np.stack([np.cos(psi), np.sin(psi)], axis=-1)

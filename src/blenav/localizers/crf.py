@@ -44,10 +44,9 @@ from blenav.crf.features import cell_anchor_distances, rssi_log_feature, rtt_log
 from blenav.crf.grid import build_grid
 from blenav.crf.preprocess import anchor_tables, preprocess, session_span, window_count
 from blenav.crf.viterbi import ViterbiDecoder
-from blenav.crf.steps_jit import step_flags
 from blenav.filters.attitude import AttitudeConfig, estimate_attitude, yaw_of_device_forward
 from blenav.filters.runner import MissingStream
-from blenav.filters.steps import StepDetectorConfig
+from blenav.filters.steps import StepDetectorConfig, step_flags
 
 from .base import Estimate, Localizer, RunContext
 
@@ -151,7 +150,7 @@ class CrfLocalizer(Localizer):
         key = ("crf-imu", session.id, repr(self.attitude), repr(self.steps))
         cache = ctx.cache if ctx is not None else {}
         if key not in cache:
-            # imu_features' AHRS and its step detector, the latter compiled (blenav.crf.steps_jit: same flags)
+            # imu_features' AHRS and its step detector, the latter compiled (blenav.filters.steps.step_flags: same flags)
             c = np.ascontiguousarray
             imu, mag = session.imu, session.mag
             imu_t = c(imu["t"].to_numpy(float))
