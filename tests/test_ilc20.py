@@ -361,3 +361,23 @@ def test_real_walks_from_the_archive(raw_dir, tmp_path):
     assert al["inside_outline"] == 1.0 and al["on_walkable"] >= 0.95
     b = ds.building("site1")
     assert len(b.anchors) > 0 and len(b.anchors_without_position()) == len(b.anchors)
+
+
+def test_floor_level_from_geojson_sets_the_ground_truth_z_once(tmp_path):
+    """A floor name without a level ("G"): the walk pass guesses level 0, the GeoJSON's floor_num 3 gives level 2
+    (z = 10 m); groundtruth.csv is written once with z = 10 + 1.2 m, in the importer's own number format (a
+    second, pandas-written pass would turn x "5" into "5.0")."""
+    d = write_floor(tmp_path / "raw", floor="G")
+    geo = json.loads((d / "geojson_map.json").read_text())
+    geo["features"][0]["properties"]["floor_num"] = 3
+    (d / "geojson_map.json").write_text(json.dumps(geo))
+    write_walk(d, "walkA", walk_lines())
+    out = tmp_path / "ds"
+    run_import("ilc20", d, out)
+    assert errors_of(out) == []
+    ds = Dataset.open(out)
+    assert ds.building("mall").floor("G").z == pytest.approx(10.0)
+    s = ds.session("mall_G_walkA")
+    np.testing.assert_allclose(s.groundtruth["z"].to_numpy(), [11.2, 11.2, 11.2], atol=1e-9)
+    raw = pd.read_csv(s.root / "groundtruth.csv", dtype=str, keep_default_na=False)
+    assert list(raw["x"]) == ["5", "15", "20"] and list(raw["z"]) == ["11.2"] * 3

@@ -392,15 +392,22 @@ def _quote(v: np.ndarray) -> np.ndarray:
 
 def _write_streams(root: Path, sid: str, meta: dict, streams: dict[str, dict[str, np.ndarray]]) -> None:
     """session.yaml (blenav's writer) and one CSV per stream from columns of text cells (spec columns first)."""
-    sroot = write_session(root, sid, meta, {})
+    write_session(root, sid, meta, {})
     for name, cols in streams.items():
-        spec = STREAMS[name]
-        missing = [c for c in spec.columns if c not in cols]
-        if missing:
-            raise ValueError(f"stream {name} for session {sid} lacks columns {missing}")
-        order = list(spec.columns) + [c for c in cols if c not in spec.columns]
-        body = "\n".join(map(",".join, zip(*(cols[c] for c in order))))
-        (sroot / spec.filename).write_text(",".join(order) + "\n" + body + ("\n" if body else ""), encoding="utf-8")
+        _write_stream(root, sid, name, cols)
+
+
+def _write_stream(root: Path, sid: str, name: str, cols: dict[str, np.ndarray]) -> None:
+    """One stream's CSV of session ``sid`` (its folder written by :func:`_write_streams`) from columns of text
+    cells (spec columns first)."""
+    spec = STREAMS[name]
+    missing = [c for c in spec.columns if c not in cols]
+    if missing:
+        raise ValueError(f"stream {name} for session {sid} lacks columns {missing}")
+    order = list(spec.columns) + [c for c in cols if c not in spec.columns]
+    body = "\n".join(map(",".join, zip(*(cols[c] for c in order))))
+    (root / "sessions" / sid / spec.filename).write_text(",".join(order) + "\n" + body + ("\n" if body else ""),
+                                                         encoding="utf-8")
 
 
 def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, floor_z: float, beacon_id: str,
@@ -885,7 +892,8 @@ class _WalkPass:
     acc: dict                   # (site, floor) -> _FloorAcc, floors with at least one written session
     beacons: dict               # anchor id -> what was heard (see _beacon_stream)
     bssids: dict                # site -> set of BSSIDs heard
-    pending_z: dict             # (site, floor) -> floor z (m) the sessions' ground truth was written with
+    pending_z: dict             # (site, floor) -> floor z (m) the sessions' ground truth was made with
+    pending_gt: dict            # (site, floor) -> [(session id, groundtruth columns)], written by _write_site
     events: Counter             # walk-level events -> count
     labelled: int               # sessions with >= 2 waypoints
 
@@ -899,6 +907,7 @@ def _import_walks(src: Path, tmp: Path, want, beacon_id: str, report: ImportRepo
     bssids: dict[str, set] = defaultdict(set)
     sessions: set[str] = set()
     pending_z: dict[tuple[str, str], float] = {}
+    pending_gt: dict[tuple[str, str], list] = defaultdict(list)
     events: Counter = Counter()
     labelled = 0
     for e in _iter_source(src, want):
@@ -916,6 +925,8 @@ def _import_walks(src: Path, tmp: Path, want, beacon_id: str, report: ImportRepo
             events["walks without any data row (no session written)"] += 1
             continue
         sessions.add(sid)
+        if "groundtruth" in streams:  # written once the floor's z is known (the GeoJSON may come later)
+            pending_gt[key].append((sid, streams.pop("groundtruth")))
         _write_streams(tmp, sid, meta, streams)
         report.sessions += 1
         labelled += bool(meta["labelled"])
@@ -926,7 +937,7 @@ def _import_walks(src: Path, tmp: Path, want, beacon_id: str, report: ImportRepo
         a.site_name = a.site_name or header.get("SiteName", "")
         a.site_id = a.site_id or header.get("SiteID", "")
         a.floor_id = a.floor_id or header.get("FloorId", "")
-    return _WalkPass(meta_files, acc, beacons, bssids, pending_z, events, labelled)
+    return _WalkPass(meta_files, acc, beacons, bssids, pending_z, pending_gt, events, labelled)
 
 
 def _write_site(src: Path, tmp: Path, site: str, floor_names: list[str], w: _WalkPass, report: ImportReport) -> None:
@@ -946,8 +957,7 @@ def _write_site(src: Path, tmp: Path, site: str, floor_names: list[str], w: _Wal
         plan = _read_plan(*info, *geo, floor, report)
         level = _floor_level(floor, plan.floor_num)
         z = level * FLOOR_HEIGHT_M
-        if z != w.pending_z.get(key, z):  # the level came from the GeoJSON: fix the sessions' ground-truth z
-            _rewrite_gt_z(tmp, site, floor, z + PHONE_HEIGHT_M)
+        _write_groundtruth(tmp, w.pending_gt.get(key, []), z if z != w.pending_z.get(key, z) else None)
         floors.append({"id": floor, "occupancy": plan.occupancy, "resolution": RESOLUTION_M, "origin": (0.0, 0.0),
                        "z": z, "filename": f"floor_{floor}.png"})
         rooms += [{"id": uid, "floor": floor, "geometry": g, "properties": {"name": nm}}
@@ -1029,8 +1039,11 @@ def _site_anchor_rows(beacons: dict, floor_names: list[str]) -> list[dict]:
     return rows
 
 
-def _rewrite_gt_z(root: Path, site: str, floor: str, z: float) -> None:
-    for p in (root / "sessions").glob(f"{_SESSION_ID_RE.sub('-', f'{site}_{floor}_')}*/groundtruth.csv"):
-        df = pd.read_csv(p)
-        df["z"] = z
-        df.to_csv(p, index=False, na_rep="", lineterminator="\n")
+def _write_groundtruth(root: Path, pending: list, floor_z: float | None) -> None:
+    """groundtruth.csv of a floor's sessions, written once: ``pending`` [(session id, columns)] from the walk pass;
+    ``floor_z`` (m) when the floor's level came from its GeoJSON and differs from the walk pass's guess (z = floor z
+    + ``PHONE_HEIGHT_M``), else None (the columns' z stands)."""
+    for sid, cols in pending:
+        if floor_z is not None:
+            cols = {**cols, "z": _num_text(np.full(len(cols["z"]), floor_z + PHONE_HEIGHT_M), 3)}
+        _write_stream(root, sid, "groundtruth", cols)
