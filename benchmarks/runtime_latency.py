@@ -30,11 +30,12 @@ import json
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from timing import timed_updates
 
 REPO = Path(__file__).resolve().parents[1]
 BUDGET_MS = 5.0
@@ -103,19 +104,11 @@ def update_times(bundle, session, seed: int = 0) -> tuple[np.ndarray, list]:
 
     loc = bundle.localizer(session.building, floor=session.meta.get("floor"), seed=seed)
     events = [e for e in replay(session) if e[0] in ("rssi", "odo")]
-    acc, cpu, per, rows, t_end = 0.0, 0.0, [], [], 0.0
-    for ev in events:
-        t0, c0 = time.perf_counter(), time.process_time()
-        out = loc.push_event(ev)
-        acc += time.perf_counter() - t0
-        cpu += time.process_time() - c0
-        t_end = ev[1]
-        if out:
-            for r in out:
-                rows.append(r)
-            per.append((out[-1].t, acc * 1e3 / len(out), cpu * 1e3 / len(out)))
-            acc = cpu = 0.0
-    rows += loc.close(t_end)
+    per, rows = [], []
+    for out, wall_ms, cpu_ms in timed_updates(loc, events):
+        rows += out
+        if np.isfinite(wall_ms):  # not the estimates of close()
+            per.append((out[-1].t, wall_ms, cpu_ms))
     a = np.array(per).reshape(-1, 3)
     keep = a[:, 0] >= a[0, 0] + WARM_S if len(a) else np.zeros(0, bool)
     return a[keep, 1:], rows

@@ -4,9 +4,10 @@ Issue 18, section 4. One :class:`blenav.runtime.BundleLocalizer` (the bundle's s
 fixes from the bundle's localizer, its map prior) receives ``--hours`` of samples (default 8 h) in time order through
 ``push_event``, as an app would. The process's resident memory (RSS, /proc/self/status VmRSS) is read every simulated
 ``--sample-min`` minutes (default 10); the cost of each update (the wall time of the push calls between two
-estimates, as benchmarks/runtime_latency.py times it: wall and process CPU time, the latter less sensitive to other
-processes on the machine) is kept per step. The bundle is built in a child process, so that the soak's process holds
-what an app holds (onnxruntime, numpy; no torch, and no heap left over from training). Printed:
+estimates, timed by benchmarks/timing.py's timed_updates as in benchmarks/runtime_latency.py: wall and process
+CPU time, the latter less sensitive to other processes on the machine) is kept per step. The bundle is built in
+a child process, so that the soak's process holds what an app holds (onnxruntime, numpy; no torch, and no heap
+left over from training). Printed:
 
 - RSS and the number of Python objects the garbage collector tracks at every sample, the RSS's least-squares
   slope (MB per simulated hour) after the reference hour and over the whole run, and its growth from the end of
@@ -40,6 +41,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from timing import timed_updates
 
 HERE = Path(__file__).resolve().parent
 
@@ -160,31 +163,31 @@ def main() -> int:
     gc.collect()
     samples.append((0.0, rss_mb(), len(gc.get_objects())))
     next_sample = sample_s
-    k, acc, cpu, n_bad, n_est, t_last = 0, 0.0, 0.0, 0, 0, t_first
+    k, n_bad, n_est = 0, 0, 0
     wall0 = time.perf_counter()
-    for ev in palindrome(events, seconds):
-        rel = ev[1] - t_first
-        while rel >= next_sample:  # the RSS at each sample time (simulated clock)
-            samples.append((next_sample / 3600.0, rss_mb(), len(gc.get_objects())))
-            h = next_sample / 3600.0
-            if abs(h - round(h)) < 1e-9:
-                print(f"  {h:5.2f} h simulated, RSS {samples[-1][1]:7.1f} MB, {k:,} steps, "
-                      f"{time.perf_counter() - wall0:6.0f} s wall", flush=True)
-            next_sample += sample_s
-        c0, p0 = time.perf_counter(), time.process_time()
-        out = loc.push_event(ev)
-        acc += time.perf_counter() - c0
-        cpu += time.process_time() - p0
-        t_last = ev[1]
-        if out:
-            n_est += len(out)
-            n_bad += sum(1 for r in out if not (np.isfinite(r.x) and np.isfinite(r.y) and np.isfinite(r.std)))
-            if k < n_steps:
-                step_t[k], step_ms[k], step_cpu[k] = out[-1].t - t_first, acc * 1e3 / len(out), cpu * 1e3 / len(out)
-                k += 1
-            acc = cpu = 0.0
-    out = loc.close(t_last)
-    n_est += len(out)
+
+    def sampled(stream):
+        """The events, with the RSS sampled (outside the timed push calls) as the simulated clock passes each
+        sample time."""
+        nonlocal next_sample
+        for ev in stream:
+            while ev[1] - t_first >= next_sample:
+                samples.append((next_sample / 3600.0, rss_mb(), len(gc.get_objects())))
+                h = next_sample / 3600.0
+                if abs(h - round(h)) < 1e-9:
+                    print(f"  {h:5.2f} h simulated, RSS {samples[-1][1]:7.1f} MB, {k:,} steps, "
+                          f"{time.perf_counter() - wall0:6.0f} s wall", flush=True)
+                next_sample += sample_s
+            yield ev
+
+    for out, wall_ms, cpu_ms in timed_updates(loc, sampled(palindrome(events, seconds))):
+        n_est += len(out)
+        if not np.isfinite(wall_ms):  # the estimates of close(): counted, not an update
+            continue
+        n_bad += sum(1 for r in out if not (np.isfinite(r.x) and np.isfinite(r.y) and np.isfinite(r.std)))
+        if k < n_steps:
+            step_t[k], step_ms[k], step_cpu[k] = out[-1].t - t_first, wall_ms, cpu_ms
+            k += 1
     wall = time.perf_counter() - wall0
     samples.append((seconds / 3600.0, rss_mb(), len(gc.get_objects())))
     step_t, step_ms, step_cpu = step_t[:k] / 3600.0, step_ms[:k], step_cpu[:k]

@@ -1,0 +1,67 @@
+"""Helpers the benchmark scripts share (benchmarks/timing.py), on fakes: the timed push loop of
+benchmarks/runtime_latency.py and benchmarks/soak.py."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _load(name: str, monkeypatch):
+    monkeypatch.syspath_prepend(str(BENCH))  # the scripts import their siblings (timing) as when run
+    spec = importlib.util.spec_from_file_location(f"blenav_bench_{name}", BENCH / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+class _Clock:
+    """A fake ``time`` module: perf_counter and process_time advance only when the fake localizer works."""
+
+    def __init__(self):
+        self.wall, self.cpu = 0.0, 0.0
+
+    def perf_counter(self):
+        return self.wall
+
+    def process_time(self):
+        return self.cpu
+
+
+class _Loc:
+    """push_event(ev) costs ev[2] s of wall time (half of it CPU) and returns ev[3] estimates stamped at ev[1]."""
+
+    def __init__(self, clock):
+        self.clock, self.closed = clock, None
+
+    def push_event(self, ev):
+        self.clock.wall += ev[2]
+        self.clock.cpu += ev[2] / 2
+        return [SimpleNamespace(t=ev[1], k=i) for i in range(ev[3])]
+
+    def close(self, t):
+        self.closed = t
+        return [SimpleNamespace(t=t, k=0)]
+
+
+def test_timed_updates_sums_the_push_calls_between_estimates(monkeypatch):
+    timing = _load("timing", monkeypatch)
+    clock = _Clock()
+    monkeypatch.setattr(timing, "time", clock)
+    loc = _Loc(clock)
+    # (kind, t, seconds of work, estimates): two pushes then an estimate; then one push giving two estimates
+    events = [("rssi", 0.5, 0.001, 0), ("odo", 0.7, 0.002, 0), ("rssi", 1.0, 0.003, 1), ("odo", 2.0, 0.004, 2),
+              ("rssi", 2.5, 0.010, 0)]
+    got = list(timing.timed_updates(loc, iter(events)))
+    assert [len(o) for o, _, _ in got] == [1, 2, 1]
+    assert got[0][1] == pytest.approx(6.0) and got[0][2] == pytest.approx(3.0)  # (1 + 2 + 3) ms, half CPU
+    assert got[1][1] == pytest.approx(2.0) and got[1][2] == pytest.approx(1.0)  # 4 ms over two estimates
+    assert math.isnan(got[2][1]) and math.isnan(got[2][2]) and loc.closed == 2.5  # close() at the last event
+    assert list(timing.timed_updates(_Loc(clock), [])) == []
+
