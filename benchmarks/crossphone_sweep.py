@@ -27,6 +27,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from blenav.eval.report import pooled_mean
+
 BIN = Path(sys.executable).parent
 #: receiver profiles of the simulator (blenav.sim.receivers) standing in for a deployer's phones A-F; none of
 #: them is in crossphone_003's default split, so every device name is given on the command line
@@ -57,10 +59,10 @@ def evaluate(data: Path, out: Path, all_methods: bool, *extra: str) -> dict:
 
 
 def pooled(method: dict, devices: list[str]) -> float:
-    """Mean error over the windows of ``devices`` (per-device means weighted by their window counts)."""
-    d = [method["per_device"][x] for x in devices if x in method["per_device"]]
-    n = sum(v["n"] for v in d)
-    return sum(v["mean"] * v["n"] for v in d) / n if n else float("nan")
+    """Mean error over the windows of ``devices`` (:func:`blenav.eval.report.pooled_mean`: per-device means
+    weighted by their window counts); NaN when none of them was scored."""
+    v = pooled_mean(method, devices)
+    return float("nan") if v is None else v
 
 
 def main() -> None:

@@ -1,5 +1,5 @@
-"""Helpers the benchmark scripts share (benchmarks/timing.py), on fakes: the timed push loop of
-benchmarks/runtime_latency.py and benchmarks/soak.py."""
+"""Helpers the benchmark scripts share (benchmarks/timing.py, benchmarks/crossphone_sweep.py), on fakes: the timed
+push loop of benchmarks/runtime_latency.py and benchmarks/soak.py, and the sweep's pooled per-device error."""
 
 from __future__ import annotations
 
@@ -65,3 +65,9 @@ def test_timed_updates_sums_the_push_calls_between_estimates(monkeypatch):
     assert math.isnan(got[2][1]) and math.isnan(got[2][2]) and loc.closed == 2.5  # close() at the last event
     assert list(timing.timed_updates(_Loc(clock), [])) == []
 
+
+def test_crossphone_sweep_pools_per_device_means(monkeypatch):
+    sweep = _load("crossphone_sweep", monkeypatch)
+    m = {"per_device": {"a": {"mean": 1.0, "n": 3}, "b": {"mean": 3.0, "n": 1}, "c": {"mean": 9.0, "n": 5}}}
+    assert sweep.pooled(m, ["a", "b", "zz"]) == pytest.approx(1.5)  # (3 * 1 + 1 * 3) / 4, unknown devices skipped
+    assert math.isnan(sweep.pooled(m, ["zz"]))

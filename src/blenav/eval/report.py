@@ -206,6 +206,9 @@ def _pooled_mean(m: dict, devices) -> float | None:
     return sum(r["mean"] * r["n"] for r in rows) / n if n else None
 
 
+pooled_mean = _pooled_mean  # public: benchmarks/crossphone_sweep.py pools per-device errors with it too
+
+
 def crossphone_claims(results: dict) -> list[str]:
     """The thesis' claims (section 3.1.4) checked on these numbers, each stated as holds / does not hold."""
     ms = results["methods"]
