@@ -194,6 +194,35 @@ def test_rtt_offsets_recovered_from_the_survey(hall):
     np.testing.assert_allclose(c, [[4.0, 7.0], [11.0, 7.0]])
 
 
+def test_offline_calibration_is_the_crf_one_at_a_fixed_height(hall):
+    """ranging.rtt_offsets is blenav.crf.calibration.offline_calibration at the device height: numbers against a
+    median computed here from the survey's rows; with the ground truth's own z (1.2 m) the CRF's default agrees;
+    the 004 sec. V-A thresholds have one definition; ble_tx_powers' d0 shifts the level by 10 n log10(d0)."""
+    from blenav.crf import preprocess as P
+    from blenav.crf.calibration import ble_tx_powers, offline_calibration
+    from blenav.localizers import crf as crf_loc
+    from blenav.localizers import ranging as R
+
+    ds = Dataset.open(hall)
+    survey = ds.session("survey-2")
+    anchors = R.rtt_readings(ds.session("walk-7"))[3]
+    rtt, gt = survey.rtt, survey.groundtruth
+    t = rtt["t"].to_numpy(float)
+    xy = np.c_[np.interp(t, gt["t"], gt["x"]), np.interp(t, gt["t"], gt["y"])]
+    row = anchors.index_of(rtt["anchor_id"].astype(str).to_numpy())
+    for z in (1.2, 2.0):
+        d = np.sqrt(((anchors.xyz[row, :2] - xy) ** 2).sum(1) + (anchors.xyz[row, 2] - z) ** 2)
+        ref = [np.median(rtt["range_m"].to_numpy(float)[row == a] - d[row == a]) for a in range(len(anchors.ids))]
+        np.testing.assert_allclose(R.rtt_offsets([survey], anchors, device_z=z), ref, rtol=0, atol=1e-12)
+    none = R._NO_ANCHORS
+    np.testing.assert_allclose(offline_calibration([survey], anchors, none, 2.0).rtt_offset,
+                               R.rtt_offsets([survey], anchors, device_z=1.2), rtol=0, atol=1e-12)
+    assert (R.WIFI_MIN_RSSI_DBM, R.BLE_MIN_RSSI_DBM) == (P.WIFI_MIN_RSSI_DBM, P.BLE_MIN_RSSI_DBM) == (-65.0, -90.0)
+    assert crf_loc.WIFI_MIN_RSSI_DBM is P.WIFI_MIN_RSSI_DBM
+    tx = ble_tx_powers(np.array([0, 0, 1]), np.array([-60.0, -62.0, -70.0]), np.array([2.0, 2.0, 0.05]), 2.0, 2, d0=2.0)
+    np.testing.assert_allclose(tx, [-61.0, -70.0 + 20.0 * np.log10(0.1 / 2.0)], rtol=0, atol=1e-12)
+
+
 def test_visual_fix_is_the_estimate_of_its_window(hall):
     ds = Dataset.open(hall)
     s = ds.session("walk-7")

@@ -18,7 +18,9 @@ The result is a :class:`CalibrationTrack`: piecewise-constant parameters over ti
 range - offset, the BLE distance uses T_m (eq. 8), headings are corrected as AHRS yaw + offset (rad).
 
 Pure numpy; the array functions (:func:`rtt_offsets`, :func:`ble_tx_powers`, :func:`offline_calibration`)
-are what other range-based localizers reuse.
+are what other range-based localizers reuse: the offline calibration of the range baselines
+(:func:`blenav.localizers.ranging.rtt_offsets` / ``ble_levels``) is :func:`offline_calibration` at a fixed device
+height.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ import numpy as np
 from blenav.filters.measurement import AnchorTable
 
 from .features import wrap_angle
-from .preprocess import ble_keep_mask, keyed_medians, rtt_keep_mask
+from .preprocess import BLE_MIN_RSSI_DBM, WIFI_MIN_RSSI_DBM, ble_keep_mask, keyed_medians, rtt_keep_mask
 
 __all__ = ["Calibration", "CalibrationTrack", "rtt_offsets", "ble_tx_powers", "heading_offset",
            "offline_calibration", "online_track", "static_sessions", "CALIBRATIONS"]
@@ -87,10 +89,12 @@ def rtt_offsets(idx: np.ndarray, range_m: np.ndarray, true_dist: np.ndarray, n_a
     return _medians_by_anchor(np.asarray(idx), np.asarray(range_m, float) - np.asarray(true_dist, float), n_anchors)
 
 
-def ble_tx_powers(idx: np.ndarray, rssi: np.ndarray, true_dist: np.ndarray, n: float, n_anchors: int) -> np.ndarray:
-    """(A,) dBm: per beacon the median of RSSI + 10 n log10(true distance) (T_m of eq. 7), NaN without readings."""
+def ble_tx_powers(idx: np.ndarray, rssi: np.ndarray, true_dist: np.ndarray, n: float, n_anchors: int,
+                  d0: float = 1.0) -> np.ndarray:
+    """(A,) dBm: per beacon the median of RSSI + 10 n log10(true distance / d0) (T_m of eq. 7; the level at d0 m,
+    the range baselines' a_X), NaN without readings. Distances below 0.1 m count as 0.1 m."""
     d = np.maximum(np.asarray(true_dist, float), 0.1)
-    return _medians_by_anchor(np.asarray(idx), np.asarray(rssi, float) + 10.0 * n * np.log10(d), n_anchors)
+    return _medians_by_anchor(np.asarray(idx), np.asarray(rssi, float) + 10.0 * n * np.log10(d / d0), n_anchors)
 
 
 def heading_offset(yaw_ref: float, yaw_imu: np.ndarray) -> float:
@@ -121,11 +125,15 @@ def static_sessions(session, cache: dict | None = None) -> list:
 
 
 def offline_calibration(sessions: list, wifi: AnchorTable, ble: AnchorTable, n: float,
-                        min_ble_rssi_dbm: float | None = -90.0, min_wifi_rssi_dbm: float | None = -65.0) -> Calibration:
+                        min_ble_rssi_dbm: float | None = BLE_MIN_RSSI_DBM,
+                        min_wifi_rssi_dbm: float | None = WIFI_MIN_RSSI_DBM, device_z: float | None = None,
+                        d0: float = 1.0) -> Calibration:
     """Offline calibration from labelled static sessions (ground truth gives the surveyed point at each time).
 
     Readings pass the rules of 004 sec. V-A first. Positions are the ground truth interpolated at the reading
-    times, with its z (device height). Returns NaN for anchors without readings."""
+    times, with its z (device height), or at the fixed height ``device_z`` (m) when given; ``n`` and ``d0``: the
+    path-loss exponent and reference distance of the BLE levels (:func:`ble_tx_powers`). Returns NaN for anchors
+    without readings (an empty ``wifi`` / ``ble`` table: that modality is not calibrated)."""
     cal = Calibration.empty(len(wifi.ids), len(ble.ids))
     ri, rr, rd, bi, br, bd = [], [], [], [], [], []
     for s in sessions:
@@ -135,7 +143,9 @@ def offline_calibration(sessions: list, wifi: AnchorTable, ble: AnchorTable, n: 
         gtt = gt["t"].to_numpy(float)
 
         def at(t):
-            return np.column_stack([np.interp(t, gtt, gt[c].to_numpy(float)) for c in ("x", "y", "z")])
+            xy = [np.interp(t, gtt, gt[c].to_numpy(float)) for c in ("x", "y")]
+            z = np.interp(t, gtt, gt["z"].to_numpy(float)) if device_z is None else np.full(len(t), float(device_z))
+            return np.column_stack([*xy, z])
 
         if len(wifi.ids) and s.has("rtt"):
             df = s.rtt
@@ -159,7 +169,7 @@ def offline_calibration(sessions: list, wifi: AnchorTable, ble: AnchorTable, n: 
     if ri:
         cal.rtt_offset = rtt_offsets(np.concatenate(ri), np.concatenate(rr), np.concatenate(rd), len(wifi.ids))
     if bi:
-        cal.ble_tx = ble_tx_powers(np.concatenate(bi), np.concatenate(br), np.concatenate(bd), n, len(ble.ids))
+        cal.ble_tx = ble_tx_powers(np.concatenate(bi), np.concatenate(br), np.concatenate(bd), n, len(ble.ids), d0)
     return cal
 
 

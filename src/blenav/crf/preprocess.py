@@ -26,7 +26,13 @@ import numpy as np
 from blenav.filters.measurement import AnchorTable
 
 __all__ = ["window_medians", "keyed_medians", "window_count", "rtt_keep_mask", "ble_keep_mask", "RadioWindows",
-           "preprocess", "anchor_tables", "session_span", "anchor_rows"]
+           "preprocess", "anchor_tables", "session_span", "anchor_rows", "WIFI_MIN_RSSI_DBM", "BLE_MIN_RSSI_DBM"]
+
+#: 004 sec. V-A (Fig. 5): WiFi RTT ranges whose access point is received below this are dropped (dBm); the one
+#: definition the CRF, its offline calibration and the range baselines (blenav.localizers.ranging) use
+WIFI_MIN_RSSI_DBM = -65.0
+#: 004 sec. V-A: BLE readings below this are dropped (dBm)
+BLE_MIN_RSSI_DBM = -90.0
 
 
 def window_count(t_start: float, t_end: float, window_s: float) -> int:
@@ -64,8 +70,8 @@ def keyed_medians(key: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
     return out
 
 
-def rtt_keep_mask(range_m: np.ndarray, wifi_rssi: np.ndarray | None, min_wifi_rssi_dbm: float | None = -65.0
-                  ) -> np.ndarray:
+def rtt_keep_mask(range_m: np.ndarray, wifi_rssi: np.ndarray | None,
+                  min_wifi_rssi_dbm: float | None = WIFI_MIN_RSSI_DBM) -> np.ndarray:
     """(M,) bool: RTT rows kept by 004 sec. V-A: finite range and, where the AP's RSSI is known (finite),
     RSSI >= ``min_wifi_rssi_dbm`` (None: no RSSI rule). ``wifi_rssi`` None: the column is absent."""
     keep = np.isfinite(np.asarray(range_m, float))
@@ -75,7 +81,7 @@ def rtt_keep_mask(range_m: np.ndarray, wifi_rssi: np.ndarray | None, min_wifi_rs
     return keep
 
 
-def ble_keep_mask(rssi: np.ndarray, min_rssi_dbm: float | None = -90.0) -> np.ndarray:
+def ble_keep_mask(rssi: np.ndarray, min_rssi_dbm: float | None = BLE_MIN_RSSI_DBM) -> np.ndarray:
     """(M,) bool: BLE rows kept by 004 sec. V-A: finite and >= ``min_rssi_dbm`` (None: all finite)."""
     r = np.asarray(rssi, float)
     keep = np.isfinite(r)
@@ -147,7 +153,7 @@ class RadioWindows:
 
 
 def preprocess(session, t_start: float | None = None, n_windows: int | None = None, window_s: float = 1.0,
-               min_ble_rssi_dbm: float | None = -90.0, min_wifi_rssi_dbm: float | None = -65.0,
+               min_ble_rssi_dbm: float | None = BLE_MIN_RSSI_DBM, min_wifi_rssi_dbm: float | None = WIFI_MIN_RSSI_DBM,
                wifi: AnchorTable | None = None, ble_anchors: AnchorTable | None = None) -> RadioWindows:
     """1 s medians of ``session``'s rtt.csv and rssi.csv after the rejection rules of 004 sec. V-A.
 

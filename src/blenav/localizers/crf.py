@@ -42,7 +42,8 @@ from blenav.crf.calibration import (CALIBRATIONS, Calibration, CalibrationTrack,
                                     static_sessions)
 from blenav.crf.features import cell_anchor_distances, rssi_log_feature, rtt_log_feature, visual_log_feature
 from blenav.crf.grid import build_grid
-from blenav.crf.preprocess import anchor_tables, preprocess, session_span, window_count
+from blenav.crf.preprocess import (BLE_MIN_RSSI_DBM, WIFI_MIN_RSSI_DBM, anchor_tables, preprocess, session_span,
+                                   window_count)
 from blenav.crf.viterbi import ViterbiDecoder
 from blenav.filters.attitude import AttitudeConfig, estimate_attitude, yaw_of_device_forward
 from blenav.filters.runner import MissingStream
@@ -78,9 +79,10 @@ class CrfLocalizer(Localizer):
     def __init__(self, name: str, shared=None, modalities="RTT+BLE+IMU", calibration: str = "online",
                  recursive: bool = False, use_visual: bool = True, cell_m: float = 0.5, max_step_m: float = 2.0,
                  min_free_fraction: float = 0.5, window_s: float = 1.0, prune: float = 1e-10,
-                 device_z: float = 1.2, rtt_sigma_m: float = 1.0, rtt_min_wifi_rssi_dbm: float | None = -65.0,
+                 device_z: float = 1.2, rtt_sigma_m: float = 1.0,
+                 rtt_min_wifi_rssi_dbm: float | None = WIFI_MIN_RSSI_DBM,
                  ble_sigma_db: float = 6.0, ble_path_loss_exponent: float = 2.0, ble_tx_power_dbm: float = -60.0,
-                 ble_min_rssi_dbm: float | None = -90.0, ble_mode_correction: bool = True,
+                 ble_min_rssi_dbm: float | None = BLE_MIN_RSSI_DBM, ble_mode_correction: bool = True,
                  step_length_m: float = 0.7, imu_sigma_l_m: float = 0.5, imu_sigma_theta_rad: float = 0.3,
                  visual_sigma_m: float = 0.05, calibration_window_s: float = 1.0,
                  calibrate_heading: bool = True, calibration_pool: bool = False, attitude=None, steps=None):

@@ -57,6 +57,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from blenav.crf.calibration import CALIBRATIONS, offline_calibration
+from blenav.crf.preprocess import BLE_MIN_RSSI_DBM, WIFI_MIN_RSSI_DBM, ble_keep_mask, rtt_keep_mask
 from blenav.filters.calibration import apply_fit
 from blenav.filters.measurement import AnchorTable, PathLossRange
 from blenav.filters.runner import MissingStream
@@ -69,11 +71,9 @@ __all__ = ["GridL2Localizer", "GridL1Localizer", "SrlsLocalizer", "RangeBaseline
            "grid_costs", "free_cells", "wifi_rssi", "rtt_readings", "ble_readings", "rtt_offsets", "ble_levels",
            "online_corrections", "window_ranges", "WIFI_MIN_RSSI_DBM", "BLE_MIN_RSSI_DBM"]
 
-#: 004 sec. V-A: WiFi RTT ranges whose AP RSSI is below this are dropped; BLE readings below -90 dBm.
-WIFI_MIN_RSSI_DBM = -65.0
-BLE_MIN_RSSI_DBM = -90.0
-CALIBRATIONS = ("none", "offline", "online")
+# WIFI_MIN_RSSI_DBM (-65), BLE_MIN_RSSI_DBM (-90): the rules of 004 sec. V-A, defined in blenav.crf.preprocess
 SOURCES = ("rtt", "ble")
+_NO_ANCHORS = AnchorTable(np.zeros(0, str), np.zeros((0, 3)), np.zeros(0))
 
 
 # ------------------------------------------------------------------------------------------ readings
@@ -96,13 +96,9 @@ def rtt_readings(session, min_wifi_rssi_dbm: float | None = WIFI_MIN_RSSI_DBM):
         return np.zeros(0), np.zeros(0, int), np.zeros(0), anchors, 0
     idx = anchors.index_of(r["anchor_id"].astype(str).to_numpy())
     rng = r["range_m"].to_numpy(float)
-    keep = (idx >= 0) & np.isfinite(rng)
-    weak = np.zeros(len(r), bool)
-    if min_wifi_rssi_dbm is not None:
-        with np.errstate(invalid="ignore"):
-            weak = wifi_rssi(r) < float(min_wifi_rssi_dbm)
-    n_weak = int((keep & weak).sum())
-    keep &= ~weak
+    usable = (idx >= 0) & rtt_keep_mask(rng, None)  # a known AP and a finite range
+    keep = usable & rtt_keep_mask(rng, wifi_rssi(r), min_wifi_rssi_dbm)
+    n_weak = int((usable & ~keep).sum())
     return r["t"].to_numpy(float)[keep], idx[keep], rng[keep], anchors, n_weak
 
 
@@ -115,9 +111,7 @@ def ble_readings(session, min_ble_rssi_dbm: float | None = BLE_MIN_RSSI_DBM):
         return np.zeros(0), np.zeros(0, int), np.zeros(0), anchors
     idx = anchors.index_of(r["anchor_id"].astype(str).to_numpy())
     rssi = r["rssi"].to_numpy(float)
-    keep = (idx >= 0) & np.isfinite(rssi)
-    if min_ble_rssi_dbm is not None:
-        keep &= rssi >= float(min_ble_rssi_dbm)
+    keep = (idx >= 0) & ble_keep_mask(rssi, min_ble_rssi_dbm)
     return r["t"].to_numpy(float)[keep], idx[keep], rssi[keep], anchors
 
 
@@ -137,47 +131,20 @@ def rtt_offsets(sessions, anchors: AnchorTable, device_z: float = 1.2,
     """Offline RTT calibration (004 sec. VI-C: "measurements at 5 static positions"): the range offset (A,) m
     of each AP of ``anchors``, the median over every reading of labelled ``sessions`` of ``range_m`` minus the
     3-D distance from the ground-truth position (at the reading's time, height ``device_z``) to the AP's
-    stated position. NaN for an AP without a reading. The -65 dBm rule applies as in localization."""
-    res, rows = [], []
-    for s in sessions:
-        t, idx, rng, a, _ = rtt_readings(s, min_wifi_rssi_dbm)
-        if not len(t):
-            continue
-        row = anchors.index_of(a.ids[idx])
-        ok = row >= 0
-        d = _dist3(s.positions_at(t[ok]), device_z, anchors.xyz[row[ok]])
-        res.append(rng[ok] - d)
-        rows.append(row[ok])
-    return _median_per(np.concatenate(rows) if rows else np.zeros(0, int),
-                       np.concatenate(res) if res else np.zeros(0), len(anchors.ids))
+    stated position. NaN for an AP without a reading. The -65 dBm rule applies as in localization.
+    (:func:`blenav.crf.calibration.offline_calibration` at the fixed height ``device_z``.)"""
+    cal = offline_calibration(sessions, anchors, _NO_ANCHORS, 0.0, None, min_wifi_rssi_dbm, device_z=device_z)
+    return cal.rtt_offset
 
 
 def ble_levels(sessions, anchors: AnchorTable, gamma: float, d0: float = 1.0, device_z: float = 1.2,
                min_ble_rssi_dbm: float | None = BLE_MIN_RSSI_DBM) -> np.ndarray:
     """Offline BLE calibration: the 1 m level a_X (A,) dBm of each beacon (004 sec. V-B: "transmit powers for
     each Bluetooth beacon"), the median over labelled ``sessions`` of ``rssi + 10 gamma log10(d / d0)`` with d the
-    true 3-D distance. NaN for a beacon without a reading."""
-    vals, rows = [], []
-    for s in sessions:
-        t, idx, rssi, a = ble_readings(s, min_ble_rssi_dbm)
-        if not len(t):
-            continue
-        row = anchors.index_of(a.ids[idx])
-        ok = row >= 0
-        d = np.maximum(_dist3(s.positions_at(t[ok]), device_z, anchors.xyz[row[ok]]), 0.1)
-        vals.append(rssi[ok] + 10.0 * gamma * np.log10(d / d0))
-        rows.append(row[ok])
-    return _median_per(np.concatenate(rows) if rows else np.zeros(0, int),
-                       np.concatenate(vals) if vals else np.zeros(0), len(anchors.ids))
-
-
-def _median_per(rows: np.ndarray, vals: np.ndarray, n: int) -> np.ndarray:
-    """(n,) median of ``vals`` per row index, NaN for rows without a value."""
-    out = np.full(n, np.nan)
-    if not len(rows):
-        return out
-    med = _window_medians(np.zeros(len(rows), np.int64), rows, vals, 1, n)
-    return med[0]
+    true 3-D distance (at least 0.1 m). NaN for a beacon without a reading.
+    (:func:`blenav.crf.calibration.offline_calibration` at the fixed height ``device_z``.)"""
+    return offline_calibration(sessions, _NO_ANCHORS, anchors, gamma, min_ble_rssi_dbm, None, device_z=device_z,
+                               d0=d0).ble_tx
 
 
 def online_corrections(fix_t: np.ndarray, fix_xy: np.ndarray, t: np.ndarray, idx: np.ndarray, vals: np.ndarray,
@@ -583,12 +550,12 @@ class RangeBaseline(Localizer, PathLossCalibrated):
                 raise MissingStream(f"offline calibration needs labelled static sessions of building "
                                     f"{session.building.id} besides {session.id} (calibration_sessions="
                                     f"{self.calibration_sessions!r}); none found")
+            c = offline_calibration(cal, ar if do_rtt else _NO_ANCHORS, ab if do_ble else _NO_ANCHORS, gamma,
+                                    self.min_ble_rssi_dbm, self.min_wifi_rssi_dbm, device_z=self.device_z, d0=d0)
             if len(ar.ids) and do_rtt:
-                o = rtt_offsets(cal, ar, self.device_z, self.min_wifi_rssi_dbm)
-                off_base = np.where(np.isfinite(o), o, 0.0)
+                off_base = np.where(np.isfinite(c.rtt_offset), c.rtt_offset, 0.0)
             if len(ab.ids) and do_ble:
-                lv = ble_levels(cal, ab, gamma, d0, self.device_z, self.min_ble_rssi_dbm)
-                ax_base = np.where(np.isfinite(lv), lv, ax_base)
+                ax_base = np.where(np.isfinite(c.ble_tx), c.ble_tx, ax_base)
             notes.append(f"offline calibration on {', '.join(s.id for s in cal)}")
         off = np.broadcast_to(off_base, (W, len(off_base))).copy()
         axw = np.broadcast_to(ax_base, (W, len(ax_base))).copy()
