@@ -102,6 +102,25 @@ print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "
     assert bad.returncode == 1 and "blenav-localize: error:" in bad.stderr and "does not exist" in bad.stderr
 
 
+def test_bundle_graph_is_the_onnx_localizer_code(made):
+    """The bundle's localizer graph and OnnxLocalizer share one implementation (LocalizerSession): the same sizes,
+    beacons and, on the same windows, the same (K, 2) m to the bit; NaN where nothing was heard."""
+    from blenav.runtime.bundle import LocalizerGraph
+    from blenav.runtime.onnx_localizer import LocalizerSession, OnnxLocalizer
+
+    g = Bundle.open(made["bundle"]).graph
+    ref = OnnxLocalizer(made["bundle"] / "localizer.onnx")
+    assert isinstance(g, LocalizerGraph) and isinstance(g, LocalizerSession) and isinstance(ref, LocalizerSession)
+    assert (g.n_beacons, g.history, g.layers, g.hidden, g.beacons) == (ref.n_beacons, ref.history, ref.layers,
+                                                                     ref.hidden, ref.beacons)
+    S = np.random.default_rng(5).uniform(0.0, 60.0, (4, g.n_beacons, g.history)).astype(np.float32)
+    S[2] = 0.0  # nothing heard
+    xy = g.predict(S)
+    np.testing.assert_array_equal(xy, ref.predict(S))
+    assert xy.shape == (4, 2) and np.isnan(xy[2]).all() and np.isfinite(np.delete(xy, 2, axis=0)).all()
+    assert g.predict(S[:0]).shape == (0, 2) and g.meta["window"] == ref.meta["window"]
+
+
 def test_push_api_matches_replay(made):
     """Samples pushed one by one give the rows run_session gives (the same engine)."""
     from blenav.filters.runner import replay

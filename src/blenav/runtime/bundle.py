@@ -53,6 +53,7 @@ from blenav.features.mapgrid import pad_to_multiple
 from blenav.onnx_io import blenav_version, check_weights, read_metadata, session
 
 from .map_prior import OnnxBackend
+from .onnx_localizer import LocalizerSession
 from .signature import BuildingMismatch, building_signature, check_building
 
 FORMAT = "blenav-bundle/1"
@@ -147,28 +148,17 @@ def build_method(settings: dict, prior=None):
 
 # --- graphs ------------------------------------------------------------------------------------------------
 
-class LocalizerGraph:
+class LocalizerGraph(LocalizerSession):
     """The cross-phone localizer of a bundle in one variant: (K, B, H) windows on the thesis scale -> (K, 2) m,
-    each from a zero LSTM state (the export's ``lstm_state`` contract); NaN rows where nothing was heard."""
+    each from a zero LSTM state (the export's ``lstm_state`` contract); NaN rows where nothing was heard. ``meta``:
+    the float graph's metadata (the ORT variants may not keep it); ``sess``: an open session of ``path``."""
 
     def __init__(self, path: Path, meta: dict, threads: int = 1, sess=None):
-        self.path, self.meta = Path(path), meta
-        self.sess = sess if sess is not None else session(self.path, threads)
-        ins = self.sess.get_inputs()
-        self.n_beacons, self.history = int(ins[0].shape[1]), int(ins[0].shape[2])
-        self.layers, self.hidden = int(ins[1].shape[0]), int(ins[1].shape[2])
-        self.beacons = [str(b) for b in meta["beacons"]]
-        if self.n_beacons != len(self.beacons):
-            raise ValueError(f"{self.path}: graph reads {self.n_beacons} beacons, metadata lists {len(self.beacons)}")
+        super().__init__(path, meta, sess if sess is not None else session(Path(path), threads))
 
     def predict(self, S: np.ndarray) -> np.ndarray:
-        S = np.ascontiguousarray(S, dtype=np.float32)
-        if len(S) == 0:
-            return np.zeros((0, 2))
-        z = np.zeros((self.layers, len(S), self.hidden), np.float32)
-        xy = self.sess.run(["xy"], {"S": S, "h0": z, "c0": z})[0].astype(float)
-        xy[~(S > 0).reshape(len(S), -1).any(axis=1)] = np.nan
-        return xy
+        """Unchecked (the live path builds the windows itself): :meth:`LocalizerSession.predict_windows`."""
+        return self.predict_windows(S)
 
 
 class _MapBackend(OnnxBackend):

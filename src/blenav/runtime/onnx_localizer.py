@@ -37,30 +37,20 @@ def _examples(ids: list[str]) -> str:
     return ", ".join(ids[:_EXAMPLES]) + more
 
 
-class OnnxLocalizer:
-    """An exported model in an onnxruntime session (``threads`` intra-op threads, sequential execution)."""
+class LocalizerSession:
+    """The graph of an exported localizer in an onnxruntime session ``sess`` (inputs S (K, B, H), h0, c0 (layers, K,
+    hidden); outputs xy (K, 2) m, h, c) with its decoded metadata ``meta``: the sizes B, H, layers and hidden read
+    from the graph, and :meth:`predict_windows` from a zero LSTM state. What :class:`OnnxLocalizer` (one exported
+    file) and a runtime bundle's graph (:class:`blenav.runtime.bundle.LocalizerGraph`) share."""
 
-    def __init__(self, path: str | Path, building=None, threads: int = 1):
-        self.path = Path(path)
-        if not self.path.is_file():
-            raise FileNotFoundError(f"ONNX model {self.path} does not exist")
-        self._sess = session(self.path, threads)
-        self.weights_sha256 = check_weights(self.path)  # a corrupted or edited file is refused here
-        self._meta = read_metadata(self._sess)
-        names = [i.name for i in self._sess.get_inputs()]
-        if names != ["S", "h0", "c0"] or "beacons" not in self._meta or "window" not in self._meta:
-            raise ValueError(f"{self.path} is not a blenav localizer export (inputs {names}, metadata keys "
-                             f"{sorted(self._meta)}); write it with `python export.py ckpt=... out=...`")
-        s, h = self._sess.get_inputs()[0].shape, self._sess.get_inputs()[1].shape
+    def __init__(self, path: str | Path, meta: dict, sess):
+        self.path, self._meta, self._sess = Path(path), meta, sess
+        s, h = sess.get_inputs()[0].shape, sess.get_inputs()[1].shape
         self.n_beacons, self.history = int(s[1]), int(s[2])
         self.layers, self.hidden = int(h[0]), int(h[2])
         if self.n_beacons != len(self.beacons):
             raise ValueError(f"{self.path}: graph reads {self.n_beacons} beacons, metadata lists {len(self.beacons)}")
-        if building is not None:
-            self.check_building(building)
-        self.reset()
 
-    # --- metadata ---------------------------------------------------------------------------------------
     @property
     def meta(self) -> dict:
         """Decoded ``metadata_props`` (beacons, window, building, data_hash, model, devices, versions)."""
@@ -73,7 +63,52 @@ class OnnxLocalizer:
 
     @property
     def beacons(self) -> list[str]:
-        return list(self._meta["beacons"])
+        return [str(b) for b in self._meta["beacons"]]
+
+    @staticmethod
+    def heard(S) -> np.ndarray:
+        """(K,) bool: the window has at least one reading (some entry > 0)."""
+        S = np.asarray(S)
+        return (S > 0).reshape(len(S), -1).any(axis=1)
+
+    def zero_state(self, batch: int) -> tuple[np.ndarray, np.ndarray]:
+        z = np.zeros((self.layers, batch, self.hidden), np.float32)
+        return z, z.copy()
+
+    def _run(self, S: np.ndarray, h0: np.ndarray, c0: np.ndarray):
+        return self._sess.run(None, {"S": S, "h0": h0, "c0": c0})
+
+    def predict_windows(self, S: np.ndarray) -> np.ndarray:
+        """(K, B, H) float32 windows on the thesis scale (not checked) -> (K, 2) m, each from a zero state; NaN rows
+        where no beacon was heard."""
+        S = np.ascontiguousarray(S, dtype=np.float32)
+        if len(S) == 0:
+            return np.zeros((0, 2))
+        xy = self._sess.run(["xy"], dict(zip(("S", "h0", "c0"), (S, *self.zero_state(len(S))))))[0].astype(float)
+        xy[~self.heard(S)] = np.nan
+        return xy
+
+
+class OnnxLocalizer(LocalizerSession):
+    """An exported model in an onnxruntime session (``threads`` intra-op threads, sequential execution)."""
+
+    def __init__(self, path: str | Path, building=None, threads: int = 1):
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"ONNX model {path} does not exist")
+        sess = session(path, threads)
+        self.weights_sha256 = check_weights(path)  # a corrupted or edited file is refused here
+        meta = read_metadata(sess)
+        names = [i.name for i in sess.get_inputs()]
+        if names != ["S", "h0", "c0"] or "beacons" not in meta or "window" not in meta:
+            raise ValueError(f"{path} is not a blenav localizer export (inputs {names}, metadata keys "
+                             f"{sorted(meta)}); write it with `python export.py ckpt=... out=...`")
+        super().__init__(path, meta, sess)
+        if building is not None:
+            self.check_building(building)
+        self.reset()
+
+    # --- metadata ---------------------------------------------------------------------------------------
 
     @property
     def building(self) -> str | None:
@@ -127,28 +162,10 @@ class OnnxLocalizer:
                              "see to_u()")
         return np.ascontiguousarray(S)
 
-    @staticmethod
-    def heard(S) -> np.ndarray:
-        """(K,) bool: the window has at least one reading (some entry > 0)."""
-        S = np.asarray(S)
-        return (S > 0).reshape(len(S), -1).any(axis=1)
-
     # --- inference --------------------------------------------------------------------------------------
-    def _run(self, S: np.ndarray, h0: np.ndarray, c0: np.ndarray):
-        return self._sess.run(None, {"S": S, "h0": h0, "c0": c0})
-
-    def zero_state(self, batch: int) -> tuple[np.ndarray, np.ndarray]:
-        z = np.zeros((self.layers, batch, self.hidden), np.float32)
-        return z, z.copy()
-
     def predict(self, S) -> np.ndarray:
         """(K, B, H) windows -> (K, 2) metres, each from a zero state; NaN rows where no beacon was heard."""
-        S = self._check(S, "predict")
-        if len(S) == 0:
-            return np.zeros((0, 2))
-        xy = self._run(S, *self.zero_state(len(S)))[0].astype(float)
-        xy[~self.heard(S)] = np.nan
-        return xy
+        return self.predict_windows(self._check(S, "predict"))
 
     def step(self, S) -> np.ndarray:
         """One window (1, B, H) (or (B, H)) -> (1, 2) metres, continuing the state of the previous call.
