@@ -67,7 +67,7 @@ def test_step_vectors_average_a_scan_and_a_ble_window():
 def test_knn_finds_the_exact_neighbours(coded):
     train = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")]
     test = coded.session("mall_F1_walkC")
-    one = FingerprintLocalizer("KNN-1", k=1, hold_ends=False)
+    one = FingerprintLocalizer("KNN-1", k=1)
     rep = one.fit(train[:1])
     fl = rep["floors"]["mall/F1"]
     # scans at 0.5 .. 5.5 s; the one at 5.5 s lies after the last waypoint (5.01 s): dropped from training
@@ -78,13 +78,13 @@ def test_knn_finds_the_exact_neighbours(coded):
     want = np.stack([5.0 + 4.0 * (est.t[:5] - 0.01), np.full(5, 5.0)], -1)  # the train walk's labels
     np.testing.assert_allclose(est.position[0, :5], want, atol=1e-9)
     # k = 2 over two walks: the mean of the two identical fingerprints' positions (y = 5 and 7), their spread
-    two = FingerprintLocalizer("KNN-2", k=2, cov_floor_m=0.5, hold_ends=True)
+    two = FingerprintLocalizer("KNN-2", k=2, cov_floor_m=0.5)
     two.fit(train)
     est = two.run(test, 1, seed=0)
     inner = (est.t > 0.4) & (est.t < 4.6)
     np.testing.assert_allclose(est.position[0, inner, 1], 6.0, atol=1e-9)
     np.testing.assert_allclose(est.cov[0, inner], np.broadcast_to([[0.25, 0.0], [0.0, 1.25]], (5, 2, 2)), atol=1e-9)
-    assert est.t[0] == 0.0 and est.t[-1] > 5.5  # held to the session's start and its last sample
+    assert est.t[0] == 0.5 and est.t[-1] == 5.5  # the first and last scans: nothing padded to the session's ends
     with pytest.raises(MissingStream, match="no model for floor"):
         two.floors = {"other/F9": two.floors["mall/F1"]}
         two.run(test, 1, seed=0)
@@ -99,14 +99,15 @@ def test_fit_and_run_through_the_harness_with_a_split(tmp_path):
                   "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
                   "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
                   "methods.pf_ps_map_offset=null", "+split.train_fraction=0.6", "+split.seed=0",
-                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1", "methods.knn.label=KNN-WiFi")
+                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1", "methods.knn.label=KNN-WiFi",
+                  "scoring.hold_ends=true")
     res = evaluate(cfg)
     m = res["methods"]["KNN-WiFi"]
     assert len(res["split"]["train"]) == 2 and len(res["sessions"]) == 1
     tr = m["training"]
     assert "interpolated linearly between the surveyed waypoints" in tr["labels"]
     assert tr["floors"]["mall/F1"]["train_walks"] == 2
-    # waypoints at 0.01 / 2.51 / 5.01 s (x = 5, 15, 25 m): the first held from the scan at 0.5 s (x = 6.96),
+    # waypoints at 0.01 / 2.51 / 5.01 s (x = 5, 15, 25 m): the first held from the scan at 0.5 s (x = 6.96) at scoring,
     # the second exact, the third between the scans at 4.5 and 5.5 s, both found at x = 22.96 m (the last scan
     # repeats the code of the one before)
     assert m["error_m"]["mean"] == pytest.approx((1.96 + 0.0 + 2.04) / 3, abs=1e-6)
@@ -157,6 +158,8 @@ def test_real_walks_knn_wifi(raw_dir, tmp_path):
                 p.parent.mkdir(parents=True, exist_ok=True)
                 p.write_bytes(tf.extractfile(m).read())
                 n += m.name.endswith(".txt")
+    from blenav.eval.metrics import waypoint_metrics
+
     run_import("ilc20", root / "site1" / "F1", tmp_path / "ds")
     ss = list(Dataset.open(tmp_path / "ds").sessions(labelled=True))
     loc = FingerprintLocalizer("KNN-WiFi", features="wifi", k=3)
@@ -166,10 +169,29 @@ def test_real_walks_knn_wifi(raw_dir, tmp_path):
     for s in ss[8:]:
         est = loc.run(s, 1, seed=0)
         gt = s.groundtruth
-        assert est.t[0] <= gt["t"].iloc[0] and est.t[-1] >= gt["t"].iloc[-1]
+        # every waypoint scored when the experiment holds the ends at scoring (the estimates themselves are the scans')
+        m = waypoint_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), hold_ends=True)
+        assert m["waypoints"] == len(gt) and np.isfinite(m["error_m"]["mean"])
         # positions stay within the span of the train walks' waypoints (a mean of labels)
         lab = np.concatenate([t.groundtruth[["x", "y"]].to_numpy() for t in ss[:8]])
         assert (est.position[0] >= lab.min(axis=0) - 1e-9).all() and (est.position[0] <= lab.max(axis=0) + 1e-9).all()
+
+
+def test_fingerprint_fixes_are_the_scans_only(coded, tmp_path):
+    """FixProvider's fixes of a fingerprint localizer: one per scan with the KNN's own std, none invented at the
+    session's start or end (the estimates are not padded); roles sharing the localizer share one run."""
+    from blenav.eval.fixes import FixProvider
+
+    knn = FingerprintLocalizer("KNN-2", k=2, cov_floor_m=0.5)
+    knn.fit([coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")])
+    test = coded.session("mall_F1_walkC")
+    prov = FixProvider({"wifi": None, "again": None}, {"wifi": knn, "again": knn}, 4, tmp_path)
+    t, xy, sd, src = prov._fixes("wifi", test)
+    est = knn.run(test, 1, 0)
+    np.testing.assert_array_equal(t, est.t)
+    assert t[0] == 0.5 and t[-1] == 5.5 and src == "fix-wifi"
+    np.testing.assert_allclose(sd, est.std[0])
+    assert prov._fixes("again", test)[0] is t and len(prov.methods) == 1
 
 
 def test_fingerprint_fixes_through_the_fix_provider(tmp_path):
@@ -185,9 +207,10 @@ def test_fingerprint_fixes_through_the_fix_provider(tmp_path):
                   "methods.pf_ps_map_offset=null", "split={train_fraction: 0.6, seed: 0}",
                   "+localizer@methods.knn=fingerprint", "methods.knn.k=1",
                   "+localizer@methods.track=fix_track", "+fixes={dense: null}",
-                  "+fixes.compute={_target_: blenav.localizers.fingerprint.FingerprintLocalizer, k: 1}")
+                  "+fixes.compute={_target_: blenav.localizers.fingerprint.FingerprintLocalizer, k: 1}",
+                  "scoring.hold_ends=true")
     res = evaluate(cfg)
-    assert res["fixes"]["training"]["ps-dense"]["floors"]["mall/F1"]["train_walks"] == 2
+    assert res["fixes"]["training"]["fix-dense"]["floors"]["mall/F1"]["train_walks"] == 2
     track, knn = res["methods"]["track"]["error_m"], res["methods"]["KNN-WiFi"]["error_m"]
     assert track["mean"] == pytest.approx(knn["mean"], abs=1e-9) and track["mean"] == pytest.approx(4.0 / 3, abs=1e-6)
 

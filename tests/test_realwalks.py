@@ -119,22 +119,95 @@ def test_realwalks_contract_on_real_walks(raw_dir, tmp_path):
     assert "blenav-map" in str(res["methods"]["PF-PS+MAP"]["skipped"])
 
 
-def test_odometry_view_and_held_ends(tiny_dataset):
-    """with_odometry: the view reads the given odometry, the session keeps its own (none here) and shares the streams
-    read once; RealWalkPF holds its first / last estimate to the session's first / last sensor sample."""
+def test_odometry_argument_equals_an_odometry_csv(tiny_dataset):
+    """run_session(odometry=DF) gives exactly the numbers of the same session with DF as its odometry.csv (what the
+    removed session overlay did), and leaves the session untouched; RealWalkPF hands its PDR odometry over this way
+    and adds no estimate before the filter's first step or after its last (no padding)."""
+    import shutil
+
     from blenav.data import Dataset
-    from blenav.eval.realwalks import RealWalkPF, with_odometry
+    from blenav.eval.realwalks import RealWalkPF
     from blenav.localizers import RunContext
+    from blenav.filters.runner import run_session
+
+    odo = pd.DataFrame({"t": [0.0, 10.0, 19.0], "x": [0.0, 5.0, 9.0], "y": [0.0, 0.0, 1.0]})
+    copy = tiny_dataset.parent / "with_odo"
+    shutil.copytree(tiny_dataset, copy)
+    odo.to_csv(copy / "sessions" / "walk0" / "odometry.csv", index=False)
+    s = Dataset.open(tiny_dataset).session("walk0")
+    s2 = Dataset.open(copy).session("walk0")
+    pf = RealWalkPF("IO", None, motion={"_target_": "blenav.filters.motion.OdometryIncrement", "theta0": 0.0},
+                    map={"init": "groundtruth"}, filter={"n_particles": 50, "rate_hz": 1.0})
+    a = run_session(pf.method, s, 2, 0, odometry=odo)
+    b = run_session(pf.method, s2, 2, 0)
+    np.testing.assert_array_equal(a.t, b.t)
+    np.testing.assert_array_equal(a.position, b.position)
+    assert len(s.odometry) == 0  # the session keeps its own (none)
+    pdr = RealWalkPF("PDR-AHRS", None, motion={"_target_": "blenav.filters.motion.OdometryIncrement", "theta0": 0.0},
+                     map={"init": "groundtruth"}, filter={"n_particles": 50, "rate_hz": 1.0},
+                     odometry={"heading": "ahrs", "step_length": 0.7})
+    est = pdr.run(s, 2, 0, RunContext(cache={}))
+    t0 = min(float(s.imu["t"].min()), float(s.rssi["t"].min()) if len(s.rssi) else np.inf)
+    assert est.t[0] == pytest.approx(t0 + 1.0)  # the first filter step, not the session's first sample
+    assert np.isfinite(est.position).all() and any("PDR odometry" in n for n in est.notes)
+    with pytest.raises(ValueError, match="unknown key"):
+        RealWalkPF("x", None, motion={"_target_": "blenav.filters.motion.OdometryIncrement"},
+                   odometry={"heading": "ahrs", "rate_hz": 10})
+
+
+def test_ahrs_odometry_reads_the_pdr_rows_ahrs(tiny_dataset):
+    """The AHRS heading of the PDR odometry is the PDR motion model's: the same ("imu", ...) cache entry, computed
+    with the magnetometer's hard-iron offset (a sentinel in that entry is what pdr_odometry reads)."""
+    from blenav.data import Dataset
+    from blenav.eval.realwalks import pdr_odometry
+    from blenav.filters.attitude import AttitudeConfig, estimate_attitude
+    from blenav.filters.runner import hard_iron_offset
+    from blenav.filters.steps import SessionArrays
+    from blenav.eval.realwalks import _NO_ANCHORS
 
     s = Dataset.open(tiny_dataset).session("walk0")
-    odo = pd.DataFrame({"t": [0.0, 10.0, 19.0], "x": [0.0, 5.0, 9.0], "y": [0.0, 0.0, 1.0]})
-    v = with_odometry(s, odo)
-    assert v.odometry is odo and len(s.odometry) == 0
-    assert v.imu is s.imu  # read once, shared
-    pf = RealWalkPF("IO", None, motion={"_target_": "blenav.filters.motion.OdometryIncrement", "theta0": 0.0},
-                    map={"init": "groundtruth"}, filter={"n_particles": 50, "rate_hz": 1.0},
-                    odometry={"heading": "ahrs", "step_length": 0.7})
-    est = pf.run(s, 2, 0, RunContext())
-    assert est.t[0] == pytest.approx(float(s.imu["t"].min())) and est.t[-1] == pytest.approx(float(s.imu["t"].max()))
-    np.testing.assert_array_equal(est.position[:, 0], est.position[:, 1])  # the first estimate held
-    assert np.isfinite(est.position).all() and any("PDR odometry" in n for n in est.notes)
+    att, steps = AttitudeConfig(), StepDetectorConfig()
+    cache: dict = {}
+    pdr_odometry(s, "ahrs", 0.7, att, steps, cache)
+    key = ("imu", s.id, repr(att), repr(steps))
+    assert key in cache
+    a = SessionArrays.from_session(s, _NO_ANCHORS)
+    off = hard_iron_offset(a, att)
+    want = estimate_attitude(a.imu_t, a.acc, a.gyr, a.mag_t, a.mag, att, mag_offset=off)
+    np.testing.assert_allclose(cache[key][0], want)
+    q = np.tile([np.cos(-np.pi / 4), 0.0, 0.0, np.sin(-np.pi / 4)], (len(a.imu_t), 1))  # heading +x
+    cache2 = {key: (q, cache[key][1])}
+    df = pdr_odometry(s, "ahrs", 0.7, att, steps, cache2)
+    if len(df) > 2 and df["x"].iloc[-1] > 0:
+        np.testing.assert_allclose(df["y"], 0.0, atol=1e-9)  # the sentinel's heading (east), not a recomputed one
+
+
+def test_waypoint_scoring_holds_the_ends_only_when_asked():
+    """waypoint_metrics(hold_ends): waypoints before the first / after the last estimate are scored against it;
+    without it they are not scored. The estimates themselves are not changed."""
+    from blenav.eval.metrics import waypoint_metrics
+
+    t = np.array([2.0, 4.0])
+    pos = np.array([[[0.0, 0.0], [2.0, 0.0]]])
+    gt_t = np.array([0.0, 3.0, 6.0])
+    gt = np.array([[0.0, 1.0], [1.0, 0.0], [2.0, 2.0]])
+    m = waypoint_metrics(t, pos, gt_t, gt)
+    assert m["waypoints"] == 1 and m["error_m"]["mean"] == pytest.approx(0.0)
+    h = waypoint_metrics(t, pos, gt_t, gt, hold_ends=True)
+    assert h["waypoints"] == 3 and h["error_m"]["mean"] == pytest.approx((1.0 + 0.0 + 2.0) / 3)
+    assert pos.shape == (1, 2, 2)
+
+
+def test_one_fix_localizer_per_node_shared_with_its_row(tmp_path):
+    """fixes.compute per role: roles with equal nodes share one localizer, and a node equal to a methods row is that
+    row's own localizer (trained once by the harness, not a second copy)."""
+    from blenav.eval.harness import build_fix_provider, build_methods
+
+    cfg = _cfg("experiment=realwalks", f"data={tmp_path}", "+fixes.again=null",
+               '+fixes.compute.again="${methods.knn_wifi}"')
+    methods = build_methods(cfg)
+    prov = build_fix_provider(cfg, methods, tmp_path)
+    loc = prov.localizers
+    assert loc["wifi"] is methods["KNN-WiFi"] and loc["again"] is loc["wifi"]
+    assert loc["ble"] is methods["KNN-BLE"] and loc["both"] is methods["KNN-WiFi+BLE"]
+    assert len(prov.methods) == 3  # each localizer once

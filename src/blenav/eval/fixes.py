@@ -17,6 +17,19 @@ computed from its rssi.csv*:
 * the filter's estimates are taken at ``fixes.rate_hz`` (1 Hz: at t_start + 1 s, + 2 s, ...), source names
   ``ps-dense`` and ``ps-sparse<k>``.
 
+Other roles and other fix localizers. A role may have any name (e.g. ``wifi``); only ``sparse`` means a beacon
+subset. ``fixes.compute`` is one localizer config node for every role, or a mapping role -> node. Roles whose
+nodes are equal share ONE localizer (built once; trained once by the harness when it is
+:class:`~blenav.localizers.Trained`), and a node equal to one of the experiment's ``methods`` rows is that row's
+own localizer (e.g. ``compute: {wifi: ${methods.knn_wifi}}``: the KNN-WiFi row's KNN, trained once, gives the
+``wifi`` fixes). A localizer that is not a BLE particle filter (e.g. a trained
+:class:`~blenav.localizers.fingerprint.FingerprintLocalizer`) gives its estimates of one run at its own times
+(fingerprinting: one per scan, nothing added before the first or after the last), with their standard
+deviation (``std``: the root of the mean of the covariance's diagonal, which a fix likelihood with
+``use_std: true`` uses), source ``fix-<role>``; for ``sparse`` it hears only the chosen beacons (its
+``beacons`` attribute, set per session; a localizer without one cannot give sparse fixes). These fixes are kept
+in memory (a trained model is not a cache key).
+
 Computed fixes are cached in the evaluation's output folder (``OUT/fixes/<session>/<source>.csv`` with
 a key of the session's rssi.csv, the beacons, the localizer's settings and the seed), never written into
 the dataset unless ``fixes.write: true`` (then with :func:`blenav.data.writer.write_fixes`, which replaces
@@ -42,7 +55,7 @@ from blenav.localizers import ParticleFilterLocalizer
 
 log = logging.getLogger("blenav.eval.fixes")
 
-ROLES = ("dense", "sparse")
+ROLES = ("dense", "sparse")  #: the roles of Roy's Table 3.7 (any other name is allowed; only sparse picks beacons)
 
 
 def ble_fixes(method: Method, session, seed: int, rate_hz: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -59,16 +72,17 @@ def ble_fixes(method: Method, session, seed: int, rate_hz: float = 1.0) -> tuple
 class FixProvider:
     """Per session and role, the fixes an experiment uses (named source, or computed and cached).
 
-    ``roles``: role -> named ``fixes.csv`` source or None; ``localizers``: role -> the BLE-only
-    :class:`~blenav.localizers.ParticleFilterLocalizer` that computes fixes (the ``beacons`` of its method
-    are set per building for ``sparse``);
+    ``roles``: role -> named ``fixes.csv`` source or None; ``localizers``: role -> the localizer that computes
+    the role's fixes (several roles may share one instance): a BLE-only
+    :class:`~blenav.localizers.ParticleFilterLocalizer` (the ``beacons`` of its method are set per building for
+    ``sparse``) or any other localizer (module doc);
     ``sparse_beacons``: k or a list of anchor ids; ``out``: the evaluation folder (cache)."""
 
     def __init__(self, roles: dict, localizers: dict, sparse_beacons, out: Path, seed: int = 0,
                  rate_hz: float = 1.0, write: bool = False):
-        unknown = set(roles) - set(ROLES)
-        if unknown:
-            raise ValueError(f"fixes roles must be among {ROLES}, got {sorted(unknown)}")
+        missing = set(localizers) - set(roles)
+        if missing:
+            raise ValueError(f"fixes.compute names role(s) {sorted(missing)} that the fixes block does not define")
         self.roles = {r: (None if v is None else str(v).strip()) for r, v in roles.items()}
         self.localizers = localizers
         self.sparse_beacons = sparse_beacons
@@ -84,14 +98,20 @@ class FixProvider:
 
     @property
     def methods(self) -> dict:
-        """The localizers, keyed by their computed source name (for the harness's path-loss calibration)."""
-        return {self.computed_source(r): m for r, m in self.localizers.items()}
+        """The distinct localizers, each once, keyed by the computed source name of the first role that uses it (for
+        the harness's path-loss calibration and training)."""
+        out: dict = {}
+        for r, m in self.localizers.items():
+            if all(m is not o for o in out.values()):
+                out[self.computed_source(r)] = m
+        return out
 
     def computed_source(self, role: str) -> str:
+        prefix = "ps" if self._ble_filter(role) else "fix"
         if role == "sparse":
             k = len(self.sparse_beacons) if not isinstance(self.sparse_beacons, int) else int(self.sparse_beacons)
-            return f"ps-sparse{k}"
-        return f"ps-{role}"
+            return f"{prefix}-sparse{k}"
+        return f"{prefix}-{role}"
 
     def beacons_for(self, role: str, session) -> tuple | None:
         if role != "sparse":
@@ -105,6 +125,11 @@ class FixProvider:
     def fixes_for(self, role: str, session) -> tuple[np.ndarray, np.ndarray, str]:
         """(t (F,), xy (F, 2), source) of ``role`` for ``session``: the named source's rows when the session
         has them, else computed from rssi.csv (cached); :class:`MissingStream` when neither is possible."""
+        t, xy, _, src = self._fixes(role, session)
+        return t, xy, src
+
+    def _fixes(self, role: str, session) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+        """:meth:`fixes_for` with the fixes' std (F,) m (NaN where the source gives none)."""
         if role not in self.roles:
             raise ValueError(f"unknown fixes role {role!r}; the experiment defines {sorted(self.roles)}")
         key = (role, session.id)
@@ -117,7 +142,8 @@ class FixProvider:
             if sel.any():
                 rows = fx[sel]
                 self.used[role][session.id] = f"fixes.csv source {named!r}"
-                self._mem[key] = (rows["t"].to_numpy(float), rows[["x", "y"]].to_numpy(float), named)
+                self._mem[key] = (rows["t"].to_numpy(float), rows[["x", "y"]].to_numpy(float),
+                                  rows["std"].to_numpy(float), named)
                 return self._mem[key]
         if role not in self.localizers:
             raise MissingStream(f"session {session.id} has no fixes of source {named!r} and no localizer is "
@@ -126,12 +152,16 @@ class FixProvider:
         pf = self._ble_filter(role)
         if pf and not len(session.rssi):  # other localizers check their own streams
             raise MissingStream(f"session {session.id}: {why} and no rssi.csv to compute {role} BLE fixes from")
-        t, xy = self._compute(role, session) if pf else self._compute_any(role, session)
+        if pf:
+            t, xy = self._compute(role, session)
+            sd = np.full(len(t), np.nan)
+        else:
+            t, xy, sd = self._compute_any(role, session)
         src = self.computed_source(role)
         self._computed.add(key)
         by = "from rssi.csv" if pf else f"by {self.localizers[role].name}"
         self.used[role][session.id] = f"computed {by} as {src!r} ({why})"
-        self._mem[key] = (t, xy, src)
+        self._mem[key] = (t, xy, sd, src)
         return self._mem[key]
 
     def _ble_filter(self, role: str) -> bool:
@@ -178,37 +208,59 @@ class FixProvider:
             log.warning("wrote %d %s fixes into %s/fixes.csv (fixes.write = true)", len(t), src, session.root)
         return t, xy
 
-    def _compute_any(self, role: str, session) -> tuple[np.ndarray, np.ndarray]:
-        """Fixes of a localizer that is not a BLE particle filter (e.g. a trained
-        :class:`~blenav.localizers.fingerprint.FingerprintLocalizer`): its estimates of one run, at its own times
-        (fingerprinting: one per scan), not resampled to ``rate_hz``; kept in memory only (a trained model is
-        not a cache key)."""
+    def _compute_any(self, role: str, session) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fixes (t (F,) s, xy (F, 2) m, std (F,) m) of a localizer that is not a BLE particle filter (e.g. a trained
+        :class:`~blenav.localizers.fingerprint.FingerprintLocalizer`): its finite estimates of one run, at its own
+        times (fingerprinting: one per scan), not resampled to ``rate_hz``; std from its covariance (NaN without
+        one). ``sparse``: the localizer hears only :meth:`beacons_for` (its ``beacons`` attribute, restored after).
+        One run per (localizer, beacons, session), shared by the roles that ask the same; kept in memory only."""
         loc = self.localizers[role]
-        seed = self.seed * 1_000_003 + zlib.crc32(f"{session.id}/{role}".encode())
-        t0 = time.perf_counter()
-        est = loc.run(session, 1, seed)
-        self.compute_s[(role, session.id)] = time.perf_counter() - t0
-        return est.t.copy(), est.position[0].copy()
+        beacons = self.beacons_for(role, session)
+        if beacons is not None and not hasattr(loc, "beacons"):
+            raise ValueError(f"fixes.{role}: {loc.name} cannot be limited to the sparse beacon subset (no 'beacons')")
+        key = ("run", id(loc), beacons, session.id)
+        if key not in self._mem:
+            seed = self.seed * 1_000_003 + zlib.crc32(f"{session.id}/{loc.name}".encode())
+            t0 = time.perf_counter()
+            if beacons is not None:
+                self.beacon_ids[str(session.building.id)] = list(beacons)
+                old, loc.beacons = loc.beacons, beacons
+            try:
+                est = loc.run(session, 1, seed)
+            finally:
+                if beacons is not None:
+                    loc.beacons = old
+            self.compute_s[(role, session.id)] = time.perf_counter() - t0
+            xy = est.position[0]
+            sd = est.std[0] if est.cov is not None else np.full(len(est.t), np.nan)
+            ok = np.isfinite(xy).all(axis=1)
+            if not ok.any():
+                raise MissingStream(f"{loc.name} gave no position on session {session.id} for the {role} fixes")
+            self._mem[key] = (est.t[ok].copy(), xy[ok].copy(), sd[ok].copy())
+        return self._mem[key]
 
     # ------------------------------------------------------------------ per method
     def prepare(self, method: Method, session) -> pd.DataFrame | None:
         """Point every fix likelihood of ``method`` that has a ``role`` at that role's fixes for ``session``
         (sets its ``source``); returns the computed fixes to add in memory (None when all are named
         sources of the session's fixes.csv)."""
-        extra = []
+        extra, added = [], set()
         for m in method.measurements:
             role = m.role if isinstance(m, FixLikelihood) else None
             if role is None:
                 continue
-            t, xy, src = self.fixes_for(role, session)
+            t, xy, sd, src = self._fixes(role, session)
             m.source = src
-            if (role, session.id) in self._computed:  # not in the session's fixes.csv: add in memory
-                extra.append(pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1], "std": np.nan, "source": src}))
+            if (role, session.id) in self._computed and src not in added:
+                # not in the session's fixes.csv: add in memory (once per source)
+                added.add(src)
+                extra.append(pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1], "std": sd, "source": src}))
         return pd.concat(extra, ignore_index=True) if extra else None
 
     def describe(self) -> dict:
         """For results.json: role -> {session: what was used}, plus the sparse beacons chosen per building."""
         sb = self.sparse_beacons
         return {"roles": dict(self.roles), "used": self.used,
+                "localizers": {r: m.name for r, m in self.localizers.items()},
                 "sparse_beacons": f"{sb} covering the floor (greedy k-median)" if isinstance(sb, int) else list(sb),
                 "sparse_beacon_ids": self.beacon_ids}

@@ -39,6 +39,7 @@ All methods are built (and so checked) before the first run: a misconfigured met
 
 from __future__ import annotations
 
+import json
 import logging
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -127,20 +128,12 @@ def build_fix_provider(cfg: DictConfig, methods: dict[str, Localizer], out: Path
     fx = cfg.get("fixes")
     if fx is None:
         return None
-    roles = {r: fx.get(r) for r in ("dense", "sparse") if r in fx}
+    roles = {r: fx.get(r) for r in fx if r not in FIXES_OPTIONS}
     used = set().union(*[m.fix_roles() for m in methods.values() if isinstance(m, FixConsumer)])
     missing = used - set(roles)
     if missing:
         raise EvalError(f"methods use fix role(s) {sorted(missing)} that the experiment's fixes block does not define")
-    localizers = {}
-    if fx.get("compute") is not None:
-        shared = shared_settings(cfg)
-        for r in roles:
-            label = f"BLE fixes ({r})"
-            try:
-                localizers[r] = build_localizer(label, fx.compute, shared)
-            except Exception as exc:
-                raise EvalError(f"fixes.compute: {exc}") from exc
+    localizers = fix_localizers(cfg, roles, methods)
     sb = fx.get("sparse_beacons", 4)
     sb = int(sb) if isinstance(sb, (int, float)) else [str(b) for b in sb]
     try:
@@ -148,6 +141,39 @@ def build_fix_provider(cfg: DictConfig, methods: dict[str, Localizer], out: Path
                            write=bool(fx.get("write", False)))
     except ValueError as exc:
         raise EvalError(str(exc)) from exc
+
+
+#: the keys of an experiment's ``fixes`` block that are not roles
+FIXES_OPTIONS = ("compute", "sparse_beacons", "rate_hz", "write")
+
+
+def fix_localizers(cfg: DictConfig, roles: dict, methods: dict[str, Localizer]) -> dict[str, Localizer]:
+    """role -> the localizer computing its fixes (:mod:`blenav.eval.fixes`): ``fixes.compute`` is one node for every
+    role or ``{role: node}``; roles with equal nodes share one instance, and a node equal to a ``methods`` row is that
+    row's localizer (so ``${methods.knn_wifi}`` is trained and kept once, not twice)."""
+    comp = cfg.fixes.get("compute")
+    if comp is None:
+        return {}
+    per_role = "_target_" not in comp
+    if per_role and set(comp) - set(roles):
+        raise EvalError(f"fixes.compute names role(s) {sorted(set(comp) - set(roles))} that the fixes block does "
+                        f"not define (roles: {sorted(roles)})")
+    as_key = lambda node: json.dumps(OmegaConf.to_container(node, resolve=True), sort_keys=True, default=str)
+    by_node = {as_key(node): methods[str(node.get("label", k))] for k, node in (cfg.methods or {}).items()
+               if node is not None and str(node.get("label", k)) in methods}
+    shared, out = shared_settings(cfg), {}
+    for r in roles:
+        node = comp.get(r) if per_role else comp
+        if node is None:
+            continue
+        key = as_key(node)
+        if key not in by_node:
+            try:
+                by_node[key] = build_localizer(f"BLE fixes ({r})" if not per_role else f"fixes ({r})", node, shared)
+            except Exception as exc:
+                raise EvalError(f"fixes.compute: {exc}") from exc
+        out[r] = by_node[key]
+    return out
 
 
 # ------------------------------------------------------------------------------------------ select
@@ -359,10 +385,12 @@ def session_seed(seed: int, index: int) -> int:
 
 
 def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: int, init_s: float, ctx: RunContext,
-               progress, beacon_map: BM.BeaconMapConfig | None = None) -> MethodOutcome:
+               progress, beacon_map: BM.BeaconMapConfig | None = None, hold_ends: bool = False) -> MethodOutcome:
     """``method`` on every session (R runs each), scored against the ground truth; sessions where it cannot
     run (:class:`MissingStream`) are skipped with the reason, other errors name the method and session.
-    ``beacon_map`` with ``noise_m > 0``: every run on its own perturbed map (:mod:`blenav.eval.beacon_map`)."""
+    ``beacon_map`` with ``noise_m > 0``: every run on its own perturbed map (:mod:`blenav.eval.beacon_map`).
+    ``hold_ends`` (the experiment's ``scoring.hold_ends``): waypoints outside an estimate's span are scored against
+    its first / last estimate (:func:`~blenav.eval.metrics.waypoint_metrics`)."""
     oc = MethodOutcome()
     for si, s in enumerate(sessions):
         try:
@@ -381,7 +409,7 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
         gt = s.groundtruth
         try:
             if s.groundtruth_sparse:  # sparse surveyed waypoints: the estimate interpolated at each waypoint time
-                m = waypoint_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy())
+                m = waypoint_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), hold_ends)
             else:
                 m = session_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), init_s)
         except ValueError as exc:  # e.g. ground truth of one row, or all at one time: name the file
@@ -472,7 +500,8 @@ def evaluate(cfg: DictConfig) -> dict:
     train, sessions = train_test(cfg, ds, sessions)
     sessions, bmap_info = BM.with_source(sessions, bmap)
     provider = build_fix_provider(cfg, methods, out)
-    every = {**methods, **(provider.methods if provider else {})}  # the fix localizers are calibrated and trained too
+    own = {k: m for k, m in (provider.methods if provider else {}).items() if all(m is not x for x in methods.values())}
+    every = {**methods, **own}  # the fix localizers are calibrated and trained too (a row's own one: once)
     calibration = calibrate(every, ds, sessions, cal_spec)
     out.mkdir(parents=True, exist_ok=True)
     ctx = RunContext(cache={}, fixes=provider, out=out)  # map geometry per floor, AHRS per session: shared
@@ -495,7 +524,8 @@ def evaluate(cfg: DictConfig) -> dict:
     with _Progress(bool(cfg.get("progress", False)), len(methods) * len(sessions)) as progress:
         for name, method in methods.items():
             with PeakMemory(cfg.get("peak_memory", "none")) as mem:  # blenav.eval.leaderboard: rss | tracemalloc | none
-                oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress, bmap)
+                oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress, bmap,
+                                hold_ends=bool((cfg.get("scoring") or {}).get("hold_ends", False)))
             results["methods"][name] = aggregate(oc, runs)
             if mem.result() is not None and oc.metrics:
                 results["methods"][name]["peak_memory"] = mem.result()

@@ -8,7 +8,11 @@ Per run: RMSE over the tracking period; ATE is that RMSE (Roy's absolute traject
 estimates being in the world frame no alignment is applied); EE is the error at the last scored step.
 Sparse ground truth (surveyed waypoints, ``groundtruth_kind: waypoints``): the estimate is interpolated
 at each waypoint time instead (:func:`waypoint_metrics`); waypoints outside the estimate's time span are
-not scored, and no position between waypoints is invented.
+not scored, and no position between waypoints is invented. With ``hold_ends`` (the experiment's
+``scoring.hold_ends``) they are scored against the first / last estimate held (zero-order hold), so that a
+method whose first estimate comes after the walk's first waypoint (a fingerprint waiting for its first scan, a
+filter's first step) is charged for every waypoint instead of skipping the early ones; the hold is applied
+here, at scoring only: the estimates themselves (and fixes made from them) never contain the held values.
 
 Across runs: mean, standard deviation, standard error and a 99 % confidence interval of the mean
 (normal approximation, mean +- 2.576 stderr), and pooled error percentiles.
@@ -70,24 +74,28 @@ def _scored(err: np.ndarray, tt: np.ndarray, track: np.ndarray) -> dict:
     }
 
 
-def errors_at_waypoints(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def errors_at_waypoints(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray,
+                        hold_ends: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Errors (R, W') of the estimate (R, K, 2), linearly interpolated at the W' waypoint times inside its
-    span [t[0], t[-1]], against the waypoints (W, 2); and those times (W',)."""
-    inside = (gt_t >= t[0]) & (gt_t <= t[-1])
+    span [t[0], t[-1]], against the waypoints (W, 2); and those times (W',). ``hold_ends``: every waypoint
+    (W' = W), those before t[0] / after t[-1] against the first / last estimate."""
+    inside = np.ones(len(gt_t), bool) if hold_ends and len(t) else (gt_t >= t[0]) & (gt_t <= t[-1])
     tw = gt_t[inside]
     ix = np.clip(np.searchsorted(t, tw, side="right") - 1, 0, max(len(t) - 2, 0))
     if len(t) > 1:
-        w = np.clip((tw - t[ix]) / np.maximum(t[ix + 1] - t[ix], 1e-12), 0.0, 1.0)
+        w = np.clip((tw - t[ix]) / np.maximum(t[ix + 1] - t[ix], 1e-12), 0.0, 1.0)  # clipped: ends held
         est = pos[:, ix] * (1.0 - w)[None, :, None] + pos[:, ix + 1] * w[None, :, None]
     else:
         est = pos[:, ix]
     return np.linalg.norm(est - gt_xy[inside][None], axis=-1), tw
 
 
-def waypoint_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray) -> dict:
+def waypoint_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray,
+                     hold_ends: bool = False) -> dict:
     """:func:`session_metrics` for sparse ground truth: every waypoint inside the estimate's span is scored
-    (a walk starts at its first waypoint: there is no separate initialisation period)."""
-    err, tw = errors_at_waypoints(t, pos, gt_t, gt_xy)
+    (a walk starts at its first waypoint: there is no separate initialisation period); ``hold_ends``: every
+    waypoint, those outside the span against the first / last estimate (module doc)."""
+    err, tw = errors_at_waypoints(t, pos, gt_t, gt_xy, hold_ends)
     if err.shape[1] == 0:
         raise ValueError("no waypoint falls inside the estimate's time span")
     return {**_scored(err, tw, np.ones(len(tw), bool)), "waypoints": int(err.shape[1])}

@@ -2,33 +2,26 @@
 the fixes of a fingerprint localizer trained on the dataset's own train walks.
 
 :class:`RealWalkPF` is a :class:`~blenav.localizers.ParticleFilterLocalizer` (the same config node: ``motion``,
-``measurements``, ``map``, ``filter``, ...) with two additions for walks that have no ``odometry.csv`` and no
-``fixes.csv``:
+``measurements``, ``map``, ``filter``, ...) with one addition for walks that have no ``odometry.csv``:
 
 ``odometry`` (optional)
-    ``{heading: orientation | ahrs, step_length: 0.7 | null, declination_deg: 0, rate_hz: 10}``: the
-    session gets, in memory, a PDR odometry track (:func:`blenav.filters.motion_pdr.pdr_track`: detected
-    steps along the phone's heading, world-aligned because the heading is magnetic-north referenced and
-    the floor frame is east/north) in place of ``odometry.csv``, so that Roy's odometry increment (eq. 3.7)
-    and the learned map prior (eq. 3.8), which read odometry, run on a phone walk. ``heading:
-    orientation`` uses the phone's rotation vector (``orientation.csv``; the walk is skipped with the
-    reason when it has none), ``ahrs`` blenav's Madgwick AHRS with magnetometer. ``step_length: null``
-    fits one step length on the train walks (:meth:`fit`: the surveyed path length between their first
-    and last waypoints over the steps detected there; 0.7 m until fitted / without train walks).
-``fixes_from`` (optional)
-    The config node of another localizer (e.g. ``blenav.localizers.fingerprint.FingerprintLocalizer``,
-    KNN on WiFi scans): it is trained on the train walks when it is :class:`~blenav.localizers.Trained`
-    (once per distinct node, shared by every row naming the same node through the run context's cache),
-    run once per session (run 0, seed fixed per session), and its estimates, taken every
-    ``fixes_rate_hz`` (default: every estimate), become position fixes of source ``fixes_source`` (default
-    ``fp``) for the filter's :class:`~blenav.filters.measurement.FixLikelihood` (Roy eq. 3.9). With
-    ``map.init: fix`` the filter starts around the first of them (no ground truth used). ``fixes_std: true`` gives each
-    fix the localizer's own standard deviation (:attr:`Estimate.std`, e.g. the KNN neighbours' spread), which a
-    fix likelihood with ``use_std: true`` uses instead of its fixed sigma.
+    ``{heading: orientation | ahrs, step_length: 0.7 | null}``: the filter runs on a PDR odometry track
+    (:func:`blenav.filters.motion_pdr.pdr_track`: detected steps along the phone's heading, world-aligned
+    because the heading is magnetic-north referenced and the floor frame is east/north), handed to
+    :func:`~blenav.filters.runner.run_session` as ``odometry=`` in place of ``odometry.csv``, so that Roy's
+    odometry increment (eq. 3.7) and the learned map prior (eq. 3.8), which read odometry, run on a phone walk.
+    ``heading: orientation`` uses the phone's rotation vector (``orientation.csv``; the walk is skipped with the
+    reason when it has none), ``ahrs`` blenav's Madgwick AHRS with magnetometer (the same AHRS, hard-iron offset
+    and cache entry as the filters' PDR motion model: :func:`blenav.filters.runner.session_imu`). ``step_length:
+    null`` fits one step length on the train walks (:meth:`fit`: the surveyed path length between their first and
+    last waypoints over the steps detected there; 0.7 m until fitted / without train walks).
 
-``hold_ends`` (default true): the first and last estimates are held to the session's first and last sensor sample
-(IMU, RSSI, WiFi), so that a walk shorter than two filter steps still has an estimate at every waypoint (as
-the fingerprint localizers' ``hold_ends``).
+Fixes come through the experiment's ``fixes`` block like every other fused filter (:mod:`blenav.eval.fixes`: a role
+per fix set, its ``compute`` node, e.g. ``${methods.knn_wifi}``, the KNN-WiFi row's own trained localizer; a fix
+likelihood with ``role:`` reads it; ``use_std: true`` weighs each fix by the localizer's own std). With ``map.init:
+fix`` the filter starts around the first fix (no ground truth used). Estimates are the filter's own (no padding to
+the session's ends); waypoints outside them are scored with the experiment's ``scoring.hold_ends``
+(:func:`blenav.eval.metrics.waypoint_metrics`).
 
 Everything else is the particle filter's: ``map.init: groundtruth`` starts at the first surveyed waypoint
 (the ground truth interpolated at the session start, i.e. the first waypoint when the walk starts there).
@@ -37,28 +30,29 @@ Everything else is the particle filter's: ``map.init: groundtruth`` starts at th
 from __future__ import annotations
 
 import logging
-import zlib
 
 import numpy as np
 import pandas as pd
 
-from blenav.filters.attitude import AttitudeConfig, estimate_attitude
+from blenav.filters.attitude import AttitudeConfig
+from blenav.filters.measurement import AnchorTable
 from blenav.filters.motion_pdr import pdr_track
-from blenav.filters.runner import MissingStream, run_session
-from blenav.filters.steps import StepDetectorConfig, detect_steps
-from blenav.localizers.base import Estimate, RunContext, Trained, build_localizer
+from blenav.filters.runner import MissingStream, session_imu
+from blenav.filters.steps import SessionArrays, StepDetectorConfig, detect_steps
+from blenav.localizers.base import Estimate, RunContext, Trained
 from blenav.localizers.particle import ParticleFilterLocalizer
 
 log = logging.getLogger("blenav.eval.realwalks")
 
-__all__ = ["RealWalkPF", "pdr_odometry", "with_odometry", "fit_step_length", "train_ids", "floor_table", "verdicts",
-           "summary_table"]
+__all__ = ["RealWalkPF", "pdr_odometry", "fit_step_length", "train_ids", "floor_table", "verdicts", "summary_table"]
 
 HEADINGS = ("orientation", "ahrs")
 DEFAULT_STEP_M = 0.7
+_NO_ANCHORS = AnchorTable(np.zeros(0, str), np.zeros((0, 3)), np.zeros(0))
 
 
-def _orientation_track(session, heading: str, att: AttitudeConfig) -> tuple[np.ndarray, np.ndarray]:
+def _orientation_track(session, heading: str, att: AttitudeConfig, steps: StepDetectorConfig,
+                       cache: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """(q_t (Q,) s, q (Q, 4) w, x, y, z): the device->world orientation the PDR heading comes from."""
     if heading == "orientation":
         o = session.orientation if (session.root / "orientation.csv").is_file() else None
@@ -66,70 +60,32 @@ def _orientation_track(session, heading: str, att: AttitudeConfig) -> tuple[np.n
             raise MissingStream(f"session {session.id} has no orientation.csv (the phone's rotation vector), which "
                                 f"the PDR heading 'orientation' needs")
         return o["t"].to_numpy(float), o[["qw", "qx", "qy", "qz"]].to_numpy(float)
-    imu, mag = session.imu, session.mag
-    q = estimate_attitude(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float),
-                          imu[["gx", "gy", "gz"]].to_numpy(float), mag["t"].to_numpy(float) if len(mag) else None,
-                          mag[["mx", "my", "mz"]].to_numpy(float) if len(mag) else None, att)
-    return imu["t"].to_numpy(float), q
+    arrays = SessionArrays.from_session(session, _NO_ANCHORS)
+    q, _ = session_imu(session.id, arrays, att, steps, cache)  # the PDR motion model's AHRS (hard-iron removed)
+    return arrays.imu_t, q
 
 
 def pdr_odometry(session, heading: str = "orientation", step_length: float = DEFAULT_STEP_M,
-                 declination_deg: float = 0.0, rate_hz: float = 10.0, att: AttitudeConfig | None = None,
-                 steps: StepDetectorConfig | None = None, cache: dict | None = None) -> pd.DataFrame:
+                 att: AttitudeConfig | None = None, steps: StepDetectorConfig | None = None,
+                 cache: dict | None = None) -> pd.DataFrame:
     """The session's PDR odometry (DataFrame t, x, y: s, world-aligned m from 0), as ``odometry.csv`` holds it.
 
-    ``declination_deg``: added to the heading (magnetic north east of the floor's +y axis). Raises
-    :class:`MissingStream` without IMU data or (``heading='orientation'``) without orientation.csv."""
+    Raises :class:`MissingStream` without IMU data or (``heading='orientation'``) without orientation.csv."""
     if heading not in HEADINGS:
         raise ValueError(f"odometry.heading must be one of {HEADINGS}, got {heading!r}")
-    key = ("rw-pdr", session.id, heading, float(step_length), float(declination_deg), float(rate_hz), repr(att),
-           repr(steps))
+    att, steps = att or AttitudeConfig(), steps or StepDetectorConfig()
+    key = ("rw-pdr", session.id, heading, float(step_length), repr(att), repr(steps))
     if cache is not None and key in cache:
         return cache[key]
     imu = session.imu
     if len(imu) < 2:
         raise MissingStream(f"session {session.id} has no IMU data, which the PDR odometry needs")
-    q_t, q = _orientation_track(session, heading, att or AttitudeConfig())
-    t, xy = pdr_track(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), q_t, q, step_length, steps,
-                      rate_hz, np.radians(declination_deg))
+    q_t, q = _orientation_track(session, heading, att, steps, cache)
+    t, xy = pdr_track(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), q_t, q, step_length, steps)
     df = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1]})
     if cache is not None:
         cache[key] = df
     return df
-
-
-def with_odometry(session, odometry: pd.DataFrame):
-    """A view of ``session`` whose ``odometry`` stream is ``odometry`` (t, x, y), the other streams shared (read
-    once); the dataset is not touched."""
-    from dataclasses import replace
-
-    view = replace(session)
-    streams = session.__dict__.setdefault("_streams", {})
-    view.__dict__["_streams"] = _Overlay(streams, {"odometry": odometry})
-    view.__dict__["_dropped"] = session.__dict__.setdefault("_dropped", {})
-    if "_home" in session.__dict__:
-        view.__dict__["_home"] = session.__dict__["_home"]
-    return view
-
-
-class _Overlay(dict):
-    """A stream cache that answers some streams from ``fixed`` and stores the others in the original ``base``
-    (so that a view reads each file once, as the session does)."""
-
-    def __init__(self, base: dict, fixed: dict):
-        super().__init__(fixed)
-        self.base = base
-
-    def __contains__(self, k):
-        return dict.__contains__(self, k) or k in self.base
-
-    def __getitem__(self, k):
-        return dict.__getitem__(self, k) if dict.__contains__(self, k) else self.base[k]
-
-    def __setitem__(self, k, v):
-        if dict.__contains__(self, k):
-            return
-        self.base[k] = v
 
 
 def fit_step_length(sessions: list, steps: StepDetectorConfig | None = None) -> dict:
@@ -157,118 +113,49 @@ def fit_step_length(sessions: list, steps: StepDetectorConfig | None = None) -> 
 
 
 class RealWalkPF(ParticleFilterLocalizer, Trained):
-    """A particle filter on real walks: PDR odometry in memory and fixes from a trained localizer (module doc)."""
+    """A particle filter on real walks: PDR odometry computed from the IMU (module doc)."""
 
-    def __init__(self, name: str, shared=None, odometry=None, fixes_from=None, fixes_source: str = "fp",
-                 fixes_rate_hz: float | None = None, fixes_std: bool = False, hold_ends: bool = True, **pf):
+    def __init__(self, name: str, shared=None, odometry=None, **pf):
         super().__init__(name, shared, **pf)
-        self.hold_ends = bool(hold_ends)
         odo = dict(odometry or {})
-        unknown = set(odo) - {"heading", "step_length", "declination_deg", "rate_hz"}
+        unknown = set(odo) - {"heading", "step_length"}
         if unknown:
             raise ValueError(f"method {name!r}, odometry: unknown key(s) {sorted(unknown)}; known: heading, "
-                             f"step_length, declination_deg, rate_hz")
+                             f"step_length")
         self.odometry = odo if odometry is not None else None
         if self.odometry is not None and self.odometry.get("heading", "orientation") not in HEADINGS:
             raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS}, got "
                              f"{self.odometry['heading']!r}")
         self.step_length = odo.get("step_length", DEFAULT_STEP_M)
         self.fitted_step: float | None = None
-        self.fixes_node = fixes_from
-        self.fixes_source = str(fixes_source)
-        self.fixes_rate_hz = fixes_rate_hz
-        self.fixes_std = bool(fixes_std)
-        self.fixes_loc = None
-        self._fixes_key = None
-        if fixes_from is not None:
-            import json
 
-            self._fixes_key = ("rw-fixes-localizer", json.dumps(fixes_from, sort_keys=True, default=str))
-            self.fixes_loc = build_localizer(f"{name} (fixes)", fixes_from, shared)
-
-    # ------------------------------------------------------------------ training
     def fit(self, sessions: list, ctx: RunContext) -> dict | None:
-        report = {}
-        if self.odometry is not None and self.step_length is None:
-            key = ("rw-step-length", tuple(s.id for s in sessions), repr(self.method.steps))  # per detector
-            if key not in ctx.cache:
-                ctx.cache[key] = fit_step_length(sessions, self.method.steps)
-            report["step_length"] = ctx.cache[key]
-            self.fitted_step = float(ctx.cache[key]["step_length_m"])
-        if self.fixes_loc is not None:
-            key = self._fixes_key + (tuple(s.id for s in sessions),)
-            if key not in ctx.cache:  # one training per distinct fixes localizer, shared by the rows naming it
-                rep = self.fixes_loc.fit(sessions, ctx) if isinstance(self.fixes_loc, Trained) else None
-                ctx.cache[key] = (self.fixes_loc, rep)
-            self.fixes_loc, rep = ctx.cache[key]
-            report["fixes"] = {"localizer": self.fixes_loc.name, "training": rep, "shared": True}
-        return report or None
+        if self.odometry is None or self.step_length is not None:
+            return None
+        key = ("rw-step-length", tuple(s.id for s in sessions), repr(self.method.steps))  # per detector
+        if key not in ctx.cache:
+            ctx.cache[key] = fit_step_length(sessions, self.method.steps)
+        self.fitted_step = float(ctx.cache[key]["step_length_m"])
+        return {"step_length": ctx.cache[key]}
 
-    # ------------------------------------------------------------------ run
     def _step(self) -> float:
         if self.step_length is not None:
             return float(self.step_length)
         return self.fitted_step if self.fitted_step is not None else DEFAULT_STEP_M
 
-    def session_view(self, session, ctx: RunContext):
-        """The session as the filter sees it: with PDR odometry when ``odometry`` is set."""
+    def odometry_for(self, session, ctx: RunContext) -> pd.DataFrame | None:
+        """The PDR odometry the filter runs on (None without ``odometry``: the session's odometry.csv)."""
         if self.odometry is None:
-            return session
-        o = self.odometry
-        df = pdr_odometry(session, o.get("heading", "orientation"), self._step(), float(o.get("declination_deg", 0.0)),
-                          float(o.get("rate_hz", 10.0)), self.method.attitude, self.method.steps, ctx.cache)
-        return with_odometry(session, df)
-
-    def fixes_for(self, session, ctx: RunContext) -> pd.DataFrame:
-        """The fixes of ``fixes_from`` on ``session`` (t, x, y, std NaN, source), computed once per session."""
-        key = ("rw-fixes", self._fixes_key, session.id, self.fixes_rate_hz, self.fixes_std)
-        if key not in ctx.cache:
-            seed = zlib.crc32(f"{session.id}/fixes".encode())
-            est = self.fixes_loc.run(session, 1, seed, ctx)
-            t, xy = est.t, est.position[0]
-            sd = est.std[0] if (self.fixes_std and est.std is not None) else np.full(len(t), np.nan)
-            ok = np.isfinite(xy).all(axis=1)
-            t, xy, sd = t[ok], xy[ok], sd[ok]
-            if self.fixes_rate_hz:
-                grid = np.arange(t[0], t[-1] + 1e-9, 1.0 / float(self.fixes_rate_hz)) if len(t) else t
-                idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, max(len(t) - 1, 0))
-                t, xy, sd = grid, xy[idx], sd[idx]
-            if not len(t):
-                raise MissingStream(f"{self.fixes_loc.name} gave no position on session {session.id}")
-            ctx.cache[key] = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1], "std": sd,
-                                           "source": self.fixes_source})
-        return ctx.cache[key]
+            return None
+        return pdr_odometry(session, self.odometry.get("heading", "orientation"), self._step(), self.method.attitude,
+                            self.method.steps, ctx.cache)
 
     def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
-        ctx = ctx or RunContext()
-        view = self.session_view(session, ctx)
-        extra = self.fixes_for(session, ctx) if self.fixes_loc is not None else None
-        if ctx.fixes is not None and self.fix_roles():
-            more = ctx.fixes.prepare(self.method, view)
-            extra = more if extra is None else pd.concat([extra, more], ignore_index=True) if more is not None else extra
-        res = run_session(self.method, view, n_runs, seed, cache=ctx.cache, fixes=extra)
-        outputs = {"n_eff": res.n_eff}
-        if res.q_imu is not None:
-            outputs["attitude"] = {"t": res.imu_t, "q": res.q_imu}
-        t, pos, cov = res.t, res.position, res.cov
-        if self.hold_ends and len(t):  # a short walk: the first / last estimate held to the session's first / last sample
-            t0, t1 = _session_span(session)
-            if t0 < t[0]:
-                t, pos, cov = np.r_[t0, t], np.concatenate([pos[:, :1], pos], 1), np.concatenate([cov[:, :1], cov], 1)
-            if t1 > t[-1]:
-                t, pos, cov = np.r_[t, t1], np.concatenate([pos, pos[:, -1:]], 1), np.concatenate([cov, cov[:, -1:]], 1)
-        notes = list(res.map_notes)
+        est = super().run(session, n_runs, seed, ctx)
         if self.odometry is not None:
-            notes.append(f"PDR odometry: heading from {self.odometry.get('heading', 'orientation')}, step "
-                         f"{self._step():.3f} m")
-        return Estimate(self.name, session.id, t, pos, cov, res.events, outputs, res.wall_s, notes)
-
-
-def _session_span(session) -> tuple[float, float]:
-    """(first, last) sensor time (s) of the session: IMU, BLE RSSI and WiFi rows (no ground truth)."""
-    ts = [session.stream(n)["t"] for n in ("imu", "rssi", "wifi") if (session.root / f"{n}.csv").is_file()]
-    ts = [x for x in ts if len(x)]
-    return (float(min(x.min() for x in ts)), float(max(x.max() for x in ts))) if ts else (np.inf, -np.inf)
+            est.notes.append(f"PDR odometry: heading from {self.odometry.get('heading', 'orientation')}, step "
+                             f"{self._step():.3f} m")
+        return est
 
 
 # ------------------------------------------------------------------------------------------ tables

@@ -7,7 +7,8 @@ odometry-based row runs on a phone walk (the ILC 2.0 recordings, issue 17).
 
 Track: every step detected at IMU time t_i (:func:`blenav.filters.steps.detect_steps`, the detector of
 the filters' PDR motion model) moves the walker ``step_length`` metres along the heading psi(t_i); the
-track is sampled at every step and at ``rate_hz`` in between (constant position between steps):
+track is sampled at the first IMU sample, at every step and at the last IMU sample (constant position between
+steps: the odometry readers hold the last sample, so denser samples would change nothing):
 
     p(t_i) = p(t_{i-1}) + L [cos psi(t_i), sin psi(t_i)],   p(t_0) = 0.
 
@@ -43,12 +44,11 @@ def heading_at(t: np.ndarray, q_t: np.ndarray, q: np.ndarray, offset_rad: float 
 
 
 def pdr_track(imu_t: np.ndarray, acc: np.ndarray, q_t: np.ndarray, q: np.ndarray, step_length: float = 0.7,
-              cfg: StepDetectorConfig | None = None, rate_hz: float = 10.0,
-              offset_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+              cfg: StepDetectorConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The PDR odometry track (t (M,) s, xy (M, 2) m, world-aligned as the heading's frame, starting at 0).
 
     ``imu_t`` (T,) s, ``acc`` (T, 3) m/s^2; ``q_t`` (Q,) s, ``q`` (Q, 4) the device->world orientation;
-    ``step_length`` m per detected step; samples at every step and every 1 / ``rate_hz`` s over the IMU span."""
+    ``step_length`` m per detected step; samples at the IMU span's ends and at every step."""
     imu_t = np.asarray(imu_t, float)
     if len(imu_t) < 2:
         raise ValueError("pdr_track: fewer than two IMU samples")
@@ -56,10 +56,9 @@ def pdr_track(imu_t: np.ndarray, acc: np.ndarray, q_t: np.ndarray, q: np.ndarray
         raise ValueError(f"pdr_track: step_length must be a positive number of metres, got {step_length!r}")
     flags = detect_steps(imu_t, np.asarray(acc, float), cfg)
     ts = imu_t[flags]
-    psi = heading_at(ts, np.asarray(q_t, float), q, offset_rad)
+    psi = heading_at(ts, np.asarray(q_t, float), q)
     steps = step_length * np.stack([np.cos(psi), np.sin(psi)], axis=-1)
-    grid = np.arange(imu_t[0], imu_t[-1] + 1e-9, 1.0 / rate_hz)
-    t = np.union1d(grid, ts)
+    t = np.union1d([imu_t[0], imu_t[-1]], ts)
     n_before = np.searchsorted(ts, t, side="right")  # steps at or before each sample time
     cum = np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
     return t, cum[n_before]

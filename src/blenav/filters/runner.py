@@ -309,7 +309,7 @@ def initial_pose(method: Method, session: Session, arrays: SessionArrays) -> tup
 
 
 def run_session(method: Method, session: Session, n_runs: int, seed: int,
-                geom: MapGeometry | None = None, cache: dict | None = None, fixes=None) -> RunResult:
+                geom: MapGeometry | None = None, cache: dict | None = None, fixes=None, odometry=None) -> RunResult:
     """All R runs of ``method`` on ``session`` (batched), seeded by ``seed``.
 
     ``cache``: a dict shared by calls on the same sessions (the evaluation harness passes one), so
@@ -317,9 +317,10 @@ def run_session(method: Method, session: Session, n_runs: int, seed: int,
     the method's filter, are computed once rather than once per method.
 
     ``fixes``: extra position fixes (DataFrame t, x, y, std, source) added in memory to the session's
-    ``fixes.csv`` rows (see :class:`~blenav.filters.steps.SessionArrays`).
+    ``fixes.csv`` rows (see :class:`~blenav.filters.steps.SessionArrays`). ``odometry``: an odometry track
+    (DataFrame t, x, y) used in place of the session's ``odometry.csv`` (e.g. PDR odometry from the IMU).
     """
-    run = BatchRun(method, session, n_runs, seed, geom, cache, fixes)
+    run = BatchRun(method, session, n_runs, seed, geom, cache, fixes, odometry)
     run.advance()
     return run.result()
 
@@ -331,7 +332,7 @@ class BatchRun:
     biases, from then on). Without changes, pieces give exactly the numbers of one :func:`run_session`."""
 
     def __init__(self, method: Method, session: Session, n_runs: int, seed: int,
-                 geom: MapGeometry | None = None, cache: dict | None = None, fixes=None):
+                 geom: MapGeometry | None = None, cache: dict | None = None, fixes=None, odometry=None):
         self.t0 = time.perf_counter()
         _missing_model(method)
         self.method, self.session, self.cache = method, session, cache
@@ -355,7 +356,7 @@ class BatchRun:
                                     + ("; estimate them first (blenav-map)" if total else ""))
             if known < total and method.beacons is None:
                 self.notes.append(f"{total - known} of {total} BLE anchors have no position and are not used")
-        self.arrays = arrays = SessionArrays.from_session(session, anchors, extra_fixes=fixes)
+        self.arrays = arrays = SessionArrays.from_session(session, anchors, extra_fixes=fixes, odometry=odometry)
         if radio and len(arrays.rssi_t) == 0:
             raise MissingStream("no usable BLE readings (rssi.csv absent or empty, or every row names an anchor "
                                 "that is not a BLE anchor of the building)")
@@ -368,14 +369,7 @@ class BatchRun:
             raise MissingStream(f"no inertial odometry (odometry.csv absent or empty), which {method.name} needs")
         pf.initializer.start_xy, pf.initializer.start_theta = initial_pose(method, session, arrays)
         self.mag_offset = magnetometer_offset(arrays, method)
-        imu = None
-        if method.needs_imu:
-            ikey = ("imu", session.id, repr(method.attitude), repr(method.steps))
-            imu = cache.get(ikey) if cache is not None else None
-            if imu is None:
-                imu = imu_features(arrays, method.attitude, method.steps, self.mag_offset)
-                if cache is not None:
-                    cache[ikey] = imu
+        imu = session_imu(session.id, arrays, method.attitude, method.steps, cache) if method.needs_imu else None
         self.steps, self.q = session_steps(arrays, method.filter.rate_hz, method.attitude, method.steps,
                                            method.needs_imu, self.mag_offset, imu)
         if not self.steps:
@@ -468,9 +462,28 @@ def magnetometer_offset(arrays: SessionArrays, method: Method) -> np.ndarray | N
     writes, needs this before an AHRS can use the field. Offline it is fitted on the whole session; a
     live :class:`OnlineLocalizer` takes the device's calibration as ``mag_offset``.
     """
-    if not method.needs_imu or arrays.mag is None or not method.attitude.use_mag or len(arrays.mag) < 50:
+    return hard_iron_offset(arrays, method.attitude) if method.needs_imu else None
+
+
+def hard_iron_offset(arrays: SessionArrays, att: AttitudeConfig) -> np.ndarray | None:
+    """:func:`magnetometer_offset` for an AHRS of settings ``att``: None without magnetometer use or data."""
+    if arrays.mag is None or not att.use_mag or len(arrays.mag) < 50:
         return None
     return estimate_hard_iron(arrays.mag)
+
+
+def session_imu(session_id: str, arrays: SessionArrays, att: AttitudeConfig, steps: StepDetectorConfig,
+                cache: dict | None = None) -> tuple[np.ndarray | None, np.ndarray]:
+    """The session's AHRS quaternions (T, 4) and step flags (T,) (:func:`~blenav.filters.steps.imu_features`, the
+    magnetometer's hard-iron offset removed: :func:`hard_iron_offset`), computed once per ``cache`` under the key
+    ``("imu", session id, attitude, steps)`` that every filter of an evaluation shares."""
+    key = ("imu", session_id, repr(att), repr(steps))
+    imu = cache.get(key) if cache is not None else None
+    if imu is None:
+        imu = imu_features(arrays, att, steps, hard_iron_offset(arrays, att))
+        if cache is not None:
+            cache[key] = imu
+    return imu
 
 
 class OnlineLocalizer:

@@ -213,7 +213,10 @@ class SessionArrays:
     fix_source: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=str))
 
     @classmethod
-    def from_session(cls, session, anchors: AnchorTable, extra_fixes=None) -> "SessionArrays":
+    def from_session(cls, session, anchors: AnchorTable, extra_fixes=None, odometry=None) -> "SessionArrays":
+        """The session's streams as arrays. ``extra_fixes`` (DataFrame t, x, y, std, source): fixes added in memory
+        to fixes.csv's rows; ``odometry`` (DataFrame t, x, y): odometry used in place of odometry.csv (e.g. PDR
+        odometry computed from the IMU); the session itself is not changed."""
         imu = session.imu
         mag = session.mag
         r = session.rssi
@@ -222,7 +225,7 @@ class SessionArrays:
         else:  # no BLE anchor in the building: no packet is usable
             idx = np.full(len(r), -1, dtype=int)
         keep = idx >= 0
-        odo = session.odometry
+        odo = session.odometry if odometry is None else odometry
         fx = session.fixes
         if extra_fixes is not None and len(extra_fixes):
             import pandas as pd

@@ -30,9 +30,10 @@ per building and floor:
 
 :meth:`FingerprintLocalizer.run`: one estimate per window of the session in which a feature of the
 vocabulary was heard (times: the window's last step, session clock s); the floor's model is the one of the
-session's ``building`` / ``floor`` (session.yaml). With ``hold_ends`` the first estimate is held back to the
-session's start (t = 0, the recording's start) and the last one forward to its last sample (so every waypoint
-of the walk is scored, as for methods that start at the walk's start). Deterministic: R identical runs.
+session's ``building`` / ``floor`` (session.yaml); no estimate is invented before the first window or after the
+last (scoring may hold the ends: :func:`blenav.eval.metrics.waypoint_metrics` ``hold_ends``). ``beacons`` (attribute,
+None: all): the BLE anchor ids the localizer hears at run time (the others' advertisements are dropped), e.g. the
+sparse beacon subset of :mod:`blenav.eval.fixes`. Deterministic: R identical runs.
 ``cov`` (KNN): the covariance of the k neighbours' positions plus ``cov_floor_m``^2 I; none for the networks.
 A session without the stream (wifi.csv / rssi.csv) or without a trained floor raises :class:`MissingStream`.
 """
@@ -100,7 +101,7 @@ class FingerprintLocalizer(Localizer, Trained):
     def __init__(self, name: str, shared=None, model: str = "knn", features: str = "wifi", k: int = 5,
                  weights: str = "uniform", metric: str = "cosine", history: int = 1, fill_dbm: float = -100.0,
                  floor_u: float = 0.5, ble_window_s: float = 3.0, ble_step_s: float = 1.0,
-                 wifi_max_age_s: float | None = 5.0, min_count: int = 1, max_features="auto", hold_ends: bool = True, cov_floor_m: float = 1.0,
+                 wifi_max_age_s: float | None = 5.0, min_count: int = 1, max_features="auto", cov_floor_m: float = 1.0,
                  net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
                  batch_size: int = 256, seed: int = 0, threads: int | None = 1, plots: bool = False):
         super().__init__(name, shared)
@@ -122,7 +123,8 @@ class FingerprintLocalizer(Localizer, Trained):
         if metric not in ("cosine", "euclidean"):
             raise ValueError(f"method {name!r}: metric must be 'cosine' or 'euclidean', got {metric!r}")
         self.model, self.k, self.weights, self.metric = model, int(k), weights, metric
-        self.min_count, self.hold_ends, self.cov_floor_m = int(min_count), bool(hold_ends), float(cov_floor_m)
+        self.min_count, self.cov_floor_m = int(min_count), float(cov_floor_m)
+        self.beacons: tuple | None = None  # BLE anchor ids heard at run time (None: all)
         if max_features == "auto":
             max_features = NET_MAX_FEATURES if model == "transnet_locnet" else None
         self.max_features = None if max_features is None else int(max_features)
@@ -224,34 +226,21 @@ class FingerprintLocalizer(Localizer, Trained):
                 f"has no model for floor {key} (trained: {sorted(self.floors)})"
             raise MissingStream(f"{self.name} {why}")
         fm = self.floors[key]
-        w = FP.session_windows(session, fm.columns, self.cfg)
+        rd = None
+        if self.beacons is not None:
+            rd = FP.readings(session, self.cfg)
+            keep = {f"ble:{b}" for b in self.beacons}
+            rd = rd[(rd["kind"] != "ble") | rd["feature"].isin(keep)]
+        w = FP.session_windows(session, fm.columns, self.cfg, rd)
         if not w.heard.any():
             raise MissingStream(f"session {session.id}: no {self.cfg.features} source of the training walks heard")
         S, t = w.S[w.heard], w.t[w.heard]
         xy, cov = fm.predict(S)
         if not np.isfinite(xy).all():
             raise ValueError(f"{self.name}: non-finite position on session {session.id}")
-        if self.hold_ends:
-            t, xy, cov = self._hold(session, t, xy, cov)
         R = int(n_runs)
         pos = np.broadcast_to(xy, (R,) + xy.shape).copy()
         covr = None if cov is None else np.broadcast_to(cov, (R,) + cov.shape).copy()
         return Estimate(self.name, session.id, t, pos, covr, wall_s=time.perf_counter() - t0,
                         notes=[f"{self.model} on {self.cfg.features} fingerprints, {len(fm.columns)} features "
                                f"(floor {key})"])
-
-    @staticmethod
-    def _hold(session, t, xy, cov):
-        """Hold the first estimate back to the session's start (t = 0 on the session clock, the recording's start,
-        or its first sample when earlier) and the last forward to its last sample (imu, wifi, rssi)."""
-        spans = [(float(d["t"].min()), float(d["t"].max())) for d in
-                 (session.stream(n) for n in ("imu", "wifi", "rssi") if (session.root / f"{n}.csv").is_file())
-                 if len(d)]
-        t_first = min([a for a, _ in spans] + [t[0], 0.0])
-        t_last = max([b for _, b in spans] + [t[-1]])
-        lead, tail = int(t_first < t[0]), int(t_last > t[-1])
-        t = np.r_[[t_first] if lead else [], t, [t_last] if tail else []]
-        xy = np.concatenate([xy[:1]] * lead + [xy] + [xy[-1:]] * tail)
-        if cov is not None:
-            cov = np.concatenate([cov[:1]] * lead + [cov] + [cov[-1:]] * tail)
-        return t, xy, cov

@@ -108,10 +108,16 @@ class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelC
         return map_prior.attach_prior(self.method.measurements, path, loader=lambda p: load(p, map_prior.load_prior))
 
     # ------------------------------------------------------------------ run
+    def odometry_for(self, session, ctx: RunContext):
+        """An odometry track (DataFrame t, x, y) to use in place of the session's odometry.csv, or None (use it); a
+        subclass computes one (e.g. PDR odometry on phone walks, :class:`blenav.eval.realwalks.RealWalkPF`)."""
+        return None
+
     def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
         ctx = ctx or RunContext()
         extra = ctx.fixes.prepare(self.method, session) if ctx.fixes is not None else None
-        res = run_session(self.method, session, n_runs, seed, cache=ctx.cache, fixes=extra)
+        res = run_session(self.method, session, n_runs, seed, cache=ctx.cache, fixes=extra,
+                          odometry=self.odometry_for(session, ctx))
         outputs = {"n_eff": res.n_eff}
         if res.q_imu is not None:
             outputs["attitude"] = {"t": res.imu_t, "q": res.q_imu}
