@@ -211,3 +211,20 @@ def test_one_fix_localizer_per_node_shared_with_its_row(tmp_path):
     assert loc["wifi"] is methods["KNN-WiFi"] and loc["again"] is loc["wifi"]
     assert loc["ble"] is methods["KNN-BLE"] and loc["both"] is methods["KNN-WiFi+BLE"]
     assert len(prov.methods) == 3  # each localizer once
+
+
+def test_train_ids_and_table_rows_come_from_the_experiment(tmp_path):
+    """train-ids is the harness's split of the composed experiment; the tables' rows are the YAML's labels."""
+    from blenav.eval.harness import open_dataset, scored_sessions, train_test
+    from blenav.eval.realwalks import OUTCOMES, table_rows, train_ids
+
+    data = _as_waypoint_walks(simulate_small(tmp_path / "d", 3, 20, 4))
+    cfg = _cfg("experiment=realwalks", f"data={data}")
+    ds = open_dataset(cfg)
+    train, test = train_test(cfg, ds, scored_sessions(cfg, ds)[0])
+    assert train_ids(str(data)) == [s.id for s in train] and len(train) == 2
+    assert len(train_ids(str(data), train_fraction=0.75)) == 3
+    rows = table_rows()
+    assert set(CONTRACT) <= set(rows["all"]) and {r for _, a, b in OUTCOMES for r in (a, b)} <= set(rows["all"])
+    assert rows["fingerprint"] == ("KNN-WiFi", "KNN-BLE", "KNN-WiFi+BLE", "LocNet-WiFi", "TransNet+LocNet-WiFi")
+    assert "WiFi+PDR+learned-map" in rows["fused"] and "PDR+map" not in rows["fused"]

@@ -29,6 +29,7 @@ Everything else is the particle filter's: ``map.init: groundtruth`` starts at th
 
 from __future__ import annotations
 
+import functools
 import logging
 
 import numpy as np
@@ -44,7 +45,8 @@ from blenav.localizers.particle import ParticleFilterLocalizer
 
 log = logging.getLogger("blenav.eval.realwalks")
 
-__all__ = ["RealWalkPF", "pdr_odometry", "fit_step_length", "train_ids", "floor_table", "verdicts", "summary_table"]
+__all__ = ["RealWalkPF", "pdr_odometry", "fit_step_length", "train_ids", "table_rows", "floor_table", "verdicts",
+           "summary_table"]
 
 HEADINGS = ("orientation", "ahrs")
 DEFAULT_STEP_M = 0.7
@@ -159,31 +161,53 @@ class RealWalkPF(ParticleFilterLocalizer, Trained):
 
 
 # ------------------------------------------------------------------------------------------ tables
-def train_ids(data: str, train_fraction: float = 0.5, seed: int = 0) -> list[str]:
-    """The train walks of ``experiment=realwalks`` on the dataset ``data`` (the harness's own split, so that a
-    beacon map estimated from them by ``blenav-map --sessions`` sees no test walk)."""
-    from omegaconf import OmegaConf
+def _compose(experiment: str, *overrides: str):
+    from blenav.configs import compose
 
-    from blenav.data import Dataset
+    return compose("eval", f"experiment={experiment}", *overrides)
 
-    from .harness import select_sessions, split_sessions
 
-    sessions = select_sessions(Dataset.open(data), None)
-    train, _ = split_sessions(sessions, OmegaConf.create({"train_fraction": train_fraction, "seed": seed}))
+def train_ids(data: str, train_fraction: float | None = None, seed: int | None = None,
+              experiment: str = "realwalks") -> list[str]:
+    """The train walks of ``experiment`` on the dataset ``data``: the experiment composed and split by the harness
+    itself (:func:`blenav.eval.harness.train_test`, the one source of the split), so that a beacon map estimated from
+    them by ``blenav-map --sessions`` sees no test walk. ``train_fraction`` / ``seed``: override the experiment's
+    ``split`` (as ``split.train_fraction=...`` on its command line would)."""
+    from .harness import open_dataset, scored_sessions, train_test
+
+    over = [f"split.train_fraction={train_fraction}"] if train_fraction is not None else []
+    over += [f"split.seed={seed}"] if seed is not None else []
+    cfg = _compose(experiment, f"data={data}", *over)
+    ds = open_dataset(cfg)
+    sessions, _ = scored_sessions(cfg, ds)
+    train, _ = train_test(cfg, ds, sessions)
     return [s.id for s in train]
 
 
-#: the rows of the summary table, in order (labels of conf/experiment/realwalks.yaml)
-SUMMARY_ROWS = ("KNN-WiFi", "KNN-BLE", "KNN-WiFi+BLE", "LocNet-WiFi", "TransNet+LocNet-WiFi", "PDR",
-                "PDR (rotation vector)", "PDR (AHRS odometry)", "PDR+map", "PDR+learned-map", "WiFi+PDR",
-                "WiFi+PDR+map", "WiFi+PDR+learned-map", "BLE+PDR", "BLE+PDR+map", "BLE+PDR+learned-map",
-                "WiFi+BLE+PDR+learned-map", "PF-PL", "PF-PS", "PF-PS+MAP", "IMU", "CRF BLE+IMU")
+@functools.lru_cache(maxsize=None)
+def table_rows(experiment: str = "realwalks") -> dict[str, tuple[str, ...]]:
+    """The labels of ``experiment``'s rows, in its order, read from the composed config (so a renamed label is
+    renamed in the tables too): ``all``; ``fingerprint`` (fingerprint localizers); ``fused`` (rows with a fix
+    likelihood of a ``fixes`` role)."""
+    from omegaconf import OmegaConf
 
-FINGERPRINT_ROWS = ("KNN-WiFi", "KNN-BLE", "KNN-WiFi+BLE", "LocNet-WiFi", "TransNet+LocNet-WiFi")
-FUSED_ROWS = ("WiFi+PDR", "WiFi+PDR+map", "WiFi+PDR+learned-map", "BLE+PDR", "BLE+PDR+map", "BLE+PDR+learned-map",
-              "WiFi+BLE+PDR+learned-map")
+    cfg = OmegaConf.to_container(_compose(experiment).methods, resolve=False)
+    rows = {"all": [], "fingerprint": [], "fused": []}
+    for key, node in cfg.items():
+        if node is None:
+            continue
+        label = str(node.get("label", key))
+        rows["all"].append(label)
+        if str(node.get("_target_", "")).endswith("FingerprintLocalizer"):
+            rows["fingerprint"].append(label)
+        meas = node.get("measurements") or {}
+        if any(isinstance(m, dict) and m.get("role") for m in (meas.values() if isinstance(meas, dict) else meas)):
+            rows["fused"].append(label)
+    return {k: tuple(v) for k, v in rows.items()}
+
+
 #: the map-prior outcomes of issue 17 (left open by the map-prior issue): (question, row a, row b); a beats b
-#: when its mean error is lower
+#: when its mean error is lower (labels of conf/experiment/realwalks.yaml; tests/test_realwalks.py checks them)
 OUTCOMES = (("sparse BLE + odometry + learned map vs dense BLE (WiFi+BLE fixes)", "BLE+PDR+learned-map", "KNN-WiFi+BLE"),
             ("sparse BLE + odometry + learned map vs odometry + learned map", "BLE+PDR+learned-map", "PDR+learned-map"),
             ("sparse BLE + odometry + learned map vs sparse BLE + odometry", "BLE+PDR+learned-map", "BLE+PDR"),
@@ -209,7 +233,8 @@ def floor_table(results: dict) -> str:
     """Markdown: one row per method of a realwalks results.json (error_m over the test walks' waypoints, m;
     share of walks within 2 m / 5 m), skipped methods with the first reason."""
     lines = ["| method | mean | median | p90 | walks within 2 m | within 5 m | walks |", "|---|---|---|---|---|---|---|"]
-    names = [r for r in SUMMARY_ROWS if r in results["methods"]] + [r for r in results["methods"] if r not in SUMMARY_ROWS]
+    order = table_rows()["all"]
+    names = [r for r in order if r in results["methods"]] + [r for r in results["methods"] if r not in order]
     for name in names:
         m = results["methods"][name]
         e = m.get("error_m")
@@ -229,7 +254,8 @@ def verdicts(results: dict) -> list[str]:
     map-prior outcomes (mean errors, m)."""
     out = []
     best = lambda rows: min(((_mean(results, r), r) for r in rows if _mean(results, r) is not None), default=None)
-    bf, bp = best(FUSED_ROWS), best(FINGERPRINT_ROWS)
+    rows = table_rows()
+    bf, bp = best(rows["fused"]), best(rows["fingerprint"])
     pm = _mean(results, "PDR+map")
     if bf and bp:
         out.append(f"best fused {bf[1]} {bf[0]:.2f} m vs best fingerprint {bp[1]} {bp[0]:.2f} m: "
@@ -251,7 +277,7 @@ def summary_table(results_by_floor: dict) -> str:
     floors = list(results_by_floor)
     lines = ["| method | " + " | ".join(f"{f} mean / p90" for f in floors) + " |",
              "|---|" + "---|" * len(floors)]
-    for row in SUMMARY_ROWS:
+    for row in table_rows()["all"]:
         cells = []
         for f in floors:
             m = results_by_floor[f]["methods"].get(row) or {}
@@ -308,19 +334,21 @@ def write_tables(out_root: str, summary_md: str, command: str = "make realwalks-
     for f, r in by_floor.items():
         parts += [f"{f}:"] + [f"- {v}" for v in verdicts(r)] + [""]
     body = "\n".join(parts)
-    text = summary.read_text() if summary.is_file() else ""
-    start, end = "<!-- realwalks-table -->", "<!-- /realwalks-table -->"
-    if start in text and end in text:
-        text = text.split(start)[0] + start + "\n" + body + "\n" + end + text.split(end, 1)[1]
-    else:
-        text = text + f"\n{start}\n{body}\n{end}\n"
-    summary.write_text(text)
+    _splice(summary, body, append=True)
     if readme:
-        rp = Path(readme)
-        rt = rp.read_text()
-        if start in rt and end in rt:
-            rp.write_text(rt.split(start)[0] + start + "\n" + table + "\n" + end + rt.split(end, 1)[1])
+        _splice(Path(readme), table)
     return body
+
+
+def _splice(path, body: str, append: bool = False) -> None:
+    """Put ``body`` between the realwalks markers of the file ``path`` (replacing what is there); without the markers
+    append them with ``body`` (``append``) or leave the file alone."""
+    start, end = "<!-- realwalks-table -->", "<!-- /realwalks-table -->"
+    text = path.read_text() if path.is_file() else ""
+    if start in text and end in text:
+        path.write_text(text.split(start)[0] + start + "\n" + body + "\n" + end + text.split(end, 1)[1])
+    elif append:
+        path.write_text(text + f"\n{start}\n{body}\n{end}\n")
 
 
 if __name__ == "__main__":  # python -m blenav.eval.realwalks train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README]
