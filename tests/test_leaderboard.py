@@ -161,3 +161,43 @@ def test_fleet_as_a_hydra_multirun_then_merged(tiny, tmp_path):
     merged = json.loads((tmp_path / "fleet.json").read_text())
     assert [d["folder"] for d in merged["datasets"]] == [str(fleet / "0"), str(fleet / "1")]
     assert merged["methods"]["centroid"]["datasets"] == 2 and merged["methods"]["PCRLB"]["datasets"] == 2
+
+
+def test_leaderboard_results_md_prints_the_common_lines(tmp_path):
+    """The leaderboard's results.md is written by the common report (blenav.eval.report): besides its own table it
+    prints what every experiment's results.md prints (calibration, wrong plans, beacon map, estimates kept on the
+    floor, rows dropped while reading)."""
+    from blenav.eval.report import write_markdown
+
+    stats = {"mean": 1.0, "stderr": 0.1, "ci99": [0.8, 1.2], "median": 0.9, "p75": 1.2, "p90": 1.6, "max": 3.0}
+    m = {"rmse_m": stats, "error_m": stats, "ate_m": 1.0, "ee_m": 0.5, "wall_s": 1.0, "realtime_factor": 50.0,
+         "family": "PF classical", "per_session": {"walk-A": {"rmse_m": stats}}, "map_notes": ["a map note"],
+         "confined": {"bbox": 2, "off_free": 1, "free": 1, "estimates": 100}}
+    results = {"experiment": "leaderboard", "title": "t", "dataset": "/d", "runs": 1, "sessions": ["walk-A"],
+               "init_s": 5.0, "seed": 0, "methods": {"PF-PL": m},
+               "calibration": {"a_x": -60.0, "gamma": 2.1, "d0": 1.0, "residual_std_db": 4.0, "n_readings": 10,
+                               "note": "fitted"},
+               "plan_error": {"barriers_per_100m2": 1.0, "max_span_m": 2.0, "offset_m": [0.0, 0.0], "seed": 1,
+                              "buildings": {"hall": {"0": {"barriers": 1, "closed_m2": 2.0, "free_m2": 100.0,
+                                                           "image": "p.png"}}}},
+               "beacon_map": {"source": "given", "noise_m": 0.5, "vertical": False},
+               "dropped": {"walk-A": {"rssi": {"unknown-anchor": 3}}}}
+    md = {}
+    for name, c in (("leaderboard", cfg("experiment=leaderboard", "data=unused")), ("default", None)):
+        write_markdown(tmp_path / f"{name}.md", results, c)
+        md[name] = (tmp_path / f"{name}.md").read_text()
+    assert "| 1 | PF-PL | PF classical |" in md["leaderboard"] and "| 1 | PF-PL |" not in md["default"]
+    for line in ("Path-loss parameters a_X = -60.0 dBm", "Wrong floor plans (plan_error)", "Beacon map (beacon_map)",
+                 "- a map note", "Estimates kept on the floor", "- walk-A, rssi.csv: 3 rows (unknown-anchor)"):
+        assert line in md["leaderboard"] and line in md["default"], line
+
+
+def test_bound_over_time_legend_counts_its_entries():
+    """Four sessions without BLE-only curves are four legend entries: inside the axes (not 8, in the margin)."""
+    from blenav.plotting import figure_bound_over_time
+
+    curves = {f"walk-{k}": {"t": np.arange(5.0), "bound_m": np.ones(5) + k} for k in range(4)}
+    fig = figure_bound_over_time(curves)
+    assert fig.axes[0].get_legend() is not None and not fig.legends
+    fig = figure_bound_over_time(curves, curves)  # eight entries: in the figure's margin
+    assert fig.axes[0].get_legend() is None and len(fig.legends) == 1

@@ -134,3 +134,67 @@ def test_session_bound_on_a_tiny_sim(tiny_sim):
     # real data (no simulator parameters): skipped with the reason
     sk = bound_entry({"name": "mall"}, [s], init_s=5.0)
     assert "rmse_m" not in sk and "simulator" in sk["skipped"][s.id]
+
+
+def test_variants_share_one_information_pass(tiny_sim, monkeypatch):
+    """bound_entries computes each session's information once for every variant, and each variant's entry is
+    the one bound_entry gives alone (same numbers, same efficient-estimator draws)."""
+    import blenav.eval.pcrlb as pcrlb
+    from blenav.data import Dataset
+
+    ds = Dataset.open(tiny_sim)
+    s = ds.session(ds.session_ids[0])
+    variants = {"PCRLB": pcrlb.BoundSettings(), "PCRLB-BLE": pcrlb.BoundSettings(rtt=False, visual=False)}
+    alone = {n: pcrlb.bound_entry(ds.meta, [s], 5.0, st, seed=3) for n, st in variants.items()}
+    calls = []
+    real = pcrlb.session_information
+    monkeypatch.setattr(pcrlb, "session_information", lambda *a, **k: calls.append(a[0].id) or real(*a, **k))
+    both = pcrlb.bound_entries(ds.meta, [s], 5.0, variants, seed=3)
+    assert calls == [s.id]
+    for n in variants:
+        assert both[n]["rmse_m"] == alone[n]["rmse_m"] and both[n]["error_m"] == alone[n]["error_m"]
+        np.testing.assert_array_equal(both[n]["_errors"], alone[n]["_errors"])
+    assert both["PCRLB"]["rmse_m"]["mean"] < both["PCRLB-BLE"]["rmse_m"]["mean"]
+
+
+def test_anchor_without_position_is_not_counted_and_named(tiny_sim, tmp_path):
+    import shutil
+
+    import pandas as pd
+
+    from blenav.data import Dataset
+    from blenav.eval.pcrlb import BoundSettings, bound_entry, session_bound, sim_parameters
+
+    root = tmp_path / "sim"
+    shutil.copytree(tiny_sim, root)
+    ds0 = Dataset.open(root)
+    s0 = ds0.session(ds0.session_ids[0])
+    heard = s0.rssi["anchor_id"].astype(str).value_counts().index[0]  # the beacon heard most
+    path = s0.building.root / "anchors.csv"
+    a = pd.read_csv(path)
+    rows = a["anchor_id"].astype(str) == heard
+    for c in ("x", "y", "z", "x_true", "y_true", "z_true"):
+        if c in a:
+            a[c] = a[c].astype(float)
+            a.loc[rows, c] = np.nan
+    a.to_csv(path, index=False)
+    ds = Dataset.open(root)
+    s = ds.session(ds.session_ids[0])
+    b = session_bound(s, sim_parameters(ds.meta), BoundSettings(rtt=False, visual=False))
+    assert np.all(np.isfinite(b["bound_m"]))
+    full = session_bound(s0, sim_parameters(ds0.meta), BoundSettings(rtt=False, visual=False))
+    assert np.all(b["bound_m"] >= full["bound_m"] - 1e-12)  # one beacon less: never a smaller bound
+    e = bound_entry(ds.meta, [s], init_s=5.0)
+    assert e["no_position"] == {s.id: [heard]} and np.isfinite(e["rmse_m"]["mean"])
+
+
+def test_robot_velocity_prior_is_the_robots_speed(tiny_sim):
+    from blenav.data import Dataset
+    from blenav.eval.pcrlb import session_information, sim_parameters
+
+    ds = Dataset.open(tiny_sim)
+    simcfg = sim_parameters(ds.meta)
+    s = ds.session(ds.session_ids[0])
+    assert session_information(s, simcfg, 1.0, ())["J0"][2, 2] == pytest.approx(1.0 / simcfg.motion.speed**2)
+    s.meta["carrier"] = "robot"
+    assert session_information(s, simcfg, 1.0, ())["J0"][2, 2] == pytest.approx(1.0 / simcfg.motion.robot_speed**2)

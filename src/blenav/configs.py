@@ -130,14 +130,24 @@ def cli_overrides(args: list[str], deprecated_model_path: bool = False) -> list[
 
 
 def compose(config_name: str, *overrides: str) -> DictConfig:
-    """The composed ``conf/<config_name>.yaml`` with command-line style ``overrides`` (see :func:`cli_overrides`)."""
+    """The composed ``conf/<config_name>.yaml`` with command-line style ``overrides`` (see :func:`cli_overrides`).
+    Also inside a running Hydra app (e.g. a method that composes a training config during ``blenav-eval``): the
+    app's Hydra is set aside for the composition and given back after it."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
 
     register_configs()
     over = cli_overrides(list(overrides), deprecated_model_path=config_name == "eval")
-    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-        return hydra_compose(config_name=config_name, overrides=over)
+    app = GlobalHydra.instance().hydra if GlobalHydra.instance().is_initialized() else None
+    if app is not None:
+        GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+            return hydra_compose(config_name=config_name, overrides=over)
+    finally:
+        if app is not None:
+            GlobalHydra.instance().hydra = app
 
 
 # ------------------------------------------------------------------------------------------ strict overrides

@@ -550,6 +550,6 @@ def figure_bound_over_time(curves: dict[str, dict], curves_ble: dict[str, dict] 
     ax.set_xlabel("time [s]")
     ax.set_ylabel("PCRLB of the position error [m]")
     ax.grid(True, alpha=0.3, which="both")
-    legend_in_figure(fig, ax, 2 * len(curves), inside="upper right")
+    legend_in_figure(fig, ax, len(curves) + sum(sid in (curves_ble or {}) for sid in curves), inside="upper right")
     ax.set_title("posterior Cramer-Rao lower bound along the true trajectories", fontsize=9)
     return fig

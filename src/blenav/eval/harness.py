@@ -520,6 +520,9 @@ def evaluate(cfg: DictConfig) -> dict:
     fa = _floor_accuracy(cfg, train, sessions)
     if fa is not None:
         results["floor_accuracy"] = fa
+    dropped = dropped_rows(sessions)  # reads every stream and floor plan before the first method: no method's memory counts them
+    if dropped:
+        results["dropped"] = dropped
     outcomes: dict[str, MethodOutcome] = {}
     with _Progress(bool(cfg.get("progress", False)), len(methods) * len(sessions)) as progress:
         for name, method in methods.items():
@@ -538,14 +541,12 @@ def evaluate(cfg: DictConfig) -> dict:
         fix_training = {r: training[r] for r in provider.methods if training.get(r) is not None}
         if fix_training:
             results["fixes"]["training"] = fix_training
-    dropped = dropped_rows(sessions)
-    if dropped:
-        results["dropped"] = dropped
-    if cfg.experiment.get("kind") == "leaderboard":  # the PCRLB row, families, leaderboard CDF (blenav.eval.leaderboard)
+    bounds = None
+    if cfg.experiment.get("kind") == "leaderboard":  # the PCRLB rows and families (blenav.eval.leaderboard)
         from .leaderboard import finish
 
-        finish(results, outcomes, ds, sessions, cfg, out)
-    write_outputs(out, results, outcomes, sessions, cfg)
+        bounds = finish(results, ds, sessions, cfg)
+    write_outputs(out, results, outcomes, sessions, cfg, bounds)
     return results
 
 
@@ -564,15 +565,17 @@ def dropped_rows(sessions: list) -> dict:
     return out
 
 
-def write_outputs(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions, cfg: DictConfig) -> None:
-    """results.json, results.md and (unless ``plots=false``) the plots."""
+def write_outputs(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions, cfg: DictConfig,
+                  bounds: dict | None = None) -> None:
+    """results.json, results.md and (unless ``plots=false``) the plots; ``bounds``: the leaderboard's
+    (:func:`blenav.eval.leaderboard.finish`), whose figures are drawn with the same error CDFs."""
     write_json(out / "results.json", results)
     write_session_files(out, outcomes, sessions)
     from .report import write_markdown
 
     write_markdown(out / "results.md", results, cfg)
     if cfg.get("plots", True):
-        _plots(out, results, outcomes, sessions)
+        _plots(out, results, outcomes, sessions, bounds)
 
 
 def write_session_files(out: Path, outcomes: dict[str, MethodOutcome], sessions) -> None:
@@ -612,19 +615,23 @@ def _safe(name: str) -> str:
     return "".join(c if c.isalnum() or c in "+-_.=" else "_" for c in str(name))
 
 
-def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions) -> None:
+def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions, bounds: dict | None = None) -> None:
     from blenav import plotting
 
     grid = np.linspace(0, 15, 301)
     cdfs, rmses, err_t = {}, {}, {}
     outcomes = {k: v for k, v in outcomes.items() if v.results}
+    for name, oc in outcomes.items():  # the error CDFs, built once: error_cdf.png and the leaderboard's
+        R = next(iter(oc.results.values())).position.shape[0]
+        cdfs[name] = cdf_band([np.concatenate([oc.metrics[s]["_runs"]["err"][r] for s in oc.metrics]) for r in range(R)], grid)
+    if bounds is not None:
+        from .leaderboard import plot
+
+        plot(out, results, outcomes, sessions, grid, {n: c[1] for n, c in cdfs.items()}, bounds)  # the medians
     if not outcomes:
         return
     sessions = [s for s in sessions if all(s.id in oc.results for oc in outcomes.values())] or sessions
     for name, oc in outcomes.items():
-        R = next(iter(oc.results.values())).position.shape[0]
-        per_run = [np.concatenate([oc.metrics[s]["_runs"]["err"][r] for s in oc.metrics]) for r in range(R)]
-        cdfs[name] = cdf_band(per_run, grid)
         rmses[name] = np.concatenate([oc.metrics[s]["_runs"]["rmse"] for s in oc.metrics])
         first = sessions[0].id if sessions[0].id in oc.metrics else next(iter(oc.metrics))
         err_t[name] = (oc.metrics[first]["_runs"]["t"], oc.metrics[first]["_runs"]["err_all"])

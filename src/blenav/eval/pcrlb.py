@@ -35,6 +35,9 @@ The model here (all arrays in the floor's world frame, metres, seconds):
 - WiFi RTT (optional rtt.csv): range = d + offset + NLOS bias + N(0, sigma(d)^2), sigma(d) = std_m +
   std_per_m d: each range adds ``u_h u_h^T (r_h / d)^2 / sigma(d)^2`` (u_h the horizontal unit vector).
 - Visual fixes (optional visual.csv): ``I / pos_std_m^2`` at the step of each fix.
+- Anchor positions: :func:`blenav.radio_stats.anchor_positions` (the true ones the simulator wrote). Packets of
+  an anchor whose position anchors.csv leaves empty are not counted; the entry names those anchors
+  (``no_position``) and results.md says so.
 
 Every simplification makes the bound lower (more optimistic), as a bound should be: channel parameters
 (beacon powers, receiver offset, RTT offsets, path-loss exponent) known, wall and body losses known,
@@ -42,7 +45,8 @@ shadowing independent between steps (it is correlated over ``shadow_corr_m``), f
 (smallest) variance, quantisation ignored. Not in the bound: the inertial sensors and odometry (a method
 that uses them has information the radio bound does not count) and the floor plan (walls constrain a
 walker; a map-aware method can go below a bound that does not know them). The start: ``J_0`` of a uniform
-position over the floor's bounding box (variance W^2 / 12 per axis) and a velocity of std ``speed``.
+position over the floor's bounding box (variance W^2 / 12 per axis) and a velocity of std the carrier's nominal
+speed (``motion.speed`` for a pedestrian, ``motion.robot_speed`` for the robot).
 
 Pure numpy; no plotting, no I/O beyond reading the session's CSVs through :mod:`blenav.data`.
 """
@@ -166,126 +170,162 @@ def sim_parameters(meta: dict):
     return make_sim_config(sim["config"])
 
 
-def _interp_xyz(gt, t: np.ndarray) -> np.ndarray:
-    gt_t = gt["t"].to_numpy(float)
-    z = gt["z"].to_numpy(float) if "z" in gt and not gt["z"].isna().all() else np.zeros(len(gt_t))
-    return np.stack([np.interp(t, gt_t, gt["x"].to_numpy(float)), np.interp(t, gt_t, gt["y"].to_numpy(float)),
-                     np.interp(t, gt_t, z)], axis=1)
+SENSORS = ("rssi", "rtt", "visual")
 
 
-def session_bound(session, simcfg, settings: BoundSettings = BoundSettings()) -> dict:
-    """The PCRLB along ``session``'s ground truth: ``{"t" (K,), "bound_m" (K,) = sqrt(trace of the position
-    block of J_k^{-1}), "P" (K, 2, 2) that block (m^2), "q", "dt_s"}``. Raises ValueError for a session it cannot bound (no ground truth
-    span, a static survey)."""
-    from blenav.sim.calibration import profile_for
+def session_information(session, simcfg, dt_s: float, sensors=SENSORS) -> dict:
+    """What the bound of ``session`` needs, whichever measurements a variant counts: ``{"t" (K,) the end of
+    each ``dt_s`` step (s), "dt_s", "q" (m^2/s^3), "F", "Q" (4, 4), "J0" (4, 4) the prior's information,
+    "Jz": {sensor: (K, 2, 2) position information of that stream}`` for each of ``sensors`` the session has,
+    and "no_position": the anchors heard whose position anchors.csv does not give (their packets are not
+    counted). Computed once per session; :func:`bound_of` runs the recursion for one choice of sensors.
+    Raises ValueError for a session it cannot bound (a static survey, ground truth shorter than two steps)."""
+    from blenav.radio_stats import anchor_positions
     from blenav.sim.radio import fading_moments_db, k_factor
+    from blenav.sim.receivers import TABLE_3_2, make_profile
 
     if session.carrier == "static":
         raise ValueError("a static survey has no motion model (the device jumps between survey points)")
     gt = session.groundtruth
     gt_t = gt["t"].to_numpy(float)
-    dt = float(settings.dt_s)
+    dt = float(dt_s)
     tk = np.arange(gt_t[0] + dt, gt_t[-1] + 1e-9, dt)  # the end of each step
     K = len(tk)
     if K < 2:
         raise ValueError(f"ground truth spans {gt_t[-1] - gt_t[0]:g} s, less than two {dt:g} s steps")
     q = fit_process_noise(gt_t, gt[["x", "y"]].to_numpy(float), dt)
     F, Q = cv_model(dt, q)
-    anchors = session.building.anchors
-    cols = ["x_true", "y_true", "z_true"] if "x_true" in anchors else ["x", "y", "z"]
-    index = {a: i for i, a in enumerate(anchors["anchor_id"].astype(str))}
-    xyz = anchors[cols].to_numpy(float)
-    Jz = np.zeros((K, 4, 4))
+    anchors = anchor_positions(session.building)  # the true positions where the simulator wrote them
+    xyz = anchors[["x", "y", "z"]].to_numpy(float)
+    located = np.isfinite(xyz).all(axis=1)
+    index = {a: i for i, a in enumerate(anchors.index)}
+    no_position: set[str] = set()
 
     def steps_of(t):
         s = np.ceil((t - gt_t[0]) / dt - 1e-9).astype(int) - 1
         return s, (s >= 0) & (s < K)
 
-    if settings.rssi and session.has("rssi"):
-        r = session.stream("rssi")
+    def packets(name):
+        """Step, anchor index and true receiver position (N, 3) of the stream's rows in [t_0, t_K] whose
+        anchor has a position."""
+        r = session.stream(name)
         t = r["t"].to_numpy(float)
         aid = r["anchor_id"].astype(str).map(index)
         s, ok = steps_of(t)
         ok &= aid.notna().to_numpy()
-        prof = profile_for(str(session.meta.get("device_model")), simcfg.ble) \
-            if str(session.meta.get("device_model")) in _profiles() else None
+        a = aid.fillna(-1).to_numpy(int)
+        lost = ok & ~located[a]
+        no_position.update(r["anchor_id"].astype(str)[lost])
+        ok &= ~lost
+        return s[ok], a[ok], session.positions_at(t[ok], with_z=True)
+
+    Jz = {}
+    if "rssi" in sensors and session.has("rssi"):
+        device = str(session.meta.get("device_model"))
+        fading = fading_moments_db(float(k_factor(simcfg.ble, np.array(1.0), np.array(0.0))))  # at 1 m, line of sight
+        prof = make_profile(device, fading) if device in TABLE_3_2 else None  # as blenav.sim.calibration.profile_for
         gain = prof.gain if prof else 1.0
         rx_std = float(prof.std_db[0]) if prof else 0.0
-        fade_var = fading_moments_db(float(k_factor(simcfg.ble, np.array(1.0), np.array(0.0))))[1]
-        Jz[:, :2, :2] += rssi_information(s[ok], aid[ok].to_numpy(int), _interp_xyz(gt, t[ok]), xyz, K,
-                                          gain * 10.0 * simcfg.ble.path_loss_exponent,
-                                          (gain * simcfg.ble.shadow_std_db) ** 2, gain**2 * fade_var + rx_std**2)
-    if settings.rtt and session.has("rtt"):
-        r = session.stream("rtt")
-        t = r["t"].to_numpy(float)
-        aid = r["anchor_id"].astype(str).map(index)
-        s, ok = steps_of(t)
-        ok &= aid.notna().to_numpy()
-        Jz[:, :2, :2] += range_information(s[ok], aid[ok].to_numpy(int), _interp_xyz(gt, t[ok]), xyz, K,
-                                           simcfg.rtt.std_m, simcfg.rtt.std_per_m)
-    if settings.visual and session.has("visual"):
+        Jz["rssi"] = rssi_information(*packets("rssi"), xyz, K, gain * 10.0 * simcfg.ble.path_loss_exponent,
+                                      (gain * simcfg.ble.shadow_std_db) ** 2, gain**2 * fading[1] + rx_std**2)
+    if "rtt" in sensors and session.has("rtt"):
+        Jz["rtt"] = range_information(*packets("rtt"), xyz, K, simcfg.rtt.std_m, simcfg.rtt.std_per_m)
+    if "visual" in sensors and session.has("visual"):
         s, ok = steps_of(session.stream("visual")["t"].to_numpy(float))
-        np.add.at(Jz, (s[ok], slice(0, 2), slice(0, 2)), np.eye(2) / simcfg.visual.pos_std_m**2)
-    fl = session.floor
-    w, h = _floor_extent(fl)
-    J0 = np.diag([12.0 / w**2, 12.0 / h**2, 1.0 / simcfg.motion.speed**2, 1.0 / simcfg.motion.speed**2])
-    J = pcrlb_recursion(F, Q, Jz, J0)
+        Jz["visual"] = np.zeros((K, 2, 2))
+        np.add.at(Jz["visual"], s[ok], np.eye(2) / simcfg.visual.pos_std_m**2)
+    x0, x1, y0, y1 = session.floor.extent
+    speed = simcfg.motion.robot_speed if session.carrier == "robot" else simcfg.motion.speed  # the carrier's own
+    J0 = np.diag([12.0 / (x1 - x0) ** 2, 12.0 / (y1 - y0) ** 2, 1.0 / speed**2, 1.0 / speed**2])
+    return {"t": tk, "dt_s": dt, "q": q, "F": F, "Q": Q, "J0": J0, "Jz": Jz, "no_position": sorted(no_position)}
+
+
+def bound_of(info: dict, settings: BoundSettings) -> dict:
+    """The PCRLB of one variant from :func:`session_information`: ``{"t" (K,), "bound_m" (K,) = sqrt(trace of
+    the position block of J_k^{-1}), "P" (K, 2, 2) that block (m^2), "q", "dt_s"}``, counting the sensors
+    ``settings`` switches on."""
+    K = len(info["t"])
+    Jz = np.zeros((K, 4, 4))
+    for sensor in SENSORS:
+        if getattr(settings, sensor) and sensor in info["Jz"]:
+            Jz[:, :2, :2] += info["Jz"][sensor]
+    J = pcrlb_recursion(info["F"], info["Q"], Jz, info["J0"])
     P = np.linalg.inv(J)[:, :2, :2]
-    return {"t": tk, "bound_m": np.sqrt(np.trace(P, axis1=1, axis2=2)), "P": P, "q": q, "dt_s": dt}
+    return {"t": info["t"], "bound_m": np.sqrt(np.trace(P, axis1=1, axis2=2)), "P": P, "q": info["q"],
+            "dt_s": info["dt_s"]}
 
 
-def _profiles():
-    from blenav.sim.receivers import TABLE_3_2
-
-    return TABLE_3_2
-
-
-def _floor_extent(floor) -> tuple[float, float]:
-    """Width and height (m) of a floor's plan."""
-    occ = np.asarray(floor.occupancy)
-    return occ.shape[1] * float(floor.resolution), occ.shape[0] * float(floor.resolution)
+def session_bound(session, simcfg, settings: BoundSettings = BoundSettings()) -> dict:
+    """The PCRLB along ``session``'s ground truth (:func:`bound_of` of :func:`session_information`). Raises
+    ValueError for a session it cannot bound (no ground truth span, a static survey)."""
+    used = tuple(k for k in SENSORS if getattr(settings, k))
+    return bound_of(session_information(session, simcfg, settings.dt_s, used), settings)
 
 
-def bound_entry(dataset_meta: dict, sessions: list, init_s: float, settings: BoundSettings = BoundSettings(),
-                n_draws: int = 200, seed: int = 0) -> dict:
-    """The results.json entry ``methods.PCRLB`` (``kind: bound``): ``rmse_m`` (per session the RMS of the
-    per-step bound over the tracking period t >= t_0 + init_s, as the methods' RMSE; mean etc. over
-    sessions), ``error_m`` of an efficient estimator (errors drawn from N(0, J_k^{-1}) per step: what the
-    error percentiles would be for an estimator that attains the bound), ``per_session``, ``settings``; or
+def bound_entries(dataset_meta: dict, sessions: list, init_s: float, variants: dict[str, BoundSettings],
+                  n_draws: int = 200, seed: int = 0) -> dict[str, dict]:
+    """The results.json entries ``methods[name]`` (``kind: bound``) of every variant ``{name: settings}`` (one
+    ``dt_s`` for all): each session's information is computed once (:func:`session_information`) and the
+    recursion run per variant (:func:`bound_of`). Each entry: ``rmse_m`` (per session the RMS of the per-step
+    bound over the tracking period t >= t_0 + init_s, as the methods' RMSE; mean etc. over sessions),
+    ``error_m`` of an efficient estimator (errors drawn from N(0, J_k^{-1}) per step, ``seed`` for every
+    variant: what the error percentiles would be for an estimator that attains the bound), ``per_session``,
+    ``settings``, ``no_position`` ({session: anchors heard without a position, not counted}) when any; or
     ``{"skipped": {session: reason}}`` on data without the simulator's parameters."""
+    dts = {float(st.dt_s) for st in variants.values()}
+    if len(dts) != 1:
+        raise ValueError(f"bound variants must share one dt_s, got {sorted(dts)}")
     simcfg = sim_parameters(dataset_meta)
     if simcfg is None:
         reason = ("not a simulated dataset (dataset.yaml has no `simulator` parameters): the bound needs the "
                   "simulator's motion and channel models")
-        return {"kind": "bound", "skipped": {s.id: reason for s in sessions}}
+        return {name: {"kind": "bound", "skipped": {s.id: reason for s in sessions}} for name in variants}
     from .metrics import error_stats, summary
 
-    rng = np.random.default_rng(seed)
-    per, skipped, rms, draws, curves = {}, {}, [], [], {}
+    used = tuple(k for k in SENSORS if any(getattr(st, k) for st in variants.values()))
+    acc = {name: {"rng": np.random.default_rng(seed), "per": {}, "rms": [], "draws": [], "curves": {}}
+           for name in variants}
+    skipped, no_position, dt = {}, {}, dts.pop()
     for s in sessions:
         try:
-            b = session_bound(s, simcfg, settings)
+            info = session_information(s, simcfg, dt, used)
         except ValueError as exc:
             skipped[s.id] = str(exc)
             continue
-        track = b["t"] >= b["t"][0] - b["dt_s"] + init_s
-        if not track.any():
-            track[:] = True
-        v = float(np.sqrt(np.mean(b["bound_m"][track] ** 2)))
-        rms.append(v)
-        # an efficient estimator's planar error at each step: |e|, e ~ N(0, P_k) with P_k the bound's covariance
-        L = np.linalg.cholesky(b["P"][track])
-        e = np.linalg.norm(np.einsum("kij,nkj->nki", L, rng.standard_normal((n_draws, int(track.sum()), 2))), axis=-1)
-        draws.append(e.ravel())
-        per[s.id] = {"rmse_m": summary(np.array([v])), "q_m2s3": b["q"], "steps": int(track.sum())}
-        curves[s.id] = {"t": b["t"], "bound_m": b["bound_m"]}
-    out: dict = {"kind": "bound", "settings": {"dt_s": settings.dt_s, "rssi": settings.rssi, "rtt": settings.rtt,
-                                               "visual": settings.visual}}
-    if rms:
-        out.update({"rmse_m": summary(np.array(rms)), "error_m": error_stats(np.concatenate(draws)),
-                    "ate_m": float(np.mean(rms)), "per_session": per})
-    if skipped:
-        out["skipped"] = skipped
-    out["_curves"] = curves  # not for results.json: the leaderboard's plots (popped by blenav.eval.leaderboard)
-    out["_errors"] = np.concatenate(draws) if draws else np.zeros(0)
+        if info["no_position"]:
+            no_position[s.id] = info["no_position"]
+        for name, settings in variants.items():
+            a, b = acc[name], bound_of(info, settings)
+            track = b["t"] >= b["t"][0] - b["dt_s"] + init_s
+            if not track.any():
+                track[:] = True
+            v = float(np.sqrt(np.mean(b["bound_m"][track] ** 2)))
+            a["rms"].append(v)
+            # an efficient estimator's planar error at each step: |e|, e ~ N(0, P_k) with P_k the bound's covariance
+            L = np.linalg.cholesky(b["P"][track])
+            z = a["rng"].standard_normal((n_draws, int(track.sum()), 2))
+            a["draws"].append(np.linalg.norm(np.einsum("kij,nkj->nki", L, z), axis=-1).ravel())
+            a["per"][s.id] = {"rmse_m": summary(np.array([v])), "q_m2s3": b["q"], "steps": int(track.sum())}
+            a["curves"][s.id] = {"t": b["t"], "bound_m": b["bound_m"]}
+    out = {}
+    for name, settings in variants.items():
+        a = acc[name]
+        e: dict = {"kind": "bound", "settings": {"dt_s": settings.dt_s, "rssi": settings.rssi, "rtt": settings.rtt,
+                                                 "visual": settings.visual}}
+        if a["rms"]:
+            e.update({"rmse_m": summary(np.array(a["rms"])), "error_m": error_stats(np.concatenate(a["draws"])),
+                      "ate_m": float(np.mean(a["rms"])), "per_session": a["per"]})
+        if skipped:
+            e["skipped"] = dict(skipped)
+        if no_position:
+            e["no_position"] = dict(no_position)
+        e["_curves"] = a["curves"]  # not for results.json: the leaderboard's plots (popped by blenav.eval.leaderboard)
+        e["_errors"] = np.concatenate(a["draws"]) if a["draws"] else np.zeros(0)
+        out[name] = e
     return out
+
+
+def bound_entry(dataset_meta: dict, sessions: list, init_s: float, settings: BoundSettings = BoundSettings(),
+                n_draws: int = 200, seed: int = 0) -> dict:
+    """The entry ``methods.PCRLB`` of one variant (:func:`bound_entries`)."""
+    return bound_entries(dataset_meta, sessions, init_s, {"PCRLB": settings}, n_draws, seed)["PCRLB"]

@@ -1,4 +1,5 @@
-"""results.md: the experiment as a table like the papers' (no plotting here)."""
+"""results.md: the experiment as a table like the papers', the leaderboard's table, the cross-phone tables (no
+plotting here)."""
 
 from __future__ import annotations
 
@@ -10,18 +11,34 @@ def _f(v, nd=2) -> str:
 
 
 def write_markdown(path: Path, results: dict, cfg=None) -> None:
-    if cfg is not None and "experiment" in cfg and cfg.experiment.get("kind") == "leaderboard":
-        from .leaderboard import write_markdown as leaderboard_markdown  # one table sorted by RMSE, with the PCRLB
+    """results.md of an evaluation. Every experiment prints one frame: the heading and what was evaluated, what
+    the methods were given (path-loss calibration, wrong plans, beacon map), the experiment's tables, then the
+    map notes, the estimates kept on the floor, the rows dropped while reading, the paper comparison and the
+    plots. The tables: the papers' layout (:func:`_method_tables`), or for ``experiment.kind: leaderboard`` one
+    table sorted by RMSE with the PCRLB rows, peak memory and the skipped methods (:func:`_leaderboard_tables`)."""
+    leaderboard = cfg is not None and "experiment" in cfg and cfg.experiment.get("kind") == "leaderboard"
+    intro, tables, plots = (_leaderboard_tables if leaderboard else _method_tables)(results)
+    ms = {n: m for n, m in results["methods"].items() if "rmse_m" in m}
+    lines = [f"# {results['experiment']}: {results.get('title', '')}", "", intro, "",
+             _calibration_line(results), "", *_plan_error_lines(results), *_beacon_map_lines(results), *tables]
+    notes = sorted({n for m in ms.values() for n in m.get("map_notes", [])})
+    if notes:
+        lines += ["", "Map notes:", ""] + [f"- {n}" for n in notes]
+    lines += _confined_lines(ms) + _dropped_lines(results)
+    lines += _paper_comparison(results, ms, cfg)
+    lines += ["", plots]
+    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
 
-        return leaderboard_markdown(path, results, cfg)
+
+def _method_tables(results: dict) -> tuple[str, list[str], str]:
+    """The papers' layout: (intro, one row per method in the configured order plus the per-session RMSE and the
+    skipped sessions, the plots line)."""
     ms = results["methods"]
-    lines = [f"# {results['experiment']}: {results.get('title', '')}", "",
-             f"Dataset `{results['dataset']}`, {len(results['sessions'])} labelled session(s), "
+    intro = (f"Dataset `{results['dataset']}`, {len(results['sessions'])} labelled session(s), "
              f"{results['runs']} run(s) per session and method, seed {results.get('seed', 0)}. "
              f"Errors are planar, against ground truth interpolated at the estimate times; the first "
-             f"{results['init_s']:g} s of each session (global localization) are reported separately.", "",
-             _calibration_line(results), "", *_plan_error_lines(results), *_beacon_map_lines(results),
-             "| method | RMSE [m] mean +- stderr | RMSE 99% CI | error median | CDF p75 | p90 | max | ATE | EE | "
+             f"{results['init_s']:g} s of each session (global localization) are reported separately.")
+    lines = ["| method | RMSE [m] mean +- stderr | RMSE 99% CI | error median | CDF p75 | p90 | max | ATE | EE | "
              "init error mean | orientation RMSE [deg] | recoveries | wall [s] | x real time |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     skipped = {n: m["skipped"] for n, m in ms.items() if "skipped" in m}
@@ -42,14 +59,111 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
     for n, sk in skipped.items():
         lines += ["", f"{n}: skipped on {len(sk)} session(s) ({', '.join(sorted(sk))[:300]}): "
                   + "; ".join(sorted(set(sk.values())))]
-    notes = sorted({n for m in ms.values() for n in m.get("map_notes", [])})
-    if notes:
-        lines += ["", "Map notes:", ""] + [f"- {n}" for n in notes]
-    lines += _confined_lines(ms) + _dropped_lines(results)
-    lines += _paper_comparison(results, ms, cfg)
-    lines += ["", "Plots: error_cdf.png (median CDF over runs with 5-95 % band), rmse_box.png, "
-              "error_over_time.png, trajectories.png (first run, first session)."]
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return intro, lines, ("Plots: error_cdf.png (median CDF over runs with 5-95 % band), rmse_box.png, "
+                          "error_over_time.png, trajectories.png (first run, first session).")
+
+
+# --------------------------------------------------------------------------- the leaderboard (issue 18 sec. 2)
+
+def _leaderboard_tables(results: dict) -> tuple[str, list[str], str]:
+    """The leaderboard (blenav.eval.leaderboard): (intro, one table sorted by RMSE with the bounds last, what the
+    bounds and the peak memory mean, the skipped methods with their reasons, the per-session RMSE, the plots
+    line)."""
+    ms = results["methods"]
+    ran = {n: m for n, m in ms.items() if "rmse_m" in m and m.get("kind") != "bound"}
+    bounds = {n: m for n, m in ms.items() if m.get("kind") == "bound"}
+    scored = {n: m for n, m in bounds.items() if "rmse_m" in m}
+    order = sorted(ran, key=lambda n: ran[n]["rmse_m"]["mean"])
+    how = next((m["peak_memory"]["how"] for m in ran.values() if m.get("peak_memory")), None)
+    intro = (f"Dataset `{results['dataset']}`, {len(results['sessions'])} labelled session(s) "
+             f"({', '.join(results['sessions'])}), {results['runs']} run(s) per session and method, seed "
+             f"{results.get('seed', 0)}: every method on the same sessions and seeds. Errors are planar (m) against "
+             f"the ground truth at the estimate times, after the first {results['init_s']:g} s of each session "
+             "(global localization). Sorted by RMSE.")
+    lines = ["| # | method | family | mean | median | p75 | p90 | RMSE mean +- stderr | RMSE 99% CI | ATE | "
+             "x real time | peak memory [MB] |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for i, name in enumerate(order, 1):
+        m = ran[name]
+        r, e = m["rmse_m"], m["error_m"]
+        pk = m.get("peak_memory") or {}
+        pm = "-" if pk.get("peak_memory_mb") is None else (
+            f"+{pk['peak_memory_mb']:.1f}" + (f" ({pk['peak_rss_mb']:.0f})" if pk.get("peak_rss_mb") is not None else ""))
+        lines.append(f"| {i} | {name} | {m.get('family', '-')} | {_f(e['mean'])} | {_f(e['median'])} | {_f(e['p75'])} | "
+                     f"{_f(e['p90'])} | {_f(r['mean'])} +- {_f(r['stderr'], 3)} | [{_f(r['ci99'][0])}, {_f(r['ci99'][1])}] | "
+                     f"{_f(m['ate_m'])} | {_f(m['realtime_factor'], 0)} | {pm} |")
+    for name, b in scored.items():
+        r, e = b["rmse_m"], b["error_m"]
+        lines.append(f"| - | {name} | bound | {_f(e['mean'])}* | {_f(e['median'])}* | {_f(e['p75'])}* | {_f(e['p90'])}* | "
+                     f"{_f(r['mean'])} +- {_f(r['stderr'], 3)} | [{_f(r['ci99'][0])}, {_f(r['ci99'][1])}] | "
+                     f"{_f(b['ate_m'])} | - | - |")
+    lines += ["", _bound_text(scored)] if scored else []
+    if how:
+        lines += ["", f"Peak memory: {how} (MB: +increase, and in brackets the process's peak resident memory while "
+                  "the method ran). Every session's streams and floor plan are read before the first method, so no "
+                  "method is charged for reading the data; what methods load or build on first use and then share "
+                  "(imported code, JIT-compiled kernels, map geometry per floor, attitude per session) is counted in "
+                  "the first method that needs it, so the first method of a kind reads higher than the next."]
+    lines += ["", "x real time: seconds of data per second of computing, all runs (one core, this machine; training of "
+              "the fingerprint rows not included)."]
+    skipped = {n: m["skipped"] for n, m in ms.items() if "skipped" in m and m.get("kind") != "bound"}
+    if skipped:
+        lines += ["", "## Skipped", ""]
+        for n, sk in skipped.items():
+            whole = "rmse_m" not in ms[n]
+            why = (ms[n].get("training") or {}).get("unavailable")  # a Trained method that could not be trained
+            lines.append(f"- {n} ({ms[n].get('family', '-')}): {'skipped' if whole else 'skipped on'} "
+                         f"{len(sk)} session(s): " + (f"training: {why}" if why else "; ".join(sorted(set(sk.values())))))
+    model = results.get("model") or {}
+    for n, why in (model.get("unavailable") or {}).items():
+        if n not in skipped:
+            lines.append(f"- {n}: {why}")
+    for n, b in bounds.items():
+        if "skipped" in b and "rmse_m" not in b:
+            lines += ["", f"{n}: " + "; ".join(sorted(set(b["skipped"].values()))) + "."]
+    if ran:
+        cols = order + list(scored)
+        lines += ["", "## Per session (RMSE mean over runs, m)", "", "| session | " + " | ".join(cols) + " |",
+                  "|---|" + "---|" * len(cols)]
+        for sid in results["sessions"]:
+            cells = [_f(ms[n]["per_session"][sid]["rmse_m"]["mean"]) if sid in ms[n].get("per_session", {}) else
+                     ("skipped" if n in ran else "-") for n in cols]
+            lines.append(f"| {sid} | " + " | ".join(cells) + " |")
+    return intro, lines, ("Plots: leaderboard_cdf.png (median error CDF over runs, one colour per family; the bounds "
+                          "as the error CDF of an estimator that attains them), leaderboard_trajectories.png (the best "
+                          "method of each family), pcrlb_over_time.png (simulated data), error_cdf.png, rmse_box.png, "
+                          "error_over_time.png, trajectories.png. Trajectories of every method: "
+                          "OUT/<session>/trajectories/<method>.tum (evo_ape tum groundtruth.tum <method>.tum).")
+
+
+def _bound_text(scored: dict) -> str:
+    parts = []
+    for name, bound in scored.items():
+        b = bound["rmse_m"]["mean"]
+        s = bound.get("settings", {})
+        used = ", ".join(k for k in ("rssi", "rtt", "visual") if s.get(k)) or "none"
+        if name == "PCRLB":
+            parts.append(
+                f"{name}: the posterior Cramer-Rao lower bound of the position error (Tichavsky et al. 1998) along the "
+                f"true trajectories, from the simulator's own channel models (measurements: {used}) and a "
+                f"constant-velocity motion prior fitted to the simulated walks (blenav.eval.pcrlb): RMSE {b:.2f} m. "
+                "The columns marked * are those of an estimator that attains the bound (errors drawn from N(0, J^-1) "
+                "at each step). The bound counts no inertial, odometry or floor-plan information (methods using them "
+                "are not bound by it) and treats the channel parameters as known and shadowing as independent between "
+                f"{s.get('dt_s', 1):g} s steps: every simplification lowers it.")
+        else:
+            parts.append(f"{name}: the same bound from the BLE RSSI alone (the information the BLE-only filters use): "
+                         f"RMSE {b:.2f} m.")
+        best = bound.get("best")
+        if best:
+            verdict = "within" if best["ratio"] <= 1.5 else "NOT within"
+            parts[-1] += (f" Best method: {best['method']} at {best['rmse_m']:.2f} m, {best['ratio']:.1f}x {name} "
+                          f"({verdict} 1.5x).")
+        for sid, ids in (bound.get("no_position") or {}).items():
+            parts[-1] += (f" Session {sid}: anchor(s) {', '.join(ids)} heard but without a position in anchors.csv, "
+                          "their packets not counted.")
+    parts.append("What keeps a method above the bound (unknown beacon powers and receiver offset, wall and body "
+                 "losses it does not model, information it does not use) is discussed in docs/results-leaderboard.md.")
+    return "\n\n".join(parts)
 
 
 def _confined_lines(ms: dict) -> list[str]:

@@ -37,8 +37,15 @@ def _tensors(sessions, beacons, wcfg: WindowConfig, labelled: bool):
         return None
     S, P, xy = (np.concatenate(a) for a in (S, P, xy))
     keep = ~np.isnan(xy).any(axis=1) if labelled else np.ones(len(S), bool)
-    return TensorDataset(torch.from_numpy(S[keep] / U_SCALE), torch.from_numpy(P[keep] / U_SCALE),
-                         torch.from_numpy(xy[keep]).float())
+    return window_dataset(S[keep], P[keep], xy[keep])
+
+
+def window_dataset(S: np.ndarray, P: np.ndarray, xy: np.ndarray) -> TensorDataset:
+    """The tensors of a split: S (N, F, H) and the previous windows P (N, F, H) on the u scale, divided by
+    :data:`U_SCALE` (float32), labels xy (N, 2) m (float32)."""
+    return TensorDataset(torch.from_numpy(np.ascontiguousarray(S, np.float32) / U_SCALE),
+                         torch.from_numpy(np.ascontiguousarray(P, np.float32) / U_SCALE),
+                         torch.from_numpy(np.asarray(xy)).float())
 
 
 def _collate(rows) -> dict[str, torch.Tensor]:
@@ -104,12 +111,16 @@ class WindowDataModule(L.LightningDataModule):
                      "test": _tensors([s for s in groups["test"] if s.labelled], self.beacons, wcfg, True),
                      "unlabelled": _tensors(groups["unlabelled"], self.beacons, wcfg, False),
                      "known": _tensors([s for s in train if s.device_model in known], self.beacons, wcfg, True)}
-        v = self.sets["val"]
+        self.cap_validation()
+        if self.sets["train"] is None:
+            raise ValueError(f"{c.path}: no labelled training windows for devices {c.train_devices or 'all'}")
+
+    def cap_validation(self) -> None:
+        """Keep at most ``val_max_windows`` validation windows (a seeded subset, in their order; None: all)."""
+        c, v = self.cfg, self.sets.get("val")
         if v is not None and c.val_max_windows is not None and len(v) > int(c.val_max_windows):
             keep = np.sort(np.random.default_rng([c.seed, 2]).choice(len(v), int(c.val_max_windows), replace=False))
             self.sets["val"] = TensorDataset(*(t[torch.from_numpy(keep)] for t in v.tensors))
-        if self.sets["train"] is None:
-            raise ValueError(f"{c.path}: no labelled training windows for devices {c.train_devices or 'all'}")
 
     def train_hash(self) -> str:
         """Hash of the labelled training windows and labels (stored with a model; reuse checks compare it)."""

@@ -5,56 +5,81 @@ error).
 
 The windows are made by :mod:`blenav.features.fingerprints` (S (N, F, H) on the u scale, features = WiFi
 access points and/or BLE anchors instead of the BLE beacons of the cross-phone windows); :class:`ArrayWindows`
-hands them to the trainer as the :class:`~blenav.learn.data.WindowDataModule` it expects (same loaders,
-batch layout and seeded ``torch.Generator``), already set up. Validation windows are those of a seeded
-``val_fraction`` of the training walks (whole walks, as the data module's own split).
+hands them to the trainer as the :class:`~blenav.learn.data.WindowDataModule` it expects, already set up: the data
+module's tensors (:func:`~blenav.learn.data.window_dataset`), loaders, batch layout, seeded ``torch.Generator`` and
+validation cap (``data.val_max_windows``, :meth:`~blenav.learn.data.WindowDataModule.cap_validation`). Validation
+windows are those of a seeded ``val_fraction`` of the training walks (whole walks, as the data module's own split).
+The run's config is ``conf/train.yaml`` composed (:func:`blenav.configs.compose`) with ``model=<model>``, the
+``net`` / ``trainer`` overrides merged over it and ``data.path`` = the walks' dataset (the checkpoint's
+``data_path``).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import shutil
 from pathlib import Path
 
 import numpy as np
 import torch
-from omegaconf import OmegaConf
-from torch.utils.data import TensorDataset
+from omegaconf import DictConfig, OmegaConf
 
 from blenav.features.scale import U_SCALE
 from blenav.paths import conf_dir
 
-from .data import WindowDataModule
+from .data import WindowDataModule, window_dataset
 from .data_config import WindowDataConfig
-
-
-def _dataset(S: np.ndarray, P: np.ndarray, xy: np.ndarray) -> TensorDataset | None:
-    if not len(S):
-        return None
-    return TensorDataset(torch.from_numpy(np.ascontiguousarray(S, np.float32) / U_SCALE),
-                         torch.from_numpy(np.ascontiguousarray(P, np.float32) / U_SCALE),
-                         torch.from_numpy(np.asarray(xy, np.float32)))
 
 
 class ArrayWindows(WindowDataModule):
     """A :class:`WindowDataModule` over given windows: per split (``train``, ``val``) a tuple (S (N, F, H) u
     scale, S_prev (N, F, H) the window one step earlier of the same walk, xy (N, 2) m); ``features``: the F
     feature names (the model's rows, ``beacons`` of the checkpoint meta); ``groups``: the walks of each split;
-    ``window``: the dataclass that describes how the windows were made (stored with the model)."""
+    ``window``: the dataclass that describes how the windows were made (stored with the model). ``cfg``: the data
+    node (its ``path`` the walks' dataset, ``batch_size``, ``seed``, ``val_max_windows``); the validation windows
+    are capped as the data module caps its own."""
 
-    def __init__(self, splits: dict, features: list[str], building, groups: dict, window, batch_size: int,
-                 seed: int, path: str):
-        super().__init__(WindowDataConfig(path=path, batch_size=int(batch_size), seed=int(seed), val_fraction=0.0))
+    def __init__(self, cfg: WindowDataConfig, splits: dict, features: list[str], building, groups: dict, window):
+        super().__init__(cfg)
         self.beacons = list(features)
         self.building = building
         self.window = window
         self.groups = {"train": list(groups.get("train", [])), "val": list(groups.get("val", [])), "test": [],
                        "unlabelled": []}
-        tr = _dataset(*splits["train"])
-        if tr is None:
+        if not len(splits["train"][0]):
             raise ValueError("no labelled training windows")
-        va = _dataset(*splits["val"]) if "val" in splits else None
+        tr = window_dataset(*splits["train"])
+        va = window_dataset(*splits["val"]) if "val" in splits and len(splits["val"][0]) else None
         self.sets = {"train": tr, "val": va, "test": None, "unlabelled": None, "known": tr}
+        self.cap_validation()
+
+
+def dataset_root(sessions: list) -> Path:
+    """The dataset folder of ``sessions`` (DATASET/sessions/ID); ValueError when they come from several."""
+    roots = sorted({str(Path(s.root).resolve().parent.parent) for s in sessions})
+    if len(roots) != 1:
+        raise ValueError(f"fingerprint training walks must come from one dataset, got {roots or 'no walk'}")
+    return Path(roots[0])
+
+
+def run_config(model: str, out: Path, data_path: Path, seed: int, net: dict | None, trainer: dict | None,
+               val_fraction: float, batch_size: int, threads: int | None, plots: bool,
+               building: str | None = None, sessions: list[str] | None = None) -> DictConfig:
+    """``conf/train.yaml`` composed with ``model=<model>`` (:func:`blenav.configs.compose`; ValueError for a model
+    without ``conf/model/<model>.yaml``), ``net`` merged over ``model`` and ``trainer`` over ``trainer`` (the
+    progress bar off), and the run's seed, out, threads, plots and data node (path, building, sessions, batch
+    size, val_fraction)."""
+    from blenav.configs import compose
+
+    if not (conf_dir() / "model" / f"{model}.yaml").is_file():
+        raise ValueError(f"model {model!r}: no {conf_dir() / 'model' / f'{model}.yaml'}")
+    cfg = compose("train", f"model={model}")
+    OmegaConf.set_struct(cfg, False)  # net / trainer may carry keys the YAMLs do not list (as before compose)
+    cfg.model = OmegaConf.merge(cfg.model, OmegaConf.create(net or {}))
+    cfg.trainer = OmegaConf.merge(cfg.trainer, OmegaConf.create(trainer or {}), {"enable_progress_bar": False})
+    cfg.seed, cfg.out, cfg.threads, cfg.plots = int(seed), str(out), threads, bool(plots)
+    cfg.data.path, cfg.data.batch_size, cfg.data.val_fraction = str(data_path), int(batch_size), float(val_fraction)
+    cfg.data.building, cfg.data.sessions = building, sessions
+    return cfg
 
 
 def split_walks(walk_of: np.ndarray, val_fraction: float, seed: int) -> np.ndarray:
@@ -78,15 +103,11 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
     The run folder ``out`` is emptied first (the trainer would resume a run of other data from its
     last.ckpt). Returns (predict: S (K, F, H) u scale -> (K, 2) m, the training report of
     :func:`blenav.learn.train.training_report` plus ``train_windows`` / ``val_windows`` / ``val_walks``)."""
-    from .train import train
+    from .train import data_config, train
 
-    base = conf_dir()
-    mpath = base / "model" / f"{model}.yaml"
-    if not mpath.is_file():
-        raise ValueError(f"model {model!r}: no {mpath}")
-    mcfg = OmegaConf.merge(OmegaConf.load(mpath), OmegaConf.create(net or {}))
-    tcfg = OmegaConf.merge(OmegaConf.load(base / "trainer" / "cpu.yaml"), OmegaConf.create(trainer or {}),
-                           {"enable_progress_bar": False})
+    out = Path(out)
+    cfg = run_config(model, out, dataset_root(sessions), seed, net, trainer, val_fraction, batch_size, threads, plots,
+                     building=sessions[0].building.id, sessions=[s.id for s in sessions])
     val = split_walks(walk_of, val_fraction, seed)
     splits = {"train": (S[~val], P[~val], xy[~val])}
     if val.any():
@@ -94,12 +115,9 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
     in_val = set(np.unique(walk_of[val]).tolist())
     groups = {"train": [s for i, s in enumerate(sessions) if i not in in_val],
               "val": [s for i, s in enumerate(sessions) if i in in_val]}
-    out = Path(out)
     if out.exists():
         shutil.rmtree(out)
-    dm = ArrayWindows(splits, features, sessions[0].building, groups, window, batch_size, seed, str(out))
-    cfg = OmegaConf.create({"seed": int(seed), "out": str(out), "threads": threads, "plots": bool(plots),
-                            "data": dataclasses.asdict(dm.cfg), "model": mcfg, "trainer": tcfg})
+    dm = ArrayWindows(data_config(cfg), splits, features, sessions[0].building, groups, window)
     _, objs = train(cfg, datamodule=dm)
     module = objs["module"].eval()
 

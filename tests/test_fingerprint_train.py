@@ -1,0 +1,98 @@
+"""LocNet on fingerprint windows (blenav.learn.fingerprint_train): the run's config composed from conf/train.yaml,
+the windows handed to the trainer through the data module's own code (tensors, validation cap), and the
+checkpoint's data_path naming the walks' dataset. Synthetic ILC walks (tests/test_fingerprint.py's coded walks)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blenav.data import Dataset
+from blenav.importers import run_import
+from test_fingerprint import START, coded_walk
+from test_ilc20 import write_floor, write_walk
+
+
+@pytest.fixture
+def walks(tmp_path):
+    """walkA at y = 5 m, walkB at y = 7 m, walkC at y = 5 m (coded access points), imported into tmp/ds."""
+    d = write_floor(tmp_path / "raw")
+    for name, y, k in (("walkA", 5.0, 0), ("walkB", 7.0, 1), ("walkC", 5.0, 2)):
+        write_walk(d, name, coded_walk(START + k * 100_000, y))
+    run_import("ilc20", d, tmp_path / "ds")
+    return Dataset.open(tmp_path / "ds")
+
+
+def test_array_windows_use_the_data_module_and_its_validation_cap(walks, tmp_path):
+    """ArrayWindows: the composed train config's data node (path = the walks' dataset), the data module's tensors
+    (u / 100, float32) and its seeded validation cap data.val_max_windows (8 windows -> 3, the subset of
+    default_rng([seed, 2]), in order)."""
+    import torch
+
+    from blenav.learn.fingerprint_train import ArrayWindows, dataset_root, run_config
+    from blenav.learn.train import data_config
+
+    ss = [walks.session("mall_F1_walkA"), walks.session("mall_F1_walkB")]
+    root = dataset_root(ss)
+    assert root == walks.root.resolve()
+    cfg = run_config("locnet", tmp_path / "run", root, 3, {"lr": 0.002}, {"budget": {"max_steps": 7}}, 0.5, 4, 1,
+                     False, building="mall", sessions=[s.id for s in ss])
+    assert cfg.model.lr == 0.002 and cfg.model.name == "locnet" and cfg.trainer.budget.max_steps == 7
+    assert cfg.trainer.budget.patience == 15 and cfg.trainer.enable_progress_bar is False and cfg.task == "crossphone"
+    assert cfg.data.val_max_windows == 2048  # conf/windows/default.yaml's cap, as every window training
+    cfg.data.val_max_windows = 3
+    dc = data_config(cfg)
+    assert (dc.path, dc.seed, dc.batch_size, dc.val_fraction, dc.building, dc.sessions) == (
+        str(root), 3, 4, 0.5, "mall", ["mall_F1_walkA", "mall_F1_walkB"])
+    rng = np.random.default_rng(0)
+    S = rng.uniform(0.0, 60.0, (12, 4, 5)).astype(np.float32)
+    P, xy = S[::-1].copy(), rng.uniform(0.0, 30.0, (12, 2))
+    dm = ArrayWindows(dc, {"train": (S[:4], P[:4], xy[:4]), "val": (S[4:], P[4:], xy[4:])}, list("abcd"),
+                      ss[0].building, {"train": ss[:1], "val": ss[1:]}, window=None)
+    keep = np.sort(np.random.default_rng([3, 2]).choice(8, 3, replace=False))
+    va = dm.sets["val"].tensors
+    assert len(dm.sets["val"]) == 3 and va[0].dtype == torch.float32 and va[2].dtype == torch.float32
+    np.testing.assert_allclose(va[0].numpy(), S[4:][keep] / 100.0, rtol=1e-7)
+    np.testing.assert_allclose(va[2].numpy(), xy[4:][keep], rtol=1e-6)
+    np.testing.assert_allclose(dm.sets["train"].tensors[1].numpy(), P[:4] / 100.0, rtol=1e-7)
+    assert dm.sets["known"] is dm.sets["train"] and len(dm.val_dataloader()) == 1
+    with pytest.raises(ValueError, match="one dataset"):
+        dataset_root([])
+    with pytest.raises(ValueError, match="no .*nosuchnet.yaml"):
+        run_config("nosuchnet", tmp_path / "run", root, 0, None, None, 0.5, 4, 1, False)
+
+
+def test_locnet_checkpoint_records_the_walks_dataset(walks, tmp_path):
+    """A short LocNet run on WiFi windows: data_path of the checkpoint is the dataset, config.yaml its data node."""
+    import yaml
+
+    from blenav.learn.checkpoint import read_meta
+    from blenav.localizers import RunContext
+    from blenav.localizers.fingerprint import FingerprintLocalizer
+
+    loc = FingerprintLocalizer("LocNet-WiFi", model="locnet", val_fraction=0.5, seed=3,
+                               trainer={"budget": {"max_steps": 4, "val_every_steps": 2, "warmup_steps": 1}})
+    rep = loc.fit([walks.session("mall_F1_walkA"), walks.session("mall_F1_walkB")], RunContext(out=tmp_path))
+    tr = rep["floors"]["mall/F1"]["training"]
+    assert tr["steps"] == 4 and tr["train_windows"] == 5 and tr["val_windows"] == 5
+    run = tmp_path / "fingerprint" / "LocNet-WiFi" / "mall_F1"
+    assert read_meta(run / "last.ckpt")["data_path"] == str(walks.root.resolve())  # not the run folder
+    data = yaml.safe_load((run / "config.yaml").read_text())["data"]
+    assert data["path"] == str(walks.root.resolve()) and data["val_max_windows"] == 2048 and data["seed"] == 3
+
+
+def test_compose_inside_a_running_hydra_app():
+    """blenav-eval trains the fingerprint networks inside its Hydra app: compose() sets the app's Hydra aside and
+    gives it back (was: 'GlobalHydra is already initialized')."""
+    from hydra import initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from blenav.configs import compose
+    from blenav.paths import conf_dir
+
+    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+        app = GlobalHydra.instance().hydra
+        cfg = compose("train", "model=transnet_locnet", "seed=4")
+        assert cfg.model.name == "transnet_locnet" and cfg.data.seed == 4
+        assert GlobalHydra.instance().hydra is app
+    assert not GlobalHydra.instance().is_initialized()
