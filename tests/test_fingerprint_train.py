@@ -7,20 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from blenav.data import Dataset
-from blenav.importers import run_import
-from test_fingerprint import START, coded_walk
-from test_ilc20 import write_floor, write_walk
-
-
-@pytest.fixture
-def walks(tmp_path):
-    """walkA at y = 5 m, walkB at y = 7 m, walkC at y = 5 m (coded access points), imported into tmp/ds."""
-    d = write_floor(tmp_path / "raw")
-    for name, y, k in (("walkA", 5.0, 0), ("walkB", 7.0, 1), ("walkC", 5.0, 2)):
-        write_walk(d, name, coded_walk(START + k * 100_000, y))
-    run_import("ilc20", d, tmp_path / "ds")
-    return Dataset.open(tmp_path / "ds")
+from test_fingerprint import coded as walks  # noqa: F401 -- the fixture: walks A, B (trained), C, imported
 
 
 def test_array_windows_use_the_data_module_and_its_validation_cap(walks, tmp_path):
