@@ -228,3 +228,29 @@ def test_train_ids_and_table_rows_come_from_the_experiment(tmp_path):
     assert set(CONTRACT) <= set(rows["all"]) and {r for _, a, b in OUTCOMES for r in (a, b)} <= set(rows["all"])
     assert rows["fingerprint"] == ("KNN-WiFi", "KNN-BLE", "KNN-WiFi+BLE", "LocNet-WiFi", "TransNet+LocNet-WiFi")
     assert "WiFi+PDR+learned-map" in rows["fused"] and "PDR+map" not in rows["fused"]
+
+
+def test_sparse_role_hears_only_its_beacons(tmp_path):
+    """One KNN-BLE shared by a full and a sparse role: the sparse fixes come from the chosen beacons only (the
+    localizer's beacons set for that run and restored), so they differ from the full role's; sources fix-ble and
+    fix-sparse2."""
+    from blenav.data import Dataset
+    from blenav.eval.fixes import FixProvider
+    from blenav.localizers.fingerprint import FingerprintLocalizer
+
+    data = _as_waypoint_walks(simulate_small(tmp_path / "d", 3, 30, 3))
+    ss = list(Dataset.open(data).sessions(labelled=True))
+    knn = FingerprintLocalizer("KNN-BLE", features="ble", k=3)
+    knn.fit(ss[:2])
+    prov = FixProvider({"ble": None, "sparse": None}, {"ble": knn, "sparse": knn}, 2, tmp_path / "o")
+    t_all, xy_all, _, src_all = prov._fixes("ble", ss[2])
+    t_sp, xy_sp, _, src_sp = prov._fixes("sparse", ss[2])
+    assert knn.beacons is None and (src_all, src_sp) == ("fix-ble", "fix-sparse2")
+    chosen = prov.beacon_ids[str(ss[2].building.id)]
+    assert len(chosen) == 2
+    knn.beacons = tuple(chosen)
+    est = knn.run(ss[2], 1, 0)
+    knn.beacons = None
+    np.testing.assert_array_equal(t_sp, est.t)
+    np.testing.assert_allclose(xy_sp, est.position[0])
+    assert len(t_sp) != len(t_all) or not np.allclose(xy_sp, xy_all)
