@@ -366,6 +366,10 @@ feng-tables: $(STAMP)
 # anchors.csv, unplaced beacons kept without a position for the fingerprints), experiment=realwalks with a map prior trained on
 # simulated procedural buildings (trained once, reused), the floor classifier on the three floors in one dataset,
 # then docs/results/ilc20_<floor>.md, docs/results-ilc20.md and the README table. RW_RUNS runs per walk.
+# Second map prior (leave one floor out): for each floor F, a prior trained on the train walks of the other floors
+# (experiment=mapprior_ilc, waypoints interpolated linearly at training time; trained once, reused when
+# $(RW_FLOOR_PRIOR)_not_F_onnx exists), run on F's learned-map rows (experiment=mapprior_ilc_rows, model=) into
+# $(RW_OUT_OTHER)/F; blenav.eval.realwalks_priors writes both priors' rows beside the heuristic map PF.
 RW_RAW ?= ../shared/data/raw/ilc20
 RW_DATA ?= data/ilc20
 RW_OUT ?= data/results/realwalks
@@ -373,6 +377,9 @@ RW_RUNS ?= 1
 RW_FLOORS ?= F1 F2 B1
 RW_PRIOR ?= data/runs/realwalks_mapprior_onnx
 RW_PRIOR_SIM = sim=procedural seed=4 duration_s=200 'sim.carriers=[pedestrian]' sim.unlabelled_every=0 sessions=16
+RW_FLOOR_PRIOR ?= data/runs/realwalks_prior
+RW_FLOOR_EPOCHS ?= 8
+RW_OUT_OTHER ?= data/results/realwalks_other_floors
 realwalks-tables: $(STAMP)
 	test -e $(RW_PRIOR)/meta.json || { \
 	  $(BIN)/blenav-sim $(RW_PRIOR_SIM) out=data/realwalks_prior_sim overwrite=true progress=false && \
@@ -393,6 +400,17 @@ realwalks-tables: $(STAMP)
 	$(BIN)/blenav-import ilc20 $(RW_DATA)/raw_site/site1 $(RW_DATA)/site1
 	$(BIN)/blenav-eval experiment=realwalks_floors data=$(RW_DATA)/site1 runs=1 out=$(RW_OUT)/floors progress=false
 	$(BIN)/python -m blenav.eval.realwalks tables $(RW_OUT) docs/results-ilc20.md $(RW_OUT)/floors README.md
+	for F in $(RW_FLOORS); do \
+	  O=$$(echo $(RW_FLOORS) | tr ' ' '\n' | grep -vx $$F); FIRST=$$(echo $$O | cut -d' ' -f1); \
+	  REST=$$(for G in $$O; do test $$G = $$FIRST || printf '%s,' $(RW_DATA)/$$G; done | sed 's/,$$//'); \
+	  test -e $(RW_FLOOR_PRIOR)_not_$${F}_onnx/meta.json || { \
+	    $(BIN)/python train.py experiment=mapprior_ilc data=$(RW_DATA)/$$FIRST "data.extra_paths=[$$REST]" \
+	        trainer.max_epochs=$(RW_FLOOR_EPOCHS) out=$(RW_FLOOR_PRIOR)_not_$$F plots=false && \
+	    $(BIN)/python export.py ckpt=$(RW_FLOOR_PRIOR)_not_$$F/last.ckpt out=$(RW_FLOOR_PRIOR)_not_$${F}_onnx; } && \
+	  $(BIN)/blenav-eval experiment=mapprior_ilc_rows data=$(RW_DATA)/$$F runs=$(RW_RUNS) \
+	      model_path=$(RW_FLOOR_PRIOR)_not_$${F}_onnx out=$(RW_OUT_OTHER)/$$F progress=false || exit 1; done
+	$(BIN)/python -m blenav.eval.realwalks_priors $(RW_OUT) $(RW_OUT_OTHER) '$(RW_FLOOR_PRIOR)_not_{floor}_onnx' \
+	    docs/results-ilc20.md README.md
 
 clean-demo:
 	rm -rf $(DEMO)

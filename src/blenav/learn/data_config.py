@@ -74,6 +74,14 @@ class MapPriorDataConfig:
     step_hz: float = 1.0  # odometry samples per second in a window
     kernel_hz: float = 10.0  # ground truth densified at this rate for the target kernel
     max_gap_s: float = 1.0  # a window must not span a ground-truth gap longer than this
+    # sessions whose ground truth is surveyed waypoints (session.yaml groundtruth_kind: waypoints, e.g. ILC 2.0
+    # imports): the longest gap between two waypoints a window may span; positions between waypoints are linear
+    # interpolation made at training time (never written to the dataset)
+    waypoint_max_gap_s: float = 30.0
+    extra_paths: list[str] = field(default_factory=list)  # further datasets trained on together with path
+    # None: every labelled session; {train_fraction, seed}: only the train walks of each dataset under that
+    # per-floor split (blenav.eval.realwalks.train_ids, the split of blenav-eval experiment=realwalks)
+    train_split: dict | None = None
     crop_px: int = 64
     crop_jitter: float = 0.25  # window end within +- crop_jitter * crop_px of the crop centre
     samples_per_epoch: int = 2048

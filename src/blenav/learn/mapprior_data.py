@@ -28,6 +28,18 @@ region (8-connectivity), scaled so a crop's feasible pixels keep their total wei
 gets total weight F / R, F its feasible pixel count) -- "we weight feasible regions by the inverse of their
 pixel area in our loss to improve small area prediction" (Roy).
 
+Sparse ground truth. A session whose ground truth is surveyed waypoints (``groundtruth_kind: waypoints``, e.g.
+a walk imported by ``blenav-import ilc20``) is used with the positions between its waypoints interpolated
+LINEARLY (:meth:`Track.at`, straight lines at constant speed between consecutive waypoints), at training time
+only: nothing is written to the dataset. Its windows may span waypoint gaps up to ``waypoint_max_gap_s``
+(``max_gap_s`` applies to trajectory ground truth). Both O and the kernel of such a window are then made of
+those straight segments, so the prior learns from the surveyed route, not the walker's exact path.
+
+Datasets. ``path`` plus ``extra_paths`` (e.g. two imported mall floors, or a floor and a simulated set) are
+read together (their session ids and (building, floor) pairs must not repeat); with ``train_split``
+(``{train_fraction, seed}``) only each dataset's train walks of that split are read --
+:func:`blenav.eval.realwalks.train_ids`, the split ``blenav-eval experiment=realwalks`` scores on.
+
 Splits: sessions of ``val_buildings`` (never seen in training) form ``val_unseen``; of the other buildings'
 labelled sessions a seeded ``val_fraction`` goes whole to ``val_seen``, each building keeping at least one
 training session; when no session can go (one walk per building) the last ``val_fraction`` of every walk's
@@ -147,6 +159,12 @@ class Track:
     xy: np.ndarray
     ends: np.ndarray
 
+    def at(self, times: np.ndarray) -> np.ndarray:
+        """Positions (N, 2) world m at ``times`` (N,) s: the ground truth interpolated linearly between its rows
+        (for waypoint ground truth, straight lines between consecutive surveyed waypoints, at training time
+        only; exactly the waypoints at their own times)."""
+        return np.stack([np.interp(times, self.t, self.xy[:, j]) for j in (0, 1)], axis=-1)
+
 
 def window_ends(t: np.ndarray, window_s: float, hz: float, max_gap_s: float, lo: float = -np.inf,
                 hi: float = np.inf) -> np.ndarray:
@@ -202,8 +220,7 @@ class WindowSet(TorchDataset):
         grid = self.maps[tr.floor][0]
         t_pts = t_end - c.window_s + np.arange(c.n_points) / c.step_hz
         t_ker = t_end - c.window_s + np.arange(c.n_kernel) / c.kernel_hz
-        pts = np.stack([np.interp(t_pts, tr.t, tr.xy[:, j]) for j in (0, 1)], axis=-1)
-        ker = np.stack([np.interp(t_ker, tr.t, tr.xy[:, j]) for j in (0, 1)], axis=-1)
+        pts, ker = tr.at(t_pts), tr.at(t_ker)
         # O: relative to the window start, world axes, pixels; augmented (Roy)
         odo = (pts - pts[0]) / grid.resolution
         if self.augment:
@@ -288,12 +305,14 @@ class MapPriorDataModule(L.LightningDataModule):
         self.train_buildings: list[str] = []
         self.val_buildings: list[str] = []
         self.groups: dict[str, list[str]] = {}
+        self.train_floors: list[str] = []  # "building/floor" of the training windows
+        self.waypoint_sessions = 0  # sessions whose ground truth is waypoints (interpolated linearly)
 
     @property
     def val_names(self) -> list[str]:
         return [k for k in ("val_seen", "val_unseen") if k in self.sets]
 
-    def _floor(self, ds: Dataset, session) -> tuple[str, str]:
+    def _floor(self, session) -> tuple[str, str]:
         key = (session.building.id, str(session.meta.get("floor")))
         if key not in self.maps:
             grid, free = net_grid(session.floor, self.resolution_m)
@@ -302,51 +321,89 @@ class MapPriorDataModule(L.LightningDataModule):
             self.maps[key] = (grid, padded)
         return key
 
+    def _sessions(self) -> list:
+        """The labelled sessions with at least two ground-truth rows of ``path`` and ``extra_paths`` (with
+        ``train_split``: only each dataset's train walks), checked for clashes between the datasets."""
+        c = self.cfg
+        paths = [str(c.path)] + [str(p) for p in (c.extra_paths or [])]
+        keep = None
+        if c.train_split is not None:
+            split = dict(c.train_split)
+            bad = sorted(set(split) - {"train_fraction", "seed"})
+            if bad:
+                raise ValueError(f"data.train_split: unknown key(s) {bad} (expected train_fraction, seed)")
+            from blenav.eval.realwalks import train_ids  # the realwalks experiment's own split, not a copy
+
+            keep = {p: set(train_ids(p, float(split.get("train_fraction", 0.5)), int(split.get("seed", 0))))
+                    for p in paths}
+        out, origin, floors = [], {}, {}
+        for p in paths:
+            ds = Dataset.open(p)
+            for s in ds.sessions(labelled=True):
+                if keep is not None and s.id not in keep[p]:
+                    continue
+                if len(s.groundtruth) < 2:
+                    continue
+                if s.id in origin:
+                    raise ValueError(f"session {s.id} is in both {origin[s.id]} and {p}: data.extra_paths must be "
+                                     "datasets with distinct session ids")
+                key = (s.building.id, str(s.meta.get("floor")))
+                if floors.setdefault(key, p) != p:
+                    raise ValueError(f"floor {key[1]} of building {key[0]} is in both {floors[key]} and {p}: "
+                                     "data.extra_paths must not repeat a floor")
+                origin[s.id] = p
+                out.append(s)
+        return out
+
     def setup(self, stage: str | None = None) -> None:
         if self.sets:
             return
         c = self.cfg
-        ds = Dataset.open(c.path)
+        where = ", ".join([str(c.path)] + [str(p) for p in (c.extra_paths or [])])
         held = [str(b) for b in (c.val_buildings or [])]
-        unknown = [b for b in held if b not in ds.building_ids]
-        if unknown:
-            raise ValueError(f"data.val_buildings {unknown} are not buildings of {c.path} ({ds.building_ids})")
         by_building: dict[str, list] = {}
-        for s in ds.sessions(labelled=True):
-            if len(s.groundtruth) >= 2:
-                by_building.setdefault(s.building.id, []).append(s)
+        for s in self._sessions():
+            by_building.setdefault(s.building.id, []).append(s)
         if not by_building:
-            raise ValueError(f"{c.path} has no labelled session with ground truth; the map prior trains on "
-                             "groundtruth.csv trajectories")
+            raise ValueError(f"{where} has no labelled session with ground truth"
+                             f"{' among the train walks of data.train_split' if c.train_split is not None else ''}; "
+                             "the map prior trains on groundtruth.csv trajectories")
         missing = [b for b in held if b not in by_building]
         if missing:
-            raise ValueError(f"data.val_buildings {missing} have no labelled session with ground truth")
+            raise ValueError(f"data.val_buildings {missing} are not buildings with a labelled session of {where} "
+                             f"({sorted(by_building)})")
         rng = np.random.default_rng([int(c.seed), 7])
         tracks: dict[str, list[Track]] = {k: [] for k in SPLITS}
         groups: dict[str, list[str]] = {k: [] for k in SPLITS}
         assign = split_sessions({s.id: b for b in by_building if b not in held for s in by_building[b]},
                                 c.val_fraction, rng)
         assign |= {s.id: ["val_unseen"] for b in held for s in by_building[b]}
+        self.waypoint_sessions = 0
         for b in sorted(by_building):
             for s in sorted(by_building[b], key=lambda s: s.id):
                 gt = s.groundtruth
                 t = gt["t"].to_numpy(float)
                 xy = gt[["x", "y"]].to_numpy(float)
-                key = self._floor(ds, s)
+                key = self._floor(s)
+                # waypoint ground truth: the windows may span the gaps between waypoints (linear interpolation)
+                gap = c.waypoint_max_gap_s if s.groundtruth_sparse else c.max_gap_s
+                self.waypoint_sessions += int(s.groundtruth_sparse)
                 for split in assign[s.id]:
                     lo, hi = -np.inf, np.inf
                     if len(assign[s.id]) == 2:  # split in time: the last val_fraction validates
                         cut = t[0] + (1.0 - c.val_fraction) * (t[-1] - t[0])
                         hi, lo = (cut, -np.inf) if split == "train" else (np.inf, cut)
-                    ends = window_ends(t, c.window_s, c.kernel_hz, c.max_gap_s, lo=lo, hi=hi)
+                    ends = window_ends(t, c.window_s, c.kernel_hz, gap, lo=lo, hi=hi)
                     if len(ends):
                         tracks[split].append(Track(s.id, key, t, xy, ends))
                         groups[split].append(s.id)
         if not tracks["train"]:
-            raise ValueError(f"no training window of {c.window_s:g} s in {c.path} (buildings {sorted(by_building)}, "
-                             f"held out {held}); record longer walks or shorten data.window_s")
+            raise ValueError(f"no training window of {c.window_s:g} s in {where} (buildings {sorted(by_building)}, "
+                             f"held out {held}); record longer walks, shorten data.window_s or allow longer "
+                             "ground-truth gaps (data.max_gap_s, data.waypoint_max_gap_s)")
         self.groups = groups
         self.train_buildings = sorted({tr.floor[0] for tr in tracks["train"]})
+        self.train_floors = sorted({f"{tr.floor[0]}/{tr.floor[1]}" for tr in tracks["train"]})
         self.val_buildings = held
         self.sets["train"] = WindowSet(tracks["train"], self.maps, c, "train", c.samples_per_epoch)
         for split in ("val_seen", "val_unseen"):

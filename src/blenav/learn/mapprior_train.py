@@ -7,6 +7,15 @@
 epoch and step counters, and the epoch-indexed data draw included; the run is :mod:`blenav.learn.trainer`,
 shared with the cross-phone localizer).
 
+Real walks with surveyed waypoints (issue 17, a prior trained on other floors of a mall)::
+
+    python train.py experiment=mapprior_ilc data=data/ilc20/F2 'data.extra_paths=[data/ilc20/B1]' out=RUN
+
+trains on the train walks (``data.train_split``, the split of ``blenav-eval experiment=realwalks``) of the
+imported floors, their positions between waypoints interpolated linearly at training time
+(:mod:`blenav.learn.mapprior_data`, "Sparse ground truth"); the checkpoint meta records the datasets, floors,
+split and how many sessions had waypoint ground truth.
+
 The pieces: data :mod:`blenav.learn.mapprior_data`, module and loss :mod:`blenav.learn.mapprior_module`,
 checkpoint meta and loading :mod:`blenav.learn.mapprior_checkpoint` (:func:`build_meta` here writes it).
 """
@@ -43,7 +52,11 @@ def build_meta(model: dict, dm: MapPriorDataModule, net: MapPriorNet) -> dict:
             "channels": net.c, "size_multiple": net.map_encoder.size_multiple,
             "target": {"scale": c.target_scale, "gain": c.target_gain, "feasible_tbar": c.feasible_tbar},
             "augment": dataclasses.asdict(c.augment), "crop_px": c.crop_px,
-            "buildings": dm.train_buildings, "val_buildings": dm.val_buildings,
+            "buildings": dm.train_buildings, "val_buildings": dm.val_buildings, "floors": dm.train_floors,
+            "datasets": [str(c.path)] + [str(p) for p in c.extra_paths],
+            "train_split": dict(c.train_split) if c.train_split is not None else None,
+            "waypoint_sessions": {"sessions": dm.waypoint_sessions, "max_gap_s": c.waypoint_max_gap_s,
+                                  "positions": "linear interpolation between consecutive waypoints"},
             "data_hash": data_hash(*[np.concatenate([tr.t[:, None], tr.xy], axis=1) for tr in tracks])}
 
 
