@@ -367,7 +367,7 @@ feng-tables: $(STAMP)
 # simulated procedural buildings (trained once, reused), the floor classifier on the three floors in one dataset,
 # then docs/results/ilc20_<floor>.md, docs/results-ilc20.md and the README table. RW_RUNS runs per walk.
 # Second map prior (leave one floor out): for each floor F, a prior trained on the train walks of the other floors
-# (experiment=mapprior_ilc, waypoints interpolated linearly at training time; trained once, reused when
+# (experiment=mapprior_ilc on their realwalks train-ids, waypoints interpolated linearly at training time; trained once, reused when
 # $(RW_FLOOR_PRIOR)_not_F_onnx exists), run on F's learned-map rows (experiment=mapprior_ilc_rows, model=) into
 # $(RW_OUT_OTHER)/F; blenav.eval.realwalks_priors writes both priors' rows beside the heuristic map PF.
 RW_RAW ?= ../shared/data/raw/ilc20
@@ -403,8 +403,9 @@ realwalks-tables: $(STAMP)
 	for F in $(RW_FLOORS); do \
 	  O=$$(echo $(RW_FLOORS) | tr ' ' '\n' | grep -vx $$F); FIRST=$$(echo $$O | cut -d' ' -f1); \
 	  REST=$$(for G in $$O; do test $$G = $$FIRST || printf '%s,' $(RW_DATA)/$$G; done | sed 's/,$$//'); \
+	  IDS=$$(for G in $$O; do $(BIN)/python -m blenav.eval.realwalks train-ids $(RW_DATA)/$$G; done | paste -sd,); \
 	  test -e $(RW_FLOOR_PRIOR)_not_$${F}_onnx/meta.json || { \
-	    $(BIN)/python train.py experiment=mapprior_ilc data=$(RW_DATA)/$$FIRST "data.extra_paths=[$$REST]" \
+	    $(BIN)/python train.py experiment=mapprior_ilc data=$(RW_DATA)/$$FIRST "data.extra_paths=[$$REST]" "data.sessions=[$$IDS]" \
 	        trainer.max_epochs=$(RW_FLOOR_EPOCHS) out=$(RW_FLOOR_PRIOR)_not_$$F plots=false && \
 	    $(BIN)/python export.py ckpt=$(RW_FLOOR_PRIOR)_not_$$F/last.ckpt out=$(RW_FLOOR_PRIOR)_not_$${F}_onnx; } && \
 	  $(BIN)/blenav-eval experiment=mapprior_ilc_rows data=$(RW_DATA)/$$F runs=$(RW_RUNS) \

@@ -1,6 +1,6 @@
 """The map prior trained on real walks with surveyed waypoints (issue 17: a prior trained on other mall floors):
-the train walks of the realwalks split only, positions between waypoints interpolated linearly at training time,
-a few training steps, the checkpoint meta, and misspelt keys failing early."""
+the train walks of the realwalks split only (data.sessions), positions between waypoints interpolated linearly at
+training time, a few training steps, the checkpoint meta, and misspelt keys / unknown ids failing early."""
 
 from __future__ import annotations
 
@@ -57,11 +57,12 @@ def test_trains_on_the_train_walks_with_interpolated_waypoints(three_walks, tmp_
     from blenav.eval.realwalks import train_ids
     from blenav.learn.train import train
 
-    cfg = compose("train", "experiment=mapprior_ilc", f"data={three_walks}", f"out={tmp_path / 'run'}", *TINY)
+    train_walks = set(train_ids(str(three_walks)))  # the realwalks split, as make realwalks-tables passes it
+    cfg = compose("train", "experiment=mapprior_ilc", f"data={three_walks}", f"out={tmp_path / 'run'}", *TINY,
+                  f"data.sessions=[{','.join(sorted(train_walks))}]")
     metrics, objs = train(cfg)
     dm = objs["datamodule"]
     ds = Dataset.open(three_walks)
-    train_walks = set(train_ids(str(three_walks)))
     assert 0 < len(train_walks) < len(ds.session_ids)  # the split keeps a test walk out
     used = set().union(*map(set, dm.groups.values()))
     assert used and used <= train_walks  # no test walk is read, not even for validation
@@ -74,7 +75,7 @@ def test_trains_on_the_train_walks_with_interpolated_waypoints(three_walks, tmp_
         np.testing.assert_allclose(tr.at(mid), 0.5 * (tr.xy[:-1] + tr.xy[1:]), atol=1e-9)
         assert np.diff(tr.t).max() > cfg.data.max_gap_s  # only the waypoint gap rule lets these windows exist
     meta = objs["module"].meta
-    assert meta["floors"] == ["site1/F1"] and meta["train_split"] == {"train_fraction": 0.5, "seed": 0}
+    assert meta["floors"] == ["site1/F1"] and meta["sessions"] == sorted(used)
     assert meta["waypoint_sessions"]["sessions"] == len(used)
     assert "linear interpolation" in meta["waypoint_sessions"]["positions"]
     assert np.isfinite(metrics["train/loss"]) and (tmp_path / "run" / "last.ckpt").is_file()
@@ -85,15 +86,11 @@ def test_misspelt_keys_fail_early(three_walks, tmp_path):
     from blenav.learn.mapprior_data import MapPriorDataModule
     from blenav.learn.mapprior_train import mapprior_data_config
 
-    with pytest.raises(ConfigCompositionException, match="train_splitt"):
-        compose("train", "experiment=mapprior_ilc", f"data={three_walks}", "data.train_splitt=null")
-    with pytest.raises(ConfigCompositionException, match="sed"):
-        compose("train", "experiment=mapprior_ilc", f"data={three_walks}", "data.train_split={train_fraction: 0.5, sed: 1}")
-    # a config built in code is checked by the data module
-    dcfg = mapprior_data_config(compose("train", "experiment=mapprior_ilc", f"data={three_walks}"))
-    dcfg.train_split = {"train_fraction": 0.5, "sed": 1}
-    with pytest.raises(ValueError, match=r"train_split.*sed"):
-        MapPriorDataModule(dcfg, 0.25).setup()
+    with pytest.raises(ConfigCompositionException, match="extra_path"):
+        compose("train", "experiment=mapprior_ilc", f"data={three_walks}", "data.extra_path=[x]")
+    cfg = compose("train", "experiment=mapprior_ilc", f"data={three_walks}", "data.sessions=[site1_F1_nowhere]")
+    with pytest.raises(ValueError, match="site1_F1_nowhere"):  # an id of no dataset
+        MapPriorDataModule(mapprior_data_config(cfg), 0.25).setup()
     cfg = compose("train", "experiment=mapprior_ilc", f"data={three_walks}", f"data.extra_paths=[{three_walks}]")
     with pytest.raises(ValueError, match="in both"):  # the same walks twice
         MapPriorDataModule(mapprior_data_config(cfg), 0.25).setup()

@@ -85,9 +85,11 @@ def _prior_note(pattern: str, floor: str) -> str:
         return f"- {floor}: no prior meta at {p}"
     m = json.loads(p.read_text())
     wp = m.get("waypoint_sessions") or {}
+    read = (f"{len(m['sessions'])} walks read" if m.get("sessions") is not None else
+            f"the train walks of split {m['train_split']}" if m.get("train_split") else "every labelled walk")
     return (f"- tested on {floor}: prior `{p.parent}` trained on {', '.join(m.get('floors') or m.get('buildings') or [])} "
-            f"(datasets {m.get('datasets')}, split {m.get('train_split')}; {wp.get('sessions', '?')} walks with "
-            f"waypoint ground truth, {wp.get('positions', '?')})")
+            f"(datasets {', '.join(m.get('datasets') or [])}; {read}; {wp.get('sessions', '?')} walks with waypoint "
+            f"ground truth, {wp.get('positions', '?')})")
 
 
 def write_priors(main_root: str, other_root: str, prior_pattern: str, page: str, readme: str | None = None,

@@ -36,9 +36,9 @@ only: nothing is written to the dataset. Its windows may span waypoint gaps up t
 those straight segments, so the prior learns from the surveyed route, not the walker's exact path.
 
 Datasets. ``path`` plus ``extra_paths`` (e.g. two imported mall floors, or a floor and a simulated set) are
-read together (their session ids and (building, floor) pairs must not repeat); with ``train_split``
-(``{train_fraction, seed}``) only each dataset's train walks of that split are read --
-:func:`blenav.eval.realwalks.train_ids`, the split ``blenav-eval experiment=realwalks`` scores on.
+read together (their session ids and (building, floor) pairs must not repeat); with ``sessions`` only those
+session ids are read, e.g. the train walks of ``blenav-eval experiment=realwalks`` (``python -m
+blenav.eval.realwalks train-ids DIR`` per dataset: that experiment's own split, so no walk it scores is trained on).
 
 Splits: sessions of ``val_buildings`` (never seen in training) form ``val_unseen``; of the other buildings'
 labelled sessions a seeded ``val_fraction`` goes whole to ``val_seen``, each building keeping at least one
@@ -322,25 +322,18 @@ class MapPriorDataModule(L.LightningDataModule):
         return key
 
     def _sessions(self) -> list:
-        """The labelled sessions with at least two ground-truth rows of ``path`` and ``extra_paths`` (with
-        ``train_split``: only each dataset's train walks), checked for clashes between the datasets."""
+        """The labelled sessions with at least two ground-truth rows of ``path`` and ``extra_paths`` (only the ids of
+        ``sessions`` when given), checked for clashes between the datasets; an id of ``sessions`` that none of
+        them has fails, naming it."""
         c = self.cfg
         paths = [str(c.path)] + [str(p) for p in (c.extra_paths or [])]
-        keep = None
-        if c.train_split is not None:
-            split = dict(c.train_split)
-            bad = sorted(set(split) - {"train_fraction", "seed"})
-            if bad:
-                raise ValueError(f"data.train_split: unknown key(s) {bad} (expected train_fraction, seed)")
-            from blenav.eval.realwalks import train_ids  # the realwalks experiment's own split, not a copy
-
-            keep = {p: set(train_ids(p, float(split.get("train_fraction", 0.5)), int(split.get("seed", 0))))
-                    for p in paths}
-        out, origin, floors = [], {}, {}
+        keep = None if c.sessions is None else {str(i) for i in c.sessions}
+        out, origin, floors, seen = [], {}, {}, set()
         for p in paths:
             ds = Dataset.open(p)
+            seen |= set(ds.session_ids)
             for s in ds.sessions(labelled=True):
-                if keep is not None and s.id not in keep[p]:
+                if keep is not None and s.id not in keep:
                     continue
                 if len(s.groundtruth) < 2:
                     continue
@@ -353,6 +346,10 @@ class MapPriorDataModule(L.LightningDataModule):
                                      "data.extra_paths must not repeat a floor")
                 origin[s.id] = p
                 out.append(s)
+        unknown = sorted((keep or set()) - seen)
+        if unknown:
+            raise ValueError(f"data.sessions {unknown[:5]}{' ...' if len(unknown) > 5 else ''} ({len(unknown)}) are not "
+                             f"sessions of {', '.join(paths)}")
         return out
 
     def setup(self, stage: str | None = None) -> None:
@@ -366,7 +363,7 @@ class MapPriorDataModule(L.LightningDataModule):
             by_building.setdefault(s.building.id, []).append(s)
         if not by_building:
             raise ValueError(f"{where} has no labelled session with ground truth"
-                             f"{' among the train walks of data.train_split' if c.train_split is not None else ''}; "
+                             f"{' among data.sessions' if c.sessions is not None else ''}; "
                              "the map prior trains on groundtruth.csv trajectories")
         missing = [b for b in held if b not in by_building]
         if missing:

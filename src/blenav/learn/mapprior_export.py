@@ -121,8 +121,8 @@ def export_mapprior(net: MapPriorNet, meta: dict, out: str | Path, opset: int = 
         "score_floor": SCORE_FLOOR, "log_floor": LOG_FLOOR,
         "model": meta.get("model"), "buildings": meta.get("buildings"), "val_buildings": meta.get("val_buildings"),
         "data_hash": meta.get("data_hash"), "target": meta.get("target"), "blenav_version": blenav_version(),
-        # what it was trained on (floors, datasets, realwalks train split, waypoint ground truth interpolated)
-        **{k: meta[k] for k in ("floors", "datasets", "train_split", "waypoint_sessions") if k in meta},
+        # what it was trained on (floors, datasets, session ids, waypoint ground truth interpolated)
+        **{k: meta[k] for k in ("floors", "datasets", "sessions", "waypoint_sessions") if k in meta},
     }
     props = json_props(info, ("kind", "resolution_m", "window", "channels", "size_multiple", "score",
                               "blenav_version"))

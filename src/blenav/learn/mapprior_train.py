@@ -9,12 +9,13 @@ shared with the cross-phone localizer).
 
 Real walks with surveyed waypoints (issue 17, a prior trained on other floors of a mall)::
 
-    python train.py experiment=mapprior_ilc data=data/ilc20/F2 'data.extra_paths=[data/ilc20/B1]' out=RUN
+    python train.py experiment=mapprior_ilc data=data/ilc20/F2 'data.extra_paths=[data/ilc20/B1]' out=RUN \
+        "data.sessions=[$(python -m blenav.eval.realwalks train-ids data/ilc20/F2),$(... B1)]"
 
-trains on the train walks (``data.train_split``, the split of ``blenav-eval experiment=realwalks``) of the
-imported floors, their positions between waypoints interpolated linearly at training time
-(:mod:`blenav.learn.mapprior_data`, "Sparse ground truth"); the checkpoint meta records the datasets, floors,
-split and how many sessions had waypoint ground truth.
+trains on the train walks (the split of ``blenav-eval experiment=realwalks``) of the imported floors, their
+positions between waypoints interpolated linearly at training time (:mod:`blenav.learn.mapprior_data`, "Sparse
+ground truth"); the checkpoint meta records the datasets, floors, the sessions read and how many had waypoint
+ground truth.
 
 The pieces: data :mod:`blenav.learn.mapprior_data`, module and loss :mod:`blenav.learn.mapprior_module`,
 checkpoint meta and loading :mod:`blenav.learn.mapprior_checkpoint` (:func:`build_meta` here writes it).
@@ -54,7 +55,7 @@ def build_meta(model: dict, dm: MapPriorDataModule, net: MapPriorNet) -> dict:
             "augment": dataclasses.asdict(c.augment), "crop_px": c.crop_px,
             "buildings": dm.train_buildings, "val_buildings": dm.val_buildings, "floors": dm.train_floors,
             "datasets": [str(c.path)] + [str(p) for p in c.extra_paths],
-            "train_split": dict(c.train_split) if c.train_split is not None else None,
+            "sessions": sorted({s for g in dm.groups.values() for s in g}),
             "waypoint_sessions": {"sessions": dm.waypoint_sessions, "max_gap_s": c.waypoint_max_gap_s,
                                   "positions": "linear interpolation between consecutive waypoints"},
             "data_hash": data_hash(*[np.concatenate([tr.t[:, None], tr.xy], axis=1) for tr in tracks])}
