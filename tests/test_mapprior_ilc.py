@@ -94,3 +94,30 @@ def test_misspelt_keys_fail_early(three_walks, tmp_path):
     cfg = compose("train", "experiment=mapprior_ilc", f"data={three_walks}", f"data.extra_paths=[{three_walks}]")
     with pytest.raises(ValueError, match="in both"):  # the same walks twice
         MapPriorDataModule(mapprior_data_config(cfg), 0.25).setup()
+
+
+def test_priors_table_puts_both_priors_beside_the_heuristic_pf(tmp_path):
+    """blenav.eval.realwalks_priors: the rows of both runs per floor, the verdicts, the page and README splices."""
+    import json
+
+    from blenav.eval.realwalks_priors import OTHER, write_priors
+
+    def res(rows):
+        return {"methods": {k: {"error_m": {"mean": m, "p90": 2 * m}} for k, m in rows.items()}}
+
+    main, other = tmp_path / "main", tmp_path / "other"
+    for d, rows in ((main / "F1", {"PDR+map": 4.0, "PDR+learned-map": 3.0, "WiFi+PDR+map": 9.0}),
+                    (other / "F1", {"PDR+learned-map" + OTHER: 2.5}), (main / "floors", {})):
+        d.mkdir(parents=True)
+        (d / "results.json").write_text(json.dumps(res(rows)))
+    page, readme = tmp_path / "page.md", tmp_path / "README.md"
+    readme.write_text("a\n<!-- realwalks-priors-table -->\nold\n<!-- /realwalks-priors-table -->\nb\n")
+    body = write_priors(str(main), str(other), str(tmp_path / "prior_{floor}"), str(page), str(readme))
+    assert "| PDR+learned-map, other-floors prior | 2.50 / 5.00 |" in body
+    assert "| PDR+map (heuristic map PF) | 4.00 / 8.00 |" in body and "| BLE+PDR+map | - |" in body
+    assert ("F1, PDR odometry: heuristic map PF 4.00 m, procedural prior 3.00 m, other-floors prior 2.50 m -> "
+            "other-floors prior best") in body
+    assert "F1, WiFi fixes + PDR: not all three rows ran" in body and "no prior meta" in body
+    text = readme.read_text()
+    assert text.startswith("a\n") and text.endswith("b\n") and "old" not in text and "2.50 / 5.00" in text
+    assert "<!-- realwalks-priors-table -->" in page.read_text()
