@@ -8,10 +8,13 @@ exists): ``--small`` walks of 240 s (default 12: about 2,300 training windows af
 ``--medium`` walks of 600 s (default 21: about 10k) and ``--large`` walks of 600 s (default 105: about 50k). The real ``train(cfg)`` (``experiment=crossphone_s2``,
 ``data.holdout=0``) runs to its end: early stopping or the step budget. Printed per size: training windows,
 steps, stop reason, wall time (the whole fit: validation checks, checkpoints and the report included), the
-best validation error beside KNN's on the same windows, and the verdict against the budget. The 1-min load
-average before and after each run is printed, and the process' CPU time beside the wall time (with one thread,
-the CPU time is about the wall time the run would take alone on a core): on a shared machine the times change a lot (``threads=1`` is the default;
-``--threads 0`` uses torch's default, all cores).
+best validation error beside KNN's on the same windows, and the verdict against the budget. The step
+budget is the default ``auto`` one (:func:`blenav.learn.train.budget_steps`: 3,000 steps at 2k windows, about
+6,700 at 10k, 10,000 at 50k). The 1-min load average before and after each run is printed, and the process' CPU
+time beside the wall time: on a shared machine the times change a lot. ``--threads 0`` (the default here) is
+torch's default, all cores of the machine (both on this one); ``--threads 1`` is ``train.py``'s default
+``threads: 1``, which suits a machine shared with other jobs (with one thread, the CPU time is about the wall
+time the run would take alone on a core).
 
     nice -n 10 .venv/bin/python benchmarks/crossphone_train.py [--sizes small,medium,large] [--data-small DIR] ...
 """
@@ -64,7 +67,7 @@ def main() -> None:
     ap.add_argument("--small", type=int, default=12, help="240 s walks of the small survey")
     ap.add_argument("--medium", type=int, default=21, help="600 s walks of the medium survey (about 10k windows)")
     ap.add_argument("--large", type=int, default=105, help="600 s walks of the large survey (105: about 50k windows)")
-    ap.add_argument("--threads", type=int, default=1, help="torch threads (0: torch's default, all cores)")
+    ap.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default, all cores)")
     ap.add_argument("extra", nargs="*", help="more train.py overrides, e.g. model=locnet")
     args = ap.parse_args()
     default_threads = torch.get_num_threads()
@@ -78,7 +81,7 @@ def main() -> None:
         r = converge(data, args.threads or None, *args.extra)
         budget = BUDGET_S[size]
         verdict = "MEETS" if r["wall_s"] <= budget else "MISSES"
-        print(f"{size}: {r['windows']:,} training windows; {r['steps']} steps, stop reason {r['stop_reason']} "
+        print(f"{size}: {r['windows']:,} training windows; {r['steps']} of {r['budget_steps']} budget steps, stop reason {r['stop_reason']} "
               f"(converged: {r['converged']}); {r['wall_s'] / 60:.1f} min wall, {r['cpu_s'] / 60:.1f} min of CPU time; best validation error "
               f"{r['best_val_error_m']:.2f} m at step {r['best_step']}, KNN {r['knn_val_error_m']:.2f} m; "
               f"verdict: {verdict} the {budget // 60} min budget ({r['wall_s'] / budget:.2f}x); "

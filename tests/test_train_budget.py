@@ -14,7 +14,7 @@ import torch
 
 from blenav.configs import compose
 from blenav.learn.schedule import lr_factor
-from blenav.learn.train import train, training_report
+from blenav.learn.train import BUDGET, budget, budget_steps, train, training_report
 from blenav.learn.trainer import TrainingMonitor
 
 TINY = ["model=locnet", "data.batch_size=32", "trainer.enable_progress_bar=false", "model.locnet.hidden=16",
@@ -36,6 +36,19 @@ def test_schedule_warms_up_then_decays_to_the_floor():
     assert lr_factor(50, "constant", 10, 100) == 1.0
     with pytest.raises(ValueError, match="schedule"):
         lr_factor(0, "step", 0, 10)
+
+
+def test_the_auto_budget_grows_with_the_survey_as_a_square_root_between_base_and_cap():
+    b = dict(BUDGET)  # auto: 3000 * sqrt(n / 2000), within [3000, 10000]
+    assert [budget_steps(b, n) for n in (50, 2000, 8000, 10_000, 22_222, 50_000)] == [3000, 3000, 6000, 6708, 10000,
+                                                                                       10000]
+    assert budget_steps({**b, "max_steps": 500}, 50_000) == 500 and budget_steps({**b, "max_steps": None}, 9) == -1
+    assert budget_steps({**b, "auto_base_steps": 100, "auto_ref_windows": 100, "auto_max_steps": 250}, 400) == 200
+    c = compose("train", "trainer.budget.max_steps=lots")
+    with pytest.raises(ValueError, match="max_steps='lots'"):
+        budget(c)
+    with pytest.raises(ValueError, match="unknown keys"):
+        budget(compose("train", "+trainer.budget.max_step=5"))
 
 
 def test_the_learning_rate_follows_the_schedule_in_a_run(two_phones, tmp_path):
@@ -128,6 +141,7 @@ def test_the_training_dict_lands_in_results_json(two_phones, tmp_path):
     tr = res["methods"]["LocNet"]["training"]
     assert {"steps", "early_stopped", "stop_reason", "best_val_error_m", "knn_val_error_m"} <= set(tr)
     assert tr["steps"] == 30 and tr["stop_reason"] == "max_steps" and tr["early_stopped"] is False
+    assert tr["budget_steps"] == 30
     assert tr["best_val_error_m"] > 0 and tr["knn_val_error_m"] > 0
     assert "training" not in res["methods"]["KNN"]
     assert (tmp_path / "o" / "runs" / "locnet" / "training.json").is_file()

@@ -15,7 +15,8 @@ beacon was heard (a window with no beacon heard gives no fix; how many there wer
      "per_brand": {brand: {...}}, "per_session": {SESSION_ID: {"error_m": {...}, "device_model"}},
      "train_s" (null when a complete run was reused), "predict_s", "n_windows",
      "source" ("trained: OUT/runs/KEY" | "reused: OUT/runs/KEY" | "model: FILE.onnx" | "fitted"),
-     "training" (learned methods trained here): {"steps", "early_stopped", "stop_reason", "best_val_error_m",
+     "training" (learned methods trained here): {"steps", "budget_steps" (the step budget of the run:
+                 trainer.budget.max_steps, or its auto value for the survey's size), "early_stopped", "stop_reason", "best_val_error_m",
                  "knn_val_error_m" (KNN, k = 5, on the same validation windows), "converged", "best_step",
                  "train_windows", "val_windows" (labelled windows trained / validated on),
                  "warnings" (worse than KNN on validation, stopped before converging), "learning_curves" (png)}}
@@ -104,8 +105,8 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path, dm) -
 
 
 #: ``methods.NAME.training`` of a learned method (blenav.learn.train.training_report)
-TRAINING_KEYS = ("steps", "early_stopped", "stop_reason", "best_val_error_m", "knn_val_error_m", "converged",
-                 "best_step", "train_windows", "val_windows", "warnings")
+TRAINING_KEYS = ("steps", "budget_steps", "early_stopped", "stop_reason", "best_val_error_m", "knn_val_error_m",
+                 "converged", "best_step", "train_windows", "val_windows", "warnings")
 
 
 def _check_reuse(ck: Path, dm, model: DictConfig | None = None) -> int | None:

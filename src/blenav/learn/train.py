@@ -1,8 +1,9 @@
 """``train(cfg)``: build data, networks and the LightningModule from a Hydra config, fit, test, report.
 
 Budget (``trainer.budget``, conf/trainer/cpu.yaml; :func:`budget`). Training runs for a number of optimizer
-*steps*, not epochs: ``max_steps`` (a survey of 2,000 windows and one of 50,000 get the same number of
-updates, and so do batch sizes), validated about every ``val_every_steps`` steps (:func:`_val_cadence`), stopped
+*steps*, not epochs: ``max_steps``, by default ``auto``, which follows the survey's size (:func:`budget_steps`:
+3,000 steps for 2,000 training windows or fewer, growing as the square root of the windows, at most 10,000 --
+about 6,700 for 10k windows; the batch size does not change it), validated about every ``val_every_steps`` steps (:func:`_val_cadence`), stopped
 early when the validation loss (``val/loss``, the objective of eq. 3.6 on the validation windows) has not
 improved by ``min_delta`` for ``patience`` checks (Lightning's ``EarlyStopping``). The learning rate warms up
 linearly over ``warmup_steps`` and then follows half a cosine to ``min_lr_ratio`` times ``model.lr`` at
@@ -66,8 +67,27 @@ log = logging.getLogger("blenav.train")
 
 #: ``trainer.budget`` defaults (conf/trainer/cpu.yaml repeats them): chosen on validation windows of simulated
 #: campus_floor surveys of several sizes (docs/results-003-crossphone.md), never on test walks.
-BUDGET = {"max_steps": 3000, "val_every_steps": 50, "patience": 15, "min_delta": 0.0, "warmup_steps": 100,
+BUDGET = {"max_steps": "auto", "auto_base_steps": 3000, "auto_ref_windows": 2000, "auto_max_steps": 10000,
+          "val_every_steps": 50, "patience": 15, "min_delta": 0.0, "warmup_steps": 100,
           "schedule": "cosine", "min_lr_ratio": 0.02}
+
+
+def budget_steps(b: dict, n_windows: int) -> int:
+    """The run's optimizer-step budget: ``max_steps`` when it is a number (-1 or None: none), else (``auto``)
+    ``auto_base_steps`` * sqrt(n_windows / ``auto_ref_windows``), at least the base and at most ``auto_max_steps``.
+
+    Why it grows with the survey, and as the square root: on simulated campus_floor surveys (validation windows,
+    docs/results-003-crossphone.md) 3,000 steps brought a 2k-window survey to its best validation loss (step
+    2,650) but left a 10k one still improving at its last step; a step sees a batch, so a survey five times
+    larger needs more steps, but not five times more (its windows repeat the same places and phones). The cap
+    keeps a 50k-window survey inside the 15-minute budget of this 2-core machine."""
+    m = b["max_steps"]
+    if m is None:
+        return -1
+    if m != "auto":
+        return int(m)
+    base, ref, cap = int(b["auto_base_steps"]), max(1, int(b["auto_ref_windows"])), int(b["auto_max_steps"])
+    return int(min(cap, max(base, round(base * math.sqrt(max(int(n_windows), 1) / ref)))))
 
 
 def data_config(cfg: DictConfig) -> WindowDataConfig:
@@ -109,6 +129,9 @@ def budget(cfg: DictConfig) -> dict:
     if unknown:
         raise ValueError(f"trainer.budget: unknown keys {unknown}; known: {sorted(BUDGET)}")
     b.update(given)
+    m = b["max_steps"]
+    if m is not None and m != "auto" and not isinstance(m, int):
+        raise ValueError(f"trainer.budget.max_steps={m!r}: an integer (-1: none) or auto")
     return b
 
 
@@ -230,7 +253,7 @@ def _trainer_settings(cfg: DictConfig, b: dict, dm: WindowDataModule, module) ->
     trainer_kw.pop("budget", None)
     if trainer_kw.get("max_epochs") is None:
         trainer_kw["max_epochs"] = -1  # the step budget decides (Lightning's default would be 1000 epochs)
-    max_steps = int(b["max_steps"]) if b["max_steps"] is not None else -1
+    max_steps = budget_steps(b, len(dm.sets["train"]))
     trainer_kw["max_steps"] = -1  # the budget is a callback (blenav.learn.trainer.StepBudget)
     spe = _steps_per_epoch(len(dm.sets["train"]), dm.cfg.batch_size)
     trainer_kw.update(_val_cadence(int(b["val_every_steps"]), spe))
@@ -266,7 +289,7 @@ def _supervised_stage(module, dm, out: Path, trainer_kw: dict, b: dict, max_step
     if monitor.best_state is not None:  # the weights of the best validation check
         module.load_state_dict(monitor.best_state)
     info = training_report(monitor, reason, trainer.global_step, knn_err)
-    info.update(_window_counts(dm))
+    info.update(_window_counts(dm), budget_steps=int(max_steps))
     module.training_info = info
     _final_step_checkpoint(trainer, out)
     if trainer.is_global_zero:
