@@ -220,3 +220,31 @@ def test_fix_error_stats_recovers_sigma_and_correlation_time():
         fix_error_stats([np.array([[0.0, np.nan]])])
     with pytest.raises(ValueError, match="no fixes"):
         fix_error_stats([np.zeros((0, 2))])
+
+
+# ------------------------------------------------------------------ the fix provider
+
+
+def test_sparse_fixes_leave_a_shared_ble_filter_on_all_beacons(small, tmp_path):
+    """The sparse role limits its BLE filter to the subset only while computing: the filter may be shared with
+    other roles or be a scored row (a node of fixes.compute equal to a methods row is that row's localizer)."""
+    from blenav.eval.fixes import FixProvider
+
+    loc = build_methods(eval_cfg("experiment=mapfusion_002", "filter.n_particles=100"))["PF-PL"]
+    assert loc.method.beacons is None
+    provider = FixProvider({"sparse": None, "dense": None}, {"sparse": loc, "dense": loc}, 3, tmp_path / "eval")
+    s = _session(small)
+    t, xy, src = provider.fixes_for("sparse", s)
+    assert src == "ps-sparse3" and len(t) > 10 and np.isfinite(xy).all()
+    assert loc.method.beacons is None  # restored
+    assert len(provider.beacon_ids[str(s.building.id)]) == 3
+    _, xy_dense, src_dense = provider.fixes_for("dense", s)
+    assert src_dense == "ps-dense" and not np.allclose(xy_dense[: len(xy)], xy[: len(xy_dense)])
+
+
+def test_a_misspelt_fixes_option_is_an_error_not_a_role(small, tmp_path):
+    from blenav.eval.harness import EvalError, build_fix_provider
+
+    cfg = eval_cfg("experiment=leaderboard", f"out={tmp_path}", "+fixes.rate=2")
+    with pytest.raises(EvalError, match=r"fixes.rate=2: not a role.*'rate_hz'"):
+        build_fix_provider(cfg, build_methods(cfg), tmp_path)

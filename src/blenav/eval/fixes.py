@@ -170,8 +170,16 @@ class FixProvider:
         return isinstance(self.localizers[role], ParticleFilterLocalizer)
 
     def _compute(self, role: str, session) -> tuple[np.ndarray, np.ndarray]:
+        """The BLE filter's fixes with its ``beacons`` set for ``role`` (the sparse subset or all), restored after:
+        the filter may be shared with other roles or be a scored row itself."""
         m = self.localizers[role].method
-        m.beacons = self.beacons_for(role, session)
+        old, m.beacons = m.beacons, self.beacons_for(role, session)
+        try:
+            return self._compute_ble(role, session, m)
+        finally:
+            m.beacons = old
+
+    def _compute_ble(self, role: str, session, m: Method) -> tuple[np.ndarray, np.ndarray]:
         if m.beacons is not None:
             self.beacon_ids[str(session.building.id)] = list(m.beacons)
         seed = self.seed * 1_000_003 + zlib.crc32(f"{session.id}/{role}".encode())

@@ -133,6 +133,10 @@ def build_fix_provider(cfg: DictConfig, methods: dict[str, Localizer], out: Path
     missing = used - set(roles)
     if missing:
         raise EvalError(f"methods use fix role(s) {sorted(missing)} that the experiment's fixes block does not define")
+    for r, v in roles.items():  # a misspelt option (fixes.rate: 2, fixes.sparse_beacon: 6) must not become a role
+        if v is not None and not isinstance(v, str):
+            raise EvalError(f"fixes.{r}={v!r}: not a role (a role's value is a fixes.csv source name or null) and not "
+                            f"an option of the fixes block {list(FIXES_OPTIONS)}")
     localizers = fix_localizers(cfg, roles, methods)
     sb = fx.get("sparse_beacons", 4)
     sb = int(sb) if isinstance(sb, (int, float)) else [str(b) for b in sb]
