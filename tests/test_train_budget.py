@@ -232,3 +232,26 @@ def test_validation_windows_are_capped_by_a_seeded_subset(two_phones, tmp_path):
         assert torch.equal(xy[i], x)
     torch.testing.assert_close(a.sets["val"].tensors[0], b.sets["val"].tensors[0])
     assert knn_val_error(a) != knn_val_error(full)
+
+
+def test_a_finished_run_of_another_budget_is_not_silently_extended(tmp_path):
+    """blenav-eval reuses a finished run only when its step budget is this run's: resuming a run that ended at
+    3,000 steps to an auto budget of 6,708 would restart its cosine schedule midway."""
+    from blenav.eval.crossphone import _check_reuse
+    from blenav.eval.harness import EvalError
+
+    class DM:
+        sets = {"train": range(10_000)}
+
+        @staticmethod
+        def train_hash():
+            return "h"
+
+    ck = tmp_path / "last.ckpt"
+    done = {"stage": "supervised", "stop_reason": "max_steps", "steps": 3000, "budget_steps": 3000}
+    torch.save({"blenav": {"data_hash": "h"}, "global_step": 3000, "blenav_training": done}, ck)
+    auto = compose("train")  # max_steps: auto -> 6,708 steps for 10,000 windows
+    with pytest.raises(EvalError, match="finished a budget of 3000 steps, this run's is 6708"):
+        _check_reuse(ck, DM(), None, auto)
+    assert _check_reuse(ck, DM(), None, compose("train", "trainer.budget.max_steps=3000")) == 3000
+    assert _check_reuse(ck, DM(), None, None) == 3000  # scenario 3 continuing scenario 2's run: no budget check

@@ -97,7 +97,7 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path, dm) -
         run_dir.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(src, ck)
         copied = True
-    before = _check_reuse(ck, dm, None if copied else tcfg.model)
+    before = _check_reuse(ck, dm, None if copied else tcfg.model, None if copied else tcfg)
     _, objs = train(tcfg, datamodule=dm)  # the split windowed once for every method
     training = {k: objs["training"].get(k) for k in TRAINING_KEYS}
     training["learning_curves"] = str(run_dir / "learning_curves.png")
@@ -109,9 +109,11 @@ TRAINING_KEYS = ("steps", "budget_steps", "early_stopped", "stop_reason", "best_
                  "converged", "best_step", "train_windows", "val_windows", "warnings")
 
 
-def _check_reuse(ck: Path, dm, model: DictConfig | None = None) -> int | None:
+def _check_reuse(ck: Path, dm, model: DictConfig | None = None, tcfg: DictConfig | None = None) -> int | None:
     """The existing run's global step (None without a checkpoint); refuses one trained on other data or,
-    when ``model`` is given, with another model config (sizes, lr, loss weights, augmentation)."""
+    when ``model`` is given, with another model config (sizes, lr, loss weights, augmentation), or, when the
+    training config ``tcfg`` is given, a run that ended at another step budget (resuming it to this one would
+    restart its learning-rate schedule midway: not the run this budget makes)."""
     from blenav.learn.checkpoint import KEY, read_checkpoint
 
     if not ck.is_file():
@@ -128,6 +130,15 @@ def _check_reuse(ck: Path, dm, model: DictConfig | None = None) -> int | None:
         if diff:
             raise EvalError(f"{ck} was trained with another model config (differs in {', '.join(diff)}); "
                             f"delete {ck.parent} or choose another out=")
+    done = state.get("blenav_training") or {}
+    if tcfg is not None and done.get("stage") == "supervised" and done.get("stop_reason") == "max_steps":
+        from blenav.learn.train import budget, budget_steps
+
+        had = int(done.get("budget_steps") or done.get("steps") or 0)
+        want = budget_steps(budget(tcfg), len(dm.sets["train"]))
+        if had != want:
+            raise EvalError(f"{ck} finished a budget of {had} steps, this run's is {want} (trainer.budget); "
+                            f"delete {ck.parent}, choose another out= or set trainer.budget.max_steps={had}")
     return state["global_step"]
 
 

@@ -130,7 +130,7 @@ def budget(cfg: DictConfig) -> dict:
         raise ValueError(f"trainer.budget: unknown keys {unknown}; known: {sorted(BUDGET)}")
     b.update(given)
     m = b["max_steps"]
-    if m is not None and m != "auto" and not isinstance(m, int):
+    if m is not None and m != "auto" and (isinstance(m, bool) or not isinstance(m, int)):
         raise ValueError(f"trainer.budget.max_steps={m!r}: an integer (-1: none) or auto")
     return b
 
@@ -315,9 +315,10 @@ def _semi_stage(module, dm, out: Path, trainer_kw: dict, semi, info: dict, knn_e
     trainer = fit(module, dm, out, kw2, [monitor2, StepBudget(start + steps), *(callbacks or [])])
     if dm.sets.get("val") is not None and (not monitor2.history or monitor2.history[-1]["step"] != trainer.global_step):
         trainer.validate(module, datamodule=dm, verbose=False)
-    sup = {k: info.get(k) for k in ("steps", "early_stopped", "stop_reason", "best_val_error_m")}
+    sup = {k: info.get(k) for k in ("steps", "budget_steps", "early_stopped", "stop_reason", "best_val_error_m")}
     info = {**training_report(monitor2, "semi_steps", trainer.global_step, knn_err, stage="semi"),
-            **_window_counts(dm), "semi_from_step": start, "supervised": sup, "early_stopped": bool(sup["early_stopped"])}
+            **_window_counts(dm), "semi_from_step": start, "supervised": sup, "early_stopped": bool(sup["early_stopped"]),
+            "budget_steps": sup["budget_steps"]}
     module.training_info = info
     _final_step_checkpoint(trainer, out)
     if trainer.is_global_zero:
