@@ -138,7 +138,8 @@ def session_imu(session) -> ImuSamples:
 
 def session_attitude(session, att_cfg=None) -> tuple[np.ndarray, np.ndarray]:
     """(t (T,) s, q (T, 4)) the AHRS of :func:`blenav.filters.attitude.estimate_attitude` at the IMU times, with
-    the magnetometer's hard-iron offset fitted on the session (as :func:`blenav.filters.runner.magnetometer_offset`)."""
+    the magnetometer's hard-iron offset fitted on the session unless ``hard_iron`` is false (as
+    :func:`blenav.filters.runner.magnetometer_offset`)."""
     from blenav.filters.attitude import AttitudeConfig, estimate_attitude, estimate_hard_iron
 
     cfg = att_cfg or AttitudeConfig()
@@ -147,7 +148,7 @@ def session_attitude(session, att_cfg=None) -> tuple[np.ndarray, np.ndarray]:
     mt = mv = off = None
     if cfg.use_mag and len(mag) >= 50:
         mt, mv = mag["t"].to_numpy(float), mag[["mx", "my", "mz"]].to_numpy(float)
-        off = estimate_hard_iron(mv)
+        off = estimate_hard_iron(mv) if cfg.hard_iron else None
     q = estimate_attitude(t, imu[["ax", "ay", "az"]].to_numpy(float), imu[["gx", "gy", "gz"]].to_numpy(float),
                           mt, mv, cfg, mag_offset=off)
     return t, q

@@ -115,6 +115,13 @@ class AttitudeConfig:
       normalised vectors. mag_dip_deg: dip below the horizon of the EKF's magnetic reference (None:
       measured from the first accelerometer and magnetometer samples).
     - declination_deg: magnetic north east of the world's +y axis.
+    - hard_iron: fit a hard-iron offset on the session's magnetometer (:func:`estimate_hard_iron`) and remove it
+      before the AHRS (the offline evaluation path, :func:`blenav.filters.runner.hard_iron_offset`). True for a
+      raw magnetometer (the simulator's, Android's ``*_UNCALIBRATED``); false for one the device already
+      calibrates (Android ``TYPE_MAGNETIC_FIELD``, e.g. the ILC 2.0 walks): there the residual offset is ~0 and
+      a sphere fit on a walk (phone held level, turning about one axis, indoor disturbances) is ill-determined
+      (median |offset| 26 uT, half the field itself, on the 106 ILC F1 walks) and turns the heading away from the
+      phone's rotation vector by 16 deg on average (3 deg without it).
     - reset_deg, reset_s: when the compass (the magnetometer rotated into the world frame by the current
       estimate) disagrees with the estimated heading by more than ``reset_deg`` on every magnetometer
       sample for ``reset_s`` seconds, re-initialise from the current accelerometer and magnetometer
@@ -138,6 +145,7 @@ class AttitudeConfig:
     ekf_noises: tuple[float, float, float] = (0.3**2, 0.5**2, 0.8**2)
     mag_dip_deg: float | None = None
     declination_deg: float = 0.0
+    hard_iron: bool = True
     reset_deg: float | None = None
     reset_s: float = 1.0
     extra: dict = field(default_factory=dict)

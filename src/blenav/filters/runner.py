@@ -466,8 +466,9 @@ def magnetometer_offset(arrays: SessionArrays, method: Method) -> np.ndarray | N
 
 
 def hard_iron_offset(arrays: SessionArrays, att: AttitudeConfig) -> np.ndarray | None:
-    """:func:`magnetometer_offset` for an AHRS of settings ``att``: None without magnetometer use or data."""
-    if arrays.mag is None or not att.use_mag or len(arrays.mag) < 50:
+    """:func:`magnetometer_offset` for an AHRS of settings ``att``: None without magnetometer use or data, or with
+    ``att.hard_iron`` false (a magnetometer the device already calibrates)."""
+    if arrays.mag is None or not att.use_mag or not att.hard_iron or len(arrays.mag) < 50:
         return None
     return estimate_hard_iron(arrays.mag)
 
