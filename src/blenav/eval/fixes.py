@@ -55,8 +55,6 @@ from blenav.localizers import ParticleFilterLocalizer
 
 log = logging.getLogger("blenav.eval.fixes")
 
-ROLES = ("dense", "sparse")  #: the roles of Roy's Table 3.7 (any other name is allowed; only sparse picks beacons)
-
 
 def ble_fixes(method: Method, session, seed: int, rate_hz: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Fixes (t (F,) s, xy (F, 2) world m) of a BLE-only filter ``method`` (one run) at ``rate_hz``.

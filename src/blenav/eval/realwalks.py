@@ -30,6 +30,7 @@ Everything else is the particle filter's: ``map.init: groundtruth`` starts at th
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 import logging
 
 import numpy as np
@@ -50,7 +51,7 @@ __all__ = ["RealWalkPF", "pdr_odometry", "fit_step_length", "train_ids", "table_
 
 HEADINGS = ("orientation", "ahrs")
 DEFAULT_STEP_M = 0.7
-_NO_ANCHORS = AnchorTable(np.zeros(0, str), np.zeros((0, 3)), np.zeros(0))
+_NO_ANCHORS = AnchorTable.empty()
 
 
 def _orientation_track(session, heading: str, att: AttitudeConfig, steps: StepDetectorConfig,
@@ -313,7 +314,6 @@ def write_tables(out_root: str, summary_md: str, command: str = "make realwalks-
                  floors_dir: str | None = None, readme: str | None = None) -> str:
     """Per floor (``out_root/<floor>/results.json``): docs/results/ilc20_<floor>.md beside ``summary_md``; then the
     summary (``summary_md``) and, with ``readme``, the table between the README's realwalks markers."""
-    from pathlib import Path
     import json
 
     root, summary = Path(out_root), Path(summary_md)
@@ -340,10 +340,11 @@ def write_tables(out_root: str, summary_md: str, command: str = "make realwalks-
     return body
 
 
-def _splice(path, body: str, append: bool = False) -> None:
-    """Put ``body`` between the realwalks markers of the file ``path`` (replacing what is there); without the markers
-    append them with ``body`` (``append``) or leave the file alone."""
-    start, end = "<!-- realwalks-table -->", "<!-- /realwalks-table -->"
+def _splice(path, body: str, append: bool = False, tag: str = "realwalks-table") -> None:
+    """Put ``body`` between the ``<!-- tag -->`` / ``<!-- /tag -->`` markers of the file ``path`` (replacing what is
+    there); without the markers append them with ``body`` (``append``) or leave the file alone."""
+    path = Path(path)
+    start, end = f"<!-- {tag} -->", f"<!-- /{tag} -->"
     text = path.read_text() if path.is_file() else ""
     if start in text and end in text:
         path.write_text(text.split(start)[0] + start + "\n" + body + "\n" + end + text.split(end, 1)[1])

@@ -20,6 +20,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from .realwalks import _splice
+
 __all__ = ["ROWS", "priors_table", "priors_verdicts", "write_priors"]
 
 OTHER = " (other floors)"
@@ -41,7 +43,7 @@ ROWS = (
 GROUPS = (("PDR odometry", "PDR+map", "PDR+learned-map"),
           ("WiFi fixes + PDR", "WiFi+PDR+map", "WiFi+PDR+learned-map"),
           ("BLE fixes + PDR", "BLE+PDR+map", "BLE+PDR+learned-map"))
-START, END = "<!-- realwalks-priors-table -->", "<!-- /realwalks-priors-table -->"
+TAG = "realwalks-priors-table"  # the markers <!-- TAG --> / <!-- /TAG --> of the page and the README
 
 
 def _err(results: dict, key: str) -> dict | None:
@@ -108,18 +110,9 @@ def write_priors(main_root: str, other_root: str, prior_pattern: str, page: str,
     parts += [_prior_note(prior_pattern, f) for f in sorted(main)] + [""]
     parts += [f"- {v}" for f in sorted(main) for v in priors_verdicts(f, main[f], other[f])]
     body = "\n".join(parts)
-    for path, text in ((page, body), (readme, table)):
-        if not path:
-            continue
-        pth = Path(path)
-        old = pth.read_text() if pth.is_file() else ""
-        if START in old and END in old:
-            new = old.split(START)[0] + START + "\n" + text + "\n" + END + old.split(END, 1)[1]
-        elif path == page:
-            new = old + f"\n{START}\n{text}\n{END}\n"
-        else:
-            continue  # the README gets the table only where its markers are
-        pth.write_text(new)
+    _splice(page, body, append=True, tag=TAG)
+    if readme:  # the README gets the table only where its markers are
+        _splice(readme, table, tag=TAG)
     return body
 
 

@@ -110,6 +110,11 @@ class AnchorTable:
         return cls(a["anchor_id"].astype(str).to_numpy(), a[["x", "y", "z"]].to_numpy(float),
                    a["tx_power_dbm"].to_numpy(float))
 
+    @classmethod
+    def empty(cls) -> "AnchorTable":
+        """No anchors (a stream read without its radio measurements)."""
+        return cls(np.zeros(0, str), np.zeros((0, 3)), np.zeros(0))
+
     def index_of(self, ids: np.ndarray) -> np.ndarray:
         """Row of each id in this table, -1 for unknown ids."""
         order = np.argsort(self.ids)

@@ -99,5 +99,10 @@ class MapPriorDataConfig:
         return int(round(self.window_s * self.step_hz)) + 1
 
     @property
+    def paths(self) -> list[str]:
+        """``path`` and then ``extra_paths``: every dataset trained on."""
+        return [str(self.path)] + [str(p) for p in (self.extra_paths or [])]
+
+    @property
     def n_kernel(self) -> int:
         return int(round(self.window_s * self.kernel_hz)) + 1

@@ -326,7 +326,7 @@ class MapPriorDataModule(L.LightningDataModule):
         ``sessions`` when given), checked for clashes between the datasets; an id of ``sessions`` that none of
         them has fails, naming it."""
         c = self.cfg
-        paths = [str(c.path)] + [str(p) for p in (c.extra_paths or [])]
+        paths = c.paths
         keep = None if c.sessions is None else {str(i) for i in c.sessions}
         out, origin, floors, seen = [], {}, {}, set()
         for p in paths:
@@ -356,7 +356,7 @@ class MapPriorDataModule(L.LightningDataModule):
         if self.sets:
             return
         c = self.cfg
-        where = ", ".join([str(c.path)] + [str(p) for p in (c.extra_paths or [])])
+        where = ", ".join(c.paths)
         held = [str(b) for b in (c.val_buildings or [])]
         by_building: dict[str, list] = {}
         for s in self._sessions():

@@ -54,7 +54,7 @@ def build_meta(model: dict, dm: MapPriorDataModule, net: MapPriorNet) -> dict:
             "target": {"scale": c.target_scale, "gain": c.target_gain, "feasible_tbar": c.feasible_tbar},
             "augment": dataclasses.asdict(c.augment), "crop_px": c.crop_px,
             "buildings": dm.train_buildings, "val_buildings": dm.val_buildings, "floors": dm.train_floors,
-            "datasets": [str(c.path)] + [str(p) for p in c.extra_paths],
+            "datasets": c.paths,
             "sessions": sorted({s for g in dm.groups.values() for s in g}),
             "waypoint_sessions": {"sessions": dm.waypoint_sessions, "max_gap_s": c.waypoint_max_gap_s,
                                   "positions": "linear interpolation between consecutive waypoints"},

@@ -73,7 +73,7 @@ __all__ = ["GridL2Localizer", "GridL1Localizer", "SrlsLocalizer", "RangeBaseline
 
 # WIFI_MIN_RSSI_DBM (-65), BLE_MIN_RSSI_DBM (-90): the rules of 004 sec. V-A, defined in blenav.crf.preprocess
 SOURCES = ("rtt", "ble")
-_NO_ANCHORS = AnchorTable(np.zeros(0, str), np.zeros((0, 3)), np.zeros(0))
+_NO_ANCHORS = AnchorTable.empty()
 
 
 # ------------------------------------------------------------------------------------------ readings

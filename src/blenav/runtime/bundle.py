@@ -156,9 +156,8 @@ class LocalizerGraph(LocalizerSession):
     def __init__(self, path: Path, meta: dict, threads: int = 1, sess=None):
         super().__init__(path, meta, sess if sess is not None else session(Path(path), threads))
 
-    def predict(self, S: np.ndarray) -> np.ndarray:
-        """Unchecked (the live path builds the windows itself): :meth:`LocalizerSession.predict_windows`."""
-        return self.predict_windows(S)
+    #: unchecked (the live path builds the windows itself)
+    predict = LocalizerSession.predict_windows
 
 
 class _MapBackend(OnnxBackend):

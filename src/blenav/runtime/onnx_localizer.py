@@ -84,7 +84,8 @@ class LocalizerSession:
         S = np.ascontiguousarray(S, dtype=np.float32)
         if len(S) == 0:
             return np.zeros((0, 2))
-        xy = self._sess.run(["xy"], dict(zip(("S", "h0", "c0"), (S, *self.zero_state(len(S))))))[0].astype(float)
+        z = np.zeros((self.layers, len(S), self.hidden), np.float32)  # h0 = c0 = 0, read-only inputs
+        xy = self._sess.run(["xy"], {"S": S, "h0": z, "c0": z})[0].astype(float)
         xy[~self.heard(S)] = np.nan
         return xy
 
