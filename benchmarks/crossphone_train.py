@@ -47,10 +47,11 @@ def simulate(data: Path, sessions: int, duration_s: float) -> None:
                     f"sim.receivers={PHONES}", "sim.unlabelled_every=0", "overwrite=true"))
 
 
-def converge(data: Path, threads: int | None, *extra: str) -> dict:
-    with tempfile.TemporaryDirectory() as out:
+def converge(data: Path, threads: int | None, *extra: str, keep: Path | None = None) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        out = keep if keep is not None else tmp
         over = ["experiment=crossphone_s2", f"data={data}", f"out={out}", "trainer.enable_progress_bar=false",
-                "data.holdout=0", "plots=false", f"threads={threads if threads else 'null'}", *extra]
+                "data.holdout=0", f"plots={keep is not None}", f"threads={threads if threads else 'null'}", *extra]
         t0, c0 = time.perf_counter(), time.process_time()
         _, objs = train(compose("train", *over))
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -68,6 +69,9 @@ def main() -> None:
     ap.add_argument("--medium", type=int, default=21, help="600 s walks of the medium survey (about 10k windows)")
     ap.add_argument("--large", type=int, default=105, help="600 s walks of the large survey (105: about 50k windows)")
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default, all cores)")
+    ap.add_argument("--out", default=None, help="keep each size's run (training.json with the learning curve, "
+                    "learning_curves.png, last.ckpt) in OUT/SIZE instead of a temporary folder; an existing run is "
+                    "resumed, so give a new folder to time one")
     ap.add_argument("extra", nargs="*", help="more train.py overrides, e.g. model=locnet")
     args = ap.parse_args()
     default_threads = torch.get_num_threads()
@@ -78,7 +82,8 @@ def main() -> None:
         simulate(data, getattr(args, size), WALK_S[size])
         torch.set_num_threads(default_threads)  # train(threads=1) changed it for the whole process
         print(f"load average (1 min) before {size}: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores", flush=True)
-        r = converge(data, args.threads or None, *args.extra)
+        keep = Path(args.out) / size if args.out else None
+        r = converge(data, args.threads or None, *args.extra, keep=keep)
         budget = BUDGET_S[size]
         verdict = "MEETS" if r["wall_s"] <= budget else "MISSES"
         print(f"{size}: {r['windows']:,} training windows; {r['steps']} of {r['budget_steps']} budget steps, stop reason {r['stop_reason']} "

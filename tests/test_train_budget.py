@@ -180,17 +180,18 @@ def test_optuna_sweep_command_finds_and_records_the_best_trial(two_phones, tmp_p
 
 
 @pytest.mark.parametrize("heard", [0.15, 0.85])
-def test_ssl_loss_both_forms_match_the_equations_with_gradients(heard, monkeypatch):
-    """ssl_loss (sparse form below losses.DENSE_ABOVE heard, the fused dense autograd form above it, here also in
-    chunks of 3 windows) gives the value and the gradient of the direct form of eqs. 3.2-3.4."""
+@pytest.mark.parametrize("chunk", [None, 3])
+def test_ssl_loss_both_forms_match_the_equations_with_gradients(heard, chunk, monkeypatch):
+    """ssl_loss (the compiled loop on CPU tensors, chunk None; the tensor form of other devices in chunks of 3
+    windows) gives the value and the gradient of the direct form of eqs. 3.2-3.4."""
     from blenav.learn import losses
 
     gen = torch.Generator().manual_seed(7)
     S = (torch.rand(10, 9, 4, generator=gen) * 0.6 * (torch.rand(10, 9, 4, generator=gen) < heard)).double()
     M = torch.rand(9, 9, generator=gen).double() * 0.5
     g0 = torch.rand(10, 9, 4, generator=gen).double() * 0.6
-    monkeypatch.setattr(losses, "_ssl_fused", lambda g, S, M, tau: losses._SSLDense.apply(
-        g, torch.exp((S - torch.diagonal(M)[None, :, None]) / tau), M, 3))
+    apply = losses._SSLDense.apply
+    monkeypatch.setattr(losses._SSLDense, "apply", lambda g, w, M_: apply(g, w, M_, chunk))
     out = []
     for f in (losses.ssl_loss, losses.ssl_loss_dense):
         g = g0.clone().requires_grad_()
@@ -201,6 +202,11 @@ def test_ssl_loss_both_forms_match_the_equations_with_gradients(heard, monkeypat
     torch.testing.assert_close(out[0][1], out[1][1], rtol=1e-9, atol=1e-12)
     with torch.no_grad():  # validation: no gradient computed, same value
         assert losses.ssl_loss(g0, S, M).item() == pytest.approx(out[1][0], rel=1e-10)
+    g32 = g0.float().requires_grad_()  # float32, the training dtype
+    L32 = losses.ssl_loss(g32, S.float(), M.float())
+    L32.backward()
+    assert L32.item() == pytest.approx(out[1][0], rel=1e-5)
+    torch.testing.assert_close(g32.grad.double(), out[1][1], rtol=1e-4, atol=1e-6)
 
 
 def test_last_checkpoint_follows_the_validation_cadence():

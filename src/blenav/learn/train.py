@@ -2,7 +2,7 @@
 
 Budget (``trainer.budget``, conf/trainer/cpu.yaml; :func:`budget`). Training runs for a number of optimizer
 *steps*, not epochs: ``max_steps``, by default ``auto``, which follows the survey's size (:func:`budget_steps`:
-3,000 steps for 2,000 training windows or fewer, growing as the square root of the windows, at most 10,000 --
+3,000 steps for 2,000 training windows or fewer, growing as the square root of the windows, at most 15,000 --
 about 6,700 for 10k windows; the batch size does not change it), validated about every ``val_every_steps`` steps (:func:`_val_cadence`), stopped
 early when the validation loss (``val/loss``, the objective of eq. 3.6 on the validation windows) has not
 improved by ``min_delta`` for ``patience`` checks (Lightning's ``EarlyStopping``). The learning rate warms up
@@ -67,7 +67,7 @@ log = logging.getLogger("blenav.train")
 
 #: ``trainer.budget`` defaults (conf/trainer/cpu.yaml repeats them): chosen on validation windows of simulated
 #: campus_floor surveys of several sizes (docs/results-003-crossphone.md), never on test walks.
-BUDGET = {"max_steps": "auto", "auto_base_steps": 3000, "auto_ref_windows": 2000, "auto_max_steps": 10000,
+BUDGET = {"max_steps": "auto", "auto_base_steps": 3000, "auto_ref_windows": 2000, "auto_max_steps": 15000,
           "val_every_steps": 50, "patience": 15, "min_delta": 0.0, "warmup_steps": 100,
           "schedule": "cosine", "min_lr_ratio": 0.02}
 
@@ -79,8 +79,9 @@ def budget_steps(b: dict, n_windows: int) -> int:
     Why it grows with the survey, and as the square root: on simulated campus_floor surveys (validation windows,
     docs/results-003-crossphone.md) 3,000 steps brought a 2k-window survey to its best validation loss (step
     2,650) but left a 10k one still improving at its last step; a step sees a batch, so a survey five times
-    larger needs more steps, but not five times more (its windows repeat the same places and phones). The cap
-    keeps a 50k-window survey inside the 15-minute budget of this 2-core machine."""
+    larger needs more steps, but not five times more (its windows repeat the same places and phones). A 50k-window
+    survey gets 14,984 steps: early stopping ended it at 10,580 (best validation check at 9,605), where a cap of
+    10,000 had stopped it still improving (docs/results-003-crossphone.md). The cap bounds larger surveys."""
     m = b["max_steps"]
     if m is None:
         return -1
