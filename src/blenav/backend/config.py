@@ -184,7 +184,7 @@ class MappingConfig:
     min_readings: int = 30  # readings below which a beacon is not placed (heard too little)
     min_spread_m: float = 1.0  # m: minor-axis std of the hearing positions below which it is not placed
     max_std_m: float = 2.5  # m: placed only when the estimate's (stated) horizontal std is below this
-    device_z: Optional[float] = None  # m: receiver height when the ground truth has no z (None: use gt z)
+    device_z: Optional[float] = None  # m: receiver height (None: the ground truth's z, 0 when it has none)
     body_loss: bool = True  # the carrier's body shadow W (1 - cos theta) / 2, W estimated (shared by all beacons)
     body_db_prior: float = 5.0  # dB, prior mean of W
     body_db_sigma: float = 5.0  # dB

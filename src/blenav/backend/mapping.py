@@ -197,9 +197,7 @@ def collect_readings(sessions, ids: np.ndarray, cfg: MappingConfig) -> tuple[lis
                              f"{threshold:.1f} dBm left out")
             keep &= ~weak
         t, j, y = t[keep], j[keep], y[keep]
-        z = (np.full(len(t), cfg.device_z) if cfg.device_z is not None
-             else np.interp(t, tg, gt["z"].to_numpy(float)))
-        P = np.column_stack([np.interp(t, tg, gt["x"].to_numpy(float)), np.interp(t, tg, gt["y"].to_numpy(float)), z])
+        P = sess.positions_at(t, with_z=True, device_z=cfg.device_z)
         hd = _walking_direction(tg, gt["x"].to_numpy(float), gt["y"].to_numpy(float), t)
         order = np.argsort(j, kind="stable")
         j, P, y, hd = j[order], P[order], y[order], hd[order]

@@ -26,6 +26,7 @@ height.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -131,22 +132,15 @@ def offline_calibration(sessions: list, wifi: AnchorTable, ble: AnchorTable, n: 
     """Offline calibration from labelled static sessions (ground truth gives the surveyed point at each time).
 
     Readings pass the rules of 004 sec. V-A first. Positions are the ground truth interpolated at the reading
-    times, with its z (device height), or at the fixed height ``device_z`` (m) when given; ``n`` and ``d0``: the
+    times, with its z (device height; 0 when it has none), or at the fixed height ``device_z`` (m) when given; ``n`` and ``d0``: the
     path-loss exponent and reference distance of the BLE levels (:func:`ble_tx_powers`). Returns NaN for anchors
     without readings (an empty ``wifi`` / ``ble`` table: that modality is not calibrated)."""
     cal = Calibration.empty(len(wifi.ids), len(ble.ids))
     ri, rr, rd, bi, br, bd = [], [], [], [], [], []
     for s in sessions:
-        gt = s.groundtruth
-        if not len(gt):
+        if not len(s.groundtruth):
             continue
-        gtt = gt["t"].to_numpy(float)
-
-        def at(t):
-            xy = [np.interp(t, gtt, gt[c].to_numpy(float)) for c in ("x", "y")]
-            z = np.interp(t, gtt, gt["z"].to_numpy(float)) if device_z is None else np.full(len(t), float(device_z))
-            return np.column_stack([*xy, z])
-
+        at = partial(s.positions_at, with_z=True, device_z=device_z)
         if len(wifi.ids) and s.has("rtt"):
             df = s.rtt
             idx = wifi.index_of(df["anchor_id"].astype(str).to_numpy())

@@ -435,15 +435,18 @@ class Session:
         ends = [e for e in ends if np.isfinite(e)]
         return float(max(ends)) if ends else 0.0
 
-    def positions_at(self, t: np.ndarray, with_z: bool = False) -> np.ndarray:
+    def positions_at(self, t: np.ndarray, with_z: bool = False, device_z: float | None = None) -> np.ndarray:
         """Ground-truth (x, y) interpolated linearly at times ``t`` (s); shape (len(t), 2), or with ``with_z``
-        (x, y, z) (len(t), 3), z 0 when the ground truth has no heights (column absent or all NaN)."""
+        (x, y, z) (len(t), 3): z the fixed height ``device_z`` (m) when given, else the ground truth's, 0 when it
+        has no heights (column absent or all NaN)."""
         gt = self.groundtruth
         if len(gt) == 0:
             raise ValueError(f"session {self.id} has no ground truth")
         tt = gt["t"].to_numpy()
         cols = [np.interp(t, tt, gt["x"].to_numpy()), np.interp(t, tt, gt["y"].to_numpy())]
-        if with_z:
+        if with_z and device_z is not None:
+            cols.append(np.full(np.shape(t), float(device_z)))
+        elif with_z:
             z = gt["z"].to_numpy(float) if "z" in gt and not gt["z"].isna().all() else np.zeros(len(tt))
             cols.append(np.interp(t, tt, z))
         return np.stack(cols, axis=-1)

@@ -68,6 +68,20 @@ def _orientation_track(session, heading: str, att: AttitudeConfig, steps: StepDe
     return arrays.imu_t, q
 
 
+def _step_flags(session, steps: StepDetectorConfig | None, cache: dict | None) -> np.ndarray:
+    """(T,) bool: the steps detected in the session's imu.csv (:func:`detect_steps`), once per ``cache`` (the
+    PDR odometry and the step-length fit of the same walk share them)."""
+    steps = steps or StepDetectorConfig()
+    key = ("rw-steps", session.id, repr(steps))
+    if cache is not None and key in cache:
+        return cache[key]
+    imu = session.imu
+    flags = detect_steps(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), steps)
+    if cache is not None:
+        cache[key] = flags
+    return flags
+
+
 def pdr_odometry(session, heading: str = "orientation", step_length: float = DEFAULT_STEP_M,
                  att: AttitudeConfig | None = None, steps: StepDetectorConfig | None = None,
                  cache: dict | None = None) -> pd.DataFrame:
@@ -84,14 +98,15 @@ def pdr_odometry(session, heading: str = "orientation", step_length: float = DEF
     if len(imu) < 2:
         raise MissingStream(f"session {session.id} has no IMU data, which the PDR odometry needs")
     q_t, q = _orientation_track(session, heading, att, steps, cache)
-    t, xy = pdr_track(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), q_t, q, step_length, steps)
+    t, xy = pdr_track(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), q_t, q, step_length, steps,
+                      flags=_step_flags(session, steps, cache))
     df = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1]})
     if cache is not None:
         cache[key] = df
     return df
 
 
-def fit_step_length(sessions: list, steps: StepDetectorConfig | None = None) -> dict:
+def fit_step_length(sessions: list, steps: StepDetectorConfig | None = None, cache: dict | None = None) -> dict:
     """One step length (m) for the walker of ``sessions`` (labelled): the surveyed path length between each walk's
     first and last waypoint (straight lines between waypoints, so a lower bound of the walked length) summed over
     the walks, over the steps detected in those spans. Returns ``{"step_length_m", "walks", "steps", "path_m"}``."""
@@ -101,8 +116,7 @@ def fit_step_length(sessions: list, steps: StepDetectorConfig | None = None) -> 
         gt, imu = s.groundtruth, s.imu
         if len(gt) < 2 or len(imu) < 2:
             continue
-        flags = detect_steps(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), steps)
-        t_steps = imu["t"].to_numpy(float)[flags]
+        t_steps = imu["t"].to_numpy(float)[_step_flags(s, steps, cache)]
         t0, t1 = float(gt["t"].iloc[0]), float(gt["t"].iloc[-1])
         k = int(((t_steps > t0) & (t_steps <= t1)).sum())
         d = np.diff(gt[["x", "y"]].to_numpy(float), axis=0)
@@ -137,7 +151,7 @@ class RealWalkPF(ParticleFilterLocalizer, Trained):
             return None
         key = ("rw-step-length", tuple(s.id for s in sessions), repr(self.method.steps))  # per detector
         if key not in ctx.cache:
-            ctx.cache[key] = fit_step_length(sessions, self.method.steps)
+            ctx.cache[key] = fit_step_length(sessions, self.method.steps, ctx.cache)
         self.fitted_step = float(ctx.cache[key]["step_length_m"])
         return {"step_length": ctx.cache[key]}
 

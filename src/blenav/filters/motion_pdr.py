@@ -44,18 +44,22 @@ def heading_at(t: np.ndarray, q_t: np.ndarray, q: np.ndarray, offset_rad: float 
 
 
 def pdr_track(imu_t: np.ndarray, acc: np.ndarray, q_t: np.ndarray, q: np.ndarray, step_length: float = 0.7,
-              cfg: StepDetectorConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+              cfg: StepDetectorConfig | None = None, flags: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The PDR odometry track (t (M,) s, xy (M, 2) m, world-aligned as the heading's frame, starting at 0).
 
     ``imu_t`` (T,) s, ``acc`` (T, 3) m/s^2; ``q_t`` (Q,) s, ``q`` (Q, 4) the device->world orientation;
-    ``step_length`` m per detected step; samples at the IMU span's ends and at every step."""
+    ``step_length`` m per detected step; samples at the IMU span's ends and at every step. ``flags`` (T,) bool:
+    the steps already detected in ``acc`` with ``cfg`` (:func:`detect_steps`), not detected again."""
     imu_t = np.asarray(imu_t, float)
     if len(imu_t) < 2:
         raise ValueError("pdr_track: fewer than two IMU samples")
     if not (np.isfinite(step_length) and step_length > 0):
         raise ValueError(f"pdr_track: step_length must be a positive number of metres, got {step_length!r}")
-    flags = detect_steps(imu_t, np.asarray(acc, float), cfg)
-    ts = imu_t[flags]
+    if flags is None:
+        flags = detect_steps(imu_t, np.asarray(acc, float), cfg)
+    elif len(flags) != len(imu_t):
+        raise ValueError(f"pdr_track: {len(flags)} step flags for {len(imu_t)} IMU samples")
+    ts = imu_t[np.asarray(flags, bool)]
     psi = heading_at(ts, np.asarray(q_t, float), q)
     steps = step_length * np.stack([np.cos(psi), np.sin(psi)], axis=-1)
     t = np.union1d([imu_t[0], imu_t[-1]], ts)

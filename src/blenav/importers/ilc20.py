@@ -410,7 +410,7 @@ def _write_stream(root: Path, sid: str, name: str, cols: dict[str, np.ndarray]) 
                                                          encoding="utf-8")
 
 
-def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, floor_z: float, beacon_id: str,
+def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, beacon_id: str,
                   report: ImportReport, events: Counter, beacons: dict, bssids: set
                   ) -> tuple[str, dict, dict, np.ndarray, dict]:
     """Parse one path file; returns (session id, session.yaml, streams, waypoints (n, 2) m, header).
@@ -451,7 +451,7 @@ def _convert_walk(display: str, data: bytes, site: str, floor: str, stem: str, f
     if labelled:
         empty = np.full(len(o), "", dtype=object)
         streams["groundtruth"] = {"t": sec(wp_t[o]), "x": _num_text(wp_xy[:, 0], 6), "y": _num_text(wp_xy[:, 1], 6),
-                                  "z": _num_text(np.full(len(o), floor_z + PHONE_HEIGHT_M), 3), "qw": empty,
+                                  "z": None, "qw": empty,  # z: the floor's, known at _write_site
                                   "qx": empty, "qy": empty, "qz": empty, "raw_line": _num_text(wp_l[o], 0)}
     else:
         events["walks with fewer than two waypoints (written as unlabelled sessions)"] += 1
@@ -892,7 +892,6 @@ class _WalkPass:
     acc: dict                   # (site, floor) -> _FloorAcc, floors with at least one written session
     beacons: dict               # anchor id -> what was heard (see _beacon_stream)
     bssids: dict                # site -> set of BSSIDs heard
-    pending_z: dict             # (site, floor) -> floor z (m) the sessions' ground truth was made with
     pending_gt: dict            # (site, floor) -> [(session id, groundtruth columns)], written by _write_site
     events: Counter             # walk-level events -> count
     labelled: int               # sessions with >= 2 waypoints
@@ -906,7 +905,6 @@ def _import_walks(src: Path, tmp: Path, want, beacon_id: str, report: ImportRepo
     beacons: dict[str, dict] = {}
     bssids: dict[str, set] = defaultdict(set)
     sessions: set[str] = set()
-    pending_z: dict[tuple[str, str], float] = {}
     pending_gt: dict[tuple[str, str], list] = defaultdict(list)
     events: Counter = Counter()
     labelled = 0
@@ -916,8 +914,7 @@ def _import_walks(src: Path, tmp: Path, want, beacon_id: str, report: ImportRepo
             meta_files[(key, name)] = (e.display, e.data)
             continue
         site, floor = key
-        z = pending_z.setdefault(key, _floor_level(floor, None) * FLOOR_HEIGHT_M)
-        sid, meta, streams, wp_xy, header = _convert_walk(e.display, e.data, site, floor, name, z, beacon_id, report,
+        sid, meta, streams, wp_xy, header = _convert_walk(e.display, e.data, site, floor, name, beacon_id, report,
                                                           events, beacons, bssids[site])
         if sid in sessions:
             raise ImportError_(e.display, None, f"a second walk with session id {sid!r} (the same path file twice?)")
@@ -937,7 +934,7 @@ def _import_walks(src: Path, tmp: Path, want, beacon_id: str, report: ImportRepo
         a.site_name = a.site_name or header.get("SiteName", "")
         a.site_id = a.site_id or header.get("SiteID", "")
         a.floor_id = a.floor_id or header.get("FloorId", "")
-    return _WalkPass(meta_files, acc, beacons, bssids, pending_z, pending_gt, events, labelled)
+    return _WalkPass(meta_files, acc, beacons, bssids, pending_gt, events, labelled)
 
 
 def _write_site(src: Path, tmp: Path, site: str, floor_names: list[str], w: _WalkPass, report: ImportReport) -> None:
@@ -957,7 +954,7 @@ def _write_site(src: Path, tmp: Path, site: str, floor_names: list[str], w: _Wal
         plan = _read_plan(*info, *geo, floor, report)
         level = _floor_level(floor, plan.floor_num)
         z = level * FLOOR_HEIGHT_M
-        _write_groundtruth(tmp, w.pending_gt.get(key, []), z if z != w.pending_z.get(key, z) else None)
+        _write_groundtruth(tmp, w.pending_gt.get(key, []), z)
         floors.append({"id": floor, "occupancy": plan.occupancy, "resolution": RESOLUTION_M, "origin": (0.0, 0.0),
                        "z": z, "filename": f"floor_{floor}.png"})
         rooms += [{"id": uid, "floor": floor, "geometry": g, "properties": {"name": nm}}
@@ -1039,11 +1036,10 @@ def _site_anchor_rows(beacons: dict, floor_names: list[str]) -> list[dict]:
     return rows
 
 
-def _write_groundtruth(root: Path, pending: list, floor_z: float | None) -> None:
-    """groundtruth.csv of a floor's sessions, written once: ``pending`` [(session id, columns)] from the walk pass;
-    ``floor_z`` (m) when the floor's level came from its GeoJSON and differs from the walk pass's guess (z = floor z
-    + ``PHONE_HEIGHT_M``), else None (the columns' z stands)."""
+def _write_groundtruth(root: Path, pending: list, floor_z: float) -> None:
+    """groundtruth.csv of a floor's sessions, written once: ``pending`` [(session id, columns)] from the walk pass
+    (z left None there: the floor's level may come from its GeoJSON, read later); z = ``floor_z`` (m) +
+    ``PHONE_HEIGHT_M``."""
     for sid, cols in pending:
-        if floor_z is not None:
-            cols = {**cols, "z": _num_text(np.full(len(cols["z"]), floor_z + PHONE_HEIGHT_M), 3)}
+        cols = {**cols, "z": _num_text(np.full(len(cols["t"]), floor_z + PHONE_HEIGHT_M), 3)}
         _write_stream(root, sid, "groundtruth", cols)
