@@ -402,3 +402,18 @@ def test_checks_use_the_datasets_own_plan_not_a_wrong_version(tiny_dataset):
     moved = replace(b, floors={k: replace(f, origin=(100.0, 100.0)) for k, f in b.floors.items()})
     s = ds.session("walk0").with_building(moved)
     assert len(s.groundtruth) == 200
+
+
+def test_positions_at_with_a_fixed_device_height(tiny_dataset):
+    """Session.positions_at(with_z=True, device_z=h): x, y of the ground truth, z = h (the calibrations' receiver
+    height); without device_z the ground truth's z."""
+    import numpy as np
+
+    from blenav.data import Dataset
+
+    s = next(iter(Dataset.open(tiny_dataset).sessions()))
+    t = s.groundtruth["t"].to_numpy(float)[:5] + 0.25
+    p = s.positions_at(t, with_z=True, device_z=1.5)
+    assert p.shape == (5, 3) and np.all(p[:, 2] == 1.5)
+    np.testing.assert_array_equal(p[:, :2], s.positions_at(t))
+    assert np.all(np.isfinite(s.positions_at(t, with_z=True)[:, 2]))

@@ -38,6 +38,13 @@ def test_pdr_track_walks_steps_along_the_heading():
     assert n == 20  # 2 Hz for 10 s
     assert math.isclose(np.degrees(np.arctan2(xy[-1, 1], xy[-1, 0])), 30.0, abs_tol=1e-6)
     assert np.all(np.diff(tt) > 0) and xy[0].tolist() == [0.0, 0.0]
+    from blenav.filters.steps import detect_steps
+
+    flags = detect_steps(t, acc, StepDetectorConfig(min_interval_s=0.3))  # flags detected once, given: same track
+    t2, xy2 = pdr_track(t, np.zeros_like(acc), t, q, step_length=0.5, flags=flags)
+    assert np.array_equal(t2, tt) and np.array_equal(xy2, xy)
+    with pytest.raises(ValueError, match="step flags"):
+        pdr_track(t, acc, t, q, flags=flags[1:])
 
 
 def _as_waypoint_walks(root):
@@ -304,3 +311,17 @@ def test_sparse_role_hears_only_its_beacons(tmp_path):
     np.testing.assert_array_equal(t_sp, est.t)
     np.testing.assert_allclose(xy_sp, est.position[0])
     assert len(t_sp) != len(t_all) or not np.allclose(xy_sp, xy_all)
+
+
+def test_step_flags_are_detected_once_per_walk(tiny_dataset, monkeypatch):
+    """The PDR odometry and the step-length fit of one walk share its step flags through the cache."""
+    from blenav.data import Dataset
+    from blenav.eval import realwalks
+
+    calls = []
+    real = realwalks.detect_steps
+    monkeypatch.setattr(realwalks, "detect_steps", lambda *a, **k: calls.append(1) or real(*a, **k))
+    s = next(iter(Dataset.open(tiny_dataset).sessions()))
+    cache: dict = {}
+    a = realwalks._step_flags(s, None, cache)
+    assert np.array_equal(realwalks._step_flags(s, StepDetectorConfig(), cache), a) and len(calls) == 1
