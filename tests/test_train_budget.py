@@ -39,9 +39,9 @@ def test_schedule_warms_up_then_decays_to_the_floor():
 
 
 def test_the_auto_budget_grows_with_the_survey_as_a_square_root_between_base_and_cap():
-    b = dict(BUDGET)  # auto: 3000 * sqrt(n / 2000), within [3000, 10000]
-    assert [budget_steps(b, n) for n in (50, 2000, 8000, 10_000, 22_222, 50_000)] == [3000, 3000, 6000, 6708, 10000,
-                                                                                       10000]
+    b = dict(BUDGET)  # auto: 3000 * sqrt(n / 2000), within [3000, 15000]
+    assert [budget_steps(b, n) for n in (50, 2000, 8000, 10_000, 49_896, 50_000, 80_000)] == [3000, 3000, 6000, 6708,
+                                                                                               14984, 15000, 15000]
     assert budget_steps({**b, "max_steps": 500}, 50_000) == 500 and budget_steps({**b, "max_steps": None}, 9) == -1
     assert budget_steps({**b, "auto_base_steps": 100, "auto_ref_windows": 100, "auto_max_steps": 250}, 400) == 200
     c = compose("train", "trainer.budget.max_steps=lots")
