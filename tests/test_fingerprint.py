@@ -206,11 +206,13 @@ def test_fingerprint_fixes_through_the_fix_provider(tmp_path):
                   "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
                   "methods.pf_ps_map_offset=null", "split={train_fraction: 0.6, seed: 0}",
                   "+localizer@methods.knn=fingerprint", "methods.knn.k=1",
-                  "+localizer@methods.track=fix_track", "+fixes={dense: null}",
+                  "+localizer@methods.track=fix_track", "+fixes={dense: null, again: null}",
                   "+fixes.compute={_target_: blenav.localizers.fingerprint.FingerprintLocalizer, k: 1}",
                   "scoring.hold_ends=true")
     res = evaluate(cfg)
     assert res["fixes"]["training"]["fix-dense"]["floors"]["mall/F1"]["train_walks"] == 2
+    # a second role sharing the localizer reports the same training under its own source (it was left out)
+    assert res["fixes"]["training"]["fix-again"] == res["fixes"]["training"]["fix-dense"]
     track, knn = res["methods"]["track"]["error_m"], res["methods"]["KNN-WiFi"]["error_m"]
     assert track["mean"] == pytest.approx(knn["mean"], abs=1e-9) and track["mean"] == pytest.approx(4.0 / 3, abs=1e-6)
 

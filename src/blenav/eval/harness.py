@@ -542,7 +542,9 @@ def evaluate(cfg: DictConfig) -> dict:
                 outcomes[name] = oc
     if provider is not None:
         results["fixes"] = provider.describe()
-        fix_training = {r: training[r] for r in provider.methods if training.get(r) is not None}
+        key_of = {id(m): k for k, m in every.items()}  # every role under its own source, shared localizers too
+        fix_training = {provider.computed_source(r): training[key_of[id(m)]] for r, m in provider.localizers.items()
+                        if training.get(key_of.get(id(m))) is not None}
         if fix_training:
             results["fixes"]["training"] = fix_training
     bounds = None
