@@ -80,18 +80,10 @@ class CrossPhoneModule(L.LightningModule):
 
     def _log_step(self, batch, stage: str) -> torch.Tensor:
         out = self.model_step(batch)
-        if stage != "train" or self._logs_this_step():
-            for k, v in out.items():
-                self.log(f"{stage}/{k}", v, prog_bar=k in ("loss", "err_m"), batch_size=batch["S"].shape[0],
-                         sync_dist=stage != "train")  # epoch metrics averaged over DDP ranks
+        for k, v in out.items():
+            self.log(f"{stage}/{k}", v, prog_bar=k in ("loss", "err_m"), batch_size=batch["S"].shape[0],
+                     sync_dist=stage != "train")  # epoch metrics averaged over DDP ranks
         return out["loss"]
-
-    def _logs_this_step(self) -> bool:
-        """Whether the loggers write this training step (every ``trainer.log_every_n_steps``). Training terms are
-        logged on those steps only: a ``self.log`` costs about 1 ms on this CPU (Lightning moves its metric
-        state at every call), 6 of them a step were 10 % of a 50k-window run."""
-        conn = getattr(self._trainer, "_logger_connector", None)
-        return True if conn is None else bool(conn.should_update_logs)
 
     def training_step(self, batch, batch_idx):
         if self.augment is not None:  # training windows only: validation and test see the phones as they are
