@@ -64,9 +64,9 @@ def main() -> None:
     dm = WindowDataModule(data_config(cfg))
     dm.setup()
     m = build_module(cfg, dm)
-    print(f"{len(dm.beacons)} beacons, batch {dm.cfg.batch_size}, torch threads {torch.get_num_threads()}; "
+    print(f"{len(dm.beacons)} beacons, batch {dm.batch_size}, torch threads {torch.get_num_threads()}; "
           f"median ms of {r} calls", flush=True)
-    bs, tr = dm.cfg.batch_size, dm.sets["train"]
+    bs, tr = dm.batch_size, dm.sets["train"]
     batched = forever(DataLoader(tr, batch_size=bs, shuffle=True, collate_fn=_collate))
     rows = forever(DataLoader(ConcatDataset([tr]), batch_size=bs, shuffle=True, collate_fn=_collate))
     a, b = median_ms(lambda: next(batched), r), median_ms(lambda: next(rows), r)

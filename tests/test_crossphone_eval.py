@@ -42,6 +42,7 @@ def test_every_method_is_scored_per_device_on_the_same_windows(four_phones, tmp_
             assert {"mean", "std", "median", "p90", "max"} <= set(st) and np.isfinite(st["mean"]), (name, d)
         assert m["error_m"]["max"] >= m["error_m"]["p90"] >= m["error_m"]["median"] > 0
     assert not set(res["train_sessions"]) & set(res["sessions"])  # no session on both sides
+    assert res["methods"]["LocNet"]["training"]["batch_size"] == 64  # the given batch, reported beside the steps
     import torch
 
     semi = torch.load(tmp_path / "o" / "runs" / "semi" / "last.ckpt", map_location="cpu", weights_only=True)

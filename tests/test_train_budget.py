@@ -44,11 +44,34 @@ def test_the_auto_budget_grows_with_the_survey_as_a_square_root_between_base_and
                                                                                                14984, 15000, 15000]
     assert budget_steps({**b, "max_steps": 500}, 50_000) == 500 and budget_steps({**b, "max_steps": None}, 9) == -1
     assert budget_steps({**b, "auto_base_steps": 100, "auto_ref_windows": 100, "auto_max_steps": 250}, 400) == 200
+    assert budget_steps(b, 2340, scale=2.0) == 6490 and budget_steps(b, 300, scale=2.0) == 6000  # auto batch 128
+    assert budget_steps(b, 49_896, scale=2.0) == 15000  # the cap holds
     c = compose("train", "trainer.budget.max_steps=lots")
     with pytest.raises(ValueError, match="max_steps='lots'"):
         budget(c)
     with pytest.raises(ValueError, match="unknown keys"):
         budget(compose("train", "+trainer.budget.max_step=5"))
+
+
+def test_the_auto_batch_halves_below_ten_batches_an_epoch_and_a_given_batch_stays():
+    from blenav.learn.data import WindowDataModule, auto_batch_size
+    from blenav.learn.data_config import WindowDataConfig
+
+    assert [auto_batch_size(n) for n in (1, 2339, 2559, 2560, 50_000)] == [128, 128, 128, 256, 256]
+    small = WindowDataModule(WindowDataConfig(path="x"))
+    small.sets = {"train": list(range(2340))}
+    assert small.batch_size == 128 and small.step_scale == 2.0
+    given = WindowDataModule(WindowDataConfig(path="x", batch_size=32))
+    given.sets = {"train": list(range(2340))}
+    assert given.batch_size == 32 and given.step_scale == 1.0
+    for bad in (0, "big", 2.5, True):
+        with pytest.raises(ValueError, match="data.batch_size"):
+            WindowDataConfig(path="x", batch_size=bad)
+    from blenav.learn.train import data_config
+
+    assert data_config(compose("train", "data.path=x")).batch_size == "auto"
+    with pytest.raises(ValueError, match="data.batch_size=-3"):
+        data_config(compose("train", "data.path=x", "data.batch_size=-3"))
 
 
 def test_the_learning_rate_follows_the_schedule_in_a_run(two_phones, tmp_path):
@@ -248,6 +271,7 @@ def test_a_finished_run_of_another_budget_is_not_silently_extended(tmp_path):
 
     class DM:
         sets = {"train": range(10_000)}
+        step_scale = 1.0  # batch 256
 
         @staticmethod
         def train_hash():

@@ -18,7 +18,8 @@ beacon was heard (a window with no beacon heard gives no fix; how many there wer
      "training" (learned methods trained here): {"steps", "budget_steps" (the step budget of the run:
                  trainer.budget.max_steps, or its auto value for the survey's size), "early_stopped", "stop_reason", "best_val_error_m",
                  "knn_val_error_m" (KNN, k = 5, on the same validation windows), "converged", "best_step",
-                 "train_windows", "val_windows" (labelled windows trained / validated on),
+                 "train_windows", "val_windows" (labelled windows trained / validated on), "batch_size" (windows
+                 per step: data.batch_size, or its auto value for the survey's size),
                  "warnings" (worse than KNN on validation, stopped before converging), "learning_curves" (png)}}
 
 Every learned method's run also leaves ``OUT/runs/KEY/training.json`` and ``learning_curves.png`` (the training
@@ -106,7 +107,7 @@ def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path, dm) -
 
 #: ``methods.NAME.training`` of a learned method (blenav.learn.train.training_report)
 TRAINING_KEYS = ("steps", "budget_steps", "early_stopped", "stop_reason", "best_val_error_m", "knn_val_error_m",
-                 "converged", "best_step", "train_windows", "val_windows", "warnings")
+                 "converged", "best_step", "train_windows", "val_windows", "batch_size", "warnings")
 
 
 def _check_reuse(ck: Path, dm, model: DictConfig | None = None, tcfg: DictConfig | None = None) -> int | None:
@@ -135,7 +136,7 @@ def _check_reuse(ck: Path, dm, model: DictConfig | None = None, tcfg: DictConfig
         from blenav.learn.train import budget, budget_steps
 
         had = int(done.get("budget_steps") or done.get("steps") or 0)
-        want = budget_steps(budget(tcfg), len(dm.sets["train"]))
+        want = budget_steps(budget(tcfg), len(dm.sets["train"]), dm.step_scale)
         if had != want:
             raise EvalError(f"{ck} finished a budget of {had} steps, this run's is {want} (trainer.budget); "
                             f"delete {ck.parent}, choose another out= or set trainer.budget.max_steps={had}")

@@ -24,6 +24,21 @@ from blenav.features.windows import WindowConfig, select_beacons, session_window
 from .data_config import WindowDataConfig  # the schema of the data node (torch-free)
 
 
+#: ``data.batch_size: auto`` (:func:`auto_batch_size`): the batch of a survey with at least
+#: AUTO_MIN_BATCHES batches an epoch, else AUTO_SMALL_BATCH with AUTO_BATCH / AUTO_SMALL_BATCH times the auto step
+#: budget (blenav.learn.train.budget_steps). Chosen on the validation windows of a simulated 2,340-window
+#: campus_floor survey (docs/results-003-crossphone.md, ``benchmarks/crossphone_train.py --sizes small``): batch
+#: 256 and 3,245 steps stopped at the budget still improving (3.4 min); batch 128 and 6,490 steps stopped early at
+#: step 5,016 (converged, 3.6 min on both cores), each step about two thirds of the cost of a 256 one.
+AUTO_BATCH, AUTO_SMALL_BATCH, AUTO_MIN_BATCHES = 256, 128, 10
+
+
+def auto_batch_size(n_windows: int) -> int:
+    """The batch of ``data.batch_size: auto`` for ``n_windows`` training windows: 256, or 128 when an epoch of
+    256 would be fewer than 10 batches (under 2,560 windows): a small survey needs more, cheaper steps."""
+    return AUTO_BATCH if int(n_windows) >= AUTO_MIN_BATCHES * AUTO_BATCH else AUTO_SMALL_BATCH
+
+
 def _tensors(sessions, beacons, wcfg: WindowConfig, labelled: bool):
     S, P, xy = [], [], []
     for s in sessions:
@@ -135,6 +150,23 @@ class WindowDataModule(L.LightningDataModule):
             keep = np.sort(np.random.default_rng([c.seed, 2]).choice(len(v), int(c.val_max_windows), replace=False))
             self.sets["val"] = WindowTensors(*(t[torch.from_numpy(keep)] for t in v.tensors))
 
+    @property
+    def batch_size(self) -> int:
+        """Windows per step: ``data.batch_size``, or for ``auto`` :func:`auto_batch_size` of the training
+        windows (after :meth:`setup`)."""
+        b = self.cfg.batch_size
+        if b != "auto":
+            return int(b)
+        if self.sets.get("train") is None:
+            return AUTO_BATCH
+        return auto_batch_size(len(self.sets["train"]))
+
+    @property
+    def step_scale(self) -> float:
+        """The factor of the auto step budget for the batch: AUTO_BATCH / batch when the batch is auto (the same
+        windows seen as at 256), 1 for a batch given as a number."""
+        return AUTO_BATCH / self.batch_size if self.cfg.batch_size == "auto" else 1.0
+
     def train_hash(self) -> str:
         """Hash of the labelled training windows and labels (stored with a model; reuse checks compare it)."""
         from .checkpoint import data_hash
@@ -150,7 +182,7 @@ class WindowDataModule(L.LightningDataModule):
         if d is None:
             return []
         g = torch.Generator().manual_seed(self.cfg.seed)
-        return DataLoader(d, batch_size=self.cfg.batch_size, shuffle=shuffle, generator=g, collate_fn=_collate)
+        return DataLoader(d, batch_size=self.batch_size, shuffle=shuffle, generator=g, collate_fn=_collate)
 
     def train_dataloader(self):
         semi = self.semi_from_epoch is not None and self.trainer is not None \
@@ -158,7 +190,7 @@ class WindowDataModule(L.LightningDataModule):
         if semi and self.sets.get("unlabelled") is not None:
             both = ConcatDataset([self.sets["train"], self.sets["unlabelled"]])
             g = torch.Generator().manual_seed(self.cfg.seed + self.trainer.current_epoch)
-            return DataLoader(both, batch_size=self.cfg.batch_size, shuffle=True, generator=g, collate_fn=_collate)
+            return DataLoader(both, batch_size=self.batch_size, shuffle=True, generator=g, collate_fn=_collate)
         return self._loader("train", True)
 
     def val_dataloader(self):

@@ -47,12 +47,17 @@ class WindowDataConfig:
     history: int = 5
     step_hz: float = 1.0
     steps: WindowSteps = WindowSteps.time  # scan: fingerprint surveys, H consecutive scans at one point
-    batch_size: int = 256
+    # windows per optimizer step: a number, or auto (blenav.learn.data.auto_batch_size: 256, or 128 on a survey
+    # of fewer than 2,560 training windows, with twice the auto step budget)
+    batch_size: Any = "auto"
     seed: int = 0
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.steps = WindowSteps(self.steps)  # a plain string from code: checked here as at composition
+        b = self.batch_size
+        if b != "auto" and (isinstance(b, bool) or not isinstance(b, int) or b < 1):
+            raise ValueError(f"data.batch_size={b!r}: a positive integer or auto")
 
 
 @dataclass

@@ -3,7 +3,8 @@
 Budget (``trainer.budget``, conf/trainer/cpu.yaml; :func:`budget`). Training runs for a number of optimizer
 *steps*, not epochs: ``max_steps``, by default ``auto``, which follows the survey's size (:func:`budget_steps`:
 3,000 steps for 2,000 training windows or fewer, growing as the square root of the windows, at most 15,000 --
-about 6,700 for 10k windows; the batch size does not change it), validated about every ``val_every_steps`` steps (:func:`_val_cadence`), stopped
+about 6,700 for 10k windows; with ``data.batch_size: auto`` a survey under 2,560 windows trains at batch 128 for
+twice those steps, :func:`blenav.learn.data.auto_batch_size`; a batch given as a number keeps them), validated about every ``val_every_steps`` steps (:func:`_val_cadence`), stopped
 early when the validation loss (``val/loss``, the objective of eq. 3.6 on the validation windows) has not
 improved by ``min_delta`` for ``patience`` checks (Lightning's ``EarlyStopping``). The learning rate warms up
 linearly over ``warmup_steps`` and then follows half a cosine to ``min_lr_ratio`` times ``model.lr`` at
@@ -72,13 +73,16 @@ BUDGET = {"max_steps": "auto", "auto_base_steps": 3000, "auto_ref_windows": 2000
           "schedule": "cosine", "min_lr_ratio": 0.02}
 
 
-def budget_steps(b: dict, n_windows: int) -> int:
+def budget_steps(b: dict, n_windows: int, scale: float = 1.0) -> int:
     """The run's optimizer-step budget: ``max_steps`` when it is a number (-1 or None: none), else (``auto``)
-    ``auto_base_steps`` * sqrt(n_windows / ``auto_ref_windows``), at least the base and at most ``auto_max_steps``.
+    ``scale`` * ``auto_base_steps`` * sqrt(n_windows / ``auto_ref_windows``), at least ``scale`` * the base and at
+    most ``auto_max_steps``. ``scale`` is 256 / batch for ``data.batch_size: auto`` (2 on a survey under 2,560
+    windows, whose batch is 128: :func:`blenav.learn.data.auto_batch_size`), else 1.
 
     Why it grows with the survey, and as the square root: on simulated campus_floor surveys (validation windows,
-    docs/results-003-crossphone.md) 3,000 steps brought a 2k-window survey to its best validation loss (step
-    2,650) but left a 10k one still improving at its last step; a step sees a batch, so a survey five times
+    docs/results-003-crossphone.md) 3,000 steps of batch 256 left a 2,340-window survey still improving (the last
+    quarter of the checks 4.4 % better, 3,245 steps), where batch 128 for 6,490 steps stopped early at step 5,016;
+    a 10k one was still improving at its last step; a step sees a batch, so a survey five times
     larger needs more steps, but not five times more (its windows repeat the same places and phones). A 50k-window
     survey gets 14,984 steps: early stopping ended it at 10,580 (best validation check at 9,605), where a cap of
     10,000 had stopped it still improving (docs/results-003-crossphone.md). The cap bounds larger surveys."""
@@ -87,8 +91,8 @@ def budget_steps(b: dict, n_windows: int) -> int:
         return -1
     if m != "auto":
         return int(m)
-    base, ref, cap = int(b["auto_base_steps"]), max(1, int(b["auto_ref_windows"])), int(b["auto_max_steps"])
-    return int(min(cap, max(base, round(base * math.sqrt(max(int(n_windows), 1) / ref)))))
+    base, ref, cap = float(b["auto_base_steps"]) * float(scale), max(1, int(b["auto_ref_windows"])), int(b["auto_max_steps"])
+    return int(min(cap, round(max(base, base * math.sqrt(max(int(n_windows), 1) / ref)))))
 
 
 def data_config(cfg: DictConfig) -> WindowDataConfig:
@@ -198,7 +202,8 @@ def training_report(monitor: TrainingMonitor, reason: str, steps: int, knn_err: 
 
 def _window_counts(dm: WindowDataModule) -> dict:
     """How many labelled training, validation and unlabelled windows the run had (the survey's size)."""
-    return {f"{k}_windows": len(dm.sets[k]) if dm.sets.get(k) is not None else 0 for k in ("train", "val", "unlabelled")}
+    return {**{f"{k}_windows": len(dm.sets[k]) if dm.sets.get(k) is not None else 0
+               for k in ("train", "val", "unlabelled")}, "batch_size": dm.batch_size}
 
 
 def _write_report(out: Path, info: dict, monitor: TrainingMonitor, title: str, plots: bool) -> None:
@@ -254,9 +259,9 @@ def _trainer_settings(cfg: DictConfig, b: dict, dm: WindowDataModule, module) ->
     trainer_kw.pop("budget", None)
     if trainer_kw.get("max_epochs") is None:
         trainer_kw["max_epochs"] = -1  # the step budget decides (Lightning's default would be 1000 epochs)
-    max_steps = budget_steps(b, len(dm.sets["train"]))
+    max_steps = budget_steps(b, len(dm.sets["train"]), dm.step_scale)
     trainer_kw["max_steps"] = -1  # the budget is a callback (blenav.learn.trainer.StepBudget)
-    spe = _steps_per_epoch(len(dm.sets["train"]), dm.cfg.batch_size)
+    spe = _steps_per_epoch(len(dm.sets["train"]), dm.batch_size)
     trainer_kw.update(_val_cadence(int(b["val_every_steps"]), spe))
     # OUT/last.ckpt at the validation cadence too: every epoch on a 2k-window survey (9 steps) cost ~20 % of the run
     trainer_kw[CKPT_EVERY] = trainer_kw["check_val_every_n_epoch"]
@@ -305,7 +310,7 @@ def _semi_stage(module, dm, out: Path, trainer_kw: dict, semi, info: dict, knn_e
     supervised ones; writes the checkpoint and the report. Returns (training info, trainer)."""
     start = int(info.get("semi_from_step") if info.get("stage") == "semi" else info["steps"])
     n_all = len(dm.sets["train"]) + len(dm.sets["unlabelled"])
-    steps = int(semi.get("epochs") or 0) * _steps_per_epoch(n_all, dm.cfg.batch_size) or int(semi.get("steps") or 0)
+    steps = int(semi.get("epochs") or 0) * _steps_per_epoch(n_all, dm.batch_size) or int(semi.get("steps") or 0)
     if steps <= 0:
         raise ValueError("semi: give semi.steps (optimizer steps) or semi.epochs")
     module.stage, module.semi_lr = "semi", float(semi.lr)
