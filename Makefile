@@ -93,7 +93,7 @@ THESIS_RECIPE = experiment.learned.locnet.model.lr=1e-4 experiment.learned.locne
     experiment.learned.transnet_locnet.model.lr=1e-4 experiment.learned.semi.model.lr=1e-4 \
     experiment.learned.dlrnn.model.lr=1e-4 trainer.max_epochs=50 trainer.budget.max_steps=-1 \
     trainer.budget.patience=null trainer.budget.schedule=constant trainer.budget.warmup_steps=0 \
-    experiment.learned.semi.semi.epochs=20 experiment.learned.semi.semi.lr=1e-5
+    experiment.learned.semi.semi.epochs=20 experiment.learned.semi.semi.lr=1e-5 data.batch_size=256
 # issue 16: the smallest simulated survey at which TransNet+LocNet overtakes KNN (walks of 15/30/60/240 s, two
 # seeds; one TransNet+LocNet training per point, heavy: docs/results-003-crossphone.md)
 crossphone-sweep: $(STAMP)
