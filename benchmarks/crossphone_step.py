@@ -1,6 +1,8 @@
 """Where a cross-phone training step's time goes on this CPU: TransNet+LocNet (scenario 2, the losses of eq. 3.6, the
 receiver augmentation on) on one batch of the 2k benchmark survey (``benchmarks/crossphone_train.py``; 50 beacons,
-H = 5, batch 256: a batch costs the same whatever the survey's size), each part against the code it replaced.
+H = 5), each part against the code it replaced. The batch is the run's: ``data.batch_size: auto`` gives 128 on
+the 2k survey and 256 on the 50k one; a batch of a given size costs the same whatever the survey, so
+``data.batch_size=256`` and ``=128`` on one survey compare the two (the auto batch's step cost).
 
 Printed, median of ``--repeat`` calls after one warm-up:
 - fetching a batch: ``WindowTensors.__getitems__`` (one indexing per tensor) against one tuple per window stacked
@@ -10,7 +12,7 @@ Printed, median of ``--repeat`` calls after one warm-up:
 - the two-layer LSTM over the windows and their previous windows, forward + backward;
 - a whole step outside Lightning (forward, backward, Adam) with either SSL form.
 
-    .venv/bin/python benchmarks/crossphone_step.py [--data data/bench_crossphone_2k] [--repeat 30]
+    .venv/bin/python benchmarks/crossphone_step.py [--data data/bench_crossphone_2k] [--repeat 30] [OVERRIDE ...]
 """
 
 from __future__ import annotations
@@ -55,12 +57,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default="data/bench_crossphone_2k", help="a survey of benchmarks/crossphone_train.py")
     ap.add_argument("--repeat", type=int, default=30)
+    ap.add_argument("extra", nargs="*", help="more train.py overrides, e.g. data.batch_size=128")
     args = ap.parse_args()
     if not (Path(args.data) / "dataset.yaml").is_file():
         raise SystemExit(f"{args.data}: no dataset; `python benchmarks/crossphone_train.py --sizes small` simulates it")
     r = args.repeat
     with tempfile.TemporaryDirectory() as out:
-        cfg = compose("train", *overrides(args.data, out))
+        cfg = compose("train", *overrides(args.data, out, *args.extra))
     dm = WindowDataModule(data_config(cfg))
     dm.setup()
     m = build_module(cfg, dm)

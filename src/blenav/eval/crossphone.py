@@ -133,10 +133,10 @@ def _check_reuse(ck: Path, dm, model: DictConfig | None = None, tcfg: DictConfig
                             f"delete {ck.parent} or choose another out=")
     done = state.get("blenav_training") or {}
     if tcfg is not None and done.get("stage") == "supervised" and done.get("stop_reason") == "max_steps":
-        from blenav.learn.train import budget, budget_steps
+        from blenav.learn.train import budget, run_budget_steps
 
         had = int(done.get("budget_steps") or done.get("steps") or 0)
-        want = budget_steps(budget(tcfg), len(dm.sets["train"]), dm.step_scale)
+        want = run_budget_steps(budget(tcfg), dm)
         if had != want:
             raise EvalError(f"{ck} finished a budget of {had} steps, this run's is {want} (trainer.budget); "
                             f"delete {ck.parent}, choose another out= or set trainer.budget.max_steps={had}")

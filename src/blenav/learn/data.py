@@ -29,7 +29,8 @@ from .data_config import WindowDataConfig  # the schema of the data node (torch-
 #: budget (blenav.learn.train.budget_steps). Chosen on the validation windows of a simulated 2,340-window
 #: campus_floor survey (docs/results-003-crossphone.md, ``benchmarks/crossphone_train.py --sizes small``): batch
 #: 256 and 3,245 steps stopped at the budget still improving (3.4 min); batch 128 and 6,490 steps stopped early at
-#: step 5,016 (converged, 3.7 min on both cores), each step about two thirds of the cost of a 256 one.
+#: step 5,016 (converged, 3.7 min on both cores); a step of 128 costs 35 against 54 ms for 256 (both cores,
+#: ``benchmarks/crossphone_step.py data.batch_size=128`` / ``=256``).
 AUTO_BATCH, AUTO_SMALL_BATCH, AUTO_MIN_BATCHES = 256, 128, 10
 
 

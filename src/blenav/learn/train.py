@@ -95,6 +95,11 @@ def budget_steps(b: dict, n_windows: int, scale: float = 1.0) -> int:
     return int(min(cap, round(max(base, base * math.sqrt(max(int(n_windows), 1) / ref)))))
 
 
+def run_budget_steps(b: dict, dm: WindowDataModule) -> int:
+    """:func:`budget_steps` of a run on the data module's training windows at its batch (after ``dm.setup()``)."""
+    return budget_steps(b, len(dm.sets["train"]), dm.step_scale)
+
+
 def data_config(cfg: DictConfig) -> WindowDataConfig:
     """The ``data`` node checked against :class:`WindowDataConfig` (a misspelt key fails here)."""
     node = OmegaConf.to_container(cfg.data, resolve=True)  # resolve ${seed} against the root first
@@ -259,7 +264,7 @@ def _trainer_settings(cfg: DictConfig, b: dict, dm: WindowDataModule, module) ->
     trainer_kw.pop("budget", None)
     if trainer_kw.get("max_epochs") is None:
         trainer_kw["max_epochs"] = -1  # the step budget decides (Lightning's default would be 1000 epochs)
-    max_steps = budget_steps(b, len(dm.sets["train"]), dm.step_scale)
+    max_steps = run_budget_steps(b, dm)
     trainer_kw["max_steps"] = -1  # the budget is a callback (blenav.learn.trainer.StepBudget)
     spe = _steps_per_epoch(len(dm.sets["train"]), dm.batch_size)
     trainer_kw.update(_val_cadence(int(b["val_every_steps"]), spe))
