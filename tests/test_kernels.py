@@ -1,5 +1,6 @@
-"""The compiled particle-filter kernels (blenav.filters.kernels) give the numbers of the numpy code they
-replaced, bit for bit: the numpy expressions are kept here as the references."""
+"""The compiled particle-filter kernels (blenav.filters.kernels, .motion_kernels, .measurement_kernels,
+.map.kernels) give the numbers of the numpy code they replaced, bit for bit: the numpy expressions are kept
+here as the references."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ import numpy as np
 import pytest
 
 from blenav.filters import kernels as K
+from blenav.filters import measurement_kernels as MK
+from blenav.filters.map import kernels as MAPK
 from blenav.filters.measurement import AnchorTable, PathLossRange, RssiDomain
 from blenav.filters.motion import ImuProposal, RandomWalk
 
@@ -148,7 +151,7 @@ def test_sum_squares_order():
     for M in range(1, 130):
         r = (rng.standard_normal((2, 20, M)) * 3).astype(np.float32)
         ref = np.einsum("rnm,rnm->rn", r, r)
-        got = np.array([[K._sum_squares_sse(r[i, j], M) for j in range(20)] for i in range(2)], dtype=np.float32)
+        got = np.array([[MK._sum_squares_sse(r[i, j], M) for j in range(20)] for i in range(2)], dtype=np.float32)
         assert np.array_equal(ref, got), M
 
 
@@ -284,8 +287,8 @@ def test_obstacle_snap(small_geometry):
         ref = m.snap_free(xy, only=(c > 0) | occupied)
     ox, oy, res = float(fl.origin[0]), float(fl.origin[1]), float(fl.resolution)
     got = xy.copy()
-    bad = K.obstacle_candidates(got, c, fl.occupancy, ox, oy, res, FREE, OCCUPIED)
-    K.snap_to_free(got, bad, ox, oy, res, fl.shape[0], fl.shape[1], m.nearest_free_pixels())
+    bad = MAPK.obstacle_candidates(got, c, fl.occupancy, ox, oy, res, FREE, OCCUPIED)
+    MAPK.snap_to_free(got, bad, ox, oy, res, fl.shape[0], fl.shape[1], m.nearest_free_pixels())
     assert bad.sum() > 100
     assert np.array_equal(got, ref, equal_nan=True)
 

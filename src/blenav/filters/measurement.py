@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import kernels as K
+from . import measurement_kernels as K
 
 
 def _rows(xy: np.ndarray) -> np.ndarray:
@@ -157,8 +157,8 @@ class _PathLoss(MeasurementModel):
         packets, anchor-major.
 
         float32: these arrays are the filter's largest; centimetre resolution is plenty for residuals of
-        metres (PF-PL) or dB (PF-PS), and it halves their time. Compiled (kernels.distances_mp, the inner loop
-        over the particles): the numbers of the numpy expression kept in tests/test_kernels.py
+        metres (PF-PL) or dB (PF-PS), and it halves their time. Compiled (measurement_kernels.distances_mp, the
+        inner loop over the particles): the numbers of the numpy expression kept in tests/test_kernels.py
         (dx^2 + dy^2 + dz^2 in float32, then sqrt)."""
         return K.distances_mp(_rows(xy), self.anchors.xyz[idx], float(self.device_z), 0.0)
 

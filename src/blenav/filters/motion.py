@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import kernels as K
+from . import motion_kernels as K
 
 
 class MotionModel:
@@ -59,7 +59,7 @@ class RandomWalk(MotionModel):
 
     def propagate(self, x, ctrl, dt, rng):
         e = rng.standard_normal(x.shape[:-1] + (4,))  # one draw: (nu, eps)
-        # compiled (kernels.random_walk: one pass, the numbers of v' = clip(v + sigma_v nu),
+        # compiled (motion_kernels.random_walk: one pass, the numbers of v' = clip(v + sigma_v nu),
         # p' = p + dt v' + sigma_p eps as numpy computed them)
         D = x.shape[-1]
         return K.random_walk(x.reshape(-1, D), e.reshape(-1, 4), float(dt), float(self.sigma_v), float(self.sigma_p),
@@ -143,7 +143,7 @@ class ImuProposal(MotionModel):
         shape = x.shape[:-1]
         z = rng.standard_normal(shape + (1,))  # zeta / sigma_a
         n = rng.standard_normal(shape + (2,))  # nu / sigma_v
-        # compiled (kernels.imu_proposal): per particle, u = zeta a_hat,
+        # compiled (motion_kernels.imu_proposal): per particle, u = zeta a_hat,
         #   p' = p + dt p_dot + dt^2/2 u + dt nu, p_dot' = p_dot + dt u + nu (eqs. 4-5), then the speed cap
         D = x.shape[-1]
         return K.imu_proposal(x.reshape(-1, D), z.reshape(-1), n.reshape(-1, 2), float(a_hat[0]), float(a_hat[1]),

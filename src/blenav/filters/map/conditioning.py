@@ -19,7 +19,7 @@ import numpy as np
 
 from blenav.data.building import FREE, OCCUPIED
 
-from .. import kernels as K
+from . import kernels as K
 
 if TYPE_CHECKING:
     from .geometry import MapGeometry

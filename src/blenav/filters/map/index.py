@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from .. import kernels as K
+from . import kernels as K
 from .shapes import ShrunkRooms, project_segments
 
 DEFAULT_INDEX = "grid"

@@ -2,7 +2,7 @@
 
 The particle-filter engine's ``walls`` component (``crossed``: the wall-crossing penalty and Roy's
 re-initialisation rule) and an obstacle test (``in_obstacle``), vectorised over any leading shape of
-particle arrays (the step test is a compiled loop, :func:`blenav.filters.kernels.walls_crossed`).
+particle arrays (the step test is a compiled loop, :func:`blenav.filters.map.kernels.walls_crossed`).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 
 from blenav.data.building import FREE, OCCUPIED, Floor
 
-from .. import kernels as K
+from . import kernels as K
 
 
 class WallCrossing:
