@@ -1,6 +1,6 @@
-"""The radio-inertial factor graph (blenav.backend.graph): preintegration against analytic motion and GTSAM's own
-ImuFactor/NavState, a range-only toy with a beacon moved by 3 m, and the failure guards (a beacon heard once, an
-indeterminant system) that must never reach the caller."""
+"""The radio-inertial factor graph (blenav.backend.graph, .factors): preintegration against analytic motion and
+GTSAM's own ImuFactor/NavState, a range-only toy with a beacon moved by 3 m, and the failure guards (a beacon heard
+once, an indeterminant system) that must never reach the caller."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ gtsam = pytest.importorskip("gtsam")
 from gtsam.symbol_shorthand import B, V, X  # noqa: E402
 
 from blenav.backend import BeaconPriors, ImuSamples, Keyframes, RangeObs, load_backend_config, smooth  # noqa: E402
-from blenav.backend.graph import integration_pieces, preintegrate, preintegration_params  # noqa: E402
+from blenav.backend.factors import integration_pieces, preintegrate, preintegration_params  # noqa: E402
 
 G = 9.80665
 
@@ -238,7 +238,7 @@ def test_offset_range_factor_is_gtsams_range_factor_at_zero_offset():
 
     from gtsam.symbol_shorthand import L, O
 
-    from blenav.backend.graph import offset_range_error
+    from blenav.backend.factors import offset_range_error
 
     rng = np.random.default_rng(3)
     noise = gtsam.noiseModel.Isotropic.Sigma(1, 0.7)

@@ -2,7 +2,8 @@
 from labelled walks (issue 14).
 
 * :mod:`blenav.backend.config`: settings (:class:`BackendConfig`, ``conf/backend/default.yaml``);
-* :mod:`blenav.backend.graph`: the factor graph and its solvers (:func:`smooth`);
+* :mod:`blenav.backend.graph`: the factor graph and its solvers (:func:`smooth`), with its inputs and result in
+  :mod:`blenav.backend.graph_types` and the pieces of its factors in :mod:`blenav.backend.factors`;
 * :mod:`blenav.backend.inputs`: a session and a front-end estimate -> the graph's inputs;
 * :mod:`blenav.backend.mapping`: beacon positions and RSSI at 1 m from walks with known poses (``blenav-map``);
 * :mod:`blenav.backend.localizer`: :class:`BackendLocalizer`, a particle-filter front-end then the smoother, as a
@@ -12,8 +13,9 @@ GTSAM is imported when a graph is built, not when this package is.
 """
 
 from .config import BackendConfig, load_backend_config
-from .graph import (BackendFailure, BackendResult, BeaconPriors, ImuSamples, Keyframes, RangeObs, describe_key,
-                    smooth)
+from .graph import smooth
+from .graph_types import (BackendFailure, BackendResult, BeaconPriors, ImuSamples, Keyframes, RangeObs,
+                          describe_key)
 
 __all__ = ["BackendConfig", "BackendFailure", "BackendResult", "BeaconPriors", "ImuSamples", "Keyframes", "RangeObs",
            "describe_key", "load_backend_config", "smooth"]

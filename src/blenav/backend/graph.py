@@ -52,247 +52,27 @@ has a prior; a beacon with fewer than ``range.min_ranges`` ranges keeps no range
 buffered, online, until it has enough; reported); non-finite inputs are dropped (reported); initial
 velocities are clipped to ``init.max_speed_mps`` (reported); a keyframe interval without IMU samples is
 bridged by holding the last sample (reported).
+
+Layout: this module holds the graph (:class:`RadioInertialGraph`) and :func:`smooth`; its inputs and result types
+are in :mod:`blenav.backend.graph_types`, the factors' pieces (preintegration, range selection, noise models, the
+offset range error) in :mod:`blenav.backend.factors`.
 """
 
 from __future__ import annotations
 
-import re
 import time
-from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
 import pandas as pd
 
-from .config import BackendConfig, Combine, RobustKernel, Solver
+from .config import BackendConfig, Solver
+from .factors import (load_gtsam, nearest_keyframe, offset_range_error, preintegrate, preintegration_params,
+                      robust_noise, select_ranges)
+from .graph_types import (BackendFailure, BackendResult, BeaconPriors, ImuSamples, Keyframes, RangeObs, describe_key,
+                          first_line, symbol_in)
 
-__all__ = ["Keyframes", "ImuSamples", "RangeObs", "BeaconPriors", "BackendFailure", "BackendResult",
-           "preintegration_params", "preintegrate", "robust_noise", "describe_key", "RadioInertialGraph", "smooth"]
-
-
-# ------------------------------------------------------------------------------------------------ inputs
-@dataclass
-class Keyframes:
-    """Keyframe times and initial values. t (K,) s increasing; position (K, 3) world m; velocity (K, 3) world
-    m/s; q (K, 4) w-first device -> world (ENU) quaternions (the AHRS at t); bias (K, 6) accelerometer m/s^2,
-    gyroscope rad/s (default 0; the prior on B(0) is centred on bias[0]: 0 unless a caller carries an earlier
-    estimate over, as the closed loop's windows do)."""
-
-    t: np.ndarray
-    position: np.ndarray
-    velocity: np.ndarray
-    q: np.ndarray
-    bias: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.t = np.asarray(self.t, float)
-        K = len(self.t)
-        self.position = np.asarray(self.position, float).reshape(K, 3)
-        self.velocity = np.asarray(self.velocity, float).reshape(K, 3)
-        self.q = np.asarray(self.q, float).reshape(K, 4)
-        self.bias = np.zeros((K, 6)) if self.bias is None else np.asarray(self.bias, float).reshape(K, 6)
-        if K and np.any(np.diff(self.t) <= 0):
-            raise ValueError("keyframe times must increase strictly")
-
-
-@dataclass
-class ImuSamples:
-    """t (T,) s non-decreasing; acc (T, 3) m/s^2 specific force incl. gravity; gyr (T, 3) rad/s; device frame."""
-
-    t: np.ndarray
-    acc: np.ndarray
-    gyr: np.ndarray
-
-
-@dataclass
-class RangeObs:
-    """Ranges already converted from RSSI and clamped: t (M,) s, anchor (M,) row in :class:`BeaconPriors`,
-    range_m (M,) m; ``gamma``: the path-loss exponent of the conversion (needed only to estimate the receiver
-    offset, ``range.estimate_offset``)."""
-
-    t: np.ndarray
-    anchor: np.ndarray
-    range_m: np.ndarray
-    gamma: float | None = None
-
-
-@dataclass
-class BeaconPriors:
-    """ids (A,) str; xyz (A, 3) world m (prior mean); sigma (A, 3) m per axis (prior std)."""
-
-    ids: np.ndarray
-    xyz: np.ndarray
-    sigma: np.ndarray
-
-
-@dataclass
-class BackendFailure:
-    """What went wrong: ``stage`` ('isam2-update', 'lm', 'marginals', 'input'), the key GTSAM named (as
-    :func:`describe_key` reads it, or None), the keyframe time when known, and GTSAM's message (first line)."""
-
-    stage: str
-    key: str | None
-    t: float | None
-    message: str
-
-    def __str__(self) -> str:
-        where = f" near {self.key}" if self.key else ""
-        when = f" (t={self.t:.2f} s)" if self.t is not None else ""
-        return f"{self.stage}{where}{when}: {self.message}"
-
-
-@dataclass
-class BackendResult:
-    """The smoothed trajectory, beacon map and biases of one session.
-
-    t (K,) s; position (K, 3) world m; velocity (K, 3) m/s; q (K, 4) w-first device -> world; bias (K, 6)
-    (accelerometer m/s^2, gyroscope rad/s); online_position (K, 3): iSAM2's estimate of keyframe k right after
-    its update (the filtered, causal estimate; equals ``position`` for LM; with ``solver.update_every`` N > 1 the
-    keyframes between updates keep their front-end values here); beacon_map: DataFrame anchor_id,
-    x, y, z, std_m (horizontal, sqrt of trace / 2 of the marginal covariance; the prior's for beacons left at it),
-    n_ranges (range factors), n_heard (ranges within the clamp, before the gate), status ('optimized', 'prior:
-    why', 'not heard'); update_s (K,) s per iSAM2 update, at the keyframe that triggered it (NaN elsewhere and for LM);
-    failures and notes for the report; wall_s: build + solve time."""
-
-    t: np.ndarray
-    position: np.ndarray
-    velocity: np.ndarray
-    q: np.ndarray
-    bias: np.ndarray
-    online_position: np.ndarray
-    beacon_map: pd.DataFrame
-    update_s: np.ndarray
-    failures: list[BackendFailure] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
-    wall_s: float = 0.0
-    solve_s: float = 0.0
-    n_factors: int = 0
-    offset_db: float = float("nan")  # the receiver's RSSI offset (range.estimate_offset), dB
-    offset_std_db: float = float("nan")
-
-    @property
-    def ok(self) -> bool:
-        return not self.failures
-
-
-# ------------------------------------------------------------------------------------------------ helpers
-def _gtsam():
-    import gtsam
-
-    return gtsam
-
-
-def preintegration_params(cfg) -> "gtsam.PreintegrationCombinedParams":
-    """GTSAM preintegration parameters from :class:`~blenav.backend.config.ImuConfig` (ENU: gravity -z)."""
-    gtsam = _gtsam()
-    p = gtsam.PreintegrationCombinedParams.MakeSharedU(float(cfg.gravity_mps2))
-    I3 = np.eye(3)
-    p.setAccelerometerCovariance(I3 * cfg.accel_noise_density**2)  # (m/s^2)^2 / Hz
-    p.setGyroscopeCovariance(I3 * cfg.gyro_noise_density**2)  # (rad/s)^2 / Hz
-    p.setIntegrationCovariance(I3 * cfg.integration_sigma**2)
-    p.setBiasAccCovariance(I3 * cfg.accel_bias_rw**2)  # (m/s^3)^2 / Hz
-    p.setBiasOmegaCovariance(I3 * cfg.gyro_bias_rw**2)  # (rad/s^2)^2 / Hz
-    return p
-
-
-def integration_pieces(imu_t: np.ndarray, kf_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Split [kf_t[0], kf_t[-1]] at every IMU time and keyframe time: for each piece, the IMU sample held over
-    it (the latest at or before its start; the first sample before the IMU starts), its duration (s) and the
-    keyframe interval k (1..K-1) it belongs to (piece in (t_{k-1}, t_k]). Returns (sample (P,), dt (P,),
-    interval (P,))."""
-    inside = imu_t[(imu_t > kf_t[0]) & (imu_t < kf_t[-1])]
-    grid = np.union1d(inside, kf_t)
-    start = grid[:-1]
-    sample = np.clip(np.searchsorted(imu_t, start, side="right") - 1, 0, len(imu_t) - 1)
-    interval = np.searchsorted(kf_t, start, side="right")
-    return sample, np.diff(grid), interval
-
-
-def preintegrate(params, imu: ImuSamples, kf_t: np.ndarray) -> tuple[list, int]:
-    """One ``PreintegratedCombinedMeasurements`` per keyframe interval (K - 1 of them; bias estimate 0: the
-    factor corrects to first order for the bias variable), zero-order hold of each IMU sample over its
-    interval. Returns (pims, number of intervals without an IMU sample of their own)."""
-    gtsam = _gtsam()
-    K = len(kf_t)
-    pims = [gtsam.PreintegratedCombinedMeasurements(params) for _ in range(max(K - 1, 0))]
-    if K < 2:
-        return pims, 0
-    sample, dt, interval = integration_pieces(imu.t, kf_t)
-    acc, gyr = imu.acc, imu.gyr
-    for s, d, k in zip(sample.tolist(), dt.tolist(), interval.tolist()):
-        if d > 0:
-            pims[k - 1].integrateMeasurement(acc[s], gyr[s], d)
-    own = np.zeros(K, bool)
-    own[np.searchsorted(kf_t, imu.t[(imu.t > kf_t[0]) & (imu.t <= kf_t[-1])], side="left")] = True
-    return pims, int(np.count_nonzero(~own[1:]))
-
-
-def nearest_keyframe(kf_t: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(M,) index of the keyframe nearest to each time t (M,) s: a range is a measurement of the pose at its
-    own time, and the nearest keyframe halves the time offset (and removes its bias) compared with the step
-    that closes its interval."""
-    i = np.clip(np.searchsorted(kf_t, t, side="left"), 1, max(len(kf_t) - 1, 1))
-    if len(kf_t) < 2:
-        return np.zeros(len(t), int)
-    return np.where(np.abs(t - kf_t[i - 1]) <= np.abs(kf_t[i] - t), i - 1, i)
-
-
-def select_ranges(k: np.ndarray, j: np.ndarray, r: np.ndarray, combine: Combine, max_beacons: int | None):
-    """Ranges r (M,) m of beacons j (M,) attached to keyframes k (M,) -> (k, j, r) sorted by keyframe (stable):
-    all of them, or (``combine`` median) one per (keyframe, beacon) with the median range; with
-    ``max_beacons``, only the ranges of the N beacons per keyframe whose median range is shortest."""
-    order = np.argsort(k, kind="stable")
-    k, j, r = k[order], j[order], r[order]
-    if Combine(combine) == Combine.all and not max_beacons:
-        return k, j, r
-    df = pd.DataFrame({"k": k, "j": j, "r": r})
-    med = df.groupby(["k", "j"], sort=True)["r"].median().reset_index()
-    if max_beacons:
-        med = med.sort_values(["k", "r"], kind="stable").groupby("k").head(int(max_beacons))
-        med = med.sort_values(["k", "j"], kind="stable")
-    if Combine(combine) == Combine.median:
-        return med["k"].to_numpy(), med["j"].to_numpy(), med["r"].to_numpy()
-    keep = df.merge(med[["k", "j"]], on=["k", "j"], how="inner", sort=False)  # df's order within a keyframe
-    keep = keep.sort_values("k", kind="stable")
-    return keep["k"].to_numpy(), keep["j"].to_numpy(), keep["r"].to_numpy()
-
-
-def robust_noise(kind: RobustKernel, k: float, sigma: float, dim: int = 1):
-    """Isotropic noise of ``sigma`` (the quantity's unit) inside an M-estimator of width ``k`` sigmas."""
-    gtsam = _gtsam()
-    base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma))
-    kind = RobustKernel(kind)
-    if kind == RobustKernel.none:
-        return base
-    est = gtsam.noiseModel.mEstimator
-    m = est.Huber.Create(float(k)) if kind == RobustKernel.huber else est.Cauchy.Create(float(k))
-    return gtsam.noiseModel.Robust.Create(m, base)
-
-
-_KEY_RE = re.compile(r"Symbol:\s*([A-Za-z])(\d+)")
-
-
-def describe_key(symbol: str | None, kf_t: np.ndarray | None = None, beacon_ids=None) -> str | None:
-    """'l3' -> 'beacon ble-003 (l3)', 'x17' -> 'keyframe 17 at t=1.80 s (x17)' (names when known)."""
-    if not symbol:
-        return None
-    ch, idx = symbol[0], int(symbol[1:])
-    if ch == "l" and beacon_ids is not None and idx < len(beacon_ids):
-        return f"beacon {beacon_ids[idx]} ({symbol})"
-    what = {"x": "pose", "v": "velocity", "b": "bias"}.get(ch)
-    if what and kf_t is not None and idx < len(kf_t):
-        return f"{what} of keyframe {idx} at t={kf_t[idx]:.2f} s ({symbol})"
-    return symbol
-
-
-def _symbol_in(message: str) -> str | None:
-    m = _KEY_RE.search(message)
-    return f"{m.group(1)}{m.group(2)}" if m else None
-
-
-def _first_line(exc: BaseException) -> str:
-    lines = [s.strip() for s in str(exc).splitlines() if s.strip()]
-    return " ".join(lines[:2]) if lines else type(exc).__name__
+__all__ = ["RadioInertialGraph", "smooth"]
 
 
 # ------------------------------------------------------------------------------------------------ the graph
@@ -308,7 +88,7 @@ class RadioInertialGraph:
         prior means; a second pass gives the first pass's estimate); ``pims``: the preintegrated IMU of these
         keyframe times, when already computed (a second pass); ``offset_prior_db`` / ``offset_init_db``: prior
         mean and initial value of the receiver offset (``range.estimate_offset``)."""
-        gtsam = _gtsam()
+        gtsam = load_gtsam()
         self.gtsam = gtsam
         self.cfg, self.kf, self.beacons = cfg, kf, beacons
         self.beacon_init = np.asarray(beacons.xyz if beacon_init is None else beacon_init, float)
@@ -554,7 +334,7 @@ class RadioInertialGraph:
             if qr:
                 self._fail("lm", exc, None)
                 return None
-            self.notes.append(f"LM with Cholesky failed ({_first_line(exc)}); retried with QR")
+            self.notes.append(f"LM with Cholesky failed ({first_line(exc)}); retried with QR")
             return self._lm(graph, initial, qr=True)
         self.notes.append(f"LM{' (QR)' if qr else ''}: {opt.iterations()} iterations, error "
                           f"{graph.error(initial):.4g} -> {graph.error(estimate):.4g}")
@@ -585,10 +365,10 @@ class RadioInertialGraph:
         return isam.marginalCovariance
 
     def _fail(self, stage: str, exc: RuntimeError, k: int | None) -> None:
-        sym = _symbol_in(str(exc))
+        sym = symbol_in(str(exc))
         key = describe_key(sym, self.kf.t, self.beacons.ids)
         t = float(self.kf.t[k]) if k is not None else None
-        self.failures.append(BackendFailure(stage, key, t, _first_line(exc)))
+        self.failures.append(BackendFailure(stage, key, t, first_line(exc)))
 
     def _collect(self, estimate, last_good: int, cov) -> BackendResult:
         """Arrays from the estimate for keyframes 0..last_good, the front-end's values after (a failure)."""
@@ -646,30 +426,6 @@ class RadioInertialGraph:
                     except RuntimeError as exc:
                         self._fail("marginals", exc, None)
         return res
-
-
-def offset_range_error(r: float, gamma: float, this, values, H) -> np.ndarray:
-    """Range residual with the receiver's RSSI offset delta (dB, key 3): e = ||t - l|| 10^(-delta / (10 gamma)) - r.
-
-    A receiver that reads delta dB above the path-loss model sees every range converted from its RSSI shortened by
-    10^(-delta / (10 gamma)) (000 sec. IV-B's conversion r = d0 10^((a_X - rssi) / (10 gamma))). Keys: X (Pose3),
-    L (Point3), O (1-D). Jacobians: d e / d pose = [0, s u^T R] (GTSAM's Pose3 tangent: rotation, then
-    translation in the body frame), d e / d l = -s u^T, d e / d delta = -s d ln(10) / (10 gamma), with u the unit
-    vector from l to t and s the scale. With delta = 0 it is GTSAM's RangeFactor3D (tests/test_backend_graph.py)."""
-    keys = this.keys()
-    pose = values.atPose3(keys[0])
-    l = np.asarray(values.atPoint3(keys[1]), float)
-    delta = float(values.atVector(keys[2])[0])
-    t = np.asarray(pose.translation(), float)
-    diff = t - l
-    d = max(float(np.sqrt(diff @ diff)), 1e-9)
-    scale = 10.0 ** (-delta / (10.0 * gamma))
-    if H is not None:
-        u = diff / d
-        H[0] = np.concatenate([np.zeros(3), scale * (u @ pose.rotation().matrix())]).reshape(1, 6)
-        H[1] = (-scale * u).reshape(1, 3)
-        H[2] = np.array([[-scale * d * np.log(10.0) / (10.0 * gamma)]])
-    return np.array([scale * d - r])
 
 
 def _quat_to_matrix(q: np.ndarray) -> np.ndarray:

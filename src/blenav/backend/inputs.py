@@ -23,7 +23,7 @@ import pandas as pd
 from blenav.filters.measurement import AnchorTable, PathLossRange
 
 from .config import BackendConfig, InitFrom
-from .graph import BeaconPriors, ImuSamples, Keyframes, RangeObs
+from .graph_types import BeaconPriors, ImuSamples, Keyframes, RangeObs
 
 __all__ = ["keyframes_from_front_end", "beacon_priors", "session_ranges", "session_imu", "session_attitude",
            "path_loss_model", "front_end_velocity", "moving_average"]

@@ -22,7 +22,7 @@ mean over back-ends when ``per_run``), ``smoothed`` (R, K, 2), ``front_end`` (R,
 ``bias`` (R, K, 6) accelerometer m/s^2 and gyroscope rad/s (the corrections applied + the final smoothing's
 residual), ``attitude`` (the front-end's AHRS), ``backend_s`` (R or 1,) seconds of back-end, ``feedbacks`` (int),
 ``backend_failures`` (list of str). Back-end failures never stop a run: where the back-end has no estimate the
-front-end's stands (see :class:`~blenav.backend.graph.BackendResult`).
+front-end's stands (see :class:`~blenav.backend.graph_types.BackendResult`).
 """
 
 from __future__ import annotations

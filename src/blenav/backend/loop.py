@@ -32,7 +32,8 @@ import pandas as pd
 from blenav.filters.runner import BatchRun, Method, RunResult
 
 from .config import BackendConfig
-from .graph import BackendResult, BeaconPriors, ImuSamples, RangeObs, smooth
+from .graph import smooth
+from .graph_types import BackendResult, BeaconPriors, ImuSamples, RangeObs
 from .inputs import keyframes_from_front_end
 
 

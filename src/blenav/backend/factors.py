@@ -1,0 +1,134 @@
+"""The pieces of the radio-inertial graph's factors (:mod:`blenav.backend.graph`): GTSAM's IMU preintegration
+between keyframes, the assignment of ranges to keyframes and their selection (gate, median, nearest beacons),
+the robust noise models, and the error of the range factor with the receiver's RSSI offset. GTSAM is imported
+when one of them is called (:func:`load_gtsam`), not with this module.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from .config import Combine, RobustKernel
+from .graph_types import ImuSamples
+
+__all__ = ["load_gtsam", "preintegration_params", "integration_pieces", "preintegrate", "nearest_keyframe",
+           "select_ranges", "robust_noise", "offset_range_error"]
+
+
+def load_gtsam():
+    import gtsam
+
+    return gtsam
+
+
+def preintegration_params(cfg) -> "gtsam.PreintegrationCombinedParams":
+    """GTSAM preintegration parameters from :class:`~blenav.backend.config.ImuConfig` (ENU: gravity -z)."""
+    gtsam = load_gtsam()
+    p = gtsam.PreintegrationCombinedParams.MakeSharedU(float(cfg.gravity_mps2))
+    I3 = np.eye(3)
+    p.setAccelerometerCovariance(I3 * cfg.accel_noise_density**2)  # (m/s^2)^2 / Hz
+    p.setGyroscopeCovariance(I3 * cfg.gyro_noise_density**2)  # (rad/s)^2 / Hz
+    p.setIntegrationCovariance(I3 * cfg.integration_sigma**2)
+    p.setBiasAccCovariance(I3 * cfg.accel_bias_rw**2)  # (m/s^3)^2 / Hz
+    p.setBiasOmegaCovariance(I3 * cfg.gyro_bias_rw**2)  # (rad/s^2)^2 / Hz
+    return p
+
+
+def integration_pieces(imu_t: np.ndarray, kf_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split [kf_t[0], kf_t[-1]] at every IMU time and keyframe time: for each piece, the IMU sample held over
+    it (the latest at or before its start; the first sample before the IMU starts), its duration (s) and the
+    keyframe interval k (1..K-1) it belongs to (piece in (t_{k-1}, t_k]). Returns (sample (P,), dt (P,),
+    interval (P,))."""
+    inside = imu_t[(imu_t > kf_t[0]) & (imu_t < kf_t[-1])]
+    grid = np.union1d(inside, kf_t)
+    start = grid[:-1]
+    sample = np.clip(np.searchsorted(imu_t, start, side="right") - 1, 0, len(imu_t) - 1)
+    interval = np.searchsorted(kf_t, start, side="right")
+    return sample, np.diff(grid), interval
+
+
+def preintegrate(params, imu: ImuSamples, kf_t: np.ndarray) -> tuple[list, int]:
+    """One ``PreintegratedCombinedMeasurements`` per keyframe interval (K - 1 of them; bias estimate 0: the
+    factor corrects to first order for the bias variable), zero-order hold of each IMU sample over its
+    interval. Returns (pims, number of intervals without an IMU sample of their own)."""
+    gtsam = load_gtsam()
+    K = len(kf_t)
+    pims = [gtsam.PreintegratedCombinedMeasurements(params) for _ in range(max(K - 1, 0))]
+    if K < 2:
+        return pims, 0
+    sample, dt, interval = integration_pieces(imu.t, kf_t)
+    acc, gyr = imu.acc, imu.gyr
+    for s, d, k in zip(sample.tolist(), dt.tolist(), interval.tolist()):
+        if d > 0:
+            pims[k - 1].integrateMeasurement(acc[s], gyr[s], d)
+    own = np.zeros(K, bool)
+    own[np.searchsorted(kf_t, imu.t[(imu.t > kf_t[0]) & (imu.t <= kf_t[-1])], side="left")] = True
+    return pims, int(np.count_nonzero(~own[1:]))
+
+
+def nearest_keyframe(kf_t: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(M,) index of the keyframe nearest to each time t (M,) s: a range is a measurement of the pose at its
+    own time, and the nearest keyframe halves the time offset (and removes its bias) compared with the step
+    that closes its interval."""
+    i = np.clip(np.searchsorted(kf_t, t, side="left"), 1, max(len(kf_t) - 1, 1))
+    if len(kf_t) < 2:
+        return np.zeros(len(t), int)
+    return np.where(np.abs(t - kf_t[i - 1]) <= np.abs(kf_t[i] - t), i - 1, i)
+
+
+def select_ranges(k: np.ndarray, j: np.ndarray, r: np.ndarray, combine: Combine, max_beacons: int | None):
+    """Ranges r (M,) m of beacons j (M,) attached to keyframes k (M,) -> (k, j, r) sorted by keyframe (stable):
+    all of them, or (``combine`` median) one per (keyframe, beacon) with the median range; with
+    ``max_beacons``, only the ranges of the N beacons per keyframe whose median range is shortest."""
+    order = np.argsort(k, kind="stable")
+    k, j, r = k[order], j[order], r[order]
+    if Combine(combine) == Combine.all and not max_beacons:
+        return k, j, r
+    df = pd.DataFrame({"k": k, "j": j, "r": r})
+    med = df.groupby(["k", "j"], sort=True)["r"].median().reset_index()
+    if max_beacons:
+        med = med.sort_values(["k", "r"], kind="stable").groupby("k").head(int(max_beacons))
+        med = med.sort_values(["k", "j"], kind="stable")
+    if Combine(combine) == Combine.median:
+        return med["k"].to_numpy(), med["j"].to_numpy(), med["r"].to_numpy()
+    keep = df.merge(med[["k", "j"]], on=["k", "j"], how="inner", sort=False)  # df's order within a keyframe
+    keep = keep.sort_values("k", kind="stable")
+    return keep["k"].to_numpy(), keep["j"].to_numpy(), keep["r"].to_numpy()
+
+
+def robust_noise(kind: RobustKernel, k: float, sigma: float, dim: int = 1):
+    """Isotropic noise of ``sigma`` (the quantity's unit) inside an M-estimator of width ``k`` sigmas."""
+    gtsam = load_gtsam()
+    base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma))
+    kind = RobustKernel(kind)
+    if kind == RobustKernel.none:
+        return base
+    est = gtsam.noiseModel.mEstimator
+    m = est.Huber.Create(float(k)) if kind == RobustKernel.huber else est.Cauchy.Create(float(k))
+    return gtsam.noiseModel.Robust.Create(m, base)
+
+
+def offset_range_error(r: float, gamma: float, this, values, H) -> np.ndarray:
+    """Range residual with the receiver's RSSI offset delta (dB, key 3): e = ||t - l|| 10^(-delta / (10 gamma)) - r.
+
+    A receiver that reads delta dB above the path-loss model sees every range converted from its RSSI shortened by
+    10^(-delta / (10 gamma)) (000 sec. IV-B's conversion r = d0 10^((a_X - rssi) / (10 gamma))). Keys: X (Pose3),
+    L (Point3), O (1-D). Jacobians: d e / d pose = [0, s u^T R] (GTSAM's Pose3 tangent: rotation, then
+    translation in the body frame), d e / d l = -s u^T, d e / d delta = -s d ln(10) / (10 gamma), with u the unit
+    vector from l to t and s the scale. With delta = 0 it is GTSAM's RangeFactor3D (tests/test_backend_graph.py)."""
+    keys = this.keys()
+    pose = values.atPose3(keys[0])
+    l = np.asarray(values.atPoint3(keys[1]), float)
+    delta = float(values.atVector(keys[2])[0])
+    t = np.asarray(pose.translation(), float)
+    diff = t - l
+    d = max(float(np.sqrt(diff @ diff)), 1e-9)
+    scale = 10.0 ** (-delta / (10.0 * gamma))
+    if H is not None:
+        u = diff / d
+        H[0] = np.concatenate([np.zeros(3), scale * (u @ pose.rotation().matrix())]).reshape(1, 6)
+        H[1] = (-scale * u).reshape(1, 3)
+        H[2] = np.array([[-scale * d * np.log(10.0) / (10.0 * gamma)]])
+    return np.array([scale * d - r])
+
