@@ -1,6 +1,7 @@
-"""Beacon maps from labelled walks (blenav.backend.mapping, blenav-map): the stacked robust RSSI factor against
-GTSAM's own robust noise models and numerical derivatives, the wall count, and the mapping of simulated beacons
-against their stated std; the command writes a dataset blenav-validate accepts and refuses to invent beacons."""
+"""Beacon maps from labelled walks (blenav.backend.mapping and its mapping_* modules, blenav-map): the stacked
+robust RSSI factor against GTSAM's own robust noise models and numerical derivatives, the wall count, and the
+mapping of simulated beacons against their stated std; the command writes a dataset blenav-validate accepts and
+refuses to invent beacons."""
 
 from __future__ import annotations
 
@@ -15,7 +16,9 @@ from gtsam.symbol_shorthand import A, G, L, M, O, W  # noqa: E402
 
 from blenav.backend import load_backend_config  # noqa: E402
 from blenav.backend.config import RobustKernel  # noqa: E402
-from blenav.backend.mapping import count_walls, map_beacons, robust_sqrt, rssi_error  # noqa: E402
+from blenav.backend.mapping import map_beacons  # noqa: E402
+from blenav.backend.mapping_factor import robust_sqrt, rssi_error  # noqa: E402
+from blenav.backend.mapping_readings import count_walls  # noqa: E402
 
 
 def _values(l, a, gam, w, m, o):

@@ -6,6 +6,8 @@ from labelled walks (issue 14).
   :mod:`blenav.backend.graph_types` and the pieces of its factors in :mod:`blenav.backend.factors`;
 * :mod:`blenav.backend.inputs`: a session and a front-end estimate -> the graph's inputs;
 * :mod:`blenav.backend.mapping`: beacon positions and RSSI at 1 m from walks with known poses (``blenav-map``);
+  its readings, RSSI factor, solve and report in ``mapping_readings``, ``mapping_factor``, ``mapping_solve``,
+  ``mapping_report``;
 * :mod:`blenav.backend.localizer`: :class:`BackendLocalizer`, a particle-filter front-end then the smoother, as a
   localizer (``conf/localizer/backend.yaml``).
 

@@ -3,7 +3,7 @@ beacon error as a function of walking time").
 
 For each walking time T (minutes) the labelled walks are cut to their first T minutes *in total* (sessions taken
 in the order given, the last one used cut short; a session's walking time is what its ground truth covers, the
-only part whose readings :func:`blenav.backend.mapping.collect_readings` can use), :func:`map_beacons` maps the
+only part whose readings :func:`blenav.backend.mapping_readings.collect_readings` can use), :func:`map_beacons` maps the
 beacons from that cut, and the placed beacons are compared with the true positions of anchors.csv
 (``x_true, y_true``; horizontal error, m).
 
