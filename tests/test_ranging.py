@@ -1,5 +1,5 @@
-"""The range baselines of 004 sec. VI-E (blenav.localizers.ranging: grid-L2, grid-L1, SRLS) and the optional
-``rssi`` column of rtt.csv (the AP's WiFi RSSI of the -65 dBm rule, 004 sec. V-A)."""
+"""The range baselines of 004 sec. VI-E (blenav.localizers.ranging, ranging_windows, ranging_solvers: grid-L2,
+grid-L1, SRLS) and the optional ``rssi`` column of rtt.csv (the AP's WiFi RSSI of the -65 dBm rule, 004 sec. V-A)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,9 @@ from blenav.data.building import FREE, OCCUPIED
 from blenav.data.validate import validate
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 from blenav.localizers.base import RunContext
-from blenav.localizers.ranging import (GridL1Localizer, GridL2Localizer, SrlsLocalizer, grid_costs, online_corrections,
-                                       rtt_offsets, srls, wifi_rssi)
+from blenav.localizers.ranging import GridL1Localizer, GridL2Localizer, SrlsLocalizer
+from blenav.localizers.ranging_solvers import grid_costs, srls
+from blenav.localizers.ranging_windows import online_corrections, rtt_offsets, wifi_rssi
 from helpers import lines, set_cell, simulate_small, write_lines
 
 GRID = 0.5
@@ -180,7 +181,7 @@ def test_baselines_recover_a_noise_free_position(hall, cls):
 def test_rtt_offsets_recovered_from_the_survey(hall):
     ds = Dataset.open(hall)
     s = ds.session("walk-7")
-    from blenav.localizers.ranging import rtt_readings
+    from blenav.localizers.ranging_windows import rtt_readings
 
     anchors = rtt_readings(s)[3]
     off = rtt_offsets([ds.session("survey-2")], anchors, device_z=1.2)
@@ -195,13 +196,13 @@ def test_rtt_offsets_recovered_from_the_survey(hall):
 
 
 def test_offline_calibration_is_the_crf_one_at_a_fixed_height(hall):
-    """ranging.rtt_offsets is blenav.crf.calibration.offline_calibration at the device height: numbers against a
-    median computed here from the survey's rows; with the ground truth's own z (1.2 m) the CRF's default agrees;
-    the 004 sec. V-A thresholds have one definition; ble_tx_powers' d0 shifts the level by 10 n log10(d0)."""
+    """ranging_windows.rtt_offsets is blenav.crf.calibration.offline_calibration at the device height: numbers
+    against a median computed here from the survey's rows; with the ground truth's own z (1.2 m) the CRF's default
+    agrees; the 004 sec. V-A thresholds have one definition; ble_tx_powers' d0 shifts the level by 10 n log10(d0)."""
     from blenav.crf import preprocess as P
     from blenav.crf.calibration import ble_tx_powers, offline_calibration
     from blenav.localizers import crf as crf_loc
-    from blenav.localizers import ranging as R
+    from blenav.localizers import ranging_windows as R
 
     ds = Dataset.open(hall)
     survey = ds.session("survey-2")
@@ -214,7 +215,7 @@ def test_offline_calibration_is_the_crf_one_at_a_fixed_height(hall):
         d = np.sqrt(((anchors.xyz[row, :2] - xy) ** 2).sum(1) + (anchors.xyz[row, 2] - z) ** 2)
         ref = [np.median(rtt["range_m"].to_numpy(float)[row == a] - d[row == a]) for a in range(len(anchors.ids))]
         np.testing.assert_allclose(R.rtt_offsets([survey], anchors, device_z=z), ref, rtol=0, atol=1e-12)
-    none = R._NO_ANCHORS
+    none = R.NO_ANCHORS
     np.testing.assert_allclose(offline_calibration([survey], anchors, none, 2.0).rtt_offset,
                                R.rtt_offsets([survey], anchors, device_z=1.2), rtol=0, atol=1e-12)
     assert (R.WIFI_MIN_RSSI_DBM, R.BLE_MIN_RSSI_DBM) == (P.WIFI_MIN_RSSI_DBM, P.BLE_MIN_RSSI_DBM) == (-65.0, -90.0)
@@ -237,7 +238,7 @@ def test_visual_fix_is_the_estimate_of_its_window(hall):
 
 def test_missing_streams_and_bad_settings(hall):
     s = Dataset.open(hall).session("walk-7")
-    from blenav.localizers.base import MissingStream
+    from blenav.errors import MissingStream
 
     with pytest.raises(MissingStream, match="no BLE reading"):
         GridL2Localizer("m", sources=["ble"]).run(s, 1, 0, RunContext())

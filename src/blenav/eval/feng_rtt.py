@@ -6,7 +6,7 @@
 Two tables: (1) localization error per environment (test points) and method (``SOLVER/CALIBRATION`` and
 ``/no-65dBm``: without the -65 dBm rule), with the share of scans localized (a scan with fewer than 3 usable
 ranges has none); (2) the absolute range error |range - true 3-D distance| of every RTT reading at the test
-points, uncalibrated and with the offline per-AP offsets of the train points (:func:`blenav.localizers.ranging.rtt_offsets`),
+points, uncalibrated and with the offline per-AP offsets of the train points (:func:`blenav.localizers.ranging_windows.rtt_offsets`),
 with and without the -65 dBm rule (004 Fig. 9's comparison). Numbers only from the files; no plotting.
 """
 
@@ -19,13 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
+from .common import write_text
+
 ENVS = ("lecture_theatre", "office", "corridor")
 
 
 def range_errors(dataset: Path, device_z: float = 1.2) -> list[dict]:
     """Per environment and rule: median / mean / p90 |range error| (m) at the test points, none vs offline."""
     from blenav.data import Dataset
-    from blenav.localizers.ranging import WIFI_MIN_RSSI_DBM, _dist3, rtt_offsets, rtt_readings
+    from blenav.localizers.ranging_windows import WIFI_MIN_RSSI_DBM, dist3, rtt_offsets, rtt_readings
 
     ds = Dataset.open(dataset)
     rows = []
@@ -34,7 +36,7 @@ def range_errors(dataset: Path, device_z: float = 1.2) -> list[dict]:
         for rule in (WIFI_MIN_RSSI_DBM, None):
             t, idx, rng, anchors, n_weak = rtt_readings(test, rule)
             off = rtt_offsets([train], anchors, device_z, rule)
-            d = _dist3(test.positions_at(t), device_z, anchors.xyz[idx]) if len(t) else np.zeros(0)
+            d = dist3(test.positions_at(t), device_z, anchors.xyz[idx]) if len(t) else np.zeros(0)
             row = {"env": env, "rule": "-65 dBm" if rule is not None else "none", "n": len(t),
                    "offsets": {a: float(o) for a, o in zip(anchors.ids, off)}}
             for name, e in (("none", rng - d), ("offline", rng - np.where(np.isfinite(off), off, 0.0)[idx] - d)):
@@ -165,7 +167,7 @@ def main(argv=None) -> int:
     results = json.loads(Path(argv[0]).read_text(encoding="utf-8"))
     ranges = range_errors(Path(results["dataset"]))
     text = render(results, ranges, argv[2] if len(argv) > 2 else "", scan_counts(Path(results["dataset"])))
-    Path(argv[1]).write_text(text + "\n", encoding="utf-8")
+    write_text(Path(argv[1]), text + "\n")
     print(f"wrote {argv[1]}")
     return 0
 

@@ -23,9 +23,9 @@ import time
 import numpy as np
 
 from blenav.crf.preprocess import keyed_medians
+from blenav.errors import MissingStream
 from blenav.filters.calibration import apply_fit
 from blenav.filters.measurement import AnchorTable, PathLossRange
-from blenav.filters.runner import MissingStream
 
 from .base import Estimate, Localizer, PathLossCalibrated, RunContext
 
@@ -84,7 +84,7 @@ class WeightedCentroidLocalizer(Localizer, PathLossCalibrated):
         w0 = int(win.min())
         win -= w0
         W, A = int(win.max()) + 1, len(anchors.ids)
-        med = _window_medians(win, idx, rssi, W, A)  # (W, A) dBm, NaN where not heard
+        med = medians_by_window(win, idx, rssi, W, A)  # (W, A) dBm, NaN where not heard
         self.path_loss.bind(anchors)
         wi, ai = np.nonzero(np.isfinite(med))
         _, r = self.path_loss.ranges({"rssi_idx": ai, "rssi": med[wi, ai]})  # max_range_m = inf: keeps all
@@ -103,6 +103,8 @@ class WeightedCentroidLocalizer(Localizer, PathLossCalibrated):
         return t_ends, xy
 
 
-def _window_medians(win: np.ndarray, idx: np.ndarray, rssi: np.ndarray, W: int, A: int) -> np.ndarray:
-    """(W, A) median RSSI per (window, anchor), NaN where the anchor was not heard in the window."""
-    return keyed_medians(win * A + idx, rssi, W * A).reshape(W, A)
+def medians_by_window(win: np.ndarray, idx: np.ndarray, values: np.ndarray, W: int, A: int) -> np.ndarray:
+    """(W, A) median of ``values`` (N,) per (window ``win`` (N,) in [0, W), anchor ``idx`` (N,) in [0, A)), NaN
+    where the anchor was not heard in the window: the RSSI here, the ranges of the range baselines
+    (:mod:`blenav.localizers.ranging_windows`)."""
+    return keyed_medians(win * A + idx, values, W * A).reshape(W, A)
