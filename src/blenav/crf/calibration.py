@@ -19,8 +19,8 @@ range - offset, the BLE distance uses T_m (eq. 8), headings are corrected as AHR
 
 Pure numpy; the array functions (:func:`rtt_offsets`, :func:`ble_tx_powers`, :func:`offline_calibration`)
 are what other range-based localizers reuse: the offline calibration of the range baselines
-(:func:`blenav.localizers.ranging.rtt_offsets` / ``ble_levels``) is :func:`offline_calibration` at a fixed device
-height.
+(:func:`blenav.localizers.ranging_windows.rtt_offsets` / ``ble_levels``) is :func:`offline_calibration` at a
+fixed device height.
 """
 
 from __future__ import annotations
