@@ -34,7 +34,7 @@ import yaml
 from hypothesis import HealthCheck, Phase, settings
 from hypothesis import strategies as st
 
-from blenav.data import Dataset, DatasetError, validate
+from blenav.data import Dataset, validate
 from blenav.data.schema import (
     ANCHOR_COLUMNS,
     ANCHOR_KINDS,
@@ -45,6 +45,7 @@ from blenav.data.schema import (
     plausible,
 )
 from blenav.data.writer import write_csv
+from blenav.errors import DatasetError
 from helpers import make_tiny_dataset
 
 _N = os.environ.get("BLENAV_FUZZ_EXAMPLES")

@@ -59,7 +59,7 @@ def test_backend_localizer_without_imu_is_skipped_not_failed(tmp_path):
     from helpers import make_tiny_dataset
 
     from blenav.data import Dataset
-    from blenav.localizers import MissingStream
+    from blenav.errors import MissingStream
 
     root = make_tiny_dataset(tmp_path / "tiny")
     (root / "sessions" / "walk0" / "imu.csv").unlink()

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from blenav.configs import compose
-from blenav.eval.harness import EvalError, evaluate
+from blenav.errors import EvalError
+from blenav.eval.harness import evaluate
 from helpers import simulate_small
 
 PHONES = ["iphone-8", "galaxy-s10", "mi-9", "pixel-4xl"]

@@ -19,9 +19,10 @@ import yaml
 from PIL import Image
 
 from blenav.cli.validate import main as validate_main
-from blenav.data import Dataset, DatasetError, check_session_in_building, sum_dropped, validate
+from blenav.data import Dataset, check_session_in_building, sum_dropped, validate
 from blenav.data.schema import PLAUSIBLE, T_MAX_S
 from blenav.data.writer import write_csv, write_fixes
+from blenav.errors import DatasetError
 from helpers import errors, lines, rel, set_cell
 
 S = "sessions/walk0"

@@ -15,7 +15,8 @@ from PIL import Image
 
 from blenav.configs import cli_overrides
 from blenav.data import Dataset
-from blenav.eval.harness import EvalError, evaluate
+from blenav.errors import EvalError
+from blenav.eval.harness import evaluate
 from blenav.importers import run_import
 from helpers import simulate_small
 

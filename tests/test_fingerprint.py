@@ -12,11 +12,11 @@ import pytest
 
 from blenav.configs import compose
 from blenav.data import Dataset
+from blenav.errors import MissingStream
 from blenav.eval.floors import classify_floors
 from blenav.eval.harness import evaluate
 from blenav.features import fingerprints as FP
 from blenav.importers import run_import
-from blenav.localizers import MissingStream
 from blenav.localizers.fingerprint import FingerprintLocalizer
 from test_ilc20 import walk_lines, write_floor, write_walk
 

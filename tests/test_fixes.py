@@ -14,9 +14,10 @@ from scipy.stats import norm
 
 from blenav.data import Dataset, validate
 from blenav.data.writer import write_fixes
+from blenav.errors import MissingStream
 from blenav.eval.harness import build_methods, evaluate
 from blenav.filters.measurement import FixLikelihood
-from blenav.filters.runner import MissingStream, OnlineLocalizer, replay, run_session
+from blenav.filters.runner import OnlineLocalizer, replay, run_session
 from helpers import simulate_small
 
 SOURCE = "gt+noise"
@@ -243,7 +244,8 @@ def test_sparse_fixes_leave_a_shared_ble_filter_on_all_beacons(small, tmp_path):
 
 
 def test_a_misspelt_fixes_option_is_an_error_not_a_role(small, tmp_path):
-    from blenav.eval.harness import EvalError, build_fix_provider
+    from blenav.errors import EvalError
+    from blenav.eval.harness import build_fix_provider
 
     cfg = eval_cfg("experiment=leaderboard", f"out={tmp_path}", "+fixes.rate=2")
     with pytest.raises(EvalError, match=r"fixes.rate=2: not a role.*'rate_hz'"):

@@ -31,8 +31,8 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 from blenav.configs import compose
-from blenav.data import DatasetError
-from blenav.eval.harness import EvalError, evaluate
+from blenav.errors import DatasetError, EvalError
+from blenav.eval.harness import evaluate
 from fuzz_helpers import (
     CI,
     CSV_FILES,

@@ -30,7 +30,8 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 from blenav.cli.validate import main as validate_main
-from blenav.data import DatasetError, validate
+from blenav.data import validate
+from blenav.errors import DatasetError
 from fuzz_helpers import (
     ANY,
     CI,

@@ -22,7 +22,8 @@ import yaml
 from blenav.cli.importer import main as import_main
 from blenav.data import Dataset, validate
 from blenav.data.building import AnchorPositionsUnknown
-from blenav.importers import ImportError_, run_import
+from blenav.errors import ImportError_
+from blenav.importers import run_import
 
 LON0, LAT0 = 120.0, 30.0
 W_M, H_M = 40.0, 20.0

@@ -15,7 +15,8 @@ import pytest
 
 from blenav.cli.importer import main as import_main
 from blenav.data import Dataset, validate
-from blenav.importers import ImportError_, run_import
+from blenav.errors import ImportError_
+from blenav.importers import run_import
 
 pytestmark = pytest.mark.realdata
 

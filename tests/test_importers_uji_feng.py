@@ -17,7 +17,8 @@ import yaml
 
 from blenav.cli.importer import main as import_main
 from blenav.data import Dataset, validate
-from blenav.importers import ImportError_, run_import
+from blenav.errors import ImportError_
+from blenav.importers import run_import
 from blenav.importers.uji_ble import occupancy_grid, read_cells
 
 UJI_ZONES = ("lib", "geo")

@@ -150,7 +150,7 @@ def test_global_localization_converges_in_the_small_building(tmp_path):
 def test_misspelt_filter_keys_fail_early():
     from hydra.errors import ConfigCompositionException
 
-    from blenav.eval.harness import EvalError
+    from blenav.errors import EvalError
 
     with pytest.raises(ConfigCompositionException):
         eval_cfg("experiment=mapfusion_002", "filter.n_particle=3")

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from blenav.configs import compose
-from blenav.eval.harness import EvalError, build_methods, evaluate
-from blenav.localizers import Estimate, FixConsumer, Localizer, MissingStream, ParticleFilterLocalizer
+from blenav.errors import EvalError, MissingStream
+from blenav.eval.harness import build_methods, evaluate
+from blenav.localizers import Estimate, FixConsumer, Localizer, ParticleFilterLocalizer
 from helpers import make_tiny_dataset
 
 

@@ -15,15 +15,16 @@ from blenav.configs import compose
 import blenav.filters.map_prior as map_prior_mod
 from blenav.data import Dataset
 from blenav.data.writer import write_fixes
+from blenav.errors import EvalError, MissingStream
 from blenav.eval.fixes import spread_beacons
-from blenav.eval.harness import EvalError, build_methods, evaluate
+from blenav.eval.harness import build_methods, evaluate
 from blenav.filters.engine import FilterConfig, ParticleFilter
 from blenav.filters.constraints import ObstacleRules
 from blenav.filters.map import MapGeometry, WallCrossing
 from blenav.filters.map_prior import (FeasibilityPrior, MapPriorLikelihood, attach_prior, heading_bins,
                                       rotated_windows)
 from blenav.filters.motion import MotionModel, OdometryIncrement
-from blenav.filters.runner import MapSpec, MissingStream, _Initializer, align_heading, run_session
+from blenav.filters.runner import MapSpec, _Initializer, align_heading, run_session
 
 from helpers import make_tiny_dataset, simulate_small
 

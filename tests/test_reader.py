@@ -20,7 +20,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from blenav.data import FREE, OCCUPIED, UNKNOWN, Dataset, DatasetError, Floor, validate
+from blenav.data import FREE, OCCUPIED, UNKNOWN, Dataset, Floor, validate
+from blenav.errors import DatasetError
 
 
 S = "sessions/walk0"

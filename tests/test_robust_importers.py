@@ -9,8 +9,8 @@ shuffled and duplicated timestamps --, a cell set to NaN / inf / text / empty / 
 outside (-150, 0) dBm, NaN in the IMU, a file with its header only or no bytes at all, an anchor line removed
 from the building) and imports it. The oracle:
 
-* refused: an :class:`~blenav.importers.ImportError_` naming a raw file of the source (and a line when the
-  fault is on one line of a line-structured file), or a :class:`~blenav.data.DatasetError` naming a file of
+* refused: an :class:`~blenav.errors.ImportError_` naming a raw file of the source (and a line when the
+  fault is on one line of a line-structured file), or a :class:`~blenav.errors.DatasetError` naming a file of
   the written dataset; ``blenav-import`` prints it as one line ``blenav-import: error: ...`` with exit 1;
   never another exception (a traceback);
 * accepted: the written dataset passes the validator, and **no valid row is lost silently**: an independent
@@ -38,8 +38,8 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 from blenav.cli.importer import main as import_main
-from blenav.data import DatasetError
-from blenav.importers import ImportError_, ImportReport, run_import
+from blenav.errors import DatasetError, ImportError_
+from blenav.importers import ImportReport, run_import
 from fuzz_helpers import CI, SLOW
 from helpers import RAW
 

@@ -39,8 +39,8 @@ from hypothesis.errors import InvalidArgument
 from blenav.configs import compose
 from blenav.data import Dataset
 from blenav.data.writer import write_csv
+from blenav.errors import MissingStream
 from blenav.eval.harness import build_fix_provider, build_methods
-from blenav.localizers import MissingStream
 from blenav.localizers.base import RunContext
 from blenav.localizers.confine import confine
 from fuzz_helpers import CI, SLOW

@@ -267,7 +267,7 @@ def test_a_finished_run_of_another_budget_is_not_silently_extended(tmp_path):
     """blenav-eval reuses a finished run only when its step budget is this run's: resuming a run that ended at
     3,000 steps to an auto budget of 6,708 would restart its cosine schedule midway."""
     from blenav.eval.crossphone import _check_reuse
-    from blenav.eval.harness import EvalError
+    from blenav.errors import EvalError
 
     class DM:
         sets = {"train": range(10_000)}

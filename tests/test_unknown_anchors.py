@@ -32,7 +32,7 @@ def _pf_pl(root):
 
 def test_no_placed_beacon_skips_with_the_reason(tmp_path):
     from blenav.data import Dataset
-    from blenav.localizers import MissingStream
+    from blenav.errors import MissingStream
 
     root = _dataset(tmp_path, blank=99)
     s = Dataset.open(root).session("walk0")

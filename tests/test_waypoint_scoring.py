@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from blenav.eval.harness import EvalError, split_sessions
+from blenav.errors import EvalError
+from blenav.eval.harness import split_sessions
 from blenav.eval.metrics import errors_at_waypoints, pool, waypoint_metrics
 
 

@@ -11,6 +11,7 @@ import warnings
 
 from omegaconf import DictConfig
 
+from .errors import ConfigError
 from .paths import conf_dir
 
 
@@ -151,10 +152,6 @@ def compose(config_name: str, *overrides: str) -> DictConfig:
 
 
 # ------------------------------------------------------------------------------------------ strict overrides
-class ConfigError(ValueError):
-    """A command-line override the config does not accept, with what to write instead."""
-
-
 #: config groups of conf/ (an override ``GROUP=NAME`` chooses a file; ``GROUP.key=value`` sets a value)
 def _groups() -> set[str]:
     return {p.name for p in conf_dir().iterdir() if p.is_dir()} | {"hydra"}

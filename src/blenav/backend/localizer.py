@@ -35,8 +35,9 @@ from typing import Any
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from blenav.errors import MissingStream
 from blenav.filters.measurement import PathLossRange
-from blenav.localizers.base import Estimate, Localizer, MissingStream, PathLossCalibrated, RunContext
+from blenav.localizers.base import Estimate, Localizer, PathLossCalibrated, RunContext
 
 from .config import load_backend_config
 from .inputs import beacon_priors, path_loss_model, session_attitude, session_imu, session_ranges

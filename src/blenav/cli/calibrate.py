@@ -22,7 +22,8 @@ def _main(argv: list[str] | None) -> int:
 
     import yaml
 
-    from blenav.data import Dataset, DatasetError
+    from blenav.data import Dataset
+    from blenav.errors import DatasetError
     from blenav.filters.calibration import fit_sessions
 
     try:

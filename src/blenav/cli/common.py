@@ -51,7 +51,8 @@ def run_hydra(prog: str, config_name: str, task: Callable, args: list[str], conv
     The overrides are checked first (one composition) unless Hydra is asked for a sweep (``-m``) or help."""
     import hydra
 
-    from blenav.configs import ConfigError, check_overrides, register_configs
+    from blenav.configs import check_overrides, register_configs
+    from blenav.errors import ConfigError
     from blenav.paths import conf_dir
 
     debug, args = pop_debug(args)

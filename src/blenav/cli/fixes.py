@@ -29,7 +29,8 @@ def _main(argv: list[str] | None) -> int:
                    help="write nothing; print the fixes' error statistics against ground truth and sigma_eff_m")
     args = p.parse_args(argv)
 
-    from blenav.data import Dataset, DatasetError
+    from blenav.data import Dataset
+    from blenav.errors import DatasetError
     from blenav.runtime.fixes import calibrate_model_fixes, write_model_fixes
 
     try:

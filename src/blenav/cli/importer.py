@@ -22,8 +22,8 @@ def _main(argv: list[str] | None) -> int:
     if args.floors is not None and args.kind != "ilc20":
         p.error("--floors applies to ilc20 only")
 
-    from blenav.data import DatasetError
-    from blenav.importers import ImportError_, run_import
+    from blenav.errors import DatasetError, ImportError_
+    from blenav.importers import run_import
 
     try:
         options = {"floors": args.floors} if args.floors is not None else {}

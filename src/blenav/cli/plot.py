@@ -23,7 +23,8 @@ def _main(argv: list[str] | None) -> int:
     args = p.parse_args(argv)
 
     from blenav import plotting
-    from blenav.data import Dataset, DatasetError
+    from blenav.data import Dataset
+    from blenav.errors import DatasetError
 
     out = args.out if args.out is not None else args.dataset / "plots"
     try:

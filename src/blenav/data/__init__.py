@@ -2,10 +2,10 @@
 
 from .building import FREE, OCCUPIED, UNKNOWN, Building, Floor, Region
 from .dataset import Dataset
-from .issues import DatasetError, Issue
+from .issues import Issue
 from .schema import FORMAT, STREAMS
 from .session import Session, check_session_in_building, sum_dropped
 from .validate import validate
 
-__all__ = ["FORMAT", "STREAMS", "Building", "Dataset", "DatasetError", "Floor", "FREE", "Issue", "OCCUPIED",
+__all__ = ["FORMAT", "STREAMS", "Building", "Dataset", "Floor", "FREE", "Issue", "OCCUPIED",
            "Region", "Session", "UNKNOWN", "check_session_in_building", "sum_dropped", "validate"]

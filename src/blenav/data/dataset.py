@@ -9,8 +9,10 @@ from __future__ import annotations
 from functools import cached_property
 from pathlib import Path
 
+from blenav.errors import DatasetError
+
 from .building import Building, load_yaml
-from .issues import DatasetError, error, raise_or_log
+from .issues import error, raise_or_log
 from .schema import FORMAT
 from .session import Session, check_session_files, check_session_meta
 

@@ -1,8 +1,8 @@
-"""Problems found in a dataset, and the one exception type of :mod:`blenav.data`.
+"""Problems found in a dataset.
 
 Readers and the validator share the same checks: a check returns :class:`Issue` objects; the validator
-collects them all, a reader raises :class:`DatasetError` on the first file that has an error and logs
-the warnings.
+collects them all, a reader raises :class:`blenav.errors.DatasetError` (the one exception type of
+:mod:`blenav.data`) on the first file that has an error and logs the warnings.
 """
 
 from __future__ import annotations
@@ -10,6 +10,8 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+
+from blenav.errors import DatasetError
 
 log = logging.getLogger("blenav.data")
 
@@ -54,17 +56,6 @@ def error(path: Path | str, rule: str, message: str, line: int | None = None, wh
 
 def warning(path: Path | str, rule: str, message: str, line: int | None = None, where: str | None = None) -> Issue:
     return Issue(WARNING, str(path), rule, message, line, where)
-
-
-class DatasetError(ValueError):
-    """A dataset breaks a rule of format v1. ``issues`` holds every error found in the file(s) read."""
-
-    def __init__(self, issues: list[Issue] | Issue):
-        self.issues = [issues] if isinstance(issues, Issue) else list(issues)
-        errors = [i for i in self.issues if i.is_error] or self.issues
-        head = "\n".join(str(i) for i in errors[:10])
-        more = f"\n... and {len(errors) - 10} more" if len(errors) > 10 else ""
-        super().__init__(head + more)
 
 
 def raise_or_log(issues: list[Issue]) -> None:

@@ -336,7 +336,7 @@ def _check_quaternions(path: Path, df: pd.DataFrame, skip: np.ndarray | None = N
 class Session:
     """A session folder. Streams are read, checked and cached on first access.
 
-    Reading a stream that breaks a rule raises :class:`blenav.data.DatasetError`; warnings (e.g.
+    Reading a stream that breaks a rule raises :class:`blenav.errors.DatasetError`; warnings (e.g.
     dropped unknown-anchor rows) are logged and kept in :attr:`issues`, and the rows the reader left out
     are counted in :attr:`dropped` (every stream: :meth:`load_all`).
     """

@@ -17,8 +17,9 @@ import yaml
 from PIL import Image
 from shapely.geometry import mapping
 
+from blenav.errors import DatasetError
+
 from .building import FREE, OCCUPIED
-from .issues import DatasetError
 from .schema import ANCHOR_COLUMNS, FORMAT, STREAMS
 from .tables import read_stream
 
@@ -121,7 +122,7 @@ def write_fixes(session_dir: Path, t, xy, std=None, *, source: str) -> Path:
     Invalid input raises ``ValueError`` and writes nothing: a NaN or infinite position or time (the
     message says how many rows; a localizer that has no fix for a window should leave that row out,
     never write NaN), a negative or infinite std, mismatched lengths. An existing fixes.csv that
-    does not pass the format's checks raises :class:`~blenav.data.DatasetError` instead of being
+    does not pass the format's checks raises :class:`~blenav.errors.DatasetError` instead of being
     overwritten. An open :class:`~blenav.data.Session` caches its streams: reopen it to see the new rows.
     """
     session_dir = Path(session_dir)

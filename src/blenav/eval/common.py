@@ -7,9 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-class EvalError(ValueError):
-    """A bad experiment, dataset or session selection, with a message that says what to fix."""
+from blenav.errors import EvalError
 
 
 def json_default(o):

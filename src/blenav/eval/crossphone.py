@@ -41,9 +41,9 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from blenav.data import DatasetError
+from blenav.errors import DatasetError, EvalError
 
-from .common import EvalError, write_json
+from .common import write_json
 
 log = logging.getLogger("blenav.eval")
 

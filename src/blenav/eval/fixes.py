@@ -48,8 +48,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from blenav.errors import MissingStream
 from blenav.filters.measurement import FixLikelihood
-from blenav.filters.runner import Method, MissingStream, run_session
+from blenav.filters.runner import Method, run_session
 from blenav.features.windows import spread_beacons
 from blenav.localizers import ParticleFilterLocalizer
 

@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
+from blenav.errors import MissingStream
 from blenav.features import fingerprints as FP
-from blenav.filters.runner import MissingStream
 
 __all__ = ["classify_floors", "floor_accuracy"]
 

@@ -47,17 +47,17 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from blenav.data import Dataset, DatasetError, check_session_in_building
+from blenav.data import Dataset, check_session_in_building
+from blenav.errors import DatasetError, EvalError, MissingStream
 from blenav.filters.attitude import misalignment_deg
 from blenav.filters.calibration import fit_sessions
-from blenav.filters.runner import MissingStream
 from blenav.localizers import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext,
                                Trained, build_localizer)
 from blenav.localizers.confine import confine
 from blenav.eval import beacon_map as BM
 from blenav.eval.plan_errors import PlanErrorConfig, perturb_building
 
-from .common import EvalError, json_default, write_json
+from .common import json_default, write_json
 from .fixes import FixProvider
 from .floors import floor_accuracy
 from .leaderboard import PeakMemory
@@ -65,7 +65,7 @@ from .metrics import cdf_band, pool, session_metrics, waypoint_metrics
 
 log = logging.getLogger("blenav.eval")
 
-__all__ = ["EvalError", "build_methods", "evaluate", "select_sessions", "calibrate", "run_method", "aggregate"]
+__all__ = ["build_methods", "evaluate", "select_sessions", "calibrate", "run_method", "aggregate"]
 
 _json_default = json_default  # the name other modules used before blenav.eval.common
 

@@ -124,7 +124,8 @@ def family_of(name: str, fam: dict[str, str]) -> str:
 def bound_settings(cfg):
     from omegaconf import OmegaConf
 
-    from .common import EvalError
+    from blenav.errors import EvalError
+
     from .pcrlb import BoundSettings
 
     node = cfg.get("bound") or {}

@@ -36,10 +36,11 @@ import logging
 import numpy as np
 import pandas as pd
 
+from blenav.errors import MissingStream
 from blenav.filters.attitude import AttitudeConfig
 from blenav.filters.measurement import AnchorTable
 from blenav.filters.motion_pdr import pdr_track
-from blenav.filters.runner import MissingStream, session_imu
+from blenav.filters.runner import session_imu
 from blenav.filters.steps import SessionArrays, StepDetectorConfig, detect_steps
 from blenav.localizers.base import Estimate, RunContext, Trained
 from blenav.localizers.particle import ParticleFilterLocalizer

@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 from numpy.lib.stride_tricks import sliding_window_view
 
-from blenav.filters.runner import MissingStream
+from blenav.errors import MissingStream
 
 from .windows import rssi_to_u
 

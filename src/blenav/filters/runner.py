@@ -17,6 +17,7 @@ from typing import Optional
 import numpy as np
 
 from blenav.data import Session
+from blenav.errors import MissingStream
 
 from .attitude import AttitudeConfig, estimate_hard_iron
 from .constraints import ObstacleRules
@@ -24,10 +25,6 @@ from .engine import Event, FilterConfig, Initializer, ParticleFilter
 from .map import MapGeometry, WallCrossing
 from .measurement import AnchorTable
 from .steps import SessionArrays, StepDetectorConfig, StepStream, imu_features, session_steps
-
-
-class MissingStream(ValueError):
-    """The session lacks a stream the method needs (e.g. IMU for the IMU proposal): skip, do not fail."""
 
 
 class InitMode(StrEnum):

@@ -2,7 +2,7 @@
 
 Each importer is a function ``import_<kind>(src: Path, out: Path) -> ImportReport`` in its own module;
 its docstring documents every unit, frame and assumption. Malformed input raises
-:class:`ImportError_` naming file, line and problem; rows an importer drops are counted in the report.
+:class:`blenav.errors.ImportError_` naming file, line and problem; rows an importer drops are counted in the report.
 """
 
 from __future__ import annotations
@@ -11,18 +11,11 @@ import importlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from blenav.errors import ImportError_
+
 KINDS = ("uji_ble", "danis_ble_tracks", "kolakowski_ble_calib", "feng_wifi_rtt", "ilc20")
 #: kinds whose SRC may be an archive file as well as a folder
 ARCHIVE_KINDS = ("ilc20",)
-
-
-class ImportError_(ValueError):
-    """Malformed raw input. The message names the file, the line (1-based) and the problem."""
-
-    def __init__(self, path: Path | str, line: int | None, problem: str):
-        self.path, self.line, self.problem = str(path), line, problem
-        loc = f"{path}:{line}" if line is not None else str(path)
-        super().__init__(f"{loc}: {problem}")
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """Helpers shared by the importers: strict text/CSV reading, RSSI checks, occupancy grids, output checks.
 
-Every reading helper raises :class:`~blenav.importers.ImportError_` naming the file, the 1-based line
+Every reading helper raises :class:`~blenav.errors.ImportError_` naming the file, the 1-based line
 (``None`` when the problem is the whole file) and the problem; nothing here writes anything. Line
 numbers count every physical line of the file, header included.
 """
@@ -15,11 +15,12 @@ import pandas as pd
 import shapely
 from shapely.geometry import Polygon
 
-from blenav.data import FREE, OCCUPIED, UNKNOWN, DatasetError, validate
+from blenav.data import FREE, OCCUPIED, UNKNOWN, validate
 from blenav.data.building import FLOOR_MAX_SIDE_M
 from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM, T_MAX_S
+from blenav.errors import DatasetError, ImportError_
 
-from . import ImportError_, ImportReport
+from . import ImportReport
 
 # --------------------------------------------------------------------------------------------------
 # strict reading
@@ -264,7 +265,7 @@ def check_out(out: Path) -> None:
 def validate_or_raise(out: Path, report: ImportReport) -> None:
     """Run the format-v1 validator on the written dataset ``out``.
 
-    Errors raise :class:`~blenav.data.DatasetError` (listing them); warnings become ``validator: ...``
+    Errors raise :class:`~blenav.errors.DatasetError` (listing them); warnings become ``validator: ...``
     notes of ``report``.
     """
     issues = validate(out)

@@ -93,7 +93,7 @@ Bad input
 ---------
 A track line without exactly 16 comma-separated fields, a non-numeric or non-finite number, an empty
 MAC, a malformed occupancy line or header, an occupancy value other than 0/1, a cell off the grid or
-listed twice, or an unparsable ``tetam.dev`` raises :class:`~blenav.importers.ImportError_` naming the
+listed twice, or an unparsable ``tetam.dev`` raises :class:`~blenav.errors.ImportError_` naming the
 file and the 1-based line. Rows from another transmitter or from a receiver missing in ``tetam.dev``
 are dropped and counted (none in this copy). Nothing is written before all input has been read.
 """
@@ -113,7 +113,9 @@ from blenav.data.building import Building
 from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
-from . import ImportError_, ImportReport
+from blenav.errors import ImportError_
+
+from . import ImportReport
 from ._common import (
     FAR_TIME,
     check_out,

@@ -74,7 +74,7 @@ Bad input
 ---------
 A malformed line (wrong column count, blank line, non-numeric or non-finite number, RSS neither -200
 nor in (-150, 0) dBm, malformed ``LOS APs``), a header other than the expected one, or a malformed AP
-position file raises :class:`~blenav.importers.ImportError_` naming the file and the 1-based line.
+position file raises :class:`~blenav.errors.ImportError_` naming the file and the 1-based line.
 Nothing is written unless the whole source parses.
 """
 
@@ -89,7 +89,9 @@ import pandas as pd
 
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
-from . import ImportError_, ImportReport
+from blenav.errors import ImportError_
+
+from . import ImportReport
 from ._common import (
     check_out,
     occupancy_grid,

@@ -99,7 +99,7 @@ Bad input
 A line that does not parse (too few or too many tab-separated fields for its record type, a time that is
 not an integer, a value that is not a finite number, a blank line inside the file, bytes that are not
 UTF-8) or a file that does not end with a newline (its last line may be cut) raises
-:class:`~blenav.importers.ImportError_` naming the file (``archive:member`` inside an archive) and the
+:class:`~blenav.errors.ImportError_` naming the file (``archive:member`` inside an archive) and the
 1-based line. Record types the format does not document are counted per type and reported, never fatal;
 documented types that are not imported (uncalibrated streams, TYPE_BLUE/BLU4/DIST1/DIST2, accuracy changes)
 are counted as ignored. A walk without an ``endTime`` header line (possibly cut exactly at a line end) is
@@ -134,7 +134,9 @@ from blenav.data.building import FREE, OCCUPIED, UNKNOWN
 from blenav.data.schema import STREAMS
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
-from . import ImportError_, ImportReport
+from blenav.errors import ImportError_
+
+from . import ImportReport
 from ._common import check_out, grid_lookup, rssi_in_range, validate_or_raise
 
 RESOLUTION_M = 0.1

@@ -109,7 +109,7 @@ Bad input
 ---------
 A line with a wrong field count, a non-numeric, non-integer (log) or non-finite value, an empty
 required cell, a wrong header, a df time going backwards, an anchor id missing from ``anchors.csv``, an
-invalid layout polygon or a zero-length path segment raise :class:`~blenav.importers.ImportError_`
+invalid layout polygon or a zero-length path segment raise :class:`~blenav.errors.ImportError_`
 naming the file and the 1-based line. Nothing is written before all input has been read.
 """
 
@@ -128,7 +128,9 @@ from blenav.data.building import Building
 from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
-from . import ImportError_, ImportReport
+from blenav.errors import ImportError_
+
+from . import ImportReport
 from ._common import (
     FAR_TIME,
     check_out,

@@ -77,7 +77,7 @@ Any malformed line (wrong column count, blank line, non-numeric or non-finite va
 nor in (-150, 0) dBm, a position more than 2 km from the others, a time of 0 where an RSS was
 recorded or vice versa, an id that does not decode to a known phone/power/campaign, a time going
 backwards inside a session, a header that is not the expected one) or different row counts between
-the rss/tms/crd/ids files raises :class:`~blenav.importers.ImportError_` naming the file and the 1-based
+the rss/tms/crd/ids files raises :class:`~blenav.errors.ImportError_` naming the file and the 1-based
 line. Nothing is written unless the whole source parses.
 
 The strict CSV helpers, :func:`~blenav.importers._common.occupancy_grid` and the output checks are
@@ -96,7 +96,9 @@ from shapely.geometry import MultiPoint, Polygon
 from blenav.data import OCCUPIED
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
-from . import ImportError_, ImportReport
+from blenav.errors import ImportError_
+
+from . import ImportReport
 from ._common import (
     check_out,
     grid_lookup,

@@ -4,10 +4,10 @@ A new method is one class deriving from :class:`Localizer` plus one YAML file in
 naming it as ``_target_``; the evaluation harness needs no change.
 """
 
-from .base import (Estimate, FixConsumer, Localizer, MissingStream, ModelConsumer, PathLossCalibrated, RunContext, Trained,
+from .base import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext, Trained,
                    build_localizer)
 from .fixtrack import FixTrackLocalizer
 from .particle import ParticleFilterLocalizer
 
-__all__ = ["Estimate", "FixConsumer", "FixTrackLocalizer", "Localizer", "MissingStream", "ModelConsumer", "Trained",
+__all__ = ["Estimate", "FixConsumer", "FixTrackLocalizer", "Localizer", "ModelConsumer", "Trained",
            "ParticleFilterLocalizer", "PathLossCalibrated", "RunContext", "build_localizer"]

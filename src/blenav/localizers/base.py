@@ -17,7 +17,7 @@ Methods that need something from the evaluation declare it by deriving from a ca
   KNN, LocNet on WiFi/BLE scans) before it is run on the scored ones (the experiment's ``split``).
 
 A method that cannot run on a session (a stream it needs is absent, a model was not given) raises
-:class:`~blenav.filters.runner.MissingStream` with the reason; the harness then lists the session under
+:class:`~blenav.errors.MissingStream` with the reason; the harness then lists the session under
 the method's ``skipped``. Bad settings or data raise ``ValueError``.
 """
 
@@ -29,11 +29,11 @@ from typing import Any, Callable
 
 import numpy as np
 
+from blenav.errors import MissingStream
 from blenav.filters.engine import Event
-from blenav.filters.runner import MissingStream
 
 __all__ = ["Estimate", "RunContext", "Localizer", "PathLossCalibrated", "FixConsumer", "ModelConsumer",
-           "Trained", "MissingStream", "build_localizer", "OUTPUT_KEYS"]
+           "Trained", "build_localizer", "OUTPUT_KEYS"]
 
 #: The documented keys of :attr:`Estimate.outputs` (a method may add others; these are the ones the
 #: harness and the plots read).

@@ -45,8 +45,8 @@ from blenav.crf.grid import build_grid
 from blenav.crf.preprocess import (BLE_MIN_RSSI_DBM, WIFI_MIN_RSSI_DBM, anchor_tables, preprocess, session_span,
                                    window_count)
 from blenav.crf.viterbi import ViterbiDecoder
+from blenav.errors import MissingStream
 from blenav.filters.attitude import AttitudeConfig, estimate_attitude, yaw_of_device_forward
-from blenav.filters.runner import MissingStream
 from blenav.filters.steps import StepDetectorConfig, step_flags
 
 from .base import Estimate, Localizer, RunContext

@@ -48,8 +48,8 @@ from pathlib import Path
 
 import numpy as np
 
+from blenav.errors import MissingStream
 from blenav.features import fingerprints as FP
-from blenav.filters.runner import MissingStream
 
 from .base import Estimate, Localizer, RunContext, Trained
 

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from blenav.filters.runner import MissingStream
+from blenav.errors import MissingStream
 
 from .base import Estimate, FixConsumer, Localizer, RunContext
 
