@@ -127,12 +127,12 @@ def test_modes_are_enums(override, key):
 
 def test_enum_modes_compare_as_strings():
     from blenav.filters.attitude import AttitudeConfig
-    from blenav.filters.engine import Estimate, FilterConfig, Resampling
+    from blenav.filters.engine import EstimateMode, FilterConfig, Resampling
     from blenav.filters.resampling import SCHEMES
 
     cfg = compose("eval", "experiment=mapprior_003_table36", "data=DIR")
     f = OmegaConf.to_object(cfg.filter)
-    assert isinstance(f, FilterConfig) and f.estimate == "median" and f.estimate is Estimate.median
+    assert isinstance(f, FilterConfig) and f.estimate == "median" and f.estimate is EstimateMode.median
     assert f.resampling == "low_variance" and str(f.resampling) == "low_variance"
     assert {r.value for r in Resampling} == set(SCHEMES)  # one name per scheme of blenav.filters.resampling
     assert OmegaConf.to_object(cfg.attitude).filter == "madgwick"

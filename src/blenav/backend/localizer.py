@@ -172,9 +172,9 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
         if self.cfg.range.estimate_offset and offsets:
             outputs["receiver_offset_db"] = float(np.nanmean(offsets)) if np.isfinite(offsets).any() else None
             notes.append(f"back-end: receiver offset {outputs['receiver_offset_db']} dB (range.estimate_offset)")
-        if out.front.q_imu is not None:
-            outputs["attitude"] = {"t": out.front.imu_t, "q": out.front.q_imu}
-        notes = list(out.front.map_notes) + notes + [f"back-end failure: {f}" for f in fails[:5]]
+        if "attitude" in out.front.outputs:
+            outputs["attitude"] = out.front.outputs["attitude"]
+        notes = list(out.front.notes) + notes + [f"back-end failure: {f}" for f in fails[:5]]
         return out.front.t, front, smoothed, bias, outputs, events, notes, time.perf_counter() - t0
 
 

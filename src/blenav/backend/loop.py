@@ -29,7 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from blenav.filters.runner import BatchRun, Method, RunResult
+from blenav.filters.estimate import Estimate
+from blenav.filters.runner import BatchRun, Method
 
 from .config import BackendConfig
 from .graph import smooth
@@ -56,7 +57,7 @@ class LoopOutcome:
     could not run, see ``notes``); ``bias_applied`` (K, 6): the bias correction in force at each filter step;
     ``feedbacks``: the history; ``backend_s``: seconds spent in the back-end (windows + final)."""
 
-    front: RunResult
+    front: Estimate
     smoothed: BackendResult | None
     bias_applied: np.ndarray
     feedbacks: list[Feedback] = field(default_factory=list)

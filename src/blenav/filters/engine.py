@@ -51,7 +51,7 @@ class Resampling(StrEnum):
     low_variance = "low_variance"
 
 
-class Estimate(StrEnum):
+class EstimateMode(StrEnum):
     """``filter.estimate``: the weighted mean, or the particle nearest the weighted median (Roy)."""
 
     mean = "mean"
@@ -66,7 +66,7 @@ class FilterConfig:
     rate_hz: float = 10.0
     resampling: Resampling = Resampling.systematic
     ess_threshold: float = 0.2  # fraction of N: 000 uses n_thr = 60 of 300
-    estimate: Estimate = Estimate.mean
+    estimate: EstimateMode = EstimateMode.mean
     divergence_sigma: float = 4.0
     patience_s: float = 3.0
     local_sigma_m: float = 3.0

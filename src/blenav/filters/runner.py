@@ -21,7 +21,8 @@ from blenav.errors import MissingStream
 
 from .attitude import AttitudeConfig, estimate_hard_iron
 from .constraints import ObstacleRules
-from .engine import Event, FilterConfig, Initializer, ParticleFilter
+from .engine import FilterConfig, Initializer, ParticleFilter
+from .estimate import Estimate
 from .map import MapGeometry, WallCrossing
 from .measurement import AnchorTable
 from .steps import SessionArrays, StepDetectorConfig, StepStream, imu_features, session_steps
@@ -176,23 +177,6 @@ class _Conditioner:
                                    shrink=self.spec.shrink, mask=mask)
 
 
-@dataclass
-class RunResult:
-    """Estimates of R runs on one session: t (K,) s, position (R, K, 2) m, n_eff (R, K), AHRS (T, 4)."""
-
-    method: str
-    session: str
-    t: np.ndarray
-    position: np.ndarray
-    cov: np.ndarray
-    n_eff: np.ndarray
-    events: list[Event]
-    q_imu: np.ndarray | None
-    imu_t: np.ndarray | None
-    wall_s: float
-    map_notes: list[str]
-
-
 def method_anchors(method: Method, session: Session) -> AnchorTable:
     """The BLE anchors of the session's building that ``method`` may use (all, or ``method.beacons``)."""
     frame = session.building.anchors
@@ -306,8 +290,9 @@ def initial_pose(method: Method, session: Session, arrays: SessionArrays) -> tup
 
 
 def run_session(method: Method, session: Session, n_runs: int, seed: int,
-                geom: MapGeometry | None = None, cache: dict | None = None, fixes=None, odometry=None) -> RunResult:
-    """All R runs of ``method`` on ``session`` (batched), seeded by ``seed``.
+                geom: MapGeometry | None = None, cache: dict | None = None, fixes=None, odometry=None) -> Estimate:
+    """All R runs of ``method`` on ``session`` (batched), seeded by ``seed``: the :class:`Estimate` of
+    :meth:`BatchRun.result`.
 
     ``cache``: a dict shared by calls on the same sessions (the evaluation harness passes one), so
     that the floor's map geometry and the session's AHRS and step detection, which do not depend on
@@ -426,12 +411,15 @@ class BatchRun:
         steps, self.q = session_steps(a, m.filter.rate_hz, m.attitude, m.steps, True, self.mag_offset)
         self.steps = self.steps[: self.k] + steps[self.k:]
 
-    def result(self) -> RunResult:
-        """The estimates of the steps done so far."""
+    def result(self) -> Estimate:
+        """The estimates of the steps done so far: ``outputs`` ``n_eff`` (R, K) and, when the motion model runs an
+        AHRS, ``attitude`` (its orientation {t (T,), q (T, 4)}); ``notes``: what the map was derived from."""
         k, m, a = self.k, self.method, self.arrays
-        return RunResult(m.name, self.session.id, self.ts[:k], self.pos[:, :k], self.cov[:, :k], self.neff[:, :k],
-                         self.pf.events, self.q, a.imu_t if self.q is not None else None,
-                         time.perf_counter() - self.t0, list(self.notes))
+        outputs = {"n_eff": self.neff[:, :k]}
+        if self.q is not None:
+            outputs["attitude"] = {"t": a.imu_t, "q": self.q}
+        return Estimate(m.name, self.session.id, self.ts[:k], self.pos[:, :k], self.cov[:, :k], self.pf.events,
+                        outputs, time.perf_counter() - self.t0, list(self.notes))
 
 
 def check_fixes(model, sources: np.ndarray, session_id: str, method_name: str) -> None:

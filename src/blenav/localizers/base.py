@@ -1,4 +1,5 @@
-"""The one interface every localization method implements, and the result every method returns.
+"""The one interface every localization method implements; the result every method returns is
+:class:`blenav.filters.estimate.Estimate` (the particle filter's runners return it too).
 
 A :class:`Localizer` is built from its config node (``_target_`` plus its settings, see
 :func:`build_localizer`) and run on one session at a time::
@@ -27,67 +28,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
 from blenav.errors import MissingStream
-from blenav.filters.engine import Event
+from blenav.filters.estimate import Estimate
 
 __all__ = ["Estimate", "RunContext", "Localizer", "PathLossCalibrated", "FixConsumer", "ModelConsumer",
-           "Trained", "build_localizer", "OUTPUT_KEYS"]
-
-#: The documented keys of :attr:`Estimate.outputs` (a method may add others; these are the ones the
-#: harness and the plots read).
-OUTPUT_KEYS = {
-    "n_eff": "(R, K) effective sample size per run and step (particle filters)",
-    "attitude": "{'t': (T,) s, 'q': (T, 4) w, x, y, z}: the AHRS orientation, device to world (for "
-                "orientation RMSE against the ground truth)",
-    "beacon_map": "DataFrame anchor_id, x, y, z, std_m: beacon positions a method estimated",
-    "smoothed": "(R, K, 2) world m: a smoothed trajectory at the same times as position",
-    "probability": "per-step probability maps over a grid (method-specific layout, documented by the method)",
-}
-
-
-@dataclass
-class Estimate:
-    """R runs of one localizer on one session.
-
-    t (K,) s; position (R, K, 2) world m; cov (R, K, 2, 2) m^2 or None when the method gives no
-    uncertainty; events: per-run events (``Event.run`` is the run index: recoveries, re-initialisations);
-    outputs: method-specific results under the keys of :data:`OUTPUT_KEYS`; wall_s: the method's
-    wall-clock time on this session, all runs; notes: remarks for the report (e.g. what a map was derived
-    from).
-    """
-
-    method: str
-    session: str
-    t: np.ndarray
-    position: np.ndarray
-    cov: np.ndarray | None = None
-    events: list[Event] = field(default_factory=list)
-    outputs: dict[str, Any] = field(default_factory=dict)
-    wall_s: float = 0.0
-    notes: list[str] = field(default_factory=list)
-
-    def __post_init__(self):
-        self.t = np.asarray(self.t, float)
-        self.position = np.asarray(self.position, float)
-        if self.position.ndim != 3 or self.position.shape[1:] != (len(self.t), 2):
-            raise ValueError(f"{self.method} on {self.session}: position must be (R, K, 2) with K = len(t) = "
-                             f"{len(self.t)}, got {self.position.shape}")
-        if self.cov is not None and self.cov.shape != self.position.shape + (2,):
-            raise ValueError(f"{self.method} on {self.session}: cov must be (R, K, 2, 2), got {self.cov.shape}")
-
-    @property
-    def n_runs(self) -> int:
-        return int(self.position.shape[0])
-
-    @property
-    def std(self) -> np.ndarray | None:
-        """(R, K) m: sqrt of the covariance's trace / 2 (the mean per-axis standard deviation), or None."""
-        if self.cov is None:
-            return None
-        return np.sqrt(np.maximum(np.trace(self.cov, axis1=-2, axis2=-1), 0.0) / 2.0)
-
+           "Trained", "build_localizer"]
 
 @dataclass
 class RunContext:

@@ -116,10 +116,5 @@ class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelC
     def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
         ctx = ctx or RunContext()
         extra = ctx.fixes.prepare(self.method, session) if ctx.fixes is not None else None
-        res = run_session(self.method, session, n_runs, seed, cache=ctx.cache, fixes=extra,
-                          odometry=self.odometry_for(session, ctx))
-        outputs = {"n_eff": res.n_eff}
-        if res.q_imu is not None:
-            outputs["attitude"] = {"t": res.imu_t, "q": res.q_imu}
-        return Estimate(self.name, session.id, res.t, res.position, res.cov, res.events, outputs, res.wall_s,
-                        res.map_notes)
+        return run_session(self.method, session, n_runs, seed, cache=ctx.cache, fixes=extra,
+                           odometry=self.odometry_for(session, ctx))

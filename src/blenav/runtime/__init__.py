@@ -7,9 +7,9 @@ its push API (``Bundle.open(dir).localizer(building)``, :mod:`blenav.runtime.bun
 :mod:`blenav.learn`: imports none of torch, lightning or hydra (``tests/test_layers.py``).
 """
 
-from .bundle import Bundle, BundleLocalizer, Estimate
+from .bundle import Bundle, BundleLocalizer, TrackPoint
 from .map_prior import MapPrior
 from .onnx_localizer import OnnxLocalizer
 from .signature import BuildingMismatch
 
-__all__ = ["Bundle", "BundleLocalizer", "BuildingMismatch", "Estimate", "MapPrior", "OnnxLocalizer"]
+__all__ = ["Bundle", "BundleLocalizer", "BuildingMismatch", "MapPrior", "OnnxLocalizer", "TrackPoint"]

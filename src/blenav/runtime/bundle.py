@@ -20,7 +20,7 @@ u = max(rssi + offset_db, floor_u) per step and beacon, H steps per window); a w
 newest step, as soon as a sample at or after that time arrives, and enters the filter's step that holds that time.
 
 Push API (:class:`BundleLocalizer`, ``Bundle.open(dir).localizer(building)``): ``push_rssi``, ``push_odometry``,
-``push_imu``, ``push_mag``, ``close`` in time order; each returns the estimates (:class:`Estimate`: t, x, y, std) of
+``push_imu``, ``push_mag``, ``close`` in time order; each returns the track points (:class:`TrackPoint`: t, x, y, std) of
 the filter steps the sample closed. With ``map.init: fix`` the filter starts around the first fix: samples before
 it are kept and replayed then, so the first estimates come H steps after the first packet (as the batch filter,
 which starts at the session's first sample). :meth:`Bundle.run_session` replays a recorded session through it and
@@ -93,9 +93,10 @@ def sha256_file(path: Path) -> str:
     return h.hexdigest()
 
 
-class Estimate(NamedTuple):
-    """One filter step: t (s, the session's clock), x, y (m, the building's world frame), std (m): the RMS of the
-    per-axis standard deviations of the particle cloud, sqrt((var_x + var_y) / 2)."""
+class TrackPoint(NamedTuple):
+    """One filter step of the live track (one run): t (s, the session's clock), x, y (m, the building's world frame),
+    std (m): the RMS of the per-axis standard deviations of the particle cloud, sqrt((var_x + var_y) / 2). Offline,
+    R runs of K steps are one :class:`blenav.filters.estimate.Estimate`."""
 
     t: float
     x: float
@@ -127,7 +128,7 @@ def _dataclass(cls, node: dict | None, where: str):
 def build_method(settings: dict, prior=None):
     """The :class:`blenav.filters.runner.Method` of a bundle's settings; ``prior``: a map prior (or None)."""
     from blenav.filters.attitude import AttitudeConfig
-    from blenav.filters.engine import Estimate as EstimateMode, FilterConfig, Resampling
+    from blenav.filters.engine import EstimateMode, FilterConfig, Resampling
     from blenav.filters.map_prior import MapPriorLikelihood
     from blenav.filters.measurement import FixLikelihood
     from blenav.filters.runner import HeadingMode, InitMode, MapSpec, Method
@@ -248,7 +249,7 @@ class WindowFixer:
 # --- the push API ------------------------------------------------------------------------------------------
 
 class BundleLocalizer:
-    """Live localization with a bundle: push samples in time order, get :class:`Estimate` rows as steps close.
+    """Live localization with a bundle: push samples in time order, get :class:`TrackPoint` rows as steps close.
 
     ``building``: a :class:`blenav.data.Building` (checked against the bundle); ``floor``: its floor id (default:
     the first); ``seed``: the filter's random generator; ``start_xy`` / ``start_theta``: a known start for
@@ -281,28 +282,28 @@ class BundleLocalizer:
     def started(self) -> bool:
         return self._online is not None
 
-    def _start(self) -> list[Estimate]:
+    def _start(self) -> list[TrackPoint]:
         from blenav.filters.runner import OnlineLocalizer
 
         self._online = OnlineLocalizer(self.method, self._ctx, 1, self.seed, t_start=float(self._t_start),
                                        mag_offset=self._mag_offset, start_xy=self._start_xy,
                                        start_theta=self._start_theta)
-        out: list[Estimate] = []
+        out: list[TrackPoint] = []
         pending, self._pending = self._pending, []
         for ev in pending:
             out += self._rows(self._online.push_event(ev))
         return out
 
     @staticmethod
-    def _rows(results) -> list[Estimate]:
+    def _rows(results) -> list[TrackPoint]:
         out = []
         for r in results:
             c = r.cov[0]
-            out.append(Estimate(float(r.t), float(r.position[0, 0]), float(r.position[0, 1]),
+            out.append(TrackPoint(float(r.t), float(r.position[0, 0]), float(r.position[0, 1]),
                                 float(np.sqrt(max(0.0, (c[0, 0] + c[1, 1]) / 2.0)))))
         return out
 
-    def _feed(self, ev: tuple) -> list[Estimate]:
+    def _feed(self, ev: tuple) -> list[TrackPoint]:
         if ev[0] == "rssi" and not self._rssi_models:
             return []  # the filter weighs the bundle's fixes, not packets: they only feed the localizer's windows
         if self._online is not None:
@@ -314,7 +315,7 @@ class BundleLocalizer:
             return self._start()
         return []
 
-    def _push(self, ev: tuple) -> list[Estimate]:
+    def _push(self, ev: tuple) -> list[TrackPoint]:
         t = float(ev[1])
         if ev[0] != "mag" and self._t_start is None:
             self._t_start = t
@@ -326,29 +327,29 @@ class BundleLocalizer:
             self.fixer.add(t, ev[2], ev[3])
         return out + self._feed(ev)
 
-    def push_rssi(self, t: float, anchor_id: str, rssi: float) -> list[Estimate]:
+    def push_rssi(self, t: float, anchor_id: str, rssi: float) -> list[TrackPoint]:
         """One BLE packet: time (s), anchor id, RSSI (dBm)."""
         return self._push(("rssi", float(t), str(anchor_id), float(rssi)))
 
-    def push_odometry(self, t: float, xy) -> list[Estimate]:
+    def push_odometry(self, t: float, xy) -> list[TrackPoint]:
         """Inertial odometry position (m, the odometry's own frame, as odometry.csv)."""
         return self._push(("odo", float(t), np.asarray(xy, float)))
 
-    def push_imu(self, t: float, acc, gyr) -> list[Estimate]:
+    def push_imu(self, t: float, acc, gyr) -> list[TrackPoint]:
         """Accelerometer (m/s^2) and gyroscope (rad/s), phone frame (used by settings with an IMU motion model)."""
         return self._push(("imu", float(t), np.asarray(acc, float), np.asarray(gyr, float)))
 
-    def push_mag(self, t: float, mag) -> list[Estimate]:
+    def push_mag(self, t: float, mag) -> list[TrackPoint]:
         """Magnetometer (uT), phone frame."""
         return self._push(("mag", float(t), np.asarray(mag, float)))
 
-    def push_event(self, ev: tuple) -> list[Estimate]:
+    def push_event(self, ev: tuple) -> list[TrackPoint]:
         """One event of :func:`blenav.filters.runner.replay` (fix events are not taken: the bundle makes its own)."""
         if ev[0] == "fix":
             return []
         return self._push(ev)
 
-    def close(self, t_end: float) -> list[Estimate]:
+    def close(self, t_end: float) -> list[TrackPoint]:
         """End of the data at ``t_end``: the last fix, then every step that ends by then (or by that fix)."""
         out = []
         for tf, x, y in self.fixer.flush():
@@ -443,9 +444,9 @@ class Bundle:
         """The push API on ``building`` (see :class:`BundleLocalizer`)."""
         return BundleLocalizer(self, building, floor=floor, seed=seed, **kw)
 
-    def run_session(self, session, seed: int = 0, on_estimate: Callable[[Estimate], None] | None = None,
+    def run_session(self, session, seed: int = 0, on_estimate: Callable[[TrackPoint], None] | None = None,
                     on_event: Callable[[int], None] | None = None,
-                    on_total: Callable[[int], None] | None = None) -> list[Estimate]:
+                    on_total: Callable[[int], None] | None = None) -> list[TrackPoint]:
         """Replay a recorded session through :meth:`localizer` (its own fixes, fixes.csv is not read); calls
         ``on_total(n)`` once with the number of samples to replay, ``on_estimate`` with each estimate as it is made
         and ``on_event(n)`` after every n samples (progress)."""
@@ -457,7 +458,7 @@ class Bundle:
         loc = self.localizer(session.building, floor=session.meta.get("floor"), seed=seed,
                              t_start=min(firsts) if firsts else None, keep_fixes=None)
         need_imu = loc.method.needs_imu
-        out: list[Estimate] = []
+        out: list[TrackPoint] = []
         t_end = None
         events = [e for e in replay(session) if e[0] != "fix" and (need_imu or e[0] not in ("imu", "mag"))]
         every = max(1, len(events) // 200)
