@@ -276,7 +276,7 @@ def test_grid_cells_and_project_shrunk(small_geometry):
 
 
 def test_obstacle_snap(small_geometry):
-    from blenav.data.building import FREE, OCCUPIED
+    from blenav.data.floor import FREE, OCCUPIED
 
     m = small_geometry
     fl = m.floor

@@ -11,7 +11,7 @@ import pytest
 from scipy.optimize import minimize
 
 from blenav.data import Dataset
-from blenav.data.building import FREE, OCCUPIED
+from blenav.data.floor import FREE, OCCUPIED
 from blenav.data.validate import validate
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 from blenav.localizers.base import RunContext

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blenav.data.building import FREE
+from blenav.data.floor import FREE
 
 __all__ = ["CrfGrid", "build_grid", "grid_from_occupancy"]
 
@@ -86,7 +86,7 @@ class CrfGrid:
 
 
 def build_grid(floor, cell_m: float = 0.5, max_step_m: float = 2.0, min_free_fraction: float = 0.5) -> CrfGrid:
-    """The grid of a :class:`blenav.data.building.Floor` (its occupancy, resolution and origin)."""
+    """The grid of a :class:`blenav.data.floor.Floor` (its occupancy, resolution and origin)."""
     return grid_from_occupancy(floor.occupancy, floor.resolution, tuple(floor.origin), cell_m, max_step_m,
                                min_free_fraction)
 

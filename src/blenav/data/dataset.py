@@ -11,7 +11,8 @@ from pathlib import Path
 
 from blenav.errors import DatasetError
 
-from .building import Building, load_yaml
+from .building import Building
+from .yaml_file import load_yaml
 from .issues import error, raise_or_log
 from .schema import FORMAT
 from .session import Session, check_session_files, check_session_meta

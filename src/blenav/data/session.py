@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .building import FLOOR_MAX_SIDE_M, OCCUPIED, Building, Floor, _floor_key
+from .building import Building
+from .building_files import FLOOR_MAX_SIDE_M
+from .floor import OCCUPIED, Floor, floor_key
 from .issues import MAX_ROWS_PER_RULE, Issue, error, raise_or_log, warning
 from .schema import (
     ANCHORED_STREAMS,
@@ -71,7 +73,7 @@ def check_session_meta(path: Path, doc: dict, buildings: dict) -> list[Issue]:
         if b is None or str(b) not in buildings:
             issues.append(error(path, "session-building", f"building {b!r} is not a folder under buildings/"))
         elif bld is not None and "floor" in doc:
-            if _floor_key(doc["floor"], declared) is None:
+            if floor_key(doc["floor"], declared) is None:
                 issues.append(error(path, "session-floor", f"floor {doc['floor']!r} is not a floor of building {b!r}"))
     return issues
 
@@ -178,7 +180,7 @@ def load_stream(root: Path, name: str, building: Building | None, labelled: bool
         issues += _check_imu_rate(path, df, reported)
     dropped: dict[str, int] = {}
     far: list[Issue] = []
-    if name in WORLD_POSITION_STREAMS and building is not None and _floor_key(floor_id, building.floors) is not None:
+    if name in WORLD_POSITION_STREAMS and building is not None and floor_key(floor_id, building.floors) is not None:
         far = positions_far_off_floor(path, df, building.floor(floor_id), reported)
         issues += far
     if name == "orientation":  # the phone's orientation estimate: normalised like ground-truth quaternions
@@ -187,7 +189,7 @@ def load_stream(root: Path, name: str, building: Building | None, labelled: bool
     if name == "groundtruth":
         df, more = _check_quaternions(path, df, reported)
         issues += more
-        if building is not None and _floor_key(floor_id, building.floors) is not None and not far:
+        if building is not None and floor_key(floor_id, building.floors) is not None and not far:
             issues += groundtruth_off_floor(path, df[~reported], building.floor(floor_id), building.id)
     if name in ANCHORED_STREAMS:
         n = len(df)

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .building import load_building, load_yaml
+from .building import load_building
 from .issues import Issue, error
 from .schema import FORMAT, STREAMS
 from .session import check_session_files, check_session_meta, load_stream
+from .yaml_file import load_yaml
 
 
 def validate(root: str | Path) -> list[Issue]:

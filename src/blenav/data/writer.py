@@ -19,7 +19,7 @@ from shapely.geometry import mapping
 
 from blenav.errors import DatasetError
 
-from .building import FREE, OCCUPIED
+from .floor import FREE, OCCUPIED
 from .schema import ANCHOR_COLUMNS, FORMAT, STREAMS
 from .tables import read_stream
 

@@ -16,7 +16,7 @@ import shapely
 from shapely.geometry import Polygon
 
 from blenav.data import FREE, OCCUPIED, UNKNOWN, validate
-from blenav.data.building import FLOOR_MAX_SIDE_M
+from blenav.data.building_files import FLOOR_MAX_SIDE_M
 from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM, T_MAX_S
 from blenav.errors import DatasetError, ImportError_
 

@@ -20,7 +20,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import shortest_path
 from shapely.geometry import LineString, box
 
-from blenav.data.building import FREE, OCCUPIED
+from blenav.data.floor import FREE, OCCUPIED
 
 
 @dataclass

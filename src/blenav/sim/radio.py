@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from blenav.data.building import OCCUPIED
+from blenav.data.floor import OCCUPIED
 
 from .receivers import TABLE_REF_1M_DBM, ReceiverProfile
 

@@ -17,7 +17,7 @@ import pandas as pd
 from scipy.ndimage import distance_transform_edt
 from shapely.geometry import box
 
-from blenav.data.building import OCCUPIED
+from blenav.data.floor import OCCUPIED
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
 from .config import SimConfig

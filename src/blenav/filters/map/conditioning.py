@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from blenav.data.building import FREE, OCCUPIED
+from blenav.data.floor import FREE, OCCUPIED
 
 from . import kernels as K
 

@@ -23,7 +23,8 @@ import numpy as np
 import shapely
 from scipy import ndimage
 
-from blenav.data.building import Building, Floor
+from blenav.data.building import Building
+from blenav.data.floor import Floor
 
 from . import conditioning, initial
 from .index import DEFAULT_INDEX, INDEX_KINDS, GridIndex, STRtreeIndex, SpatialIndex

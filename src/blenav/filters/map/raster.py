@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from blenav.data.building import Floor
+from blenav.data.floor import Floor
 
 
 def free_grid(floor: Floor, derive_resolution: float):

@@ -13,7 +13,7 @@ import shapely
 from scipy import ndimage
 from shapely.geometry import Polygon
 
-from blenav.data.building import Floor
+from blenav.data.floor import Floor
 
 from .raster import clearance, free_grid
 from .shapes import polygons_of

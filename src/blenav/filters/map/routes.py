@@ -12,7 +12,7 @@ import numpy as np
 from scipy import ndimage
 from shapely.geometry import LineString
 
-from blenav.data.building import Floor
+from blenav.data.floor import Floor
 
 from .raster import clearance, free_grid, px_to_world
 

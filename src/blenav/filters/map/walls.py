@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from blenav.data.building import FREE, OCCUPIED, Floor
+from blenav.data.floor import FREE, OCCUPIED, Floor
 
 from . import kernels as K
 
