@@ -11,14 +11,8 @@ import pytest
 from blenav.configs import compose
 
 from blenav.data import Dataset
-from blenav.filters.attitude import (
-    AttitudeConfig,
-    StreamingAttitude,
-    causal_median,
-    causal_median_numpy,
-    estimate_attitude,
-    estimate_hard_iron,
-)
+from blenav.filters.attitude import AttitudeConfig, StreamingAttitude, estimate_attitude, estimate_hard_iron
+from blenav.filters.median import causal_median, causal_median_numpy
 from blenav.sim.config import make_sim_config
 from blenav.sim.world import simulate
 

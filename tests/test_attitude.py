@@ -20,16 +20,15 @@ from blenav.data import Dataset
 from blenav.filters.attitude import (
     FILTERS,
     AttitudeConfig,
-    CausalMedian,
     StreamingAttitude,
-    causal_median,
     estimate_attitude,
     estimate_hard_iron,
     gravity_compensated_acc,
     misalignment_deg,
-    quat_to_matrix,
     yaw_of_device_forward,
 )
+from blenav.filters.median import CausalMedian, causal_median
+from blenav.filters.quaternions import quat_to_matrix
 from blenav.sim.config import make_sim_config
 from blenav.sim.world import simulate
 

@@ -429,7 +429,7 @@ class RadioInertialGraph:
 
 
 def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    from blenav.filters.attitude import quat_to_matrix
+    from blenav.filters.quaternions import quat_to_matrix
 
     return quat_to_matrix(q)
 

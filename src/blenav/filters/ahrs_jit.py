@@ -10,7 +10,7 @@ ahrs on a 384 s, 200 Hz session (tests/test_attitude.py): the quaternions agree 
 on most samples; a BLAS built otherwise rounds some dot products differently, which stays at that level:
 the filter is contracting).
 
-:func:`causal_median_jit` is :func:`blenav.filters.attitude.causal_median` (np.median over the padded
+:func:`causal_median_jit` is :func:`blenav.filters.median.causal_median` (np.median over the padded
 sliding window: the middle element, the mean of the two middle ones for an even window, NaN when the
 window holds a NaN) without the (T, d, w) window copy; same numbers bit for bit.
 

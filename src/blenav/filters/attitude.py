@@ -64,6 +64,9 @@ Accuracy on the simulator's ``small`` preset, 60 s, 200 Hz, seed 0 (tests/test_a
 misalignment after 5 s: with a calibrated magnetometer in a clean field 0.5-1.7 deg (Madgwick, Mahony)
 and 2.3-4.9 deg (EKF, which has no gyro-bias state); with the default indoor disturbances and a
 fitted hard-iron offset 15-17 deg on a pedestrian session, where the compass alone is 15 deg off.
+
+The quaternion algebra is :mod:`blenav.filters.quaternions`'s, the running median of step 2
+:mod:`blenav.filters.median`'s.
 """
 
 from __future__ import annotations
@@ -73,7 +76,9 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
+
+from .median import CausalMedian, causal_median
+from .quaternions import matrix_to_quat, qconj, qmul, qmul1, quat_to_matrix, qz
 
 GRAVITY = 9.80665
 
@@ -160,52 +165,6 @@ class AttitudeConfig:
             raise ValueError(f"median_window must be >= 1, got {self.median_window}")
 
 
-# ----------------------------------------------------------------------------------------- quaternions
-
-
-def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product of w-first quaternions, broadcasting over leading axes."""
-    pw, px, py, pz = np.moveaxis(np.asarray(p, float), -1, 0)
-    qw, qx, qy, qz = np.moveaxis(np.asarray(q, float), -1, 0)
-    return np.stack([pw * qw - px * qx - py * qy - pz * qz,
-                     pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx,
-                     pw * qz + px * qy - py * qx + pz * qw], axis=-1)
-
-
-def _qmul1(p, q) -> tuple[float, float, float, float]:
-    """Hamilton product of two single quaternions with Python floats (the per-sample path)."""
-    pw, px, py, pz = (float(v) for v in p)
-    qw, qx, qy, qz = (float(v) for v in q)
-    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
-
-
-def _qconj(q: np.ndarray) -> np.ndarray:
-    return np.asarray(q, float) * np.array([1.0, -1.0, -1.0, -1.0])
-
-
-def _qz(angle: float) -> np.ndarray:
-    return np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(..., 4) w-first quaternions (normalised here) -> (..., 3, 3) rotation matrices."""
-    q = np.asarray(q, float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
-
-
-def _matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    x, y, z, w = Rotation.from_matrix(R).as_quat()
-    return np.array([w, x, y, z]) * (1.0 if w >= 0 else -1.0)
-
-
 # ------------------------------------------------------------------------------------------- helpers
 
 
@@ -230,7 +189,7 @@ def misalignment_deg(q_est: np.ndarray, q_gt: np.ndarray) -> np.ndarray:
     b = np.asarray(q_gt, float)
     a = a / np.linalg.norm(a, axis=-1, keepdims=True)
     b = b / np.linalg.norm(b, axis=-1, keepdims=True)
-    rel = _qmul(_qconj(b), a)
+    rel = qmul(qconj(b), a)
     return np.degrees(2.0 * np.arctan2(np.linalg.norm(rel[..., 1:], axis=-1), np.abs(rel[..., 0])))
 
 
@@ -251,71 +210,12 @@ def estimate_hard_iron(mag: np.ndarray) -> np.ndarray:
     return c0 + sol[:3]
 
 
-def _median_windows(win: np.ndarray) -> np.ndarray:
-    """Median over the last axis; the one routine for batch and streaming (identical rounding)."""
-    return np.median(win, axis=-1)
-
-
-def causal_median(x: np.ndarray, window: int) -> np.ndarray:
-    """Causal running median (T, d) -> (T, d): out[k] = median(x[k-w+1 .. k]) per column, the window
-    padded with copies of x[0] before the start. Compiled (:func:`~blenav.filters.ahrs_jit.causal_median_jit`,
-    np.median's numbers bit for bit); :func:`causal_median_numpy` is the numpy reference."""
-    x = np.asarray(x, float)
-    if window <= 1 or len(x) == 0:
-        return x.copy()
-    from .ahrs_jit import causal_median_jit
-
-    return causal_median_jit(np.ascontiguousarray(x.reshape(len(x), -1)), int(window)).reshape(x.shape)
-
-
-def causal_median_numpy(x: np.ndarray, window: int) -> np.ndarray:
-    """:func:`causal_median` with np.median over the padded sliding window (the reference)."""
-    x = np.asarray(x, float)
-    if window <= 1 or len(x) == 0:
-        return x.copy()
-    padded = np.concatenate([np.repeat(x[:1], window - 1, axis=0), x], axis=0)
-    return _median_windows(sliding_window_view(padded, window, axis=0))  # (T, d, w)
-
-
-class CausalMedian:
-    """Streaming equivalent of :func:`causal_median` (bit-identical).
-
-    Per sample of a few axes, Python's sort of the window is ~10x faster than ``np.median``; the median is
-    the same number (the middle element, or the mean (a + b) / 2 of the two middle ones for an even window,
-    NaN when the window holds a NaN, as ``np.median``)."""
-
-    def __init__(self, window: int):
-        self.window = int(window)
-        self._buf: list[deque] | None = None  # per axis, the last ``window`` values, oldest first
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, float)
-        if self.window <= 1:
-            return x.copy()
-        vals = x.tolist()
-        if self._buf is None:
-            self._buf = [deque([v] * self.window, maxlen=self.window) for v in vals]
-        else:
-            for b, v in zip(self._buf, vals):
-                b.append(v)
-        return np.array([_median_of(b) for b in self._buf])
-
-
-def _median_of(values) -> float:
-    """``np.median`` of a short sequence of floats, in Python."""
-    s = sorted(values)
-    if any(v != v for v in s):
-        return float("nan")
-    n = len(s)
-    return s[n // 2] if n % 2 else (s[n // 2 - 1] + s[n // 2]) / 2
-
-
 def _ecompass_q(acc: np.ndarray, mag: np.ndarray) -> np.ndarray:
     """Device -> magnetic ENU quaternion from one accelerometer (pointing up at rest) and magnetometer
     sample: ahrs' ``ecompass(frame='ENU')`` builds R with rows east = m x a, north = a x east, up = a."""
     from ahrs.common.orientation import ecompass
 
-    return _matrix_to_quat(ecompass(np.asarray(acc, float), np.asarray(mag, float), frame="ENU",
+    return matrix_to_quat(ecompass(np.asarray(acc, float), np.asarray(mag, float), frame="ENU",
                                     representation="rotmat"))
 
 
@@ -341,7 +241,7 @@ class _Engine:
         self.cfg = cfg
         self.name = cfg.filter
         self.to_menu = _FRAME_TO_ENU[self.name]  # filter frame -> magnetic ENU
-        self.to_world = _qmul(_qz(-np.radians(cfg.declination_deg)), self.to_menu)  # filter frame -> world
+        self.to_world = qmul(qz(-np.radians(cfg.declination_deg)), self.to_menu)  # filter frame -> world
         self.jit = False  # Madgwick compiled (ahrs_jit) instead of the ahrs package's per-sample update
         if self.name == "madgwick":
             gain = cfg.gain if cfg.gain is not None else (0.041 if cfg.use_mag else 0.033)
@@ -369,7 +269,7 @@ class _Engine:
             self.mag_seen = True
         else:
             q_menu = np.asarray(acc2q(np.array(acc, float)), float)
-        self.q = _qmul(_qconj(self.to_menu), q_menu)
+        self.q = qmul(qconj(self.to_menu), q_menu)
         if self.name == "ekf":
             self._make_ekf(self._dip(acc, mag))
             self.f.mag = None if mag is None else np.empty((0, 3))
@@ -385,14 +285,14 @@ class _Engine:
     def _compass_error(self, mag: np.ndarray) -> float:
         """Heading correction (rad) that turns the estimate onto the compass: the magnetometer rotated into
         magnetic ENU by the estimate should point to +y (north)."""
-        w, x, y, z = _qmul1(self.to_menu, self.q)
+        w, x, y, z = qmul1(self.to_menu, self.q)
         hx = (1 - 2 * (y * y + z * z)) * mag[0] + 2 * (x * y - w * z) * mag[1] + 2 * (x * z + w * y) * mag[2]
         hy = 2 * (x * y + w * z) * mag[0] + (1 - 2 * (x * x + z * z)) * mag[1] + 2 * (y * z - w * x) * mag[2]
         return float(np.angle(np.exp(1j * (np.pi / 2 - np.arctan2(hy, hx)))))
 
     def _turn(self, angle: float) -> None:
         """Rotate the estimate by ``angle`` about the vertical (world z = filter z for every filter)."""
-        self.q = np.array(_qmul1(_qz(angle), self.q))
+        self.q = np.array(qmul1(qz(angle), self.q))
 
     def align_heading(self, acc: np.ndarray, mag: np.ndarray) -> None:
         """First magnetometer sample after an IMU-only start: rotate about world z to the compass."""
@@ -427,7 +327,7 @@ class _Engine:
                 if self.name == "mahony":
                     self._b_good = np.array(f.b, float)
             elif t - self._bad_since >= self.cfg.reset_s:
-                self.q = _qmul(_qconj(self.to_menu), _ecompass_q(acc, mag))  # re-initialise, tilt too
+                self.q = qmul(qconj(self.to_menu), _ecompass_q(acc, mag))  # re-initialise, tilt too
                 self._bad_since = None
                 if self.name == "mahony":  # its integral term absorbed the disagreement: undo that
                     f.b = self._b_good
@@ -492,7 +392,7 @@ class StreamingAttitude:
                 eng.align_heading(a, self._mag)
             eng.step(float(t), t - self._t, g, a, self._mag, mag_new)
         self._t = float(t)
-        return np.array(_qmul1(eng.to_world, eng.q))  # the numbers of _qmul, without its array overhead
+        return np.array(qmul1(eng.to_world, eng.q))  # the numbers of _qmul, without its array overhead
 
 
 def estimate_attitude(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag_t: np.ndarray | None = None,
@@ -544,4 +444,4 @@ def estimate_attitude(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag_t: np
             eng.step(t[k], t[k] - t[k - 1], g[k], a[k], mk, idx[k] != idx[k - 1])
         Q[k] = eng.q
         k += 1
-    return _qmul(eng.to_world, Q) if n else Q
+    return qmul(eng.to_world, Q) if n else Q

@@ -37,12 +37,12 @@ from numba import njit
 from .attitude import (
     AttitudeConfig,
     StreamingAttitude,
-    _median_of,
     estimate_attitude,
     gravity_compensated_acc,
     yaw_of_device_forward,
 )
 from .measurement import AnchorTable
+from .median import median_of
 
 
 @dataclass
@@ -148,7 +148,7 @@ def _window_controls(win_acc: np.ndarray, win_q: np.ndarray, median_window: int)
     it, the norm of q summed in order, R's entries as quat_to_matrix writes them, each row of R a summed as
     einsum does (p0 + p2) + p1, and np.arctan2 itself; a tenth of their time per streaming step."""
     tail = win_acc[-median_window:].tolist()
-    a0, a1, a2 = (_median_of([r[j] for r in tail]) for j in range(3))
+    a0, a1, a2 = (median_of([r[j] for r in tail]) for j in range(3))
     w, x, y, z = (float(v) for v in win_q[-1])
     n = math.sqrt(((w * w + x * x) + y * y) + z * z)
     w, x, y, z = w / n, x / n, y / n, z / n
