@@ -28,7 +28,8 @@ from blenav.cli.sim import run as sim_run
 from blenav.data import Dataset
 from blenav.eval.harness import build_methods
 from blenav.filters.calibration import apply_fit, fit_sessions
-from blenav.filters.runner import OnlineLocalizer, replay, run_session
+from blenav.filters.online import OnlineLocalizer, replay
+from blenav.filters.runner import run_session
 
 PAPER_ONE_RUN_S = 66.0
 BUDGET_S = 20.0  # 100 runs x 300 particles, PF-PS+MAP and IMU

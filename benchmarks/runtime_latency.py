@@ -100,7 +100,7 @@ class TorchGraph:
 
 def update_times(bundle, session, seed: int = 0) -> tuple[np.ndarray, list]:
     """(ms per update after WARM_S, the estimates) replaying ``session`` through ``bundle``'s push API."""
-    from blenav.filters.runner import replay
+    from blenav.filters.online import replay
 
     loc = bundle.localizer(session.building, floor=session.meta.get("floor"), seed=seed)
     events = [e for e in replay(session) if e[0] in ("rssi", "odo")]

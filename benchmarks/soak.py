@@ -130,7 +130,7 @@ def main() -> int:
         print(rl.build(Path(args.build_to))["bundle"])
         return 0
     pinned = rl.pin_one_core()
-    from blenav.filters.runner import replay
+    from blenav.filters.online import replay
     from blenav.runtime import Bundle
 
     tmp = tempfile.TemporaryDirectory(prefix="soak_")

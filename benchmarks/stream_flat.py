@@ -1,7 +1,7 @@
 """Streaming cost over one hour: the per-step cost of ``OnlineLocalizer`` must not grow with the stream's length.
 
 A 300 s office_45x55 session (79 beacons, 200 Hz IMU, magnetometer, inertial odometry) is replayed 12 times
-back to back (times shifted, so one 3,600 s stream) into one :class:`~blenav.filters.runner.OnlineLocalizer`
+back to back (times shifted, so one 3,600 s stream) into one :class:`~blenav.filters.online.OnlineLocalizer`
 (the IMU model with 1000 particles, as the streaming figure of ``filter_speed.py``). Each push that closes a
 filter step is timed (step assembly + filter step); the script prints the median over the steps of the first
 and of the last 60 s and their ratio (flat: about 1).
@@ -24,7 +24,7 @@ from blenav.cli.sim import run as sim_run
 from blenav.data import Dataset
 from blenav.eval.harness import build_methods
 from blenav.filters.calibration import apply_fit, fit_sessions
-from blenav.filters.runner import OnlineLocalizer, replay
+from blenav.filters.online import OnlineLocalizer, replay
 
 
 def tiled(events: list, period: float, n: int):

@@ -6,7 +6,7 @@ returns what the readers must do with the result:
 
 * ``SAME``: accept it, and everything read (every stream, anchor, floor, warning) is identical to the clean
   dataset's (``rename`` maps new ids back to the template's: anchors, sessions, buildings);
-* ``REFUSED``: refuse it with a :class:`blenav.data.DatasetError` naming a file of the dataset (and, when
+* ``REFUSED``: refuse it with a :class:`blenav.errors.DatasetError` naming a file of the dataset (and, when
   ``rules`` is given, with one of these rules);
 * ``DROPPED``: accept it and count exactly ``dropped`` rows in :attr:`Session.dropped`, else identical; or
   refuse it (an id the reader cannot use);
@@ -45,7 +45,6 @@ from blenav.data.schema import (
     plausible,
 )
 from blenav.data.writer import write_csv
-from blenav.errors import DatasetError
 from helpers import make_tiny_dataset
 
 _N = os.environ.get("BLENAV_FUZZ_EXAMPLES")

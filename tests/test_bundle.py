@@ -123,7 +123,7 @@ def test_bundle_graph_is_the_onnx_localizer_code(made):
 
 def test_push_api_matches_replay(made):
     """Samples pushed one by one give the rows run_session gives (the same engine)."""
-    from blenav.filters.runner import replay
+    from blenav.filters.online import replay
 
     b = Bundle.open(made["bundle"])
     s = Dataset.open(made["data"]).session(sorted(Dataset.open(made["data"]).session_ids)[1])

@@ -17,7 +17,8 @@ from blenav.data.writer import write_fixes
 from blenav.errors import MissingStream
 from blenav.eval.harness import build_methods, evaluate
 from blenav.filters.measurement import FixLikelihood
-from blenav.filters.runner import OnlineLocalizer, replay, run_session
+from blenav.filters.online import OnlineLocalizer, replay
+from blenav.filters.runner import run_session
 from helpers import simulate_small
 
 SOURCE = "gt+noise"

@@ -16,7 +16,8 @@ from blenav.eval.harness import build_methods
 from blenav.filters.calibration import apply_fit, fit_sessions
 from blenav.filters.motion import Pdr
 from blenav.filters.measurement import AnchorTable
-from blenav.filters.runner import OnlineLocalizer, magnetometer_offset, replay, run_session
+from blenav.filters.online import OnlineLocalizer, replay
+from blenav.filters.runner import magnetometer_offset, run_session
 from blenav.filters.steps import SessionArrays
 
 

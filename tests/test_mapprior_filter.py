@@ -24,7 +24,8 @@ from blenav.filters.map import MapGeometry, WallCrossing
 from blenav.filters.map_prior import (FeasibilityPrior, MapPriorLikelihood, attach_prior, heading_bins,
                                       rotated_windows)
 from blenav.filters.motion import MotionModel, OdometryIncrement
-from blenav.filters.runner import MapSpec, _Initializer, align_heading, run_session
+from blenav.filters.method import MapSpec
+from blenav.filters.runner import _Initializer, align_heading, run_session
 
 from helpers import make_tiny_dataset, simulate_small
 

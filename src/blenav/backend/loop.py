@@ -30,7 +30,8 @@ import numpy as np
 import pandas as pd
 
 from blenav.filters.estimate import Estimate
-from blenav.filters.runner import BatchRun, Method
+from blenav.filters.method import Method
+from blenav.filters.runner import BatchRun
 
 from .config import BackendConfig
 from .graph import smooth

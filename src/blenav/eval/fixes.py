@@ -50,7 +50,8 @@ import pandas as pd
 
 from blenav.errors import MissingStream
 from blenav.filters.measurement import FixLikelihood
-from blenav.filters.runner import Method, run_session
+from blenav.filters.method import Method
+from blenav.filters.runner import run_session
 from blenav.features.windows import spread_beacons
 from blenav.localizers import ParticleFilterLocalizer
 

@@ -12,7 +12,9 @@
   odometry-frame heading bins and an odometry window; a non-learned reference prior;
 - :mod:`~blenav.filters.attitude`: AHRS (Madgwick, Mahony, EKF from the ``ahrs`` package) after a median prefilter;
 - :mod:`~blenav.filters.steps`: sensor streams -> per-step controls and observations (batch and streaming);
-- :mod:`~blenav.filters.runner`: one method on one session for R runs, and the streaming ``OnlineLocalizer``;
+- :mod:`~blenav.filters.method`: what one method is (``Method``, its ``MapSpec``); :mod:`~blenav.filters.runner`: one
+  method on one session for R runs; :mod:`~blenav.filters.online`: the same, sample by sample (``OnlineLocalizer``);
+  :mod:`~blenav.filters.estimate`: the ``Estimate`` they and every localizer return;
 - :mod:`~blenav.filters.calibration`: path-loss fit from labelled sessions (``blenav-calibrate``);
 - :mod:`~blenav.filters.memory`: malloc settings that keep the filter's per-step temporaries off fresh pages.
 """

@@ -168,7 +168,7 @@ class OdometryIncrement(MotionModel):
     state_dim = 5
     needs = ("odo",)
     #: state column of the odometry-to-world frame angle (read by the map prior's heading bins and set by an
-    #: oracle start, see :class:`blenav.filters.runner.MapSpec` ``heading``)
+    #: oracle start, see :class:`blenav.filters.method.MapSpec` ``heading``)
     frame_angle_col = 4
 
     def init_state(self, xy, rng):

@@ -1,18 +1,18 @@
 """Run one localization method on one session for R independent runs (the batch API).
 
-A :class:`Method` bundles the components a run builds: the algorithm settings
+A :class:`~blenav.filters.method.Method` bundles the components a run builds: the algorithm settings
 (:class:`~blenav.filters.engine.FilterConfig`), a motion model, measurement models, the map spec
 (initialisation, resampling conditioning, wall crossing) and the AHRS settings. :func:`run_session`
-returns every run's estimates at every step; :class:`OnlineLocalizer` is the streaming API that gives
-the same answer for the same seed.
+returns every run's estimates at every step (:class:`~blenav.filters.estimate.Estimate`); :class:`BatchRun`
+is the same run in pieces; :class:`blenav.filters.online.OnlineLocalizer` is the streaming API that gives
+the same answer for the same seed. This module also builds the filter of a method on a session
+(:func:`build_filter`: anchors, map geometry, initializer, conditioning, obstacle rules) for both.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
-from enum import StrEnum
-from typing import Optional
+from dataclasses import replace
 
 import numpy as np
 
@@ -21,103 +21,12 @@ from blenav.errors import MissingStream
 
 from .attitude import AttitudeConfig, estimate_hard_iron
 from .constraints import ObstacleRules
-from .engine import FilterConfig, Initializer, ParticleFilter
+from .engine import Initializer, ParticleFilter
 from .estimate import Estimate
 from .map import MapGeometry, WallCrossing
 from .measurement import AnchorTable
-from .steps import SessionArrays, StepDetectorConfig, StepStream, imu_features, session_steps
-
-
-class InitMode(StrEnum):
-    """``map.init``: where particles start (see :class:`MapSpec`)."""
-
-    uniform = "uniform"
-    map = "map"
-    fix = "fix"
-    groundtruth = "groundtruth"
-
-
-class HeadingMode(StrEnum):
-    """``map.heading``: the odometry frame angle at the start (see :class:`MapSpec`)."""
-
-    motion = "motion"
-    groundtruth = "groundtruth"
-
-
-class MapIndex(StrEnum):
-    """``map.index``: the spatial index of the map conditioning (:mod:`blenav.filters.map.index`)."""
-
-    grid = "grid"
-    strtree = "strtree"
-
-
-INIT_MODES = tuple(m.value for m in InitMode)
-HEADING_MODES = tuple(m.value for m in HeadingMode)
-
-
-@dataclass
-class MapSpec:
-    """How a method uses the floor plan.
-
-    init: 'uniform' (global localization over free space, 000), 'map' (Patel et al. eq. 3:
-    beta on navigation edges with sigma_nav, the rest in rooms with sigma_rm), 'fix' (Roy section 3.2:
-    N(start, init_sigma_m^2 I) around the first position fix of ``init_fix_source``, by default the source
-    of the method's first fix likelihood; Roy starts "around the true starting location obtained from the
-    BLE localization model" with sigma = 0.01 m) or 'groundtruth' (the same around the ground-truth
-    position at the session's start: an oracle start for methods without any absolute measurement, e.g.
-    odometry alone, as inertial-odometry evaluations do); condition: project resampled particles onto
-    edges / shrunk rooms (eqs. 4-5) with jitter ``sigma``; walls: penalise steps through obstacles (weight
-    factor exp(filter.wall_log_penalty)).
-
-    heading: 'motion' (the motion model's own initial frame angle: uniform in [-pi, pi) for
-    :class:`~blenav.filters.motion.OdometryIncrement`, whose odometry frame is arbitrary) or 'groundtruth'
-    (oracle: the rotation from the odometry frame to the world that best maps the odometry displacements
-    onto the ground-truth ones over the first ``align_s`` seconds (least squares, 2 Hz samples; the whole
-    session when the walker moved less than 1 m by then), plus N(0, init_heading_sigma^2); only for
-    motion models with a frame-angle column, others ignore it).
-    """
-
-    init: InitMode = InitMode.uniform
-    beta: float = 0.8
-    sigma_nav: float = 2.0
-    sigma_rm: float = 1.0
-    condition: bool = False
-    sigma: float = 0.3
-    max_edge_dist: float = 3.0
-    shrink: float = 1.0
-    walls: bool = False
-    index: MapIndex = MapIndex.grid
-    init_sigma_m: float = 0.01
-    init_fix_source: Optional[str] = None
-    heading: HeadingMode = HeadingMode.motion
-    align_s: float = 10.0
-    init_heading_sigma: float = 0.0
-
-
-@dataclass
-class Method:
-    name: str
-    filter: FilterConfig
-    motion: object
-    measurements: list
-    map: MapSpec = field(default_factory=MapSpec)
-    attitude: AttitudeConfig = field(default_factory=AttitudeConfig)
-    steps: StepDetectorConfig = field(default_factory=StepDetectorConfig)
-    #: BLE anchor ids the measurement models may use (None: every BLE anchor of the building); packets of
-    #: other anchors are dropped, as if those beacons were absent (the sparse-beacon rows of Roy, Table 3.7)
-    beacons: Optional[tuple] = None
-
-    @property
-    def needs_imu(self) -> bool:
-        return any(n in self.motion.needs for n in ("acc_w", "heading", "steps"))
-
-    @property
-    def needs_odometry(self) -> bool:
-        return "odo" in self.motion.needs or bool(self.measurements_needing("odo"))
-
-    def measurements_needing(self, stream: str) -> list:
-        """The measurement models that read ``stream`` ('rssi', 'fixes')."""
-        return [m for m in self.measurements if stream in m.needs]
+from .method import HEADING_MODES, INIT_MODES, MapSpec, Method, require_models
+from .steps import SessionArrays, StepDetectorConfig, imu_features, session_steps
 
 
 class _Initializer(Initializer):
@@ -225,15 +134,6 @@ def obstacle_rules(method: Method, session: Session) -> list[ObstacleRules]:
                           reinit_fraction=f.reinit_fraction, reinit_radius_m=f.reinit_radius_m)]
 
 
-def _missing_model(method: Method) -> None:
-    """Raise :class:`MissingStream` when a component of ``method`` is unavailable (e.g. a learned map prior
-    that was not given): models say so by ``missing_reason() -> str | None``."""
-    for m in method.measurements:
-        reason = m.missing_reason()
-        if reason:
-            raise MissingStream(f"{method.name}: {reason}")
-
-
 def align_heading(odo_t: np.ndarray, odo: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray, t0: float,
                   align_s: float = 10.0, min_path_m: float = 1.0) -> float:
     """Rotation (rad) from the odometry frame to the world that best maps odometry displacements onto
@@ -316,7 +216,7 @@ class BatchRun:
     def __init__(self, method: Method, session: Session, n_runs: int, seed: int,
                  geom: MapGeometry | None = None, cache: dict | None = None, fixes=None, odometry=None):
         self.t0 = time.perf_counter()
-        _missing_model(method)
+        require_models(method)
         self.method, self.session, self.cache = method, session, cache
         for m in method.measurements:  # a receiver offset of an earlier run (closed loop) does not carry over
             m.set_receiver_offset(0.0)
@@ -470,90 +370,3 @@ def session_imu(session_id: str, arrays: SessionArrays, att: AttitudeConfig, ste
         if cache is not None:
             cache[key] = imu
     return imu
-
-
-class OnlineLocalizer:
-    """Streaming API: push sensor samples in time order; each closed step yields estimates.
-
-    For a given seed it reproduces :func:`run_session` exactly when fed the same session through
-    :func:`replay` (magnetometer samples before IMU samples of the same time stamp).
-    """
-
-    def __init__(self, method: Method, session_meta_building: Session, n_runs: int, seed: int,
-                 t_start: float = 0.0, imu_rate_hz: float = 200.0, mag_offset: np.ndarray | None = None,
-                 start_xy: np.ndarray | None = None, start_theta: float | None = None):
-        """``start_xy`` (2,) world m / ``start_theta`` rad: the known start for ``map.init`` 'fix' or
-        'groundtruth' and ``map.heading`` 'groundtruth' (a live localizer gets them from its caller)."""
-        self.method = method
-        _missing_model(method)
-        rng = np.random.default_rng(seed)
-        self.pf, anchors, self.geom = build_filter(method, session_meta_building, n_runs, rng)
-        self.pf.initializer.start_xy, self.pf.initializer.start_theta = start_xy, start_theta
-        self.stream = StepStream(anchors, method.filter.rate_hz, method.attitude, method.steps, t_start, imu_rate_hz,
-                                 method.needs_imu, mag_offset)
-        self.pf.initialize(t_start)
-
-    def _run(self, steps):
-        return [self.pf.step(t, c, o) for t, c, o in steps]
-
-    def push_imu(self, t, acc, gyr):
-        return self._run(self.stream.push_imu(t, acc, gyr))
-
-    def push_mag(self, t, mag):
-        return self._run(self.stream.push_mag(t, mag))
-
-    def push_rssi(self, t, anchor_id, rssi):
-        return self._run(self.stream.push_rssi(t, anchor_id, rssi))
-
-    def push_odometry(self, t, xy):
-        return self._run(self.stream.push_odometry(t, xy))
-
-    def push_fix(self, t, x, y, std=None, source=None):
-        """A position fix from another localizer: world x, y (m), std (m, None when unknown), source name.
-
-        A :class:`~blenav.filters.measurement.FixLikelihood` with ``source`` set uses only fixes pushed
-        with that source; with ``source=None`` it uses every fix."""
-        return self._run(self.stream.push_fix(t, x, y, std, source))
-
-    def push_event(self, e: tuple):
-        """Push one event of :func:`replay` (dispatch on its kind)."""
-        kind = e[0]
-        if kind == "imu":
-            return self.push_imu(e[1], e[2], e[3])
-        if kind == "mag":
-            return self.push_mag(e[1], e[2])
-        if kind == "rssi":
-            return self.push_rssi(e[1], e[2], e[3])
-        if kind == "odo":
-            return self.push_odometry(e[1], e[2])
-        if kind == "fix":
-            return self.push_fix(e[1], e[2], e[3], e[4], e[5])
-        raise ValueError(f"unknown event kind {kind!r}")
-
-    def close(self, t_end):
-        return self._run(self.stream.close(t_end))
-
-
-def replay(session: Session):
-    """The session's samples as one time-ordered event list (kind, t, payload...).
-
-    Kinds: ('mag', t, m), ('odo', t, xy), ('rssi', t, anchor_id, rssi), ('fix', t, x, y, std | None,
-    source | None), ('imu', t, acc, gyr); :meth:`OnlineLocalizer.push_event` dispatches them.
-    """
-    ev = []
-    imu, mag, r, odo, fx = session.imu, session.mag, session.rssi, session.odometry, session.fixes
-    order = {"mag": 0, "odo": 1, "rssi": 2, "fix": 3, "imu": 4}
-    for row in mag.itertuples(index=False):
-        ev.append(("mag", row.t, np.array([row.mx, row.my, row.mz])))
-    for row in odo.itertuples(index=False):
-        ev.append(("odo", row.t, np.array([row.x, row.y])))
-    for row in r.itertuples(index=False):
-        ev.append(("rssi", row.t, str(row.anchor_id), float(row.rssi)))
-    for t, x, y, std, src in zip(fx["t"].to_numpy(float), fx["x"].to_numpy(float), fx["y"].to_numpy(float),
-                                 fx["std"].to_numpy(float), fx["source"].to_numpy(object)):
-        ev.append(("fix", float(t), float(x), float(y), None if np.isnan(std) else float(std),
-                   None if not isinstance(src, str) else src))
-    for row in imu.itertuples(index=False):
-        ev.append(("imu", row.t, np.array([row.ax, row.ay, row.az]), np.array([row.gx, row.gy, row.gz])))
-    ev.sort(key=lambda e: (e[1], order[e[0]]))
-    return ev

@@ -5,7 +5,7 @@ Config node (``conf/localizer/particle_filter.yaml`` gives the target)::
     _target_: blenav.localizers.ParticleFilterLocalizer
     motion: {_target_: ..., ...}            # a blenav.filters.motion.MotionModel
     measurements: {NAME: {_target_: ...}}   # blenav.filters.measurement.MeasurementModel objects
-    map: {...}                              # blenav.filters.runner.MapSpec
+    map: {...}                              # blenav.filters.method.MapSpec
     filter: {...}                           # overrides of the experiment's filter (FilterConfig)
     attitude: {...}                         # overrides of the experiment's AHRS settings (AttitudeConfig)
     steps: {...}                            # step detector (StepDetectorConfig)
@@ -27,7 +27,8 @@ from blenav.filters.calibration import apply_fit
 from blenav.filters.engine import FilterConfig
 from blenav.filters import map_prior
 from blenav.filters.measurement import FixLikelihood, MeasurementModel
-from blenav.filters.runner import MapSpec, Method, run_session
+from blenav.filters.method import MapSpec, Method
+from blenav.filters.runner import run_session
 from blenav.filters.steps import StepDetectorConfig
 
 from .base import Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext
@@ -56,7 +57,7 @@ def _reason(exc: Exception) -> str:
 
 
 class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelConsumer):
-    """A SIR particle filter (:class:`blenav.filters.runner.Method` run by
+    """A SIR particle filter (:class:`blenav.filters.method.Method` run by
     :func:`blenav.filters.runner.run_session`): R runs batched, estimates at every filter step.
 
     ``outputs``: ``n_eff`` (R, K) and, when the motion model runs an AHRS, ``attitude`` (its orientation)."""

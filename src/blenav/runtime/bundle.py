@@ -126,12 +126,12 @@ def _dataclass(cls, node: dict | None, where: str):
 
 
 def build_method(settings: dict, prior=None):
-    """The :class:`blenav.filters.runner.Method` of a bundle's settings; ``prior``: a map prior (or None)."""
+    """The :class:`blenav.filters.method.Method` of a bundle's settings; ``prior``: a map prior (or None)."""
     from blenav.filters.attitude import AttitudeConfig
     from blenav.filters.engine import EstimateMode, FilterConfig, Resampling
     from blenav.filters.map_prior import MapPriorLikelihood
     from blenav.filters.measurement import FixLikelihood
-    from blenav.filters.runner import HeadingMode, InitMode, MapSpec, Method
+    from blenav.filters.method import HeadingMode, InitMode, MapSpec, Method
     from blenav.filters.steps import StepDetectorConfig
 
     f = _dataclass(FilterConfig, settings.get("filter"), "filter")
@@ -283,7 +283,7 @@ class BundleLocalizer:
         return self._online is not None
 
     def _start(self) -> list[TrackPoint]:
-        from blenav.filters.runner import OnlineLocalizer
+        from blenav.filters.online import OnlineLocalizer
 
         self._online = OnlineLocalizer(self.method, self._ctx, 1, self.seed, t_start=float(self._t_start),
                                        mag_offset=self._mag_offset, start_xy=self._start_xy,
@@ -344,7 +344,7 @@ class BundleLocalizer:
         return self._push(("mag", float(t), np.asarray(mag, float)))
 
     def push_event(self, ev: tuple) -> list[TrackPoint]:
-        """One event of :func:`blenav.filters.runner.replay` (fix events are not taken: the bundle makes its own)."""
+        """One event of :func:`blenav.filters.online.replay` (fix events are not taken: the bundle makes its own)."""
         if ev[0] == "fix":
             return []
         return self._push(ev)
@@ -450,7 +450,7 @@ class Bundle:
         """Replay a recorded session through :meth:`localizer` (its own fixes, fixes.csv is not read); calls
         ``on_total(n)`` once with the number of samples to replay, ``on_estimate`` with each estimate as it is made
         and ``on_event(n)`` after every n samples (progress)."""
-        from blenav.filters.runner import replay
+        from blenav.filters.online import replay
 
         self.check_session(session)
         firsts = [float(f["t"].iloc[0]) for f in (session.imu, session.rssi, session.odometry) if len(f)]
