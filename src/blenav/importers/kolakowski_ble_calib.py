@@ -125,34 +125,25 @@ from shapely.geometry import MultiLineString, Polygon
 
 from blenav.data import FREE, OCCUPIED, UNKNOWN
 from blenav.data.building import Building
-from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
-from blenav.errors import ImportError_
-
 from . import ImportReport
-from ._common import (
-    FAR_TIME,
-    check_out,
-    drop_rssi,
-    first_true,
-    grid_covering,
-    parse_numbers,
-    pixel_centres,
-    raise_at,
-    raise_far,
-    read_cells,
-    read_lines,
-    source_line,
-    split_cells,
-    validate_or_raise,
+from ._common import check_out, grid_covering, pixel_centres, source_line, validate_or_raise
+from .kolakowski_raw import (
+    SYSTEM_IDS,
+    Df,
+    df_rssi,
+    mapping_check,
+    packet_rssi,
+    read_anchors,
+    read_df,
+    read_layout,
+    read_reference_path,
+    read_system_log,
 )
 
 BUILDING_ID = "kolakowski_flat"
 DEVICE_MODEL = "kolakowski-tag"
-#: system ids of the anchors in the logs, in the order of anchors.csv ids 1..6.
-SYSTEM_IDS = (3, 4, 5, 8, 10, 11)
-TAG_ID = 1
 #: tag height on the robot's pole (m) (upstream description).
 TAG_HEIGHT_M = 1.3
 RESOLUTION_M = 0.05
@@ -160,196 +151,9 @@ WALL_M = 0.15
 PAD_M = 0.3
 #: a new calibration run starts where the df index does not increase or time jumps by more than this (s).
 RUN_GAP_S = 60.0
-NOT_RECEIVED = 0
 CHANNEL_MODEL = ("fixed receiver (two Laird BL652 modules, perpendicular polarisations, averaged in the df files); "
                  "mobile tag transmits (reciprocal link)")
-_RANGE = f"(outside ({RSSI_MIN_DBM:g}, {RSSI_MAX_DBM:g}) dBm)"
 SOURCE_DEFAULT = "Kolakowski, BLE RSS dataset for fingerprinting radio map calibration, Zenodo 10.5281/zenodo.5457591"
-
-
-# --------------------------------------------------------------------------------------------------
-# the raw files
-
-
-def read_anchors(path: Path) -> pd.DataFrame:
-    cells, first = read_cells(path, 4, header=("id", "x", "y", "z"), require_rows=True)
-    ids = parse_numbers(path, cells[:, :1], first, ("id",), integer=True)[:, 0].astype(np.int64)
-    raise_at(path, pd.Series(ids).duplicated().to_numpy(bool), first,
-             lambda r, c: f"anchor id {ids[r]} appears twice")
-    raise_at(path, (ids < 1) | (ids > len(SYSTEM_IDS)), first,
-             lambda r, c: f"anchor id {ids[r]} is not in 1..{len(SYSTEM_IDS)} (the ids mapped to system ids "
-                          f"{SYSTEM_IDS})")
-    if len(ids) != len(SYSTEM_IDS):
-        raise ImportError_(path, None, f"{len(ids)} anchors, expected {len(SYSTEM_IDS)}")
-    xyz = parse_numbers(path, cells[:, 1:], first, ("x", "y", "z"))
-    return pd.DataFrame({"anchor_id": ids.astype(str), "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
-                         "system_id": np.asarray(SYSTEM_IDS)[ids - 1]})
-
-
-def read_layout(path: Path) -> Polygon:
-    cells, first = read_cells(path, 2, header=("x", "y"), require_rows=True)
-    xy = parse_numbers(path, cells, first, ("x", "y"))
-    raise_far(path, xy, first, ("column 'x'", "column 'y'"))
-    poly = Polygon(xy)
-    if len(xy) < 4 or not poly.is_valid or poly.area <= 0:
-        raise ImportError_(path, None, "the wall vertices do not form a valid polygon")
-    return poly
-
-
-def read_reference_path(path: Path) -> MultiLineString:
-    """The walked reference path: one 2-point LineString per row, in file order (m)."""
-    cells, first = read_cells(path, 4, header=("x0", "y0", "x1", "y1"), require_rows=True)
-    v = parse_numbers(path, cells, first, ("x0", "y0", "x1", "y1"))
-    raise_at(path, np.hypot(v[:, 2] - v[:, 0], v[:, 3] - v[:, 1]) <= 0, first, lambda r, c: "segment has zero length")
-    return MultiLineString([[(a, b), (c, d)] for a, b, c, d in v])
-
-
-def read_system_log(path: Path, report: ImportReport) -> pd.DataFrame:
-    """BLE packets of a ``*_ble.txt`` log: t_s (unix s), system_id, module, tag, tag_counter, rssi, raw_line.
-
-    File order, then packet order within the line. Faulty frames, other tags and RSSI 0 are dropped
-    and counted in ``report``.
-    """
-    lines = read_lines(path)
-    if not lines:
-        raise ImportError_(path, None, "file is empty")
-    s = pd.Series(lines, dtype=object)
-    blank = s.str.strip().eq("").to_numpy(bool)
-    bad = first_true(blank)
-    if bad is not None:
-        raise ImportError_(path, bad + 1, "blank line")
-    tok = s.str.split("\t", expand=True)
-    ntok = tok.notna().sum(axis=1).to_numpy(np.int64)
-    bad = first_true(ntok < 7)
-    if bad is not None:
-        raise ImportError_(path, bad + 1, f"{ntok[bad]} tab-separated fields, expected at least 7")
-    num = pd.DataFrame({c: pd.to_numeric(tok[c].str.strip(), errors="coerce") for c in tok.columns}).to_numpy(float)
-    badcell = tok.notna().to_numpy() & ~(np.isfinite(num) & (num == np.round(num)))
-    r = first_true(badcell.any(axis=1))
-    if r is not None:
-        c = int(np.flatnonzero(badcell[r])[0])
-        raise ImportError_(path, r + 1, f"field {c + 1}: {tok.iat[r, c]!r} is not an integer")
-    raise_far(path, num[:, :1] / 1000.0, 1, ("field 1 (ts, unix ms / 1000)",), **FAR_TIME)
-    b, u = num[:, 5].astype(np.int64), num[:, 6].astype(np.int64)
-    expected = 7 + 8 * b + 4 * u
-    bad = first_true((b < 0) | (u < 0) | (ntok != expected))
-    if bad is not None:
-        raise ImportError_(path, bad + 1, f"{ntok[bad]} fields, but the line announces {b[bad]} BLE and {u[bad]} "
-                           f"UWB packets ({expected[bad]} fields)")
-    faulty = num[:, 3] < 12 * b + 8 * u + 19
-    report.drop(f"BLE packets in frames the authors' loader flags as faulty (declared length too short) "
-                f"in {path.name}", int(b[faulty].sum()))
-    parts = []
-    for k in range(int(b.max(initial=0))):
-        rows = np.flatnonzero((b > k) & ~faulty)
-        c0 = 7 + 8 * k
-        parts.append(pd.DataFrame({"raw_line": rows + 1, "k": k, "t_s": num[rows, 0] / 1000.0,
-                                   "system_id": num[rows, 1].astype(np.int64),
-                                   "module": num[rows, c0].astype(np.int64), "tag": num[rows, c0 + 1].astype(np.int64),
-                                   "tag_counter": num[rows, c0 + 2].astype(np.int64), "rssi": num[rows, c0 + 3]}))
-    if not parts:
-        raise ImportError_(path, None, "no BLE packets")
-    pk = pd.concat(parts).sort_values(["raw_line", "k"], kind="stable").reset_index(drop=True)
-    other = (pk["tag"] != TAG_ID).to_numpy()
-    report.drop(f"BLE packets of a tag other than {TAG_ID} in {path.name}", int(other.sum()))
-    pk = pk[~other]
-    unknown = ~pk["system_id"].isin(SYSTEM_IDS).to_numpy()
-    if unknown.any():
-        r = int(pk["raw_line"].to_numpy()[unknown][0])
-        raise ImportError_(path, r, f"anchor system id {int(pk['system_id'].to_numpy()[unknown][0])} is not one of "
-                           f"{SYSTEM_IDS}")
-    rssi = pk["rssi"].to_numpy()
-    keep = drop_rssi(report, rssi, rssi == NOT_RECEIVED, f"BLE packets with RSSI 0 (not received) in {path.name}",
-                     f"BLE packets with an invalid RSSI {_RANGE} in {path.name}")
-    pk = pk[keep]
-    return pk.iloc[np.argsort(pk["t_s"].to_numpy(), kind="stable")].reset_index(drop=True)
-
-
-@dataclass
-class _Df:
-    path: Path
-    index: np.ndarray        # the unnamed first column
-    t_s: np.ndarray          # unix s
-    cols: dict               # x, y, heading -> float arrays (present ones)
-    rssi: pd.DataFrame       # columns = anchors.csv ids "1".."6", NaN = not received
-    lines: np.ndarray        # 1-based file lines
-
-
-def read_df(path: Path, position: tuple[str, ...]) -> _Df:
-    """A preprocessed ``*_df.csv``: unnamed index, ``ts`` (unix ns), ``position`` columns, ``rssi_<id>``."""
-    lines = read_lines(path)
-    if not lines:
-        raise ImportError_(path, None, "file is empty")
-    names = [c.strip() for c in lines[0].split(",")]  # any header; the columns are looked up by name
-    if len(lines) == 1:
-        raise ImportError_(path, None, "file has a header but no rows")
-    cells = split_cells(path, lines[1:], 2, len(names))
-    if names[0] != "" or "ts" not in names:
-        raise ImportError_(path, 1, "expected an unnamed first (index) column and a 'ts' column")
-    missing = [c for c in position if c not in names]
-    if missing:
-        raise ImportError_(path, 1, f"header lacks column(s) {', '.join(missing)}")
-    rcols = [n for n in names if n.startswith("rssi_")]
-    try:
-        suffix = [int(n[5:]) for n in rcols]
-    except ValueError:
-        raise ImportError_(path, 1, f"rssi columns must be rssi_<integer id>, got {rcols}") from None
-    if set(suffix) == set(SYSTEM_IDS):
-        ids = [str(SYSTEM_IDS.index(s) + 1) for s in suffix]
-    elif suffix and set(suffix) <= set(range(1, len(SYSTEM_IDS) + 1)):
-        ids = [str(s) for s in suffix]
-    else:
-        raise ImportError_(path, 1, f"rssi columns {rcols} name neither anchors 1..6 nor system ids {SYSTEM_IDS}")
-    col = {n: k for k, n in enumerate(names)}
-    index = parse_numbers(path, cells[:, :1], 2, ("(index)",), integer=True)[:, 0]
-    ts = parse_numbers(path, cells[:, [col["ts"]]], 2, ("ts",))[:, 0]
-    raise_far(path, ts / 1e9, 2, ("column 'ts' (unix ns / 1e9)",), **FAR_TIME)
-    raise_at(path, np.diff(ts) < 0, 3, lambda r, c: "'ts' goes backwards (earlier than the line before)")
-    pv = parse_numbers(path, cells[:, [col[c] for c in position]], 2, position)
-    pos = {c: pv[:, k] for k, c in enumerate(position)}
-    rv = parse_numbers(path, cells[:, [col[n] for n in rcols]], 2, rcols, nullable=True)
-    rssi = pd.DataFrame({i: rv[:, k] for k, i in enumerate(ids)})
-    return _Df(path, index, ts / 1e9, pos, rssi, np.arange(2, len(cells) + 2))
-
-
-def _df_rssi(df: _Df, sel: np.ndarray, t0: float, report: ImportReport, what: str) -> pd.DataFrame:
-    """Long rssi rows (t, anchor_id, rssi, raw_line) of the df rows ``sel``; empty cells are not rows."""
-    r = df.rssi.iloc[sel]
-    long = pd.DataFrame({
-        "t": np.repeat(df.t_s[sel] - t0, r.shape[1]),
-        "anchor_id": np.tile(np.asarray(r.columns, dtype=object), len(r)),
-        "rssi": r.to_numpy().ravel(),
-        "raw_line": np.repeat(df.lines[sel], r.shape[1]),
-    })
-    v = long["rssi"].to_numpy()
-    keep = drop_rssi(report, v, np.isnan(v), f"empty rssi cells (not received; no row) in {what}",
-                     f"rssi cells with an invalid RSSI {_RANGE} in {what}")
-    return long[keep].reset_index(drop=True)
-
-
-def _packet_rssi(pk: pd.DataFrame, t0: float) -> pd.DataFrame:
-    return pd.DataFrame({"t": pk["t_s"].to_numpy() - t0,
-                         "anchor_id": (np.searchsorted(SYSTEM_IDS, pk["system_id"].to_numpy()) + 1).astype(str),
-                         "rssi": pk["rssi"].to_numpy().astype(np.int64),
-                         "module": pk["module"].to_numpy(), "system_id": pk["system_id"].to_numpy(),
-                         "tag_counter": pk["tag_counter"].to_numpy(), "raw_line": pk["raw_line"].to_numpy()})
-
-
-def mapping_check(pk: pd.DataFrame, df: _Df) -> tuple[bool, float]:
-    """Whether each system id's per-second mean RSSI correlates best with the df column it maps to.
-
-    Returns ``(all_match, smallest matching correlation)``.
-    """
-    m = pk.assign(sec=np.floor(pk["t_s"]).astype(np.int64)).groupby(["sec", "system_id"])["rssi"].mean().unstack()
-    d = df.rssi.assign(sec=np.floor(df.t_s).astype(np.int64)).groupby("sec").mean()
-    j = m.join(d, how="inner")
-    ok, worst = True, 1.0
-    for s in m.columns:
-        corr = {a: j[s].corr(j[a]) for a in d.columns}
-        want = str(SYSTEM_IDS.index(s) + 1)
-        ok &= max(corr, key=lambda a: -np.inf if np.isnan(corr[a]) else corr[a]) == want
-        worst = min(worst, corr[want])
-    return bool(ok), float(worst)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -372,7 +176,7 @@ def rasterise(poly: Polygon) -> tuple[np.ndarray, tuple[float, float]]:
 # import
 
 
-def _gt(df: _Df, sel: np.ndarray, t0: float) -> pd.DataFrame:
+def _gt(df: Df, sel: np.ndarray, t0: float) -> pd.DataFrame:
     return pd.DataFrame({"t": df.t_s[sel] - t0, "x": df.cols["x"][sel], "y": df.cols["y"][sel], "z": TAG_HEIGHT_M,
                          "qw": np.nan, "qx": np.nan, "qy": np.nan, "qz": np.nan,
                          "heading": df.cols["heading"][sel], "raw_line": df.lines[sel]})
@@ -387,10 +191,10 @@ class _Raw:
     ref_path: MultiLineString    # walked reference path (m)
     robot_pk: pd.DataFrame       # packets of tests/test_robot_ble.txt (see read_system_log)
     walk_pk: pd.DataFrame        # packets of tests/test_walk_ble.txt
-    robot_df: _Df
-    walk_df: _Df
-    calib: _Df                   # calibration/calibration_df.csv (four runs)
-    old: _Df                     # calibration/calib_df.csv (unaligned frame)
+    robot_df: Df
+    walk_df: Df
+    calib: Df                   # calibration/calibration_df.csv (four runs)
+    old: Df                     # calibration/calib_df.csv (unaligned frame)
 
 
 def _read_raw(src: Path, report: ImportReport) -> _Raw:
@@ -422,7 +226,7 @@ def _note_mapping_checks(raw: _Raw, report: ImportReport) -> None:
 _Session = tuple[str, dict, dict]
 
 
-def _robot_test_session(pk: pd.DataFrame, df: _Df, report: ImportReport) -> _Session:
+def _robot_test_session(pk: pd.DataFrame, df: Df, report: ImportReport) -> _Session:
     """``test_robot``: packets within the ground-truth time span (t in s since the first ground-truth row)."""
     t0, t1 = df.t_s[0], df.t_s[-1]
     tt = pk["t_s"].to_numpy()
@@ -440,7 +244,7 @@ def _robot_test_session(pk: pd.DataFrame, df: _Df, report: ImportReport) -> _Ses
                   f"largest ground-truth gap {gaps.max():.1f} s. {int((~inside).sum())} packets outside the "
                   f"ground-truth span dropped. No IMU."),
         "source_file": "tests/test_robot_ble.txt, tests/test_robot_df.csv"},
-        {"rssi": _packet_rssi(pk[inside], t0), "groundtruth": gt})
+        {"rssi": packet_rssi(pk[inside], t0), "groundtruth": gt})
 
 
 def _walk_test_session(pk: pd.DataFrame) -> _Session:
@@ -453,10 +257,10 @@ def _walk_test_session(pk: pd.DataFrame) -> _Session:
                   f"'test_walk_reference_path' in the building's navgraph.geojson (tests/path_reference.csv); it has "
                   f"no times, so there is no ground truth. No IMU."),
         "source_file": "tests/test_walk_ble.txt"},
-        {"rssi": _packet_rssi(pk, w0)})
+        {"rssi": packet_rssi(pk, w0)})
 
 
-def _calibration_sessions(calib: _Df, report: ImportReport) -> list[_Session]:
+def _calibration_sessions(calib: Df, report: ImportReport) -> list[_Session]:
     """``calibration_run1``..: ``calibration_df.csv`` split where its index restarts or time jumps (RUN_GAP_S)."""
     new_run = np.r_[True, (np.diff(calib.index) <= 0) | (np.diff(calib.t_s) > RUN_GAP_S)]
     run = np.cumsum(new_run)
@@ -472,12 +276,12 @@ def _calibration_sessions(calib: _Df, report: ImportReport) -> list[_Session]:
                       f"single packets), empty cells (not received) have no row; ground truth = LiDAR-SLAM positions, "
                       f"z = tag height 1.3 m, heading = SLAM heading. t = ts (unix ns) / 1e9 - {c0:.3f}. No IMU."),
             "source_file": "calibration/calibration_df.csv"},
-            {"rssi": _df_rssi(calib, sel, c0, report, "calibration/calibration_df.csv"),
+            {"rssi": df_rssi(calib, sel, c0, report, "calibration/calibration_df.csv"),
              "groundtruth": _gt(calib, sel, c0)}))
     return sessions
 
 
-def _unaligned_session(old: _Df, report: ImportReport) -> _Session:
+def _unaligned_session(old: Df, report: ImportReport) -> _Session:
     """``calib_df_unaligned``: positions (m) relative to the first one as odometry, not as ground truth."""
     sel = np.arange(len(old.t_s))
     o0 = old.t_s[0]
@@ -491,7 +295,7 @@ def _unaligned_session(old: _Df, report: ImportReport) -> _Session:
                   "not as ground truth. rssi = 1/3 s log-means, columns rssi_<system id> mapped to anchors.csv ids. "
                   f"t = ts (unix ns) / 1e9 - {o0:.3f}. No IMU."),
         "source_file": "calibration/calib_df.csv"},
-        {"rssi": _df_rssi(old, sel, o0, report, "calibration/calib_df.csv"), "odometry": odo})
+        {"rssi": df_rssi(old, sel, o0, report, "calibration/calib_df.csv"), "odometry": odo})
 
 
 def _write(src: Path, out: Path, raw: _Raw, sessions: list[_Session], report: ImportReport) -> Path:
