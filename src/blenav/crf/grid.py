@@ -23,11 +23,13 @@ World frame: x east, y north (m); cell (cy, cx) has centre origin + ((cx + 0.5) 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from blenav.data.floor import FREE
+from blenav.limits import check_memory
 
 __all__ = ["CrfGrid", "build_grid", "grid_from_occupancy"]
 
@@ -103,6 +105,8 @@ def grid_from_occupancy(occ: np.ndarray, resolution: float, origin: tuple[float,
     x0, y0 = float(origin[0]), float(origin[1])
     nx = max(1, int(np.ceil(W * resolution / cell_m - 1e-9)))
     ny = max(1, int(np.ceil(H * resolution / cell_m - 1e-9)))
+    check_memory(grid_bytes(nx * ny, cell_m, max_step_m, H * W), f"a grid of {ny:,} x {nx:,} cells of {cell_m:g} m "
+                 f"with steps up to {max_step_m:g} m", "crf grid (cell_m, max_step_m)")
     frac = _free_fraction(free, resolution, cell_m, nx, ny)
     gcy, gcx = np.mgrid[0:ny, 0:nx]
     cxw = x0 + (gcx + 0.5) * cell_m
@@ -127,6 +131,16 @@ def grid_from_occupancy(occ: np.ndarray, resolution: float, origin: tuple[float,
                    float(max_step_m), src_ptr, dst.astype(np.int32), dist, ang, tgt_ptr,
                    src[torder].astype(np.int32), torder.astype(np.int64), np.hypot(odx, ody) * cell_m,
                    np.where((odx != 0) | (ody != 0), np.arctan2(ody, odx), 0.0).astype(float))
+
+
+def grid_bytes(n_cells: int, cell_m: float, max_step_m: float, n_pixels: int = 0) -> float:
+    """Estimated peak bytes of :func:`grid_from_occupancy`: about 64 bytes per cell (index, centres, free
+    fraction and the mgrids behind them), 64 per possible edge (one per cell and neighbourhood offset: source,
+    target, length, angle and the sorted copies) and 48 per pixel (the free-fraction pass), all upper bounds:
+    a floor's free cells are fewer than its bounding box's."""
+    k = float(max_step_m) / float(cell_m)
+    offsets = math.pi * (k + 1.0) ** 2
+    return 64.0 * n_cells * (1.0 + offsets) + 48.0 * n_pixels
 
 
 def _free_fraction(free: np.ndarray, resolution: float, cell_m: float, nx: int, ny: int) -> np.ndarray:

@@ -50,6 +50,14 @@ CLOCK_RATIO = 100.0
 CLOCK_MIN_S = 1.0
 CLOCK_MIN_ROWS = 10
 
+#: rssi.csv / rtt.csv: more than BURST_MAX_ROWS rows of one anchor at one time stamp is a warning ('reading-burst')
+#: naming the anchor, the time and the count (a logging loop or a replayed buffer; the real datasets have at most
+#: 11); an anchor with RATE_MIN_ROWS rows or more heard faster than ANCHOR_MAX_RATE_HZ on average over its rows'
+#: span is a warning ('reading-rate'; BLE advertises at most every 20 ms, the real datasets reach 7 Hz).
+BURST_MAX_ROWS = 100
+ANCHOR_MAX_RATE_HZ = 100.0
+RATE_MIN_ROWS = 100
+
 
 def check_session_meta(path: Path, doc: dict, buildings: dict) -> list[Issue]:
     """Rules of session.yaml: keys present, carrier known, building and floor exist."""
@@ -147,8 +155,9 @@ def load_stream(root: Path, name: str, building: Building | None, labelled: bool
     """Read and check one stream of a session folder; applies every per-stream rule of the spec.
 
     Returns ``(frame, issues, dropped)``. Rows for unknown anchors are dropped and reported as one warning
-    (count and first ids); ``dropped`` counts the rows the reader left out, per reason (the rule's name:
-    ``unknown-anchor``, ``groundtruth-unlabelled``). ``floor_id`` (the session's floor) enables the
+    (count and first ids), and so are exact duplicates of anchored rows (kept once; bursts and rates far too
+    high are warnings: :func:`reading_bursts`); ``dropped`` counts the rows the reader left out, per reason (the
+    rule's name: ``unknown-anchor``, ``duplicate-row``, ``groundtruth-unlabelled``). ``floor_id`` (the session's floor) enables the
     ground-truth-on-floor rule.
     """
     spec = STREAMS[name]
@@ -192,12 +201,70 @@ def load_stream(root: Path, name: str, building: Building | None, labelled: bool
         if building is not None and floor_key(floor_id, building.floors) is not None and not far:
             issues += groundtruth_off_floor(path, df[~reported], building.floor(floor_id), building.id)
     if name in ANCHORED_STREAMS:
+        issues += reading_bursts(path, df, reported)
+        df, more, n_dup = _collapse_duplicates(path, df)
+        issues += more
+        if n_dup:
+            dropped["duplicate-row"] = n_dup
         n = len(df)
         df, more = _check_anchored(path, df, building, name)
         issues += more
         if len(df) < n:
             dropped["unknown-anchor"] = n - len(df)
     return df, issues, dropped
+
+
+def reading_bursts(path: Path, df: pd.DataFrame, skip: np.ndarray) -> list[Issue]:
+    """Warnings for pathological anchored streams (rows in ``skip`` were already reported, rows are lines - 2):
+    'reading-burst', more than :data:`BURST_MAX_ROWS` rows of one anchor at one time stamp (anchor, t, count, at
+    the group's first line; the first :data:`MAX_ROWS_PER_RULE` groups, then a count), and 'reading-rate', an
+    anchor heard faster than :data:`ANCHOR_MAX_RATE_HZ` on average (see the constants)."""
+    ok = ~skip
+    t = df["t"].to_numpy(dtype=float)[ok]
+    ids = df["anchor_id"].to_numpy(dtype=object)[ok]
+    rows = np.flatnonzero(ok)
+    issues: list[Issue] = []
+    if len(t) > BURST_MAX_ROWS:
+        change = np.flatnonzero(np.diff(t) != 0)  # runs of one time stamp (t is sorted, else 'time-backwards')
+        runs = np.diff(np.concatenate([[0], change + 1, [len(t)]]))
+        if runs.max() > BURST_MAX_ROWS or (np.diff(t) < 0).any():
+            g = pd.DataFrame({"t": t, "a": ids, "r": rows}).groupby(["t", "a"], sort=False)["r"].agg(["size", "min"])
+            big = g[g["size"] > BURST_MAX_ROWS].sort_values("min")
+            for (tt, a), (n, r) in big.head(MAX_ROWS_PER_RULE).iterrows():
+                issues.append(warning(path, "reading-burst", f"{n:,} readings of anchor {a!r} at t = {tt:g} s, more "
+                                      f"than {BURST_MAX_ROWS} at one instant (a logging loop or a replayed buffer?); "
+                                      "exact duplicates are kept once", line=int(r) + 2))
+            if len(big) > MAX_ROWS_PER_RULE:
+                issues.append(warning(path, "reading-burst", f"{len(big) - MAX_ROWS_PER_RULE} more (anchor, time) "
+                                      f"pairs with more than {BURST_MAX_ROWS} readings"))
+    if len(t) >= RATE_MIN_ROWS:
+        g = pd.DataFrame({"t": t, "a": ids}).groupby("a", sort=False)["t"].agg(["size", "min", "max"])
+        n, span = g["size"].to_numpy(), (g["max"] - g["min"]).to_numpy()
+        with np.errstate(divide="ignore", invalid="ignore"):
+            hz = np.where(n >= RATE_MIN_ROWS, (n - 1) / span, 0.0)  # one instant: infinitely fast
+        for k in np.argsort(-hz, kind="stable")[:MAX_ROWS_PER_RULE]:
+            if not hz[k] > ANCHOR_MAX_RATE_HZ:
+                break
+            issues.append(warning(path, "reading-rate", f"anchor {g.index[k]!r} heard {int(n[k]):,} times within "
+                                  f"{span[k]:g} s ({hz[k]:,.0f} Hz on average), faster than any receiver reports one "
+                                  f"transmitter ({ANCHOR_MAX_RATE_HZ:g} Hz): duplicated rows, or t in another unit?"))
+    return issues
+
+
+def _collapse_duplicates(path: Path, df: pd.DataFrame) -> tuple[pd.DataFrame, list[Issue], int]:
+    """Rows equal in every column to an earlier row (same t, anchor and values) kept once (row = line - 2): the
+    frame, one warning ('duplicate-row') and the number of rows dropped; a frame without duplicates is returned
+    as it is (the same object)."""
+    t = df["t"].to_numpy(dtype=float)
+    if len(t) < 2 or not ((t[1:] == t[:-1]).any() or (t[1:] < t[:-1]).any()):
+        return df, [], 0  # duplicates share a time stamp: in a sorted stream none adjacent means none at all
+    dup = df.duplicated(keep="first").to_numpy()
+    n = int(dup.sum())
+    if not n:
+        return df, [], 0
+    return df[~dup].reset_index(drop=True), [warning(
+        path, "duplicate-row", f"{n:,} rows repeat an earlier row exactly (same t, anchor and values; the first "
+        f"at line {int(np.flatnonzero(dup)[0]) + 2}); each reading is kept once")], n
 
 
 def positions_far_off_floor(path: Path, df: pd.DataFrame, floor: Floor, skip: np.ndarray) -> list[Issue]:
@@ -405,7 +472,8 @@ class Session:
     def dropped(self) -> dict[str, dict[str, int]]:
         """Rows the reader left out of the streams read so far: ``{stream: {reason: rows}}``, only streams
         with at least one dropped row (a copy). Reasons are the rules' names: ``unknown-anchor`` (rssi/rtt
-        rows naming an anchor not in anchors.csv), ``groundtruth-unlabelled`` (ground truth of a session
+        rows naming an anchor not in anchors.csv), ``duplicate-row`` (rssi/rtt rows equal to an earlier row in
+        every column, kept once), ``groundtruth-unlabelled`` (ground truth of a session
         with ``labelled: false``). Every stream's count: :meth:`load_all` first."""
         return {k: dict(v) for k, v in self.__dict__.get("_dropped", {}).items() if v}
 

@@ -51,6 +51,7 @@ from blenav.data import Dataset, check_session_in_building
 from blenav.errors import DatasetError, EvalError, MissingStream
 from blenav.filters.attitude import misalignment_deg
 from blenav.filters.calibration import fit_sessions
+from blenav.limits import LimitError, check_range
 from blenav.localizers import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext,
                                Trained, build_localizer)
 from blenav.localizers.confine import confine
@@ -494,9 +495,10 @@ def evaluate(cfg: DictConfig) -> dict:
     sessions, cal_spec = scored_sessions(cfg, ds)
     plan_error = plan_error_config(cfg)
     bmap = beacon_map_config(cfg)
-    runs = int(cfg.runs)
-    if runs < 1:
-        raise EvalError(f"runs must be >= 1, got {runs}")
+    try:  # bounded before any work (blenav.limits: 1..100,000; runs x particles: the filter's memory check)
+        runs = check_range(cfg.runs, "runs", "eval config")
+    except LimitError as exc:
+        raise EvalError(str(exc)) from None
     out = Path(cfg.out)
     plan_info = None
     if plan_error.active:

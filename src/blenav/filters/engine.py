@@ -36,6 +36,8 @@ from typing import Optional
 
 import numpy as np
 
+from blenav.limits import check_memory, check_range
+
 from .kernels import add_loglik, duplicates, gather_rows, mean_cov, recover_checks
 from .noise import motion_stream
 from .resampling import ess, get_scheme, log_normalise
@@ -79,6 +81,28 @@ class FilterConfig:
     # None disables the rule.
     reinit_fraction: Optional[float] = None
     reinit_radius_m: float = 5.0
+
+
+#: (R, N) float64 arrays a step holds besides the state: log-weights, log-likelihoods (and the divergence test's
+#: copy), the constraints' term, normalised weights, resampling indices, duplicate flags, a measurement's term
+STEP_ARRAYS = 8
+
+
+def memory_bytes(n_runs: int, n_particles: int, state_dim: int) -> float:
+    """Estimated peak bytes of a filter of ``n_runs`` x ``n_particles`` particles of ``state_dim`` float64 values:
+    the state twice (propagation returns a new one while the old is alive) plus :data:`STEP_ARRAYS` (R, N)
+    arrays. Checked (:func:`blenav.limits.check_memory`) before anything is allocated."""
+    return float(n_runs) * float(n_particles) * 8.0 * (2 * int(state_dim) + STEP_ARRAYS)
+
+
+def check_size(n_runs, n_particles, state_dim: int, where: str, field: str = "n_particles") -> tuple[int, int]:
+    """``(R, N)`` as ints after checking ``n_runs`` and ``n_particles`` against their ranges
+    (:data:`blenav.limits.RANGES`) and the filter's memory estimate (:func:`memory_bytes`) against the limit;
+    ``where`` and ``field`` name the setting in the one-line :class:`~blenav.limits.LimitError`."""
+    N = check_range(n_particles, "n_particles", where, field=field)
+    R = check_range(n_runs, "runs", where)
+    check_memory(memory_bytes(R, N, state_dim), f"{field} {N:,} x {R:,} run(s) x {int(state_dim)} state values", where)
+    return R, N
 
 
 @dataclass
@@ -163,7 +187,9 @@ class ParticleFilter:
         self.constraints = list(constraints)
         self.rng = rng
         self.motion_rng = motion_stream(rng)
-        self.R, self.N = int(n_runs), int(cfg.n_particles)
+        # bounded before anything is allocated (n_particles 1e9 asked numpy for 37 GiB)
+        self.R, self.N = check_size(n_runs, cfg.n_particles, motion.state_dim, "filter settings")
+        check_range(cfg.rate_hz, "rate_hz", "filter settings")
         self.resample_fn = get_scheme(cfg.resampling)
         if cfg.estimate not in ("mean", "median"):
             raise ValueError(f"filter.estimate must be 'mean' or 'median', got {cfg.estimate!r}")

@@ -1,4 +1,5 @@
-"""Helpers shared by the importers: strict text/CSV reading, RSSI checks, occupancy grids, output checks.
+"""Helpers shared by the importers: strict text/CSV reading, RSSI checks, occupancy grids, bounded archive
+reading, output checks.
 
 Every reading helper raises :class:`~blenav.errors.ImportError_` naming the file, the 1-based line
 (``None`` when the problem is the whole file) and the problem; nothing here writes anything. Line
@@ -7,14 +8,18 @@ numbers count every physical line of the file, header included.
 
 from __future__ import annotations
 
+import stat
+import tarfile
+import zipfile
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 import pandas as pd
 import shapely
 from shapely.geometry import Polygon
 
+from blenav import limits
 from blenav.data import FREE, OCCUPIED, UNKNOWN, validate
 from blenav.data.building_files import FLOOR_MAX_SIDE_M
 from blenav.data.schema import RSSI_MAX_DBM, RSSI_MIN_DBM, T_MAX_S
@@ -250,6 +255,92 @@ def grid_lookup(occ: np.ndarray, origin: tuple[float, float], xy: np.ndarray, re
     out = np.full(len(xy), outside, dtype=occ.dtype)
     out[inside] = occ[row[inside], col[inside]]
     return out
+
+
+# --------------------------------------------------------------------------------------------------
+# archives: members streamed one at a time, each size bounded before it is read
+
+
+class ArchiveBudget:
+    """The expansion an archive may have (:mod:`blenav.limits`): no member read above ``max_member_bytes()``, and
+    the members' total at most ``max_archive_ratio()`` times the archive's size plus ``ARCHIVE_RATIO_FREE_MB``.
+    Sizes are the members' declared ones, checked before a member is read; the archive libraries never return
+    more than a member declares (tarfile reads exactly its size; zipfile stops at it and checks the CRC)."""
+
+    def __init__(self, src: Path):
+        self.src = Path(src)
+        self.max_member = limits.max_member_bytes()
+        self.ratio = limits.max_archive_ratio()
+        self.allowed = self.ratio * self.src.stat().st_size + limits.ARCHIVE_RATIO_FREE_MB * limits.MIB
+        self.total = 0.0
+
+    def take(self, name: str, size: int, read: bool = True) -> None:
+        """Count ``size`` declared bytes of member ``name`` (``read``: it is to be read into memory); raise
+        :class:`ImportError_` naming the member when it is too large or the archive expands too far."""
+        where = f"{self.src}:{name}"
+        if read and size > self.max_member:
+            raise ImportError_(where, None, f"archive member of {size / limits.MIB:,.1f} MiB, larger than the "
+                               f"{self.max_member / limits.MIB:g} MiB a member may have (set "
+                               "BLENAV_MAX_ARCHIVE_MEMBER_MB to allow more); not read")
+        self.total += size
+        if self.total > self.allowed:
+            raise ImportError_(where, None, f"the archive's members expand to {self.total / limits.MIB:,.1f} MiB by "
+                               f"this one, over {self.ratio:g} times the archive's "
+                               f"{self.src.stat().st_size / limits.MIB:,.1f} MiB (a compression bomb? set "
+                               "BLENAV_MAX_ARCHIVE_RATIO to allow more); not read")
+
+
+def _read_member(f, name: str, size: int, budget: ArchiveBudget) -> bytes:
+    """The bytes of an open member, at most its declared ``size`` (a member that yields more is refused)."""
+    data = f.read(size + 1)
+    if len(data) > size:
+        raise ImportError_(f"{budget.src}:{name}", None, f"archive member holds more than its declared {size} bytes")
+    return data
+
+
+def iter_tar(src: Path, want: Callable[[str], bool], skipped: list[str]) -> Iterator[tuple[str, bytes]]:
+    """``(member name, bytes)`` of the regular members of tar archive ``src`` (any compression, one streaming pass)
+    whose name ``want`` accepts, in storage order; nothing is written. Links, devices and FIFOs are not read:
+    their names go to ``skipped`` (the importer reports them). Sizes: :class:`ArchiveBudget`. Tar errors
+    propagate (the caller names the archive)."""
+    budget = ArchiveBudget(src)
+    with tarfile.open(src, mode="r|*") as tf:
+        for m in tf:
+            if m.isdir():
+                continue
+            if not m.isfile():  # symlink, hard link, character/block device, FIFO
+                skipped.append(m.name)
+                continue
+            wanted = want(m.name)
+            budget.take(m.name, m.size, read=wanted)  # skipped members are decompressed too (stream mode)
+            if wanted:
+                yield m.name, _read_member(tf.extractfile(m), m.name, m.size, budget)
+
+
+def iter_zip(src: Path, want: Callable[[str], bool], skipped: list[str]) -> Iterator[tuple[str, bytes]]:
+    """:func:`iter_tar` for a zip archive: members whose name ``want`` accepts, symlinks (Unix mode in the
+    external attributes) listed in ``skipped``; only the members read count towards the ratio."""
+    budget = ArchiveBudget(src)
+    with zipfile.ZipFile(src) as zf:
+        for info in zf.infolist():
+            if info.is_dir():
+                continue
+            kind = stat.S_IFMT(info.external_attr >> 16) if info.create_system == 3 else 0  # Unix mode bits
+            if kind not in (0, stat.S_IFREG, stat.S_IFDIR):
+                skipped.append(info.filename)
+                continue
+            if want(info.filename):
+                budget.take(info.filename, info.file_size)
+                with zf.open(info) as f:
+                    yield info.filename, _read_member(f, info.filename, info.file_size, budget)
+
+
+def skipped_note(skipped: list[str]) -> str | None:
+    """The report's line for archive members not read (links, devices), or None."""
+    if not skipped:
+        return None
+    first = ", ".join(skipped[:5]) + (", ..." if len(skipped) > 5 else "")
+    return f"{len(skipped)} archive member(s) not read: links or special files ({first})"
 
 
 # --------------------------------------------------------------------------------------------------

@@ -12,7 +12,11 @@ Input (``src``)
   geojson_map.json}`` (``src`` may be the folder holding both, or ``train`` itself when ``metadata`` is its
   sibling);
 * a ``.tar.gz`` / ``.tgz`` / ``.tar`` or ``.zip`` of either, read member by member (tar: one streaming pass)
-  without unpacking to disk.
+  without unpacking to disk. Each member's declared size is checked before it is read (at most
+  ``BLENAV_MAX_ARCHIVE_MEMBER_MB``, default 256 MiB; the largest path file of the sample is 4.1 MB), and so is
+  the archive's expansion (at most ``BLENAV_MAX_ARCHIVE_RATIO``, default 200, times its size plus 64 MiB; the
+  sample's archives expand about 5.5 times): a member over either is refused naming it. Links and special
+  members are not read; the report counts them. Nothing is written under a member's name.
 
 ``floors`` (``--floors SITE/FLOOR,...``) keeps only those floors; a name that matches no floor is an error
 listing the floors found. Site and floor names are the folder names (``site1``, ``F1``).
@@ -133,11 +137,12 @@ from shapely.geometry import MultiPolygon, Polygon, shape
 from blenav.data.building import FREE, OCCUPIED, UNKNOWN
 from blenav.data.schema import STREAMS
 from blenav.data.writer import write_building, write_dataset_meta, write_session
+from blenav.limits import MIB, max_member_bytes
 
 from blenav.errors import ImportError_
 
 from . import ImportReport
-from ._common import check_out, grid_lookup, rssi_in_range, validate_or_raise
+from ._common import check_out, grid_lookup, iter_tar, iter_zip, rssi_in_range, skipped_note, validate_or_raise
 
 RESOLUTION_M = 0.1
 FLOOR_HEIGHT_M = 5.0
@@ -194,39 +199,44 @@ def _classify(vpath: str) -> tuple[str, tuple[str, str], str] | None:
     return None
 
 
-def _iter_source(src: Path, want) -> Iterator[_Entry]:
-    """Relevant files of ``src`` (folder, tar or zip) in storage order; ``want(vpath)`` filters before reading."""
+def _iter_source(src: Path, want, report: ImportReport | None = None) -> Iterator[_Entry]:
+    """Relevant files of ``src`` (folder, tar or zip) in storage order; ``want(vpath)`` filters before reading.
+    Every file is bounded before it is read (:class:`~blenav.importers._common.ArchiveBudget`: member size, and an
+    archive's expansion ratio); archive members that are links or special files are not read and are counted in
+    ``report``'s notes."""
     name = src.name.lower()
+    skipped: list[str] = []
     if src.is_dir():
         base = src.resolve()
+        max_file = max_member_bytes()
         for root, dirs, files in os.walk(base):
             dirs.sort()
             for f in sorted(files):
                 p = Path(root) / f
                 vpath = p.as_posix().lstrip("/")
                 if want(vpath):
+                    if p.stat().st_size > max_file:
+                        raise ImportError_(p, None, f"file of {p.stat().st_size / MIB:,.1f} MiB, larger than the "
+                                           f"{max_file / MIB:g} MiB a file may have (BLENAV_MAX_ARCHIVE_MEMBER_MB)")
                     yield _Entry(vpath, str(p), p.read_bytes())
         # challenge layout given as its train/ folder: the metadata/ sibling
         if base.name == "train" and (base.parent / "metadata").is_dir():
-            yield from _iter_source(base.parent / "metadata", want)
-    elif name.endswith((".tar.gz", ".tgz", ".tar")):
-        try:
-            with tarfile.open(src, mode="r|*") as tf:
-                for m in tf:
-                    if m.isfile() and want(m.name):
-                        yield _Entry(m.name, f"{src}:{m.name}", tf.extractfile(m).read())
-        except (tarfile.TarError, EOFError, OSError) as exc:
-            raise ImportError_(src, None, f"not a readable tar archive ({exc})") from None
+            yield from _iter_source(base.parent / "metadata", want, report)
+        return
+    if name.endswith((".tar.gz", ".tgz", ".tar")):
+        members, errors, what = iter_tar, (tarfile.TarError, EOFError, OSError), "tar"
     elif name.endswith(".zip"):
-        try:
-            with zipfile.ZipFile(src) as zf:
-                for info in zf.infolist():
-                    if not info.is_dir() and want(info.filename):
-                        yield _Entry(info.filename, f"{src}:{info.filename}", zf.read(info))
-        except (zipfile.BadZipFile, EOFError, OSError) as exc:
-            raise ImportError_(src, None, f"not a readable zip archive ({exc})") from None
+        members, errors, what = iter_zip, (zipfile.BadZipFile, EOFError, OSError), "zip"
     else:
         raise ImportError_(src, None, "expected a folder, a .tar.gz/.tgz/.tar or a .zip archive")
+    try:
+        for vpath, data in members(src, want, skipped):
+            yield _Entry(vpath, f"{src}:{vpath}", data)
+    except errors as exc:
+        raise ImportError_(src, None, f"not a readable {what} archive ({exc})") from None
+    note = skipped_note(skipped)
+    if note and report is not None:
+        report.notes.append(note)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -910,7 +920,7 @@ def _import_walks(src: Path, tmp: Path, want, beacon_id: str, report: ImportRepo
     pending_gt: dict[tuple[str, str], list] = defaultdict(list)
     events: Counter = Counter()
     labelled = 0
-    for e in _iter_source(src, want):
+    for e in _iter_source(src, want, report):
         kind, key, name = _classify(e.vpath)
         if kind == "meta":
             meta_files[(key, name)] = (e.display, e.data)

@@ -48,6 +48,7 @@ from blenav.crf.viterbi import ViterbiDecoder
 from blenav.errors import MissingStream
 from blenav.filters.attitude import AttitudeConfig, estimate_attitude, yaw_of_device_forward
 from blenav.filters.steps import StepDetectorConfig, step_flags
+from blenav.limits import check_range
 
 from .base import Estimate, Localizer, RunContext
 
@@ -99,6 +100,10 @@ class CrfLocalizer(Localizer):
                 raise ValueError(f"method {name!r}: {k} must be > 0, got {v}")
         if not 0 <= float(prune) < 1:
             raise ValueError(f"method {name!r}: prune must be in [0, 1), got {prune}")
+        # the grid's and the windows' sizes come from the config: bounded (blenav.limits) before a grid is built
+        for k, v, rng in (("cell_m", cell_m, "cell_m"), ("max_step_m", max_step_m, "max_step_m"),
+                          ("window_s", window_s, "window_s"), ("calibration_window_s", calibration_window_s, "window_s")):
+            check_range(v, rng, f"method {name!r}", field=k)
         self.calibration, self.recursive, self.use_visual = calibration, bool(recursive), bool(use_visual)
         self.cell_m, self.max_step_m, self.min_free_fraction = float(cell_m), float(max_step_m), float(min_free_fraction)
         self.window_s, self.prune, self.device_z = float(window_s), float(prune), float(device_z)

@@ -50,6 +50,7 @@ from typing import Callable, Iterable, NamedTuple
 import numpy as np
 
 from blenav.features.mapgrid import pad_to_multiple
+from blenav.limits import LimitError, check_range
 from blenav.onnx_io import blenav_version, check_weights, read_metadata, session
 
 from .map_prior import OnnxBackend
@@ -125,6 +126,31 @@ def _dataclass(cls, node: dict | None, where: str):
     return cls(**node)
 
 
+def check_settings(settings: dict, where: str) -> None:
+    """Every size the settings set lies in its documented range (:data:`blenav.limits.RANGES`), and the particle
+    filter they ask for fits the memory limit (one run, as the push API runs it), before anything is built:
+    :class:`blenav.limits.LimitError` naming ``where`` (the settings.json) and the field."""
+    from blenav.filters.engine import FilterConfig, check_size
+
+    if not isinstance(settings, dict):
+        raise LimitError(f"{where}: expected a JSON object, got {type(settings).__name__}")
+    f = settings.get("filter") if isinstance(settings.get("filter"), dict) else {}
+    if "rate_hz" in f:
+        check_range(f["rate_hz"], "rate_hz", where, field="filter.rate_hz")
+    n = f.get("n_particles", FilterConfig.n_particles)
+    check_range(n, "n_particles", where, field="filter.n_particles")
+    prior = settings.get("prior") if isinstance(settings.get("prior"), dict) else {}
+    if prior.get("heading_bins") is not None:
+        check_range(prior["heading_bins"], "heading_bins", where, field="prior.heading_bins")
+    if prior.get("window_dt_s") is not None:
+        check_range(prior["window_dt_s"], "window_s", where, field="prior.window_dt_s")
+    try:
+        dim = int(_instantiate(settings["motion"]).state_dim)
+    except Exception:  # a bad motion node is refused where the method is built, with its own message
+        return
+    check_size(1, n, dim, where, field="filter.n_particles")
+
+
 def build_method(settings: dict, prior=None):
     """The :class:`blenav.filters.method.Method` of a bundle's settings; ``prior``: a map prior (or None)."""
     from blenav.filters.attitude import AttitudeConfig
@@ -189,7 +215,10 @@ class WindowFixer:
         if str(w.get("steps", "time")) != "time":
             raise ValueError("the bundle's localizer was trained on scan windows (a fingerprint survey): it cannot "
                              "localize a stream")
-        self.graph, self.hz, self.H = graph, float(w["step_hz"]), int(w["history"])
+        where = f"{graph.path} metadata"  # the localizer's window, bounded before H steps are kept
+        self.graph = graph
+        self.hz = check_range(w["step_hz"], "step_hz", where, field="window.step_hz")
+        self.H = check_range(w["history"], "history", where, field="window.history")
         self.offset, self.floor_u = float(w["offset_db"]), float(w["floor_u"])
         self.col = {b: i for i, b in enumerate(graph.beacons)}
         B = len(self.col)
@@ -402,6 +431,7 @@ class Bundle:
         if variant not in have:
             raise ValueError(f"bundle {root} has no {variant!r} variant (has {have})")
         settings = json.loads((root / SETTINGS).read_text(encoding="utf-8"))
+        check_settings(settings, str(root / SETTINGS))
         signature = json.loads((root / BUILDING).read_text(encoding="utf-8"))
         float_path = root / variant_name(LOCALIZER, "float")
         # the metadata is read from the float graph (the ORT variants may not keep it); the float variant's graph

@@ -1,0 +1,138 @@
+"""Bounds on every size a file or a config can set, checked before the work that size would cost.
+
+Settings from files (a bundle's settings.json, an experiment's YAML, a localizer's metadata) choose particle
+counts, runs, rates, window lengths and grid cells; archives declare member sizes. A value outside its
+documented range, or work whose memory estimate exceeds the limit, is refused with one line naming the file
+or config and the field (:class:`LimitError`, a ``ValueError``: the CLIs' known-error channel), never a
+``MemoryError`` traceback half way through.
+
+* :data:`RANGES`: the named ranges (inclusive); :func:`check_range` checks one value against one.
+* :func:`check_memory`: refuse an allocation estimate above :func:`max_memory_bytes` (environment variable
+  ``BLENAV_MAX_MEMORY_GB``, default :data:`DEFAULT_MAX_MEMORY_GB` GiB: a third of a 24 GB machine, so the
+  estimate's slack and the rest of the process fit).
+* Archives (:mod:`blenav.importers._common`): :func:`max_member_bytes` (``BLENAV_MAX_ARCHIVE_MEMBER_MB``, default
+  :data:`DEFAULT_MAX_MEMBER_MB` MiB; the largest ILC 2.0 path file is 4.1 MB) and :func:`max_archive_ratio`
+  (``BLENAV_MAX_ARCHIVE_RATIO``, default :data:`DEFAULT_MAX_ARCHIVE_RATIO`: the members read may expand to at
+  most that many times the archive's size, plus :data:`ARCHIVE_RATIO_FREE_MB` MiB; the ILC archives expand about
+  5.5 times).
+
+Standard library and numpy only: every layer may import it.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+DEFAULT_MAX_MEMORY_GB = 8.0
+DEFAULT_MAX_MEMBER_MB = 256.0
+DEFAULT_MAX_ARCHIVE_RATIO = 200.0
+#: expansion any archive may have regardless of its ratio (a 2 kB zip of a 100 kB text file is no bomb)
+ARCHIVE_RATIO_FREE_MB = 64.0
+
+GIB = float(1 << 30)
+MIB = float(1 << 20)
+
+
+class LimitError(ValueError):
+    """A setting outside its documented range, or work above a size limit; the message is one line naming the
+    file or config and the field."""
+
+
+class MemoryLimitError(LimitError):
+    """The memory a setting implies exceeds :func:`max_memory_bytes`."""
+
+
+@dataclass(frozen=True)
+class Range:
+    """Inclusive bounds of one setting; ``integer``: the value must be a whole number."""
+
+    lo: float
+    hi: float
+    unit: str
+    what: str
+    integer: bool = False
+
+    def describe(self) -> str:
+        return f"[{_num(self.lo)}, {_num(self.hi)}]" + (f" {self.unit}" if self.unit else "")
+
+
+def _num(x: float) -> str:
+    """1000000 -> '1,000,000'; 0.001 -> '0.001'."""
+    return f"{int(x):,}" if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
+
+
+#: The documented ranges, by name (docs/security.md). A setting's field is checked against the range of its
+#: name; a config may name the field differently (``filter.n_particles`` uses ``n_particles``).
+RANGES: dict[str, Range] = {
+    "n_particles": Range(1, 10_000_000, "", "particles per run", integer=True),
+    "runs": Range(1, 100_000, "", "independent runs of a filter per session", integer=True),
+    "rate_hz": Range(1e-3, 1000.0, "Hz", "filter steps per second"),
+    "step_hz": Range(1e-2, 1000.0, "Hz", "window steps per second"),
+    "window_s": Range(1e-3, 3600.0, "s", "a time window"),
+    "history": Range(1, 10_000, "", "steps per window", integer=True),
+    "heading_bins": Range(1, 3600, "", "heading hypotheses of the map prior", integer=True),
+    "cell_m": Range(0.01, 100.0, "m", "a grid cell's side"),
+    "max_step_m": Range(0.0, 1000.0, "m", "a transition's longest step"),
+}
+
+
+def check_range(value, name: str, where: str, field: str | None = None, rng: Range | None = None):
+    """``value`` as a float (an int for integer ranges) if it lies in ``RANGES[name]`` (or ``rng``), else
+    :class:`LimitError`: ``"<where>: <field> = <value> is outside [lo, hi] unit (<what>)"``; ``field`` defaults to
+    ``name``. Booleans, text and non-finite numbers are refused the same way."""
+    r = rng if rng is not None else RANGES[name]
+    field = field or name
+    ok_type = isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+    v = float(value) if ok_type else math.nan
+    if not ok_type:
+        raise LimitError(f"{where}: {field} = {value!r} is not a number (expected {r.describe()}, {r.what})")
+    if not (r.lo <= v <= r.hi):
+        raise LimitError(f"{where}: {field} = {value!r} is outside {r.describe()} ({r.what})")
+    if r.integer:
+        if v != round(v):
+            raise LimitError(f"{where}: {field} = {value!r} is not a whole number ({r.what}, {r.describe()})")
+        return int(v)
+    return v
+
+
+def _env_float(var: str, default: float) -> float:
+    raw = os.environ.get(var)
+    if raw is None or raw.strip() == "":
+        return default
+    try:
+        v = float(raw)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and v > 0):
+        raise LimitError(f"environment variable {var}={raw!r}: expected a positive number (default {default:g})")
+    return v
+
+
+def max_memory_bytes() -> float:
+    """The memory one piece of work may claim: ``BLENAV_MAX_MEMORY_GB`` GiB (default 8)."""
+    return _env_float("BLENAV_MAX_MEMORY_GB", DEFAULT_MAX_MEMORY_GB) * GIB
+
+
+def check_memory(nbytes: float, what: str, where: str) -> None:
+    """Refuse (:class:`MemoryLimitError`) an estimate of ``nbytes`` above :func:`max_memory_bytes`; ``what`` says
+    what needs it (e.g. ``"1000000000 particles x 1 run(s) x 5 state values"``)."""
+    limit = max_memory_bytes()
+    if nbytes > limit:
+        raise MemoryLimitError(f"{where}: {what} needs about {nbytes / GIB:.3g} GiB, above the limit of "
+                               f"{limit / GIB:g} GiB (set BLENAV_MAX_MEMORY_GB to allow more)")
+
+
+def max_member_bytes() -> float:
+    """Largest archive member read into memory: ``BLENAV_MAX_ARCHIVE_MEMBER_MB`` MiB (default 256)."""
+    return _env_float("BLENAV_MAX_ARCHIVE_MEMBER_MB", DEFAULT_MAX_MEMBER_MB) * MIB
+
+
+def max_archive_ratio() -> float:
+    """Most the members read may expand relative to the archive's size: ``BLENAV_MAX_ARCHIVE_RATIO`` (default
+    200), beyond :data:`ARCHIVE_RATIO_FREE_MB`."""
+    return _env_float("BLENAV_MAX_ARCHIVE_RATIO", DEFAULT_MAX_ARCHIVE_RATIO)

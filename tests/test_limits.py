@@ -1,0 +1,167 @@
+"""Issue 28, section 2: every size a setting sets is bounded before the work (blenav.limits): a value outside its
+documented range, or a filter whose memory estimate exceeds BLENAV_MAX_MEMORY_GB, is one line naming the file or
+config and the field, never a MemoryError traceback or numpy's message."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+import numpy as np
+import pytest
+
+from blenav.filters.engine import FilterConfig, Initializer, ParticleFilter, memory_bytes
+from blenav.filters.motion import OdometryIncrement, RandomWalk
+from blenav.limits import RANGES, LimitError, MemoryLimitError, check_memory, check_range
+
+
+def _one_line(exc) -> str:
+    msg = str(exc.value)
+    assert "\n" not in msg, msg
+    return msg
+
+
+# --- the helpers -------------------------------------------------------------------------------------------
+
+def test_check_range_returns_the_value_and_names_the_field():
+    assert check_range(300, "n_particles", "w") == 300 and isinstance(check_range(300.0, "n_particles", "w"), int)
+    assert check_range(2.5, "rate_hz", "w") == 2.5
+    for bad, words in ((0, "= 0 is outside [1, 10,000,000]"), (2.5, "= 2.5 is not a whole number"),
+                       ("many", "= 'many' is not a number"), (True, "= True is not a number"),
+                       (float("nan"), "= nan is outside")):
+        with pytest.raises(LimitError) as e:
+            check_range(bad, "n_particles", "cfg.yaml", field="filter.n_particles")
+        assert _one_line(e).startswith(f"cfg.yaml: filter.n_particles {words}"), str(e.value)
+    assert RANGES["runs"].hi == 100_000 and RANGES["n_particles"].hi == 10_000_000
+
+
+def test_memory_limit_comes_from_the_environment(monkeypatch):
+    check_memory(7.9 * 2**30, "x", "w")  # under the default 8 GiB
+    with pytest.raises(MemoryLimitError) as e:
+        check_memory(9 * 2**30, "a thing", "w")
+    assert _one_line(e) == ("w: a thing needs about 9 GiB, above the limit of 8 GiB (set BLENAV_MAX_MEMORY_GB to "
+                            "allow more)")
+    monkeypatch.setenv("BLENAV_MAX_MEMORY_GB", "16")
+    check_memory(9 * 2**30, "a thing", "w")
+    monkeypatch.setenv("BLENAV_MAX_MEMORY_GB", "lots")
+    with pytest.raises(LimitError, match="BLENAV_MAX_MEMORY_GB='lots': expected a positive number"):
+        check_memory(1, "a thing", "w")
+
+
+# --- the particle filter engine ----------------------------------------------------------------------------
+
+class _Init(Initializer):
+    def sample(self, rng, R, N):
+        return rng.normal(size=(R, N, 2))
+
+
+@pytest.mark.parametrize("n", [1e9, -5, 0])
+def test_engine_refuses_particle_counts_outside_the_range(n):
+    with pytest.raises(LimitError) as e:  # 1e9 asked numpy for 37 GiB (MemoryError); -5, 0: numpy's messages
+        ParticleFilter(FilterConfig(n_particles=n), RandomWalk(), [], _Init(), np.random.default_rng(0))
+    assert _one_line(e) == f"filter settings: n_particles = {n!r} is outside [1, 10,000,000] (particles per run)"
+
+
+def test_engine_refuses_runs_times_particles_over_the_memory_limit():
+    # each in range, together 1e9 particles of 4 values: 8 bytes x (2 x 4 + 8) arrays = 119 GiB
+    assert memory_bytes(1000, 1_000_000, 4) == 1e9 * 8 * 16
+    with pytest.raises(MemoryLimitError) as e:
+        ParticleFilter(FilterConfig(n_particles=1_000_000), RandomWalk(), [], _Init(), np.random.default_rng(0),
+                       n_runs=1000)
+    assert _one_line(e) == ("filter settings: n_particles 1,000,000 x 1,000 run(s) x 4 state values needs about "
+                            "119 GiB, above the limit of 8 GiB (set BLENAV_MAX_MEMORY_GB to allow more)")
+    with pytest.raises(LimitError, match="filter settings: runs = 0 is outside"):
+        ParticleFilter(FilterConfig(), RandomWalk(), [], _Init(), np.random.default_rng(0), n_runs=0)
+
+
+def test_engine_legitimate_sizes_are_unchanged():
+    pf = ParticleFilter(FilterConfig(n_particles=300.0), RandomWalk(), [], _Init(), np.random.default_rng(0), n_runs=3)
+    assert (pf.R, pf.N) == (3, 300) and isinstance(pf.N, int) and pf.x.shape == (3, 300, 4)
+
+
+# --- a bundle's settings.json ------------------------------------------------------------------------------
+
+def _bundle(tmp_path, **filt):
+    """A bundle folder whose settings.json sets ``filt`` (manifest re-hashed, as a tamperer would); no graph: the
+    settings are refused before any is loaded."""
+    from blenav.runtime.bundle import DEFAULT_SETTINGS, FORMAT, MANIFEST, SETTINGS
+
+    root = tmp_path / "bundle"
+    root.mkdir()
+    settings = json.loads(json.dumps(DEFAULT_SETTINGS))
+    settings["filter"].update(filt)
+    (root / SETTINGS).write_text(json.dumps(settings))
+    sha = hashlib.sha256((root / SETTINGS).read_bytes()).hexdigest()
+    (root / MANIFEST).write_text(json.dumps({"format": FORMAT, "files": {SETTINGS: {"sha256": sha}}}))
+    return root
+
+
+@pytest.mark.parametrize("n", [1e9, -5, 0])
+def test_bundle_settings_out_of_range_name_settings_json_and_the_field(tmp_path, n):
+    from blenav.runtime.bundle import Bundle
+
+    root = _bundle(tmp_path, n_particles=n)
+    with pytest.raises(LimitError) as e:
+        Bundle.open(root, verify=False)
+    assert _one_line(e).startswith(f"{root / 'settings.json'}: filter.n_particles = {n!r} is outside [1, 10,000,000]")
+
+
+def test_bundle_settings_memory_refused_with_the_number(tmp_path, monkeypatch):
+    from blenav.runtime.bundle import Bundle
+
+    monkeypatch.setenv("BLENAV_MAX_MEMORY_GB", "0.5")
+    root = _bundle(tmp_path, n_particles=5_000_000)  # in range; one run of OdometryIncrement's 5 values: 0.67 GiB
+    assert OdometryIncrement.state_dim == 5
+    with pytest.raises(MemoryLimitError) as e:
+        Bundle.open(root, verify=False)
+    assert _one_line(e) == (f"{root / 'settings.json'}: filter.n_particles 5,000,000 x 1 run(s) x 5 state values "
+                            "needs about 0.671 GiB, above the limit of 0.5 GiB (set BLENAV_MAX_MEMORY_GB to allow more)")
+
+
+def test_bundle_settings_rates_and_windows_are_bounded(tmp_path):
+    from blenav.runtime.bundle import check_settings
+
+    with pytest.raises(LimitError, match=r"S: filter.rate_hz = 0 is outside \[0.001, 1,000\] Hz"):
+        check_settings({"filter": {"rate_hz": 0}, "motion": {}}, "S")
+    with pytest.raises(LimitError, match="S: prior.heading_bins = 1000000000000.0 is outside"):
+        check_settings({"prior": {"heading_bins": 1e12}}, "S")
+    with pytest.raises(LimitError, match="S: prior.window_dt_s = -1 is outside"):
+        check_settings({"prior": {"window_dt_s": -1}}, "S")
+    from blenav.runtime.bundle import DEFAULT_SETTINGS
+
+    check_settings(json.loads(json.dumps(DEFAULT_SETTINGS)), "S")  # the shipped settings pass
+
+
+# --- the CRF grid and eval runs ----------------------------------------------------------------------------
+
+def test_crf_cell_size_and_grid_memory_are_bounded(monkeypatch):
+    from blenav.crf.grid import grid_from_occupancy
+    from blenav.limits import MemoryLimitError
+    from blenav.localizers.crf import CrfLocalizer
+
+    with pytest.raises(LimitError, match=r"method 'CRF': cell_m = 0.0001 is outside \[0.01, 100\] m"):
+        CrfLocalizer("CRF", cell_m=1e-4)
+    with pytest.raises(LimitError, match="method 'CRF': max_step_m = 5000.0 is outside"):
+        CrfLocalizer("CRF", max_step_m=5000.0)
+    occ = np.zeros((200, 300), np.int8)  # a 20 x 30 m free floor at 0.1 m/px
+    g = grid_from_occupancy(occ, 0.1, (0.0, 0.0), 0.5, 2.0)
+    assert g.shape == (40, 60)
+    monkeypatch.setenv("BLENAV_MAX_MEMORY_GB", "0.01")
+    with pytest.raises(MemoryLimitError) as e:
+        grid_from_occupancy(occ, 0.1, (0.0, 0.0), 0.05, 2.0)  # 400 x 600 cells, 5,000 offsets each
+    assert _one_line(e).startswith("crf grid (cell_m, max_step_m): a grid of 400 x 600 cells of 0.05 m with steps "
+                                   "up to 2 m needs about ")
+
+
+@pytest.mark.parametrize("runs, words", [(0, "runs = 0 is outside [1, 100,000]"),
+                                         (1e9, "runs = 1000000000.0 is outside [1, 100,000]")])
+def test_eval_runs_are_bounded(tiny_dataset, tmp_path, runs, words):
+    from blenav.configs import compose
+    from blenav.eval.common import EvalError
+    from blenav.eval.harness import evaluate
+
+    cfg = compose("eval", "progress=false", "experiment=mapfusion_002", f"data={tiny_dataset}", f"runs={runs}",
+                  f"out={tmp_path / 'o'}", "plots=false", "calibration=none")
+    with pytest.raises(EvalError) as e:
+        evaluate(cfg)
+    assert _one_line(e) == f"eval config: {words} (independent runs of a filter per session)"
