@@ -41,7 +41,7 @@ demo: $(STAMP)
 	$(BIN)/python export.py bundle=true ckpt=$(DEMO)/run/last.ckpt out=$(DEMO)/bundle eval_sessions=1; \
 	$(BIN)/blenav-localize $(DEMO)/bundle $(DEMO)/dataset/sessions/$${TEST%%,*} --out $(DEMO)/report/bundle_$${TEST%%,*}.csv; \
 	$(BIN)/blenav-fixes $(DEMO)/dataset $(DEMO)/bundle/localizer.onnx --sessions $$TEST; \
-	$(BIN)/blenav-eval experiment=leaderboard data=$(DEMO)/dataset runs=$(DEMO_RUNS) "sessions=[$$TEST]" \
+	$(BIN)/blenav-eval overwrite=true experiment=leaderboard data=$(DEMO)/dataset runs=$(DEMO_RUNS) "sessions=[$$TEST]" \
 	    "split={train: [$$TRAIN]}" out=$(DEMO)/report/leaderboard
 	@echo "demo report: $(DEMO)/report (dataset plots; run/: training report and learning curves; bundle/: the app's"
 	@echo "  models; bundle_*.csv: the torch-free track; leaderboard/: results.md, leaderboard_cdf.png, trajectories)"
@@ -78,9 +78,9 @@ paper-tables: $(STAMP)
 	  $(BIN)/blenav-sim sim=$$P seed=1 out=data/$${P}_eval duration_s=384 sessions=5 'sim.receivers=[iphone-8]' \
 	      'sim.carriers=[pedestrian,pedestrian,robot,pedestrian,robot]' sim.unlabelled_every=0 overwrite=true progress=false && \
 	  CAL=$$(ls data/$${P}_eval/sessions | head -1) && \
-	  $(BIN)/blenav-eval experiment=mapfusion_002 data=data/$${P}_eval runs=100 calibration=[$$CAL] \
+	  $(BIN)/blenav-eval overwrite=true experiment=mapfusion_002 data=data/$${P}_eval runs=100 calibration=[$$CAL] \
 	      out=data/results/$${P}_mapfusion_002 progress=false && \
-	  $(BIN)/blenav-eval experiment=frontend_000 data=data/$${P}_eval runs=100 calibration=[$$CAL] \
+	  $(BIN)/blenav-eval overwrite=true experiment=frontend_000 data=data/$${P}_eval runs=100 calibration=[$$CAL] \
 	      out=data/results/$${P}_frontend_000 progress=false || exit 1; \
 	done
 
@@ -102,16 +102,16 @@ crossphone-sweep: $(STAMP)
 crossphone-tables: $(STAMP)
 	$(BIN)/blenav-sim sim=campus_floor seed=3 out=data/campus_crossphone duration_s=600 sessions=60 \
 	    'sim.carriers=[pedestrian]' sim.unlabelled_every=0 overwrite=true progress=false
-	$(BIN)/blenav-eval experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003 progress=false
-	$(BIN)/blenav-eval experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003_thesis \
+	$(BIN)/blenav-eval overwrite=true experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003 progress=false
+	$(BIN)/blenav-eval overwrite=true experiment=crossphone_003 data=data/campus_crossphone out=data/results/crossphone_003_thesis \
 	    progress=false plots=false '~experiment.baselines' $(THESIS_RECIPE)
 	$(BIN)/python export.py ckpt=data/results/crossphone_003/runs/transnet_locnet/last.ckpt out=data/runs/campus_tl.onnx
 	$(BIN)/blenav-fixes data/campus_crossphone data/runs/campus_tl.onnx --sessions $(FUSED_SESSIONS)
-	$(BIN)/blenav-eval experiment=fused_003 data=data/campus_crossphone sessions=$(FUSED_SESSIONS) runs=20 \
+	$(BIN)/blenav-eval overwrite=true experiment=fused_003 data=data/campus_crossphone sessions=$(FUSED_SESSIONS) runs=20 \
 	    out=data/results/fused_003 progress=false
 	test -e data/uji_ble/dataset.yaml || $(BIN)/blenav-import uji_ble ../shared/data/raw/uji_ble data/uji_ble
-	$(BIN)/blenav-eval experiment=crossphone_uji data=data/uji_ble out=data/results/crossphone_uji progress=false
-	$(BIN)/blenav-eval experiment=crossphone_uji data=data/uji_ble out=data/results/crossphone_uji_noaug progress=false \
+	$(BIN)/blenav-eval overwrite=true experiment=crossphone_uji data=data/uji_ble out=data/results/crossphone_uji progress=false
+	$(BIN)/blenav-eval overwrite=true experiment=crossphone_uji data=data/uji_ble out=data/results/crossphone_uji_noaug progress=false \
 	    plots=false experiment.learned.transnet_locnet.model.augment.offset_db_std=0 \
 	    experiment.learned.transnet_locnet.model.augment.gain_std=0 experiment.learned.transnet_locnet.model.augment.dropout_max=0
 
@@ -179,15 +179,15 @@ mapprior-tables: $(STAMP)
 	  $(BIN)/blenav-fixes data/$$D data/runs/mapprior_fix/$${K%%:*}_006.onnx --source $${K##*:} --sessions $(MP_TEST_006) && \
 	  $(BIN)/blenav-fixes data/$$D data/runs/mapprior_fix/$${K%%:*}_007.onnx --source $${K##*:} --sessions $(MP_TEST_007) || exit 1; \
 	done; done
-	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp sessions=$(MP_TEST) \
+	$(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table37 data=data/procedural_mp sessions=$(MP_TEST) \
 	    runs=3 model_path=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_learnedfix progress=false
-	$(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/procedural_mp sessions=$(MP_TEST) \
+	$(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table36 data=data/procedural_mp sessions=$(MP_TEST) \
 	    runs=3 model_path=data/runs/mapprior_proc_onnx out=data/results/mapprior_table36 progress=false
-	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_io sessions=$(MP_TEST) \
+	$(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table37 data=data/procedural_mp_io sessions=$(MP_TEST) \
 	    runs=3 model_path=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_io progress=false
-	$(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/procedural_mp_io sessions=$(MP_TEST) \
+	$(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table36 data=data/procedural_mp_io sessions=$(MP_TEST) \
 	    runs=3 model_path=data/runs/mapprior_proc_onnx out=data/results/mapprior_table36_io progress=false
 	# 15-min walks in the same two buildings (more odometry drift, nearer the thesis' IO error), same models
 	$(BIN)/blenav-sim $(MP_SIM) duration_s=900 first_session=96 sessions=32 out=data/procedural_mp_long overwrite=true progress=false
@@ -196,7 +196,7 @@ mapprior-tables: $(STAMP)
 	  $(BIN)/blenav-fixes data/procedural_mp_long data/runs/mapprior_fix/$${K%%:*}_006.onnx --source $${K##*:} --sessions $(MP_LONG_006) && \
 	  $(BIN)/blenav-fixes data/procedural_mp_long data/runs/mapprior_fix/$${K%%:*}_007.onnx --source $${K##*:} --sessions $(MP_LONG_007) || exit 1; \
 	done
-	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_long sessions=$(MP_LONG_006),$(MP_LONG_007) \
+	$(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table37 data=data/procedural_mp_long sessions=$(MP_LONG_006),$(MP_LONG_007) \
 	    runs=3 model_path=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_long progress=false
 	# calibrated fix likelihood (ours): a sparse model trained the same way for building 000 (not a test
@@ -207,11 +207,11 @@ mapprior-tables: $(STAMP)
 	SIG=$$($(BIN)/blenav-fixes data/procedural_mp data/runs/mp_calib/sparse4_000.onnx --calibrate \
 	      --sessions $(MP_CALIB) | tail -n 1 | cut -d= -f2) && test -n "$$SIG" && echo "sparse fixes: sigma_eff $$SIG m" && \
 	for W in procedural_mp:$(MP_TEST):calibrated procedural_mp_io:$(MP_TEST):io_calibrated procedural_mp_long:$(MP_LONG_006),$(MP_LONG_007):long_calibrated; do \
-	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$${W%%:*} sessions=$$(echo $$W | cut -d: -f2) \
+	  $(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table37 data=data/$${W%%:*} sessions=$$(echo $$W | cut -d: -f2) \
 	      runs=3 model_path=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	      methods.sparse_io.measurements.fix.sigma_m=$$SIG methods.sparse_io_map.measurements.fix.sigma_m=$$SIG \
 	      out=data/results/mapprior_table37_$${W##*:} progress=false && \
-	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$${W%%:*} sessions=$$(echo $$W | cut -d: -f2) \
+	  $(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table37 data=data/$${W%%:*} sessions=$$(echo $$W | cut -d: -f2) \
 	      runs=3 model_path=data/runs/mapprior_proc_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	      methods.sparse_io.measurements.fix.sigma_m=$$SIG methods.sparse_io_map.measurements.fix.sigma_m=$$SIG \
 	      methods.sparse_io.map.init=groundtruth methods.sparse_io_map.map.init=groundtruth \
@@ -224,10 +224,10 @@ mapprior-tables: $(STAMP)
 	  $(BIN)/python train.py experiment=mapprior data=data/procedural_mp out=data/runs/mapprior_proc80 \
 	    'data.val_buildings=[procedural_006,procedural_007]' trainer.max_epochs=80 trainer.enable_progress_bar=false && \
 	  $(BIN)/python export.py ckpt=data/runs/mapprior_proc80/last.ckpt out=data/runs/mapprior_proc80_onnx; }
-	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp sessions=$(MP_TEST) \
+	$(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table37 data=data/procedural_mp sessions=$(MP_TEST) \
 	    runs=3 model_path=data/runs/mapprior_proc80_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_e80 progress=false
-	$(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/procedural_mp_long sessions=$(MP_LONG_006),$(MP_LONG_007) \
+	$(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table37 data=data/procedural_mp_long sessions=$(MP_LONG_006),$(MP_LONG_007) \
 	    runs=3 model_path=data/runs/mapprior_proc80_onnx fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 \
 	    out=data/results/mapprior_table37_long_e80 progress=false
 	# two larger buildings (60 x 40 m, 22 beacons as the thesis' dense set), unlike any the prior saw: 8 test
@@ -256,7 +256,7 @@ mapprior-tables: $(STAMP)
 	  done || exit 1; \
 	done
 	for D in procedural_large procedural_large_io; do \
-	  $(BIN)/blenav-eval experiment=mapprior_003_table37 data=data/$$D runs=3 model_path=data/runs/mapprior_proc_onnx \
+	  $(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table37 data=data/$$D runs=3 model_path=data/runs/mapprior_proc_onnx \
 	      fixes.dense=locnet-dense fixes.sparse=locnet-sparse4 out=data/results/mapprior_table37_$${D#procedural_} \
 	      progress=false || exit 1; \
 	done
@@ -272,7 +272,7 @@ mapprior-planerr: $(STAMP)
 	  { echo "mapprior-planerr: run 'make mapprior-tables' first (it trains the prior and simulates the walks)"; exit 1; }
 	for P in $(foreach K,$(MP_PLANERR),'planerr$(K):plan_error.barriers_per_100m2=$(K)') \
 	    'planoff:plan_error.offset_m=[$(MP_PLANOFF),0]'; do for D in procedural_mp procedural_mp_io; do \
-	  $(BIN)/blenav-eval experiment=mapprior_003_table36 data=data/$$D sessions=$(MP_TEST) runs=3 \
+	  $(BIN)/blenav-eval overwrite=true experiment=mapprior_003_table36 data=data/$$D sessions=$(MP_TEST) runs=3 \
 	      model_path=data/runs/mapprior_proc_onnx "$${P#*:}" \
 	      out=data/results/mapprior_table36_$${D#procedural_}_$${P%%:*} progress=false || exit 1; \
 	done; done
@@ -284,10 +284,10 @@ SELFCAL_RUNS ?= 30
 selfcal-tables: $(STAMP)
 	test -e data/office_mixed/dataset.yaml || $(BIN)/blenav-sim sim=office_45x55 seed=1 out=data/office_mixed \
 	    duration_s=384 sessions=5 'sim.carriers=[pedestrian,pedestrian,robot,pedestrian,robot]' progress=false
-	$(BIN)/blenav-eval experiment=mapfusion_002 data=data/office_mixed runs=$(SELFCAL_RUNS) \
+	$(BIN)/blenav-eval overwrite=true experiment=mapfusion_002 data=data/office_mixed runs=$(SELFCAL_RUNS) \
 	    calibration=[s000_iphone-7_pedestrian] out=data/results/office_mixed_selfcal progress=false plots=false
 	for S in $$(ls data/office_mixed/sessions | tail -n +2); do \
-	  $(BIN)/blenav-eval experiment=mapfusion_002 data=data/office_mixed runs=$(SELFCAL_RUNS) sessions=$$S \
+	  $(BIN)/blenav-eval overwrite=true experiment=mapfusion_002 data=data/office_mixed runs=$(SELFCAL_RUNS) sessions=$$S \
 	      calibration=[$$S] methods.pf_pl=null methods.pf_pl_map=null methods.pf_ps=null methods.pf_pl_offset=null \
 	      methods.pf_ps_map_offset=null out=data/results/office_mixed_owncal/$$S progress=false plots=false || exit 1; \
 	done
@@ -303,9 +303,9 @@ BACKEND_DATA ?= data/sim/office_backend
 backend-tables: $(STAMP)
 	test -e $(BACKEND_DATA)/dataset.yaml || $(BIN)/blenav-sim sim=office_45x55 seed=0 out=$(BACKEND_DATA) \
 	    duration_s=384 sessions=1 progress=false
-	$(BIN)/blenav-eval experiment=backend_000 data=$(BACKEND_DATA) runs=$(BACKEND_RUNS) out=data/results/backend_000 \
+	$(BIN)/blenav-eval overwrite=true experiment=backend_000 data=$(BACKEND_DATA) runs=$(BACKEND_RUNS) out=data/results/backend_000 \
 	    progress=false
-	$(BIN)/blenav-eval experiment=mapnoise_000 data=$(BACKEND_DATA) runs=$(BACKEND_RUNS) out=data/results/mapnoise_000 \
+	$(BIN)/blenav-eval overwrite=true experiment=mapnoise_000 data=$(BACKEND_DATA) runs=$(BACKEND_RUNS) out=data/results/mapnoise_000 \
 	    progress=false
 	cp data/results/backend_000/results.md docs/results/office_backend_000.md
 	cp data/results/mapnoise_000/results.md docs/results/office_mapnoise_000.md
@@ -324,8 +324,8 @@ CRF_DATA ?= data/sim/crf_004
 crf-tables: $(STAMP)
 	test -e $(CRF_DATA)/dataset.yaml || $(BIN)/blenav-sim sim=crf_004 seed=1 out=$(CRF_DATA) duration_s=300 \
 	    sessions=8 progress=false
-	$(BIN)/blenav-eval experiment=crf_004_table1 data=$(CRF_DATA) out=data/results/crf_004_table1 progress=false
-	$(BIN)/blenav-eval experiment=crf_004_fig12 data=$(CRF_DATA) out=data/results/crf_004_fig12 progress=false
+	$(BIN)/blenav-eval overwrite=true experiment=crf_004_table1 data=$(CRF_DATA) out=data/results/crf_004_table1 progress=false
+	$(BIN)/blenav-eval overwrite=true experiment=crf_004_fig12 data=$(CRF_DATA) out=data/results/crf_004_fig12 progress=false
 	$(BIN)/python -m blenav.crf.tables data/results/crf_004_table1 data/results/crf_004_fig12 \
 	    docs/results/crf_004_tables.md
 
@@ -344,7 +344,7 @@ lb_comma := ,
 leaderboard: $(STAMP)
 	test -e $(LB_SIM)/dataset.yaml || $(BIN)/blenav-sim sim=small sim.name=wharf_lab \
 	    'sim.receivers=[honor-20-pro,redmi-note8]' seed=2 out=$(LB_SIM) duration_s=120 sessions=2 progress=false
-	$(BIN)/blenav-eval -m experiment=leaderboard data=$(LB_SIM)$(if $(LB_REAL),$(lb_comma)$(LB_REAL)) runs=$(LB_RUNS) \
+	$(BIN)/blenav-eval -m overwrite=true experiment=leaderboard data=$(LB_SIM)$(if $(LB_REAL),$(lb_comma)$(LB_REAL)) runs=$(LB_RUNS) \
 	    'out=$(LB_OUT)/$${hydra:job.num}' hydra/launcher=joblib hydra.launcher.n_jobs=$(LB_JOBS) \
 	    hydra.sweep.dir=$(LB_OUT)/.multirun progress=false $(LB_ARGS)
 	$(BIN)/python -m blenav.eval.merge --leaderboard $(LB_OUT)/fleet.md "Leaderboard over the fleet (make leaderboard)" \
@@ -358,7 +358,7 @@ realism: $(STAMP)
 FENG_RAW ?= ../shared/data/raw/feng_wifi_rtt
 feng-tables: $(STAMP)
 	rm -rf data/feng_wifi_rtt && $(BIN)/blenav-import feng_wifi_rtt $(FENG_RAW) data/feng_wifi_rtt
-	$(BIN)/blenav-eval experiment=crf_004_feng data=data/feng_wifi_rtt out=data/results/crf_004_feng progress=false
+	$(BIN)/blenav-eval overwrite=true experiment=crf_004_feng data=data/feng_wifi_rtt out=data/results/crf_004_feng progress=false
 	$(BIN)/python -m blenav.eval.feng_rtt data/results/crf_004_feng/results.json docs/results/feng_rtt.md "make feng-tables"
 
 # Issue 17 sec. 2: every method on the ILC 2.0 real walks (three floors of site1), per floor, from the raw archives:
@@ -390,25 +390,25 @@ realwalks-tables: $(STAMP)
 	  rm -rf $(RW_DATA)/imported_$$F $(RW_DATA)/mapped_$$F $(RW_DATA)/$$F && \
 	  $(BIN)/blenav-import ilc20 $(RW_RAW)/site1_$$F.tar.gz $(RW_DATA)/imported_$$F && \
 	  $(BIN)/blenav-map $(RW_DATA)/imported_$$F --out $(RW_DATA)/mapped_$$F --keep-unplaced \
-	      --sessions $$($(BIN)/python -m blenav.eval.realwalks train-ids $(RW_DATA)/imported_$$F) && \
+	      --sessions $$($(BIN)/python -m blenav.cli.realwalks train-ids $(RW_DATA)/imported_$$F) && \
 	  cp -r $(RW_DATA)/imported_$$F $(RW_DATA)/$$F && \
 	  cp $(RW_DATA)/mapped_$$F/buildings/site1/anchors.csv $(RW_DATA)/$$F/buildings/site1/anchors.csv && \
-	  $(BIN)/blenav-eval experiment=realwalks data=$(RW_DATA)/$$F runs=$(RW_RUNS) model_path=$(RW_PRIOR) \
+	  $(BIN)/blenav-eval overwrite=true experiment=realwalks data=$(RW_DATA)/$$F runs=$(RW_RUNS) model_path=$(RW_PRIOR) \
 	      out=$(RW_OUT)/$$F progress=false || exit 1; done
 	rm -rf $(RW_DATA)/raw_site $(RW_DATA)/site1 && mkdir -p $(RW_DATA)/raw_site
 	for F in $(RW_FLOORS); do tar -xzf $(RW_RAW)/site1_$$F.tar.gz -C $(RW_DATA)/raw_site || exit 1; done
 	$(BIN)/blenav-import ilc20 $(RW_DATA)/raw_site/site1 $(RW_DATA)/site1
-	$(BIN)/blenav-eval experiment=realwalks_floors data=$(RW_DATA)/site1 runs=1 out=$(RW_OUT)/floors progress=false
-	$(BIN)/python -m blenav.eval.realwalks tables $(RW_OUT) docs/results-ilc20.md $(RW_OUT)/floors README.md
+	$(BIN)/blenav-eval overwrite=true experiment=realwalks_floors data=$(RW_DATA)/site1 runs=1 out=$(RW_OUT)/floors progress=false
+	$(BIN)/python -m blenav.cli.realwalks tables $(RW_OUT) docs/results-ilc20.md $(RW_OUT)/floors README.md
 	for F in $(RW_FLOORS); do \
 	  O=$$(echo $(RW_FLOORS) | tr ' ' '\n' | grep -vx $$F); FIRST=$$(echo $$O | cut -d' ' -f1); \
 	  REST=$$(for G in $$O; do test $$G = $$FIRST || printf '%s,' $(RW_DATA)/$$G; done | sed 's/,$$//'); \
-	  IDS=$$(for G in $$O; do $(BIN)/python -m blenav.eval.realwalks train-ids $(RW_DATA)/$$G; done | paste -sd,); \
+	  IDS=$$(for G in $$O; do $(BIN)/python -m blenav.cli.realwalks train-ids $(RW_DATA)/$$G; done | paste -sd,); \
 	  test -e $(RW_FLOOR_PRIOR)_not_$${F}_onnx/meta.json || { \
 	    $(BIN)/python train.py experiment=mapprior_ilc data=$(RW_DATA)/$$FIRST "data.extra_paths=[$$REST]" "data.sessions=[$$IDS]" \
 	        trainer.max_epochs=$(RW_FLOOR_EPOCHS) out=$(RW_FLOOR_PRIOR)_not_$$F plots=false && \
 	    $(BIN)/python export.py ckpt=$(RW_FLOOR_PRIOR)_not_$$F/last.ckpt out=$(RW_FLOOR_PRIOR)_not_$${F}_onnx; } && \
-	  $(BIN)/blenav-eval experiment=mapprior_ilc_rows data=$(RW_DATA)/$$F runs=$(RW_RUNS) \
+	  $(BIN)/blenav-eval overwrite=true experiment=mapprior_ilc_rows data=$(RW_DATA)/$$F runs=$(RW_RUNS) \
 	      model_path=$(RW_FLOOR_PRIOR)_not_$${F}_onnx out=$(RW_OUT_OTHER)/$$F progress=false || exit 1; done
 	$(BIN)/python -m blenav.eval.realwalks_priors $(RW_OUT) $(RW_OUT_OTHER) '$(RW_FLOOR_PRIOR)_not_{floor}_onnx' \
 	    docs/results-ilc20.md README.md

@@ -81,8 +81,9 @@ def test_cli_smoke(small, tmp_path):
     assert "PF-PS+MAP" in p.stdout
     assert json.loads((out / "results.json").read_text())["sessions"] == [sid, ds.session_ids[1]]
     bad = subprocess.run([sys.executable, "-m", "blenav.cli.eval", "experiment=mapfusion_002", f"data={tmp_path / 'nope'}",
-                          "runs=1", f"out={out}"], capture_output=True, text=True, timeout=120)
+                          "runs=1", f"out={out}", "overwrite=true"], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 1 and "cannot open dataset" in bad.stderr and "Traceback" not in bad.stderr
+    assert json.loads((out / "results.json").read_text())["sessions"] == [sid, ds.session_ids[1]]  # left as it was
 
 
 def _copy(small, tmp_path, name):

@@ -1,20 +1,25 @@
-"""``blenav-eval experiment=NAME data=DIR runs=N out=OUT [sessions=ID,ID] [model_path=PATH]``: compare localization
-methods (``model_path``: a trained model the experiment evaluates; ``model=PATH`` is its deprecated spelling).
+"""``blenav-eval experiment=NAME data=DIR runs=N out=OUT [sessions=ID,ID] [model_path=PATH] [overwrite=true]``: compare
+localization methods (``model_path``: a trained model the experiment evaluates; ``model=PATH`` is its deprecated
+spelling).
 
-A failed evaluation leaves no output folder behind when it created it."""
+OUT appears whole or not at all (:mod:`blenav.cli.outdir`): the evaluation writes into ``.OUT.tmp-<pid>`` beside it
+and renames that to OUT at the end. An existing OUT is refused unless ``overwrite=true``, which replaces it whole
+(no stale session folder of an earlier run stays beside the new results.json) and reuses its ``runs/`` (trained
+cross-phone runs) and ``fixes/`` (computed BLE fixes). A failed run leaves OUT as it was; Ctrl-C or SIGTERM prints
+``blenav-eval: interrupted; removed partial output ...`` and exits 130 / 143. Session ids (and method labels) that
+map to one output name (``s 000``, ``s_000``) are refused before any work."""
 
 from __future__ import annotations
 
-import shutil
 import sys
 from functools import partial
-from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
 from blenav.configs import cli_overrides
 
 from .common import run_hydra
+from .outdir import fresh_output
 
 PROG = "blenav-eval"
 
@@ -47,14 +52,9 @@ def task(cfg: DictConfig) -> None:
 
     if OmegaConf.is_missing(cfg.data, "path"):
         raise ValueError("name the dataset to evaluate on: data=DIR (a format-v1 dataset folder)")
-    out = Path(cfg.out)
-    existed = out.exists()
-    try:
-        res = evaluate(cfg)
-    except BaseException:
-        if not existed and out.exists():  # no half-written output folder
-            shutil.rmtree(out, ignore_errors=True)
-        raise
+    inputs = [cfg.data.path, cfg.get("model_path")]  # never inside an OUT that overwrite=true deletes
+    with fresh_output(cfg.out, bool(cfg.get("overwrite", False)), inputs) as tmp:
+        res = evaluate(OmegaConf.merge(cfg, {"out": str(tmp)}))
     for line in summary_lines(res):
         print(line)
     print(f"wrote {cfg.out}/results.json")

@@ -55,6 +55,8 @@ from blenav.filters.runner import run_session
 from blenav.features.windows import spread_beacons
 from blenav.localizers import ParticleFilterLocalizer
 
+from .common import output_name
+
 log = logging.getLogger("blenav.eval.fixes")
 
 
@@ -191,7 +193,7 @@ class FixProvider:
             "beacons": m.beacons, "filter": repr(m.filter), "motion": repr(m.motion), "map": repr(m.map),
             "measurements": [repr(x) for x in m.measurements], "seed": seed, "rate_hz": self.rate_hz,
         }, sort_keys=True).encode()).hexdigest()[:16]
-        path = self.out / "fixes" / session.id / f"{src}.csv"
+        path = self.out / "fixes" / output_name(session.id) / f"{src}.csv"
         meta = path.with_suffix(".json")
         if path.is_file() and meta.is_file():
             info = json.loads(meta.read_text())

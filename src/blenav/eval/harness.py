@@ -58,7 +58,7 @@ from blenav.localizers.confine import confine
 from blenav.eval import beacon_map as BM
 from blenav.eval.plan_errors import PlanErrorConfig, perturb_building
 
-from .common import json_default, write_json
+from .common import check_output_names, json_default, output_name, write_json
 from .fixes import FixProvider
 from .floors import floor_accuracy
 from .leaderboard import PeakMemory
@@ -491,6 +491,7 @@ def evaluate(cfg: DictConfig) -> dict:
         return evaluate_crossphone(cfg)
     ds = open_dataset(cfg)
     methods = build_methods(cfg)
+    check_output_names(methods, "method")  # OUT/<session>/trajectories/<method>.tum: one file per method
     model_info = attach_models(methods, model_path(cfg))
     sessions, cal_spec = scored_sessions(cfg, ds)
     plan_error = plan_error_config(cfg)
@@ -504,6 +505,7 @@ def evaluate(cfg: DictConfig) -> dict:
     if plan_error.active:
         sessions, plan_info = with_wrong_plans(sessions, plan_error, out / "plans")
     train, sessions = train_test(cfg, ds, sessions)
+    check_output_names([s.id for s in train + sessions], "session")  # OUT/<session>/, OUT/fixes/<session>/
     sessions, bmap_info = BM.with_source(sessions, bmap)
     provider = build_fix_provider(cfg, methods, out)
     own = {k: m for k, m in (provider.methods if provider else {}).items() if all(m is not x for x in methods.values())}
@@ -600,8 +602,8 @@ def write_session_files(out: Path, outcomes: dict[str, MethodOutcome], sessions)
             s = by_id.get(sid)
             if s is None:
                 continue
-            d = out / _safe(sid)
-            write_tum(d / "trajectories" / f"{_safe(name)}.tum", est.t, est.position[0])
+            d = out / output_name(sid)
+            write_tum(d / "trajectories" / f"{output_name(name)}.tum", est.t, est.position[0])
             gt = s.groundtruth
             if len(gt) and not (d / "trajectories" / "groundtruth.tum").exists():
                 write_tum(d / "trajectories" / "groundtruth.tum", gt["t"].to_numpy(float), gt[["x", "y"]].to_numpy(float))
@@ -615,12 +617,7 @@ def write_session_files(out: Path, outcomes: dict[str, MethodOutcome], sessions)
                     import pandas as pd
 
                     pd.DataFrame(np.column_stack([est.t, bias[0]]), columns=["t"] + cols).to_csv(
-                        d / f"bias_{_safe(name)}.csv", index=False)
-
-
-def _safe(name: str) -> str:
-    """A method or session name as a file name ('RTT+BLE/online' -> 'RTT+BLE_online')."""
-    return "".join(c if c.isalnum() or c in "+-_.=" else "_" for c in str(name))
+                        d / f"bias_{output_name(name)}.csv", index=False)
 
 
 def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions, bounds: dict | None = None) -> None:

@@ -19,6 +19,8 @@ import json
 import sys
 from pathlib import Path
 
+from .common import write_text
+
 
 def load_columns(runs: list[tuple[Path, str]]) -> tuple[dict[str, dict[str, float]], list[str]]:
     """{column: {session: RMSE mean}} and the sessions in first-seen order."""
@@ -135,8 +137,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"blenav.eval.merge: error: {exc}", file=sys.stderr)
             return 1
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(leaderboard_markdown(title, merged), encoding="utf-8")
-        out.with_suffix(".json").write_text(json.dumps(merged, indent=1), encoding="utf-8")
+        write_text(out, leaderboard_markdown(title, merged))
+        write_text(out.with_suffix(".json"), json.dumps(merged, indent=1))
         print(out)
         return 0
     if len(args) < 3:
@@ -146,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     runs = [(Path(s.split(":", 1)[0]), s.split(":", 1)[1] if ":" in s else "") for s in specs]
     cols, sessions = load_columns(runs)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(markdown(title, cols, sessions, [str(r) for r, _ in runs]), encoding="utf-8")
+    write_text(out, markdown(title, cols, sessions, [str(r) for r, _ in runs]))
     print(out)
     return 0
 

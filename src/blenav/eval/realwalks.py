@@ -45,6 +45,8 @@ from blenav.filters.steps import SessionArrays, StepDetectorConfig, detect_steps
 from blenav.localizers.base import Estimate, RunContext, Trained
 from blenav.localizers.particle import ParticleFilterLocalizer
 
+from .common import write_text
+
 log = logging.getLogger("blenav.eval.realwalks")
 
 __all__ = ["RealWalkPF", "pdr_odometry", "fit_step_length", "train_ids", "table_rows", "floor_table", "verdicts",
@@ -337,7 +339,7 @@ def write_tables(out_root: str, summary_md: str, command: str = "make realwalks-
         r = json.loads((d / "results.json").read_text())
         by_floor[d.name] = r
         (summary.parent / "results").mkdir(parents=True, exist_ok=True)
-        (summary.parent / "results" / f"ilc20_{d.name}.md").write_text(floor_markdown(r, d.name, command))
+        write_text(summary.parent / "results" / f"ilc20_{d.name}.md", floor_markdown(r, d.name, command))
     table = summary_table(by_floor)
     fa = None
     if floors_dir and (Path(floors_dir) / "results.json").is_file():
@@ -362,9 +364,9 @@ def _splice(path, body: str, append: bool = False, tag: str = "realwalks-table")
     start, end = f"<!-- {tag} -->", f"<!-- /{tag} -->"
     text = path.read_text() if path.is_file() else ""
     if start in text and end in text:
-        path.write_text(text.split(start)[0] + start + "\n" + body + "\n" + end + text.split(end, 1)[1])
+        write_text(path, text.split(start)[0] + start + "\n" + body + "\n" + end + text.split(end, 1)[1])
     elif append:
-        path.write_text(text + f"\n{start}\n{body}\n{end}\n")
+        write_text(path, text + f"\n{start}\n{body}\n{end}\n")
 
 
 if __name__ == "__main__":  # python -m blenav.eval.realwalks train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README]

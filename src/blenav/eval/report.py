@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .common import write_text
+
 
 def _f(v, nd=2) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
@@ -27,7 +29,7 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
     lines += _confined_lines(ms) + _dropped_lines(results)
     lines += _paper_comparison(results, ms, cfg)
     lines += ["", plots]
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def _method_tables(results: dict) -> tuple[str, list[str], str]:
@@ -311,7 +313,7 @@ def write_crossphone_markdown(path: Path, results: dict, cfg=None) -> None:
                   "they are not scored."]
     lines += crossphone_claims(results)
     lines += ["", "Plots: error_cdf.png (all test windows), per_device.png (mean error per phone and method)."]
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def _pooled_mean(m: dict, devices) -> float | None:
