@@ -23,6 +23,15 @@ from test_ilc20 import walk_lines, write_floor, write_walk
 START = 1_600_000_000_000
 
 
+def training_node() -> dict:
+    """The networks' training node (data, trainer, models) conf/localizer/fingerprint.yaml composes into a method's
+    node, as blenav-eval hands it to the localizer."""
+    from omegaconf import OmegaConf
+
+    cfg = compose("eval", "+localizer@methods.fp=fingerprint")
+    return OmegaConf.to_container(cfg.methods.fp.training, resolve=True)
+
+
 def coded_walk(start: int, y: float, ap_prefix: str = "aa:00") -> list[str]:
     """A 6 s walk along x at 4 m/s from (5, y) (waypoints at 0.01, 2.51, 5.01 s: 5, 15, 25 m); at the scan of
     second s (t = s + 0.5) access point ``<prefix>:0c``, c = min(s, 4), is heard at -50 dBm besides the importer
@@ -221,7 +230,7 @@ def test_locnet_trains_with_the_project_trainer(coded, tmp_path):
     """LocNet on WiFi windows through blenav.learn.train (step budget, report); a short budget, numbers finite."""
     from blenav.localizers import RunContext
 
-    loc = FingerprintLocalizer("LocNet-WiFi", model="locnet", val_fraction=0.5, seed=3,
+    loc = FingerprintLocalizer("LocNet-WiFi", model="locnet", val_fraction=0.5, seed=3, training=training_node(),
                                trainer={"budget": {"max_steps": 20, "val_every_steps": 5, "warmup_steps": 2}})
     rep = loc.fit([coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], RunContext(out=tmp_path))
     tr = rep["floors"]["mall/F1"]["training"]

@@ -1,4 +1,5 @@
-"""LocNet on fingerprint windows (blenav.learn.fingerprint_train): the run's config composed from conf/train.yaml,
+"""LocNet on fingerprint windows (blenav.learn.fingerprint_train): the run's config as conf/train.yaml gives it, built
+from the training node conf/localizer/fingerprint.yaml composes,
 the windows handed to the trainer through the data module's own code (tensors, validation cap), and the
 checkpoint's data_path naming the walks' dataset. Synthetic ILC walks (tests/test_fingerprint.py's coded walks)."""
 
@@ -8,10 +9,11 @@ import numpy as np
 import pytest
 
 from test_fingerprint import coded as walks  # noqa: F401 -- the fixture: walks A, B (trained), C, imported
+from test_fingerprint import training_node
 
 
 def test_array_windows_use_the_data_module_and_its_validation_cap(walks, tmp_path):
-    """ArrayWindows: the composed train config's data node (path = the walks' dataset), the data module's tensors
+    """ArrayWindows: the run config's data node (path = the walks' dataset), the data module's tensors
     (u / 100, float32) and its seeded validation cap data.val_max_windows (8 windows -> 3, the subset of
     default_rng([seed, 2]), in order)."""
     import torch
@@ -22,8 +24,8 @@ def test_array_windows_use_the_data_module_and_its_validation_cap(walks, tmp_pat
     ss = [walks.session("mall_F1_walkA"), walks.session("mall_F1_walkB")]
     root = dataset_root(ss)
     assert root == walks.root.resolve()
-    cfg = run_config("locnet", tmp_path / "run", root, 3, {"lr": 0.002}, {"budget": {"max_steps": 7}}, 0.5, 4, 1,
-                     False, building="mall", sessions=[s.id for s in ss])
+    cfg = run_config(training_node(), "locnet", tmp_path / "run", root, 3, {"lr": 0.002}, {"budget": {"max_steps": 7}},
+                     0.5, 4, 1, False, building="mall", sessions=[s.id for s in ss])
     assert cfg.model.lr == 0.002 and cfg.model.name == "locnet" and cfg.trainer.budget.max_steps == 7
     assert cfg.trainer.budget.patience == 15 and cfg.trainer.enable_progress_bar is False and cfg.task == "crossphone"
     assert cfg.data.val_max_windows == 2048  # conf/windows/default.yaml's cap, as every window training
@@ -45,8 +47,31 @@ def test_array_windows_use_the_data_module_and_its_validation_cap(walks, tmp_pat
     assert dm.sets["known"] is dm.sets["train"] and len(dm.val_dataloader()) == 1
     with pytest.raises(ValueError, match="one dataset"):
         dataset_root([])
-    with pytest.raises(ValueError, match="no .*nosuchnet.yaml"):
-        run_config("nosuchnet", tmp_path / "run", root, 0, None, None, 0.5, 4, 1, False)
+    with pytest.raises(ValueError, match="no training.models.nosuchnet"):
+        run_config(training_node(), "nosuchnet", tmp_path / "run", root, 0, None, None, 0.5, 4, 1, False)
+
+
+@pytest.mark.parametrize("model", ["locnet", "transnet_locnet"])
+def test_run_config_is_what_conf_train_yaml_gives(model, tmp_path):
+    """The localizer's training node gives the run the config conf/train.yaml composed with model=<model> gives
+    (the same resolved YAML, key order included, as OUT/config.yaml holds it), with the same overrides applied."""
+    from omegaconf import OmegaConf
+
+    from blenav.configs import compose
+    from blenav.learn.fingerprint_train import run_config
+
+    net, trainer = {"lr": 0.002}, {"budget": {"max_steps": 7}}
+    new = run_config(training_node(), model, tmp_path / "run", tmp_path, 3, net, trainer, 0.5, 4, 1, False,
+                     building="mall", sessions=["a", "b"])
+    old = compose("train", f"model={model}")  # what run_config composed before issue 27
+    OmegaConf.set_struct(old, False)
+    old.model = OmegaConf.merge(old.model, OmegaConf.create(net))
+    old.trainer = OmegaConf.merge(old.trainer, OmegaConf.create(trainer), {"enable_progress_bar": False})
+    old.seed, old.out, old.threads, old.plots = 3, str(tmp_path / "run"), 1, False
+    old.data.path, old.data.batch_size, old.data.val_fraction = str(tmp_path), 4, 0.5
+    old.data.building, old.data.sessions = "mall", ["a", "b"]
+    assert OmegaConf.to_yaml(new, resolve=True) == OmegaConf.to_yaml(old, resolve=True)
+    assert new.model.name == model and new.data.seed == 3
 
 
 def test_locnet_checkpoint_records_the_walks_dataset(walks, tmp_path):
@@ -57,8 +82,10 @@ def test_locnet_checkpoint_records_the_walks_dataset(walks, tmp_path):
     from blenav.localizers import RunContext
     from blenav.localizers.fingerprint import FingerprintLocalizer
 
-    loc = FingerprintLocalizer("LocNet-WiFi", model="locnet", val_fraction=0.5, seed=3,
+    loc = FingerprintLocalizer("LocNet-WiFi", model="locnet", val_fraction=0.5, seed=3, training=training_node(),
                                trainer={"budget": {"max_steps": 4, "val_every_steps": 2, "warmup_steps": 1}})
+    with pytest.raises(ValueError, match="needs the networks' training config"):
+        FingerprintLocalizer("LocNet-WiFi", model="locnet")
     rep = loc.fit([walks.session("mall_F1_walkA"), walks.session("mall_F1_walkB")], RunContext(out=tmp_path))
     tr = rep["floors"]["mall/F1"]["training"]
     assert tr["steps"] == 4 and tr["train_windows"] == 5 and tr["val_windows"] == 5
@@ -69,8 +96,8 @@ def test_locnet_checkpoint_records_the_walks_dataset(walks, tmp_path):
 
 
 def test_compose_inside_a_running_hydra_app():
-    """blenav-eval trains the fingerprint networks inside its Hydra app: compose() sets the app's Hydra aside and
-    gives it back (was: 'GlobalHydra is already initialized')."""
+    """compose() inside a running Hydra app (a test or tool composing while blenav-eval's app runs) sets the app's
+    Hydra aside and gives it back (was: 'GlobalHydra is already initialized')."""
     from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 

@@ -1,12 +1,18 @@
-"""The layers of blenav import in one direction (issue 13, section 2).
+"""The layers of blenav import in one direction (issue 13, section 2; issue 27, section 4).
 
 1. Nothing below ``learn/`` loads torch, lightning or hydra: importing every module of ``blenav.data``,
    ``blenav.features``, ``blenav.filters``, ``blenav.runtime``, ``blenav.sim`` and ``blenav.importers`` (and
    ``blenav.onnx_io``) in a fresh interpreter leaves them out of ``sys.modules``.
-2. No import cycles between the modules of ``src/blenav``. The graph counts every ``import`` statement of a
-   module, at module level *and* inside functions (a lazy import hides a cycle, it does not remove it); only
-   imports under ``if TYPE_CHECKING:`` are left out (they never run). A justified lazy import that closes a
-   cycle must be listed in :data:`ALLOWED` with the reason.
+2. Every module belongs to one layer of :data:`LAYERS` (bottom-up) and imports only modules of its own layer or of
+   lower ones: filters below runtime, learn below the localizers, ``blenav.configs`` (which composes ``conf/``)
+   above everything but the command lines, so that only entry points (``blenav.cli``, ``train.py``,
+   ``export.py``) compose a config and hand the nodes down.
+3. No import cycles between the modules of ``src/blenav``.
+
+The graph counts every ``import`` statement of a module: at module level, inside functions (a lazy import hides a
+cycle or an upward edge, it does not remove it) and under ``if TYPE_CHECKING:`` (a type-only import is still a
+dependency of the code that reads it). A justified import that closes a cycle must be listed in :data:`ALLOWED`
+with the reason.
 """
 
 from __future__ import annotations
@@ -21,8 +27,32 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 LOWER = ("blenav.data", "blenav.features", "blenav.filters", "blenav.runtime", "blenav.sim", "blenav.importers",
          "blenav.onnx_io", "blenav.crf")
 HEAVY = ("torch", "lightning", "hydra")
-#: (importer, imported) edges left out of the cycle check, each with its reason; none needed today
+#: (importer, imported) edges left out of the cycle and layer checks, each with its reason; none needed today
 ALLOWED: dict[tuple[str, str], str] = {}
+
+#: The layers, bottom-up. A module (or package, with everything below it) named here belongs to that layer and may
+#: import its own layer and the ones before it; ``blenav`` is the package's ``__init__`` alone. A new top-level
+#: module or package must be placed here (test_every_module_has_a_layer).
+LAYERS: tuple[tuple[str, ...], ...] = (
+    # stdlib / numpy helpers that know no other blenav module: paths, the shared exceptions, trust and size limits,
+    # the ONNX file helpers
+    ("blenav", "blenav.paths", "blenav.errors", "blenav.trust", "blenav.limits", "blenav.onnx_io"),
+    ("blenav.data",),                    # the dataset format: schema, readers, writer, validator
+    ("blenav.radio_stats",),             # statistics of a dataset's radio streams
+    ("blenav.features",),                # windows, fingerprints, scales, map grids
+    ("blenav.sim", "blenav.importers"),  # datasets made (simulator) or converted (importers)
+    ("blenav.filters",),                 # the particle filter, its models, the batch and streaming runners
+    ("blenav.crf",),                     # the CRF / Viterbi localizer's tables
+    ("blenav.runtime",),                 # bundles, ONNX localizers, the map prior's runtime (no torch)
+    ("blenav.models",),                  # the torch networks
+    ("blenav.plotting",),                # matplotlib figures (learn and eval import it lazily)
+    ("blenav.learn",),                   # training, export, baselines
+    ("blenav.localizers",),              # the methods behind one interface (they may train: learn is below)
+    ("blenav.backend",),                 # the factor-graph back-end, one of the localizers
+    ("blenav.eval",),                    # the evaluation harness and its experiments
+    ("blenav.configs",),                 # composes conf/ (Hydra): only entry points call it
+    ("blenav.cli",),                     # the command lines
+)
 
 
 def test_lower_layers_import_without_torch_lightning_hydra():
@@ -58,31 +88,16 @@ def modules(root: Path = SRC) -> dict[str, Path]:
     return out
 
 
-def _type_checking_nodes(tree: ast.AST) -> set[int]:
-    """ids of the import nodes under ``if TYPE_CHECKING:`` (or ``typing.TYPE_CHECKING``)."""
-    skip = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If):
-            t = node.test
-            name = t.id if isinstance(t, ast.Name) else t.attr if isinstance(t, ast.Attribute) else None
-            if name == "TYPE_CHECKING":
-                skip |= {id(n) for stmt in node.body for n in ast.walk(stmt)}
-    return skip
-
-
 def import_graph(root: Path = SRC) -> dict[str, set[str]]:
-    """Module -> the blenav modules it imports (module level and inside functions; ``from m import name``
-    counts ``m.name`` when that is a module, else ``m``)."""
+    """Module -> the blenav modules it imports (module level, inside functions and under ``if TYPE_CHECKING:``;
+    ``from m import name`` counts ``m.name`` when that is a module, else ``m``)."""
     mods = modules(root)
     graph: dict[str, set[str]] = {}
     for name, path in mods.items():
         tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
-        skip = _type_checking_nodes(tree)
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
         deps: set[str] = set()
         for node in ast.walk(tree):
-            if id(node) in skip:
-                continue
             if isinstance(node, ast.Import):
                 for a in node.names:
                     deps.add(a.name)
@@ -129,9 +144,11 @@ def test_cycle_finder_finds_a_lazy_import_cycle(tmp_path):
     (pkg / "__init__.py").write_text("")
     (pkg / "a.py").write_text("from blenav import b\n")
     (pkg / "b.py").write_text("def f():\n    from .a import x\n")
-    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from blenav import a\n")
+    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from blenav import d\n")
+    (pkg / "d.py").write_text("from . import c\n")
     graph = import_graph(tmp_path)
-    assert graph["blenav.a"] == {"blenav.b"} and graph["blenav.b"] == {"blenav.a"} and graph["blenav.c"] == set()
+    assert graph["blenav.a"] == {"blenav.b"} and graph["blenav.b"] == {"blenav.a"}
+    assert graph["blenav.c"] == {"blenav.d"} and graph["blenav.d"] == {"blenav.c"}  # a type-only import counts
     assert find_cycle(graph) in (["blenav.a", "blenav.b", "blenav.a"], ["blenav.b", "blenav.a", "blenav.b"])
     assert find_cycle({"x": {"y"}, "y": set()}) is None
 
@@ -143,12 +160,47 @@ def test_no_import_cycles():
     assert cycle is None, "import cycle: " + " -> ".join(cycle)
 
 
-def test_lower_layers_import_nothing_above_them():
-    """The static view of test 1: no module below learn/ names learn, eval, cli or configs, even lazily."""
-    upper = ("blenav.learn", "blenav.eval", "blenav.cli", "blenav.configs", "blenav.localizers")
-    bad = {(m, d) for m, deps in import_graph().items() if m.startswith(LOWER)
-           for d in deps if d.startswith(upper)}
-    assert not bad, f"lower layers import upper ones: {sorted(bad)}"
+def layer_of(module: str) -> int | None:
+    """The index in :data:`LAYERS` of ``module`` (its longest listed prefix; ``blenav`` only for itself), or None."""
+    best, found = -1, None
+    for i, names in enumerate(LAYERS):
+        for n in names:
+            hit = module == n if n == "blenav" else module == n or module.startswith(n + ".")
+            if hit and len(n) > best:
+                best, found = len(n), i
+    return found
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[str]:
+    """The edges of ``graph`` that point to a higher layer, as 'importer (layer) -> imported (layer)'."""
+    name = lambda i: LAYERS[i][0]
+    return [f"{m} ({name(layer_of(m))}) -> {d} ({name(layer_of(d))})" for m, deps in sorted(graph.items())
+            for d in sorted(deps) if layer_of(m) is not None and layer_of(d) is not None and layer_of(d) > layer_of(m)]
+
+
+def test_layer_check_catches_an_upward_import(tmp_path):
+    pkg = tmp_path / "blenav"
+    (pkg / "filters").mkdir(parents=True)
+    (pkg / "runtime").mkdir()
+    for p in ("__init__.py", "filters/__init__.py", "runtime/__init__.py", "paths.py"):
+        (pkg / p).write_text("")
+    (pkg / "filters" / "a.py").write_text("def f():\n    from blenav.runtime import b\n")  # lazy, upward
+    (pkg / "runtime" / "b.py").write_text("from blenav.filters import a\nfrom blenav import paths\n")  # downward
+    assert upward_imports(import_graph(tmp_path)) == [
+        "blenav.filters.a (blenav.filters) -> blenav.runtime.b (blenav.runtime)"]
+    assert layer_of("blenav") == 0 and layer_of("blenav.filters.map.geometry") == layer_of("blenav.filters")
+    assert layer_of("blenav.nosuchmodule") is None and layer_of("blenav.datafoo") is None
+
+
+def test_every_module_has_a_layer():
+    missing = sorted(m for m in modules() if layer_of(m) is None)
+    assert not missing, f"modules in no layer of LAYERS (place them in tests/test_layers.py): {missing}"
+
+
+def test_every_import_points_to_the_same_or_a_lower_layer():
+    """Module level, lazy and type-only imports alike: no module imports a layer above its own."""
+    up = upward_imports(import_graph())
+    assert not up, "imports that point up the layers:\n" + "\n".join(up)
 
 
 def test_runtime_map_prior_runs_a_checkpoint_only_with_the_loader_it_is_handed(tmp_path):

@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 from blenav.configs import compose
 
-import blenav.filters.map_prior as map_prior_mod
+import blenav.localizers.particle as particle_mod
 from blenav.data import Dataset
 from blenav.data.writer import write_fixes
 from blenav.errors import EvalError, MissingStream
@@ -209,7 +209,8 @@ def test_map_prior_pulls_the_filter_into_the_corridor(house, with_prior):
 
 def test_prior_loading_and_missing_prior(house, tmp_path):
     m = MapPriorLikelihood()
-    assert "model_path=" in attach_prior([m], None) and "model_path=" in m.missing_reason()
+    assert "model_path=" in attach_prior([m], None, loader=lambda p: FeasibilityPrior())
+    assert "model_path=" in m.missing_reason()
 
     def broken(path):
         raise ImportError("No module named 'blenav.runtime.map_prior'")
@@ -308,7 +309,7 @@ def test_experiments_end_to_end_with_a_prior_and_a_named_source(small, tmp_path,
     write_fixes(s0.root, t, s0.positions_at(t) + np.random.default_rng(0).normal(0, 1.0, (len(t), 2)),
                 source="gt+noise")
     made = []
-    monkeypatch.setattr(map_prior_mod, "load_prior", lambda path: made.append(path) or FeasibilityPrior())
+    monkeypatch.setattr(particle_mod, "load_prior", lambda path: made.append(path) or FeasibilityPrior())
     res = _eval("mapprior_003_table37", data, tmp_path / "t37", "fixes.sparse=gt+noise", model="fake-dir")
     assert made == ["fake-dir"]  # loaded once, shared by both learned rows
     _check_rows(res, T37, {})
@@ -326,13 +327,13 @@ def test_inertial_only_dataset_runs_the_rows_without_radio(small, tmp_path, monk
     data = shutil.copytree(small, tmp_path / "inertial")
     for f in list(data.rglob("rssi.csv")) + list(data.rglob("rtt.csv")) + list(data.rglob("anchors.csv")):
         f.unlink()
-    monkeypatch.setattr(map_prior_mod, "load_prior", lambda path: FeasibilityPrior())
+    monkeypatch.setattr(particle_mod, "load_prior", lambda path: FeasibilityPrior())
     res = _eval("mapprior_003_table37", data, tmp_path / "out", model="fake-dir")
     _check_rows(res, T37 - BLE, {k: ["rssi.csv", "BLE"] for k in BLE})
 
 
 def test_wrong_plans_reach_the_map_methods_only(small, tmp_path, monkeypatch):
-    monkeypatch.setattr(map_prior_mod, "load_prior", lambda path: FeasibilityPrior())
+    monkeypatch.setattr(particle_mod, "load_prior", lambda path: FeasibilityPrior())
     plans = {p: p.read_bytes() for p in small.rglob("*.png")}
     truth = _eval("mapprior_003_table36", small, tmp_path / "true", model="fake-dir")
     res = _eval("mapprior_003_table36", small, tmp_path / "wrong", "plan_error.barriers_per_100m2=3",

@@ -54,10 +54,10 @@ def three_walks(tmp_path_factory):
 @pytest.mark.realdata
 def test_trains_on_the_train_walks_with_interpolated_waypoints(three_walks, tmp_path):
     from blenav.data import Dataset
-    from blenav.eval.realwalks import train_ids
+    from blenav.cli.realwalks import train_ids_of
     from blenav.learn.train import train
 
-    train_walks = set(train_ids(str(three_walks)))  # the realwalks split, as make realwalks-tables passes it
+    train_walks = set(train_ids_of(str(three_walks)))  # the realwalks split, as make realwalks-tables passes it
     cfg = compose("train", "experiment=mapprior_ilc", f"data={three_walks}", f"out={tmp_path / 'run'}", *TINY,
                   f"data.sessions=[{','.join(sorted(train_walks))}]")
     metrics, objs = train(cfg)

@@ -108,15 +108,16 @@ def test_realwalks_contract_on_real_walks(raw_dir, tmp_path):
     data = tmp_path / "ds"
     run_import("ilc20", floor, data)
     from blenav.filters import map_prior
+    from blenav.localizers import particle
 
-    orig = map_prior.load_prior
-    map_prior.load_prior = lambda path: map_prior.FeasibilityPrior()
+    orig = particle.load_prior
+    particle.load_prior = lambda path: map_prior.FeasibilityPrior()
     try:
         res = evaluate(_cfg("experiment=realwalks", f"data={data}", "runs=1", f"out={tmp_path / 'o'}",
                             "model_path=feasibility", "methods.transnet_wifi.trainer={budget: {max_steps: 20}}",
                             "methods.locnet_wifi.trainer={budget: {max_steps: 20}}", "filter.n_particles=200"))
     finally:
-        map_prior.load_prior = orig
+        particle.load_prior = orig
     assert len(res["sessions"]) == 3
     for row in CONTRACT:
         e = res["methods"][row].get("error_m")
@@ -271,17 +272,20 @@ def test_one_fix_localizer_per_node_shared_with_its_row(tmp_path):
 
 
 def test_train_ids_and_table_rows_come_from_the_experiment(tmp_path):
-    """train-ids is the harness's split of the composed experiment; the tables' rows are the YAML's labels."""
+    """train-ids is the harness's split of the composed experiment; the tables' rows are the YAML's labels (the entry
+    point blenav.cli.realwalks composes the experiment, blenav.eval.realwalks reads the nodes it is handed)."""
+    from blenav.cli.realwalks import table_rows_of, train_ids_of
     from blenav.eval.harness import open_dataset, scored_sessions, train_test
-    from blenav.eval.realwalks import OUTCOMES, table_rows, train_ids
+    from blenav.eval.realwalks import OUTCOMES, train_ids
 
     data = _as_waypoint_walks(simulate_small(tmp_path / "d", 3, 20, 4))
     cfg = _cfg("experiment=realwalks", f"data={data}")
     ds = open_dataset(cfg)
     train, test = train_test(cfg, ds, scored_sessions(cfg, ds)[0])
-    assert train_ids(str(data)) == [s.id for s in train] and len(train) == 2
-    assert len(train_ids(str(data), train_fraction=0.75)) == 3
-    rows = table_rows()
+    assert train_ids(cfg) == [s.id for s in train] and len(train) == 2
+    assert train_ids_of(str(data)) == train_ids(cfg)
+    assert len(train_ids_of(str(data), train_fraction=0.75)) == 3
+    rows = table_rows_of()
     assert set(CONTRACT) <= set(rows["all"]) and {r for _, a, b in OUTCOMES for r in (a, b)} <= set(rows["all"])
     assert rows["fingerprint"] == ("KNN-WiFi", "KNN-BLE", "KNN-WiFi+BLE", "LocNet-WiFi", "TransNet+LocNet-WiFi")
     assert "WiFi+PDR+learned-map" in rows["fused"] and "PDR+map" not in rows["fused"]

@@ -132,8 +132,9 @@ def cli_overrides(args: list[str], deprecated_model_path: bool = False) -> list[
 
 def compose(config_name: str, *overrides: str) -> DictConfig:
     """The composed ``conf/<config_name>.yaml`` with command-line style ``overrides`` (see :func:`cli_overrides`).
-    Also inside a running Hydra app (e.g. a method that composes a training config during ``blenav-eval``): the
-    app's Hydra is set aside for the composition and given back after it."""
+    Entry points (``blenav.cli``, ``train.py``, ``export.py``), tests and benchmarks call it; nothing below them
+    does (``tests/test_layers.py``): they hand the composed nodes down. Also inside a running Hydra app: the app's
+    Hydra is set aside for the composition and given back after it."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra

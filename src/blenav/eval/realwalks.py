@@ -29,7 +29,6 @@ Everything else is the particle filter's: ``map.init: groundtruth`` starts at th
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 import logging
 
@@ -179,39 +178,26 @@ class RealWalkPF(ParticleFilterLocalizer, Trained):
 
 
 # ------------------------------------------------------------------------------------------ tables
-def _compose(experiment: str, *overrides: str):
-    from blenav.configs import compose
-
-    return compose("eval", f"experiment={experiment}", *overrides)
-
-
-def train_ids(data: str, train_fraction: float | None = None, seed: int | None = None,
-              experiment: str = "realwalks") -> list[str]:
-    """The train walks of ``experiment`` on the dataset ``data``: the experiment composed and split by the harness
-    itself (:func:`blenav.eval.harness.train_test`, the one source of the split), so that a beacon map estimated from
-    them by ``blenav-map --sessions`` sees no test walk. ``train_fraction`` / ``seed``: override the experiment's
-    ``split`` (as ``split.train_fraction=...`` on its command line would)."""
+def train_ids(cfg) -> list[str]:
+    """The train walks of the composed experiment ``cfg`` (its ``data`` and ``split``), split by the harness itself
+    (:func:`blenav.eval.harness.train_test`, the one source of the split), so that a beacon map estimated from them
+    by ``blenav-map --sessions`` sees no test walk. The entry point composes ``cfg``
+    (``python -m blenav.cli.realwalks train-ids DATA``)."""
     from .harness import open_dataset, scored_sessions, train_test
 
-    over = [f"split.train_fraction={train_fraction}"] if train_fraction is not None else []
-    over += [f"split.seed={seed}"] if seed is not None else []
-    cfg = _compose(experiment, f"data={data}", *over)
     ds = open_dataset(cfg)
     sessions, _ = scored_sessions(cfg, ds)
     train, _ = train_test(cfg, ds, sessions)
     return [s.id for s in train]
 
 
-@functools.lru_cache(maxsize=None)
-def table_rows(experiment: str = "realwalks") -> dict[str, tuple[str, ...]]:
-    """The labels of ``experiment``'s rows, in its order, read from the composed config (so a renamed label is
+def table_rows(methods: dict) -> dict[str, tuple[str, ...]]:
+    """The labels of an experiment's rows, in its order, from its composed ``methods`` node (a dict:
+    ``OmegaConf.to_container(cfg.methods, resolve=False)``; the entry point composes it, so a renamed label is
     renamed in the tables too): ``all``; ``fingerprint`` (fingerprint localizers); ``fused`` (rows with a fix
     likelihood of a ``fixes`` role)."""
-    from omegaconf import OmegaConf
-
-    cfg = OmegaConf.to_container(_compose(experiment).methods, resolve=False)
     rows = {"all": [], "fingerprint": [], "fused": []}
-    for key, node in cfg.items():
+    for key, node in methods.items():
         if node is None:
             continue
         label = str(node.get("label", key))
@@ -247,11 +233,12 @@ def _fmt(v, pct: bool = False) -> str:
     return f"{100 * v:.0f} %" if pct else f"{v:.2f}"
 
 
-def floor_table(results: dict) -> str:
+def floor_table(results: dict, rows: dict) -> str:
     """Markdown: one row per method of a realwalks results.json (error_m over the test walks' waypoints, m;
-    share of walks within 2 m / 5 m), skipped methods with the first reason."""
+    share of walks within 2 m / 5 m), in the order of ``rows`` (:func:`table_rows`), skipped methods with the first
+    reason."""
     lines = ["| method | mean | median | p90 | walks within 2 m | within 5 m | walks |", "|---|---|---|---|---|---|---|"]
-    order = table_rows()["all"]
+    order = rows["all"]
     names = [r for r in order if r in results["methods"]] + [r for r in results["methods"] if r not in order]
     for name in names:
         m = results["methods"][name]
@@ -267,12 +254,11 @@ def floor_table(results: dict) -> str:
     return "\n".join(lines)
 
 
-def verdicts(results: dict) -> list[str]:
-    """Markdown bullets: whether the best fused row beats the best fingerprint row and PDR+map, and the
-    map-prior outcomes (mean errors, m)."""
+def verdicts(results: dict, rows: dict) -> list[str]:
+    """Markdown bullets: whether the best fused row beats the best fingerprint row and PDR+map (the rows of
+    :func:`table_rows`), and the map-prior outcomes (mean errors, m)."""
     out = []
     best = lambda rows: min(((_mean(results, r), r) for r in rows if _mean(results, r) is not None), default=None)
-    rows = table_rows()
     bf, bp = best(rows["fused"]), best(rows["fingerprint"])
     pm = _mean(results, "PDR+map")
     if bf and bp:
@@ -290,12 +276,12 @@ def verdicts(results: dict) -> list[str]:
     return out
 
 
-def summary_table(results_by_floor: dict) -> str:
-    """Markdown: mean error (m) per method and floor (columns: the floors), plus the verdicts per floor."""
+def summary_table(results_by_floor: dict, rows: dict) -> str:
+    """Markdown: mean error (m) per method (the rows of :func:`table_rows`) and floor (columns: the floors)."""
     floors = list(results_by_floor)
     lines = ["| method | " + " | ".join(f"{f} mean / p90" for f in floors) + " |",
              "|---|" + "---|" * len(floors)]
-    for row in table_rows()["all"]:
+    for row in rows["all"]:
         cells = []
         for f in floors:
             m = results_by_floor[f]["methods"].get(row) or {}
@@ -306,8 +292,9 @@ def summary_table(results_by_floor: dict) -> str:
     return "\n".join(lines)
 
 
-def floor_markdown(results: dict, floor: str, command: str) -> str:
-    """docs/results/ilc20_<floor>.md: the floor's table, the verdicts, the split and what was trained."""
+def floor_markdown(results: dict, floor: str, command: str, rows: dict) -> str:
+    """docs/results/ilc20_<floor>.md: the floor's table, the verdicts (``rows``: :func:`table_rows`), the split and
+    what was trained."""
     m = results["methods"]
     step = next((v["training"]["step_length"] for v in m.values() if (v.get("training") or {}).get("step_length")), None)
     lines = [f"# Real walks, ILC 2.0 site1 {floor}: every method on the same test walks", "",
@@ -323,14 +310,15 @@ def floor_markdown(results: dict, floor: str, command: str) -> str:
     if results.get("model"):
         lines += [f"Map prior: `{results['model'].get('path')}`; unavailable for: "
                   f"{', '.join(results['model'].get('unavailable', {})) or 'none'}.", ""]
-    lines += [floor_table(results), "", "## Verdicts (mean error)", ""] + [f"- {v}" for v in verdicts(results)]
+    lines += [floor_table(results, rows), "", "## Verdicts (mean error)", ""] + [f"- {v}" for v in verdicts(results, rows)]
     return "\n".join(lines) + "\n"
 
 
-def write_tables(out_root: str, summary_md: str, command: str = "make realwalks-tables",
+def write_tables(out_root: str, summary_md: str, rows: dict, command: str = "make realwalks-tables",
                  floors_dir: str | None = None, readme: str | None = None) -> str:
     """Per floor (``out_root/<floor>/results.json``): docs/results/ilc20_<floor>.md beside ``summary_md``; then the
-    summary (``summary_md``) and, with ``readme``, the table between the README's realwalks markers."""
+    summary (``summary_md``) and, with ``readme``, the table between the README's realwalks markers. ``rows``: the
+    experiment's rows (:func:`table_rows`; ``python -m blenav.cli.realwalks tables ...`` composes them)."""
     import json
 
     root, summary = Path(out_root), Path(summary_md)
@@ -339,8 +327,8 @@ def write_tables(out_root: str, summary_md: str, command: str = "make realwalks-
         r = json.loads((d / "results.json").read_text())
         by_floor[d.name] = r
         (summary.parent / "results").mkdir(parents=True, exist_ok=True)
-        write_text(summary.parent / "results" / f"ilc20_{d.name}.md", floor_markdown(r, d.name, command))
-    table = summary_table(by_floor)
+        write_text(summary.parent / "results" / f"ilc20_{d.name}.md", floor_markdown(r, d.name, command, rows))
+    table = summary_table(by_floor, rows)
     fa = None
     if floors_dir and (Path(floors_dir) / "results.json").is_file():
         fa = json.loads((Path(floors_dir) / "results.json").read_text()).get("floor_accuracy")
@@ -349,7 +337,7 @@ def write_tables(out_root: str, summary_md: str, command: str = "make realwalks-
         parts += [f"Floor classifier (which floor a test walk is on, from its scans; all three floors in one dataset): "
                   f"`floor_accuracy` = {json.dumps(fa)}", ""]
     for f, r in by_floor.items():
-        parts += [f"{f}:"] + [f"- {v}" for v in verdicts(r)] + [""]
+        parts += [f"{f}:"] + [f"- {v}" for v in verdicts(r, rows)] + [""]
     body = "\n".join(parts)
     _splice(summary, body, append=True)
     if readme:
@@ -367,16 +355,3 @@ def _splice(path, body: str, append: bool = False, tag: str = "realwalks-table")
         write_text(path, text.split(start)[0] + start + "\n" + body + "\n" + end + text.split(end, 1)[1])
     elif append:
         write_text(path, text + f"\n{start}\n{body}\n{end}\n")
-
-
-if __name__ == "__main__":  # python -m blenav.eval.realwalks train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README]
-    import sys
-
-    cmd, args = (sys.argv[1], sys.argv[2:]) if len(sys.argv) > 1 else ("", [])
-    if cmd == "train-ids" and len(args) == 1:
-        print(",".join(train_ids(args[0])))
-    elif cmd == "tables" and 2 <= len(args) <= 4:
-        print(write_tables(args[0], args[1], floors_dir=args[2] if len(args) > 2 else None,
-                           readme=args[3] if len(args) > 3 else None))
-    else:
-        sys.exit("usage: python -m blenav.eval.realwalks train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README]")

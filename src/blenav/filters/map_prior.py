@@ -18,8 +18,9 @@ LSTM over the odometry window, c values). The score weighs the particles togethe
   trajectory vector ``dtv`` (c,): a gather of the map tensor at those points and a dot product, never
   a full-map product.
 
-The learned implementation is ``blenav.runtime.map_prior.MapPrior(path)`` (loaded by
-:func:`attach_prior`; it caches the Deep Map Tensor per floor in memory and on disk, so ``bind`` is called
+The learned implementation is ``blenav.runtime.map_prior.MapPrior(path)`` (attached by :func:`attach_prior` with
+the loader its caller hands in, :func:`blenav.localizers.particle.load_prior`: the filters import nothing of the
+runtime above them; it caches the Deep Map Tensor per floor in memory and on disk, so ``bind`` is called
 for every session without re-running the U-Net); :class:`FeasibilityPrior` is a non-learned reference
 implementation (the training target of the network, computed on the occupancy grid) used by tests and as
 a stand-in.
@@ -56,7 +57,7 @@ from __future__ import annotations
 import logging
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 
@@ -208,22 +209,15 @@ class MapPriorLikelihood(MeasurementModel):
 
 
 # ------------------------------------------------------------------------------------------ loading
-def load_prior(path: str):
-    """The learned prior of the export directory ``path`` (``blenav.runtime.map_prior.MapPrior``, onnxruntime;
-    a checkpoint needs the PyTorch loader from ``blenav.learn``: pass ``loader=`` to :func:`attach_prior`);
-    ImportError when that runtime is not installed in this tree."""
-    from blenav.runtime.map_prior import MapPrior  # noqa: PLC0415 (optional: another part of the project)
-
-    return MapPrior(str(path))
-
-
-def attach_prior(models, path: str | None, loader=None) -> str | None:
+def attach_prior(models, path: str | None, loader: Callable[[str], object]) -> str | None:
     """Give every :class:`MapPriorLikelihood` in ``models`` without a prior the prior of ``path``.
 
-    Loads once (``loader``, default :func:`load_prior`). Without ``path``, or when the runtime module is
-    absent, the models keep ``prior = None`` with the reason in ``unavailable`` (their methods are then
-    skipped with it). Errors of the loader itself (a wrong path, bad weights) propagate. Returns the reason
-    the prior is unavailable, or None.
+    Loads once, ``loader(path)``: the caller's (the particle localizer hands in
+    :func:`blenav.localizers.particle.load_prior`, the runtime's ``MapPrior``; a checkpoint needs the PyTorch loader
+    from ``blenav.learn``). Without ``path``, or when the loader raises ImportError (the runtime module absent), the
+    models keep ``prior = None`` with the reason in ``unavailable`` (their methods are then skipped with it).
+    Errors of the loader itself (a wrong path, bad weights) propagate. Returns the reason the prior is
+    unavailable, or None.
     """
     todo = [m for m in models if isinstance(m, MapPriorLikelihood) and m.prior is None]
     if not todo:
@@ -235,7 +229,7 @@ def attach_prior(models, path: str | None, loader=None) -> str | None:
                   "blenav.runtime.map_prior.MapPrior)")
     else:
         try:
-            prior = (loader or load_prior)(path)
+            prior = loader(path)
         except ImportError as exc:
             reason = f"model_path={path} was given but blenav.runtime.map_prior cannot be imported ({exc})"
     for m in todo:

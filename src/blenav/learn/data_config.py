@@ -85,7 +85,7 @@ class MapPriorDataConfig:
     waypoint_max_gap_s: float = 30.0
     extra_paths: list[str] = field(default_factory=list)  # further datasets trained on together with path
     # None: every labelled session of the datasets; a list: only these session ids, e.g. the train walks of
-    # blenav-eval experiment=realwalks: $(python -m blenav.eval.realwalks train-ids DIR) for each dataset
+    # blenav-eval experiment=realwalks: $(python -m blenav.cli.realwalks train-ids DIR) for each dataset
     sessions: list[str] | None = None
     crop_px: int = 64
     crop_jitter: float = 0.25  # window end within +- crop_jitter * crop_px of the crop centre

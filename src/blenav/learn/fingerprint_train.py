@@ -9,9 +9,10 @@ hands them to the trainer as the :class:`~blenav.learn.data.WindowDataModule` it
 module's tensors (:func:`~blenav.learn.data.window_dataset`), loaders, batch layout, seeded ``torch.Generator`` and
 validation cap (``data.val_max_windows``, :meth:`~blenav.learn.data.WindowDataModule.cap_validation`). Validation
 windows are those of a seeded ``val_fraction`` of the training walks (whole walks, as the data module's own split).
-The run's config is ``conf/train.yaml`` composed (:func:`blenav.configs.compose`) with ``model=<model>``, the
-``net`` / ``trainer`` overrides merged over it and ``data.path`` = the walks' dataset (the checkpoint's
-``data_path``).
+The run's config is the one ``conf/train.yaml`` with ``model=<model>`` gives, built from the ``training`` node the
+localizer is handed (``conf/localizer/fingerprint.yaml`` composes conf/train.yaml's data, trainer and model nodes
+there: nothing below the entry points composes a config), the ``net`` / ``trainer`` overrides merged over it and
+``data.path`` = the walks' dataset (the checkpoint's ``data_path``).
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from blenav.features.scale import U_SCALE
-from blenav.paths import conf_dir
 
 from .data import WindowDataModule, window_dataset
 from .data_config import WindowDataConfig
@@ -61,24 +61,26 @@ def dataset_root(sessions: list) -> Path:
     return Path(roots[0])
 
 
-def run_config(model: str, out: Path, data_path: Path, seed: int, net: dict | None, trainer: dict | None,
-               val_fraction: float, batch_size: int, threads: int | None, plots: bool,
+def run_config(training: dict, model: str, out: Path, data_path: Path, seed: int, net: dict | None,
+               trainer: dict | None, val_fraction: float, batch_size: int, threads: int | None, plots: bool,
                building: str | None = None, sessions: list[str] | None = None) -> DictConfig:
-    """``conf/train.yaml`` composed with ``model=<model>`` (:func:`blenav.configs.compose`; ValueError for a model
-    without ``conf/model/<model>.yaml``), ``net`` merged over ``model`` and ``trainer`` over ``trainer`` (the
-    progress bar off), and the run's seed, out, threads, plots and data node (path, building, sessions, batch
+    """The config ``conf/train.yaml`` composed with ``model=<model>`` gives (the same keys, order and values), built
+    from ``training``: the ``data``, ``trainer`` and ``models`` nodes ``conf/localizer/fingerprint.yaml`` composes
+    (ValueError for a model not under ``models``); ``net`` merged over the model and ``trainer`` over the trainer
+    (the progress bar off); the crossphone task without a semi-supervised stage (train.yaml's defaults); the run's
+    seed (``data.seed`` follows it, ``${seed}``), out, threads, plots and data node (path, building, sessions, batch
     size, val_fraction)."""
-    from blenav.configs import compose
-
-    if not (conf_dir() / "model" / f"{model}.yaml").is_file():
-        raise ValueError(f"model {model!r}: no {conf_dir() / 'model' / f'{model}.yaml'}")
-    cfg = compose("train", f"model={model}")
-    OmegaConf.set_struct(cfg, False)  # net / trainer may carry keys the YAMLs do not list (as before compose)
+    models = dict(training.get("models") or {})
+    if model not in models:
+        raise ValueError(f"model {model!r}: no training.models.{model} (conf/localizer/fingerprint.yaml composes "
+                         f"conf/model/<model>.yaml there; it has {sorted(models)})")
+    cfg = OmegaConf.create({"data": training["data"], "model": models[model], "trainer": training["trainer"],
+                            "task": "crossphone", "seed": int(seed), "plots": bool(plots), "threads": threads,
+                            "semi": None, "out": str(out)})
     cfg.model = OmegaConf.merge(cfg.model, OmegaConf.create(net or {}))
     cfg.trainer = OmegaConf.merge(cfg.trainer, OmegaConf.create(trainer or {}), {"enable_progress_bar": False})
-    cfg.seed, cfg.out, cfg.threads, cfg.plots = int(seed), str(out), threads, bool(plots)
     cfg.data.path, cfg.data.batch_size, cfg.data.val_fraction = str(data_path), int(batch_size), float(val_fraction)
-    cfg.data.building, cfg.data.sessions = building, sessions
+    cfg.data.seed, cfg.data.building, cfg.data.sessions = "${seed}", building, sessions
     return cfg
 
 
@@ -93,11 +95,12 @@ def split_walks(walk_of: np.ndarray, val_fraction: float, seed: int) -> np.ndarr
 
 
 def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, sessions: list,
-                  features: list[str], window, model: str, out: Path, seed: int = 0, net: dict | None = None,
-                  trainer: dict | None = None, val_fraction: float = 0.2, batch_size: int = 256,
-                  threads: int | None = 1, plots: bool = False):
-    """Train ``model`` (``locnet`` | ``transnet_locnet``: ``conf/model/<model>.yaml`` with ``net`` merged over
-    it; trainer ``conf/trainer/cpu.yaml`` with ``trainer`` merged over it) on windows S (N, F, H) u scale,
+                  features: list[str], window, model: str, training: dict, out: Path, seed: int = 0,
+                  net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
+                  batch_size: int = 256, threads: int | None = 1, plots: bool = False):
+    """Train ``model`` (``locnet`` | ``transnet_locnet``: ``training.models.<model>``, conf/model/<model>.yaml, with
+    ``net`` merged over it; trainer ``training.trainer``, conf/trainer/cpu.yaml, with ``trainer`` merged over it;
+    :func:`run_config`) on windows S (N, F, H) u scale,
     previous windows P (N, F, H), labels xy (N, 2) m, walk index ``walk_of`` (N,) into ``sessions``.
 
     The run folder ``out`` is emptied first (the trainer would resume a run of other data from its
@@ -106,8 +109,8 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
     from .train import data_config, train
 
     out = Path(out)
-    cfg = run_config(model, out, dataset_root(sessions), seed, net, trainer, val_fraction, batch_size, threads, plots,
-                     building=sessions[0].building.id, sessions=[s.id for s in sessions])
+    cfg = run_config(training, model, out, dataset_root(sessions), seed, net, trainer, val_fraction, batch_size,
+                     threads, plots, building=sessions[0].building.id, sessions=[s.id for s in sessions])
     val = split_walks(walk_of, val_fraction, seed)
     splits = {"train": (S[~val], P[~val], xy[~val])}
     if val.any():

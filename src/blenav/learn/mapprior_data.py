@@ -38,7 +38,7 @@ those straight segments, so the prior learns from the surveyed route, not the wa
 Datasets. ``path`` plus ``extra_paths`` (e.g. two imported mall floors, or a floor and a simulated set) are
 read together (their session ids and (building, floor) pairs must not repeat); with ``sessions`` only those
 session ids are read, e.g. the train walks of ``blenav-eval experiment=realwalks`` (``python -m
-blenav.eval.realwalks train-ids DIR`` per dataset: that experiment's own split, so no walk it scores is trained on).
+blenav.cli.realwalks train-ids DIR`` per dataset: that experiment's own split, so no walk it scores is trained on).
 
 Splits: sessions of ``val_buildings`` (never seen in training) form ``val_unseen``; of the other buildings'
 labelled sessions a seeded ``val_fraction`` goes whole to ``val_seen``, each building keeping at least one

@@ -10,7 +10,7 @@ shared with the cross-phone localizer).
 Real walks with surveyed waypoints (issue 17, a prior trained on other floors of a mall)::
 
     python train.py experiment=mapprior_ilc data=data/ilc20/F2 'data.extra_paths=[data/ilc20/B1]' out=RUN \
-        "data.sessions=[$(python -m blenav.eval.realwalks train-ids data/ilc20/F2),$(... B1)]"
+        "data.sessions=[$(python -m blenav.cli.realwalks train-ids data/ilc20/F2),$(... B1)]"
 
 trains on the train walks (the split of ``blenav-eval experiment=realwalks``) of the imported floors, their
 positions between waypoints interpolated linearly at training time (:mod:`blenav.learn.mapprior_data`, "Sparse

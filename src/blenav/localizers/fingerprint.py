@@ -6,6 +6,12 @@ Config: ``conf/localizer/fingerprint.yaml``::
     _target_: blenav.localizers.fingerprint.FingerprintLocalizer
     model: knn            # knn | locnet | transnet_locnet
     features: wifi        # wifi | ble | both
+    training: {data, trainer, models: {locnet, transnet_locnet}}   # composed by its defaults list
+
+``training`` is the networks' training config, the nodes of ``conf/train.yaml`` (``conf/windows/default.yaml``,
+``conf/trainer/cpu.yaml``, ``conf/model/<model>.yaml``) composed into the method's node by the YAML's defaults, so
+that :meth:`FingerprintLocalizer.fit` composes nothing; a node without it (e.g. an inline ``fixes.compute``) runs
+``knn`` only.
 
 :meth:`FingerprintLocalizer.fit` (the harness calls it with the train walks, :class:`~blenav.localizers.Trained`),
 per building and floor:
@@ -103,10 +109,20 @@ class FingerprintLocalizer(Localizer, Trained):
                  floor_u: float = 0.5, ble_window_s: float = 3.0, ble_step_s: float = 1.0,
                  wifi_max_age_s: float | None = 5.0, min_count: int = 1, max_features="auto", cov_floor_m: float = 1.0,
                  net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
-                 batch_size: int = 256, seed: int = 0, threads: int | None = 1, plots: bool = False):
+                 batch_size: int = 256, seed: int = 0, threads: int | None = 1, plots: bool = False,
+                 training: dict | None = None):
         super().__init__(name, shared)
         if model not in MODELS:
             raise ValueError(f"method {name!r}: model must be one of {MODELS}, got {model!r}")
+        from omegaconf import DictConfig, OmegaConf
+
+        if isinstance(training, DictConfig):  # build_localizer hands nested nodes over unconverted
+            training = OmegaConf.to_container(training, resolve=True)
+        if model != "knn" and model not in ((training or {}).get("models") or {}):
+            raise ValueError(f"method {name!r}: model {model} needs the networks' training config, training.models."
+                             f"{model} (with training.data and training.trainer), which conf/localizer/fingerprint.yaml "
+                             f"composes: build the method from that YAML (+localizer@methods.NAME=fingerprint)")
+        self.training = training
         if int(k) < 1:
             raise ValueError(f"method {name!r}: k must be >= 1, got {k}")
         if weights not in ("uniform", "distance"):
@@ -207,7 +223,8 @@ class FingerprintLocalizer(Localizer, Trained):
 
         root = Path(ctx.out) if ctx is not None and ctx.out is not None else Path(tempfile.mkdtemp(prefix="fp_"))
         out = root / "fingerprint" / self.name.replace("/", "_").replace(" ", "_") / key.replace("/", "_")
-        net_predict, rep = train_network(S, P, xy, walk_of, used, names, self.cfg, self.model, out, seed=self.seed,
+        net_predict, rep = train_network(S, P, xy, walk_of, used, names, self.cfg, self.model, self.training, out,
+                                         seed=self.seed,
                                          net=self.net, trainer=self.trainer, val_fraction=self.val_fraction,
                                          batch_size=self.batch_size, threads=self.threads, plots=self.plots)
         info["training"] = rep

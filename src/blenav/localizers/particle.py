@@ -56,6 +56,15 @@ def _reason(exc: Exception) -> str:
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
+def load_prior(path: str):
+    """The learned map prior of the export directory ``path`` (:class:`blenav.runtime.map_prior.MapPrior`,
+    onnxruntime), the loader :meth:`ParticleFilterLocalizer.attach_model` hands to
+    :func:`blenav.filters.map_prior.attach_prior`; ImportError when that runtime is not installed in this tree."""
+    from blenav.runtime.map_prior import MapPrior  # noqa: PLC0415 (optional: onnxruntime)
+
+    return MapPrior(str(path))
+
+
 class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelConsumer):
     """A SIR particle filter (:class:`blenav.filters.method.Method` run by
     :func:`blenav.filters.runner.run_session`): R runs batched, estimates at every filter step.
@@ -105,8 +114,8 @@ class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelC
         return {m.role for m in self.method.measurements if isinstance(m, FixLikelihood) and m.role is not None}
 
     def attach_model(self, path: str | None, load: Callable[[str, Callable], Any]) -> str | None:
-        # the module's loader looked up at call time (tests and other runtimes replace it)
-        return map_prior.attach_prior(self.method.measurements, path, loader=lambda p: load(p, map_prior.load_prior))
+        # this module's loader looked up at call time (tests and other runtimes replace it)
+        return map_prior.attach_prior(self.method.measurements, path, loader=lambda p: load(p, load_prior))
 
     # ------------------------------------------------------------------ run
     def odometry_for(self, session, ctx: RunContext):

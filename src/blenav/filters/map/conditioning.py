@@ -13,16 +13,12 @@ through :mod:`blenav.filters.map.index`.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from blenav.data.floor import FREE, OCCUPIED
 
 from . import kernels as K
-
-if TYPE_CHECKING:
-    from .geometry import MapGeometry
+from .protocol import FloorMap
 
 OBSTACLE_COND = ("project", "keep")
 
@@ -30,7 +26,7 @@ OBSTACLE_COND = ("project", "keep")
 CASE_FAR, CASE_IN_SHRUNK, CASE_TO_SHRUNK, CASE_TO_EDGE = 0, 1, 2, 3
 
 
-def condition(m: MapGeometry, x_xy: np.ndarray, rng: np.random.Generator, sigma: float | np.ndarray | None = None,
+def condition(m: FloorMap, x_xy: np.ndarray, rng: np.random.Generator, sigma: float | np.ndarray | None = None,
               max_edge_dist: float = 3.0, shrink: float = 1.0, sigma_nav: float = 2.0, sigma_rm: float = 1.0,
               mask: np.ndarray | None = None, index: str | None = None, obstacle: str = "project",
               return_case: bool = False):
@@ -102,7 +98,7 @@ def condition(m: MapGeometry, x_xy: np.ndarray, rng: np.random.Generator, sigma:
     return (x, case.reshape(lead)) if return_case else x
 
 
-def _condition_rooms(m: MapGeometry, ix, p: np.ndarray, out: np.ndarray, c: np.ndarray) -> np.ndarray:
+def _condition_rooms(m: FloorMap, ix, p: np.ndarray, out: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Step 2 of :func:`condition` (eq. 5, rooms) on the jittered particles ``p`` (n, 2) world m: those inside
     their room's shrunk version keep their place (case ``CASE_IN_SHRUNK``), those on its periphery are projected
     onto the shrunk room's boundary (``CASE_TO_SHRUNK``); ``out`` (n, 2) m and ``c`` (n,) int8 are updated in
@@ -119,7 +115,7 @@ def _condition_rooms(m: MapGeometry, ix, p: np.ndarray, out: np.ndarray, c: np.n
     return k
 
 
-def _snap_obstacles(m: MapGeometry, out: np.ndarray, c: np.ndarray) -> None:
+def _snap_obstacles(m: FloorMap, out: np.ndarray, c: np.ndarray) -> None:
     """Step 5 of :func:`condition` (obstacle='project'), in place on the particles ``out`` (n, 2) world m with
     cases ``c`` (n,) int8: every conditioned one (``c > CASE_FAR``) not in a FREE pixel, and every one in an
     OCCUPIED pixel, moves to the nearest point of the nearest free pixel. Compiled: the points and numbers of

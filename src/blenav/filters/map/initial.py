@@ -18,18 +18,15 @@ These functions are methods of :class:`~blenav.filters.map.geometry.MapGeometry`
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 import shapely
 
-if TYPE_CHECKING:
-    from .geometry import MapGeometry
+from .protocol import FloorMap
 
 OBSTACLE_INIT = ("resample", "project", "keep")
 
 
-def sample_uniform_free(m: MapGeometry, rng: np.random.Generator, R: int, N: int) -> np.ndarray:
+def sample_uniform_free(m: FloorMap, rng: np.random.Generator, R: int, N: int) -> np.ndarray:
     """(R, N, 2) uniform over the free pixels of the floor (global localisation without a map prior)."""
     r, c = np.nonzero(m.floor.free_mask)
     k = rng.integers(0, len(r), size=(R, N))
@@ -37,7 +34,7 @@ def sample_uniform_free(m: MapGeometry, rng: np.random.Generator, R: int, N: int
     return centre + (rng.random((R, N, 2)) - 0.5) * m.floor.resolution
 
 
-def sample_free_within(m: MapGeometry, rng: np.random.Generator, centres: np.ndarray, N: int, radius: float,
+def sample_free_within(m: FloorMap, rng: np.random.Generator, centres: np.ndarray, N: int, radius: float,
                        max_rounds: int = 30) -> np.ndarray:
     """(M, N, 2) world m: N points per centre (M, 2), uniform over the FREE space within ``radius`` (m).
 
@@ -78,7 +75,7 @@ def sample_free_within(m: MapGeometry, rng: np.random.Generator, centres: np.nda
     return xy
 
 
-def _draw_edges(m: MapGeometry, rng, shape, sigma):
+def _draw_edges(m: FloorMap, rng, shape, sigma):
     """``shape`` points around the edges (edge ~ length, uniform along it) + N(0, sigma^2 I)."""
     L = m.edge_lengths
     e = rng.choice(m.n_edges, size=shape, p=L / L.sum())
@@ -87,7 +84,7 @@ def _draw_edges(m: MapGeometry, rng, shape, sigma):
     return a + t * (b - a) + sigma * rng.standard_normal(shape + (2,))
 
 
-def _draw_rooms(m: MapGeometry, rng, shape, sigma):
+def _draw_rooms(m: FloorMap, rng, shape, sigma):
     """``shape`` points in rooms (room ~ area, uniform inside) + N(0, sigma^2 I)."""
     A = m.room_areas
     k = rng.choice(m.n_rooms, size=shape, p=A / A.sum()).ravel()
@@ -109,7 +106,7 @@ def _draw_rooms(m: MapGeometry, rng, shape, sigma):
     return out.reshape(shape + (2,)) + sigma * rng.standard_normal(shape + (2,))
 
 
-def sample_initial(m: MapGeometry, rng: np.random.Generator, R: int, N: int, beta: float = 0.8,
+def sample_initial(m: FloorMap, rng: np.random.Generator, R: int, N: int, beta: float = 0.8,
                    sigma_nav: float = 2.0, sigma_rm: float = 1.0, obstacle: str = "resample", max_rounds: int = 100,
                    return_source: bool = False):
     """Eq. 3: (R, N, 2) particles, ``round(beta*N)`` per run around navigation edges, the rest in rooms.

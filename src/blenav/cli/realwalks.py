@@ -1,0 +1,70 @@
+"""``python -m blenav.cli.realwalks train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README]``: the steps of
+``make realwalks-tables`` (docs/results-ilc20.md) that read the realwalks experiment's config.
+
+An entry point composes ``conf/`` (:func:`blenav.configs.compose`, ``experiment=realwalks``) and hands the nodes
+down to :mod:`blenav.eval.realwalks`, which composes nothing: ``train-ids`` prints the experiment's train walks of
+the dataset DATA, comma-separated, for ``blenav-map --sessions`` (:func:`~blenav.eval.realwalks.train_ids`, the
+harness's own split); ``tables`` writes the per-floor pages, the summary and the README table from the floors'
+results.json (:func:`~blenav.eval.realwalks.write_tables`), in the rows of the composed experiment
+(:func:`~blenav.eval.realwalks.table_rows`).
+"""
+
+from __future__ import annotations
+
+import sys
+
+from .common import guarded, pop_debug
+
+PROG = "python -m blenav.cli.realwalks"
+USAGE = f"usage: {PROG} train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README]"
+
+
+def experiment_config(*overrides: str, experiment: str = "realwalks"):
+    """The composed ``conf/eval.yaml`` with ``experiment=<experiment>`` and command-line style ``overrides``."""
+    from blenav.configs import compose
+
+    return compose("eval", f"experiment={experiment}", *overrides)
+
+
+def train_ids_of(data: str, train_fraction: float | None = None, seed: int | None = None,
+                 experiment: str = "realwalks") -> list[str]:
+    """The train walks (:func:`blenav.eval.realwalks.train_ids`) of ``experiment`` composed on the dataset ``data``;
+    ``train_fraction`` / ``seed`` override its ``split`` (as ``split.train_fraction=...`` on its command line)."""
+    from blenav.eval.realwalks import train_ids
+
+    over = [f"split.train_fraction={train_fraction}"] if train_fraction is not None else []
+    over += [f"split.seed={seed}"] if seed is not None else []
+    return train_ids(experiment_config(f"data={data}", *over, experiment=experiment))
+
+
+def table_rows_of(experiment: str = "realwalks") -> dict[str, tuple[str, ...]]:
+    """The table rows (:func:`blenav.eval.realwalks.table_rows`) of the composed ``experiment``'s methods."""
+    from omegaconf import OmegaConf
+
+    from blenav.eval.realwalks import table_rows
+
+    return table_rows(OmegaConf.to_container(experiment_config(experiment=experiment).methods, resolve=False))
+
+
+def _main(argv: list[str]) -> int:
+    cmd, args = (argv[0], argv[1:]) if argv else ("", [])
+    if cmd == "train-ids" and len(args) == 1:
+        print(",".join(train_ids_of(args[0])))
+    elif cmd == "tables" and 2 <= len(args) <= 4:
+        from blenav.eval.realwalks import write_tables
+
+        print(write_tables(args[0], args[1], table_rows_of(), floors_dir=args[2] if len(args) > 2 else None,
+                           readme=args[3] if len(args) > 3 else None))
+    else:
+        sys.exit(USAGE)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
+    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
+    return guarded(PROG, lambda: _main(argv), debug)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
