@@ -13,7 +13,8 @@ import zipfile
 import pytest
 
 from blenav import limits
-from blenav.importers import ImportError_, run_import
+from blenav.errors import ImportError_
+from blenav.importers import run_import
 
 from test_ilc20 import walk_lines, write_floor, write_walk
 

@@ -157,7 +157,7 @@ def test_crf_cell_size_and_grid_memory_are_bounded(monkeypatch):
                                          (1e9, "runs = 1000000000.0 is outside [1, 100,000]")])
 def test_eval_runs_are_bounded(tiny_dataset, tmp_path, runs, words):
     from blenav.configs import compose
-    from blenav.eval.common import EvalError
+    from blenav.errors import EvalError
     from blenav.eval.harness import evaluate
 
     cfg = compose("eval", "progress=false", "experiment=mapfusion_002", f"data={tiny_dataset}", f"runs={runs}",
