@@ -35,6 +35,7 @@ def bundle(cfg: DictConfig) -> Path:
     from blenav.runtime.bundle import LOCALIZER, MANIFEST, MAP_DIR, finish_bundle, variant_name
     from blenav.runtime.map_prior import MapPrior
     from blenav.runtime.signature import BuildingMismatch, building_signature, compare
+    from blenav.trust import check_targets
 
     out = Path(cfg.out)
     if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / MANIFEST).is_file())):
@@ -93,6 +94,7 @@ def bundle(cfg: DictConfig) -> Path:
                 raise FileNotFoundError(f"mapprior={mp} does not exist (a last.ckpt or an export directory)")
             models["map_prior"] = {"source": str(mp.resolve())}
         settings = OmegaConf.to_container(cfg.runtime, resolve=True)
+        check_targets(settings, "export config", prefix="runtime")  # settings.json may name only blenav's classes
         finish_bundle(tmp, sig, settings, variants=bool(cfg.variants), sessions=sessions,
                       extra={"models": models, "data": str(Path(path).resolve()) if path else None})
         shutil.rmtree(out, ignore_errors=True)

@@ -10,6 +10,7 @@ import pytest
 from blenav.eval import beacon_map as BM
 from blenav.localizers.base import Estimate
 from blenav.filters.engine import Event
+from blenav.trust import register
 
 
 def _building(tmp_path):
@@ -110,6 +111,7 @@ def _mapper_class():
 
 
 MapperAtOffset = _mapper_class()
+register("test_beacon_map.MapperAtOffset")  # code, not a file: the config below may name it (blenav.trust)
 
 
 def test_harness_perturbs_per_run_scores_beacons_and_writes_the_files(tmp_path):

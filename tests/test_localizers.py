@@ -9,6 +9,7 @@ from blenav.configs import compose
 from blenav.errors import EvalError, MissingStream
 from blenav.eval.harness import build_methods, evaluate
 from blenav.localizers import Estimate, FixConsumer, Localizer, ParticleFilterLocalizer
+from blenav.trust import register
 from helpers import make_tiny_dataset
 
 
@@ -33,6 +34,9 @@ class GroundTruthPlusOffset(Localizer):
 class NeedsRadio(Localizer):
     def run(self, session, n_runs, seed, ctx=None):
         raise MissingStream("no RTT ranges in this session")
+
+
+register(GroundTruthPlusOffset, NeedsRadio)  # code, not a file: the configs below may name them (blenav.trust)
 
 
 def _cfg(data, out, *over):

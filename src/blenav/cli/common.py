@@ -124,31 +124,51 @@ def run_hydra(prog: str, config_name: str, task: Callable, args: list[str], conv
     """Run ``task(cfg)`` as a Hydra app on ``args`` (``sys.argv[1:]``) with one-line errors.
 
     ``convert``: the entry point's command-line conveniences (:func:`blenav.configs.cli_overrides`).
-    The overrides are checked first (one composition) unless Hydra is asked for a sweep (``-m``) or help."""
+    The overrides are checked first (one composition, ``--config-dir`` and ``--config-name`` followed) unless
+    Hydra is asked for a sweep (``-m``) or only prints (help, ``--cfg``, ``--info``). Every ``_target_`` of the
+    composed config must be one of blenav's classes (:func:`blenav.trust.check_targets`), and the ``hydra`` node may
+    make Hydra build only its own launchers and sweepers (:func:`blenav.trust.check_hydra_node`): checked before
+    Hydra starts, and again on the config each job gets, before the task runs. ``--experimental-rerun`` (Hydra
+    unpickles a file) is refused."""
     install_signal_handlers()
     import hydra
 
+    from pathlib import Path
+
     from blenav.configs import check_overrides, register_configs
-    from blenav.errors import ConfigError
     from blenav.paths import conf_dir
+    from blenav.trust import check_targets
 
     debug, args = pop_debug(args)
     if convert is not None:
         args = convert(args)
     register_configs()
-    flags = [a for a in args if a.startswith("-")]
-    if not flags:
-        try:
-            check_overrides(config_name, args)
-        except ConfigError as exc:
-            if debug:
-                raise
-            fail(prog, exc)
+    overrides, opts = _hydra_args(args)
+    try:
+        if "--experimental-rerun" in opts:
+            raise ValueError("--experimental-rerun is refused: Hydra would unpickle that file, and unpickling runs "
+                             "whatever code the file names; run the job again from its overrides instead")
+        if not opts.keys() & _PRINT_ONLY and "--config-path" not in opts:
+            name = opts.get("--config-name") or config_name
+            if "--config-dir" in opts:  # the same search path as Hydra's, for the checks' compositions
+                d = str(Path(opts["--config-dir"]).resolve()).replace("\\", "\\\\").replace("'", "\\'")
+                overrides = overrides + [f"hydra.searchpath=['file://{d}']"]
+            if "--multirun" not in opts:
+                check_overrides(name, overrides)
+            _check_composed(name, overrides, sweep="--multirun" in opts)
+    except ValueError as exc:  # ConfigError, UntrustedTargetError
+        if debug:
+            raise
+        fail(prog, exc)
+
+    def checked(cfg):
+        check_targets(cfg, "the config (command line and config files)")
+        return task(cfg)
 
     @hydra.main(config_path=str(conf_dir()), config_name=config_name, version_base="1.3")
     def _app(cfg) -> float | None:
         value: list = []  # a float the task returns is the sweep's objective (Hydra's Optuna sweeper reads it)
-        guarded(prog, lambda: value.append(task(cfg)), debug)
+        guarded(prog, lambda: value.append(checked(cfg)), debug)
         return value[0] if value and isinstance(value[0], float) else None
 
     sys.argv = [sys.argv[0]] + args
@@ -156,3 +176,67 @@ def run_hydra(prog: str, config_name: str, task: Callable, args: list[str], conv
         _app()
     except (KeyboardInterrupt, Terminated) as exc:  # outside the task (Hydra starting): one line too
         interrupted(prog, exc, debug)
+
+
+#: Hydra's options (hydra/_internal/utils.py get_args_parser); those that take a value; those that only print
+_HYDRA_OPTS = {"--help": "-h", "--hydra-help": None, "--version": None, "--cfg": "-c", "--resolve": None,
+               "--package": "-p", "--run": "-r", "--multirun": "-m", "--shell-completion": "-sc",
+               "--config-path": "-cp", "--config-name": "-cn", "--config-dir": "-cd", "--experimental-rerun": None,
+               "--info": "-i"}
+_VALUED = {"--cfg", "--package", "--config-path", "--config-name", "--config-dir", "--experimental-rerun"}
+_PRINT_ONLY = {"--help", "--hydra-help", "--version", "--cfg", "--shell-completion", "--info"}
+_INFO_CHOICES = {"all", "config", "defaults", "defaults-tree", "plugins", "searchpath"}
+
+
+def _hydra_args(args: list[str]) -> tuple[list[str], dict[str, str | None]]:
+    """(overrides, {long option: value or None}) of a Hydra command line, read as Hydra's argparse reads it: short
+    and long spellings, ``--opt=value``, unambiguous prefixes of long options (``--config-d``). An unknown option
+    is kept as itself (Hydra refuses it)."""
+    short = {v: k for k, v in _HYDRA_OPTS.items() if v}
+    overrides: list[str] = []
+    opts: dict[str, str | None] = {}
+    i = 0
+    while i < len(args):
+        a = args[i]
+        i += 1
+        if not a.startswith("-") or a == "-":
+            overrides.append(a)
+            continue
+        name, eq, value = a.partition("=")
+        if name in short:
+            name = short[name]
+        elif name.startswith("--") and name not in _HYDRA_OPTS:
+            hits = [o for o in _HYDRA_OPTS if o.startswith(name)]
+            name = hits[0] if len(hits) == 1 else name
+        if not eq and name in _VALUED and i < len(args):
+            value, i = args[i], i + 1
+        elif not eq and name == "--info" and i < len(args) and args[i] in _INFO_CHOICES:
+            value, i = args[i], i + 1
+        opts[name] = value if (eq or name in _VALUED or value) else None
+    return overrides, opts
+
+
+def _check_composed(config_name: str, overrides: list[str], sweep: bool) -> None:
+    """Compose the config as Hydra will (with its ``hydra`` node; for a sweep without the swept overrides) and
+    check what it names (:func:`blenav.trust.check_targets`, as written, and :func:`blenav.trust.check_hydra_node`)
+    before Hydra builds its launcher, sweeper, callbacks and logging from it. A composition that fails is left to
+    Hydra, which fails on it before it builds anything."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from omegaconf import OmegaConf
+
+    from blenav.paths import conf_dir
+    from blenav.trust import check_hydra_node, check_targets
+
+    try:
+        if sweep:
+            parsed = OverridesParser.create().parse_overrides(overrides)
+            overrides = [o.input_line for o in parsed if not o.is_sweep_override()]
+        with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+            cfg = compose(config_name=config_name, overrides=overrides, return_hydra_config=True)
+    except Exception:  # noqa: BLE001 -- Hydra's and omegaconf's many error types: Hydra reports them itself
+        return
+    where = "the config (command line and config files)"
+    job = OmegaConf.masked_copy(cfg, [k for k in cfg.keys() if k != "hydra"])
+    check_targets(job, where, resolve=False)
+    check_hydra_node(cfg.get("hydra"), where)

@@ -23,6 +23,13 @@ builds tensors, dicts, lists, tuples, str, numbers, bool and None and nothing el
 :data:`SAFE_GLOBALS` (handed to ``torch.serialization.safe_globals``). A file that names anything else is
 refused with :class:`UnsafeCheckpointError` (naming the file and the callables it asks for) before any of
 them runs. Resuming a run (:func:`blenav.learn.trainer.fit`) reads the file with it first.
+
+The meta is data too, yet its ``model`` node names with ``_target_`` the classes to build. :func:`load_file`
+(every read: :func:`load_module`, the export, the map prior's loader, the resume of a run) therefore checks every
+``_target_`` of the meta, at any depth, against :data:`blenav.trust.TARGETS` by name, before Hydra imports anything,
+and :func:`build_networks` (as :func:`blenav.learn.mapprior_checkpoint.build_net`) checks the node it builds again:
+a checkpoint that names another callable (``numpy.savetxt`` deep inside ``locnet``) is refused with
+:class:`blenav.trust.UntrustedTargetError`, naming the file and the key path, and nothing of it runs.
 """
 
 from __future__ import annotations
@@ -32,11 +39,14 @@ import pickle
 import pickletools
 import re
 import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 import torch
 from hydra.utils import instantiate
+
+from blenav.trust import check_targets
 
 from .module import CrossPhoneModule
 
@@ -65,8 +75,14 @@ def data_hash(*arrays: np.ndarray) -> str:
     return h.hexdigest()[:16]
 
 
-def build_networks(model_cfg: dict, n_beacons: int):
-    """(locnet, transnet or None) from a ``model`` node (``_target_`` entries) for B beacons."""
+def build_networks(model_cfg: dict, n_beacons: int, where: str = "model config"):
+    """(locnet, transnet or None) from a ``model`` node (``_target_`` entries) for B beacons. Every ``_target_`` of
+    the node must be one of blenav's (:func:`blenav.trust.check_targets`; ``where`` names the node's source in the
+    refusal): the node may come from a checkpoint file."""
+    if not isinstance(model_cfg, Mapping) or not model_cfg.get("locnet"):
+        raise ValueError(f"{where}: the model node has no locnet (a {type(model_cfg).__name__}); was it written by "
+                         "train.py?")
+    check_targets(model_cfg, where, prefix="model")
     locnet = instantiate(model_cfg["locnet"], n_beacons=n_beacons)
     tn = model_cfg.get("transnet")
     transnet = instantiate(tn, n_beacons=n_beacons) if tn else None
@@ -134,13 +150,15 @@ def _refusal(path: Path, names: list[str], detail: str = "") -> UnsafeCheckpoint
 def load_file(path: str | Path) -> dict:
     """``torch.load(path, map_location="cpu", weights_only=True)`` with :data:`SAFE_GLOBALS` allowed.
     FileNotFoundError without the file; :class:`UnsafeCheckpointError` for a pickle that would build
-    anything else (nothing of it runs); ValueError for a file that is not a PyTorch checkpoint."""
+    anything else (nothing of it runs); ValueError for a file that is not a PyTorch checkpoint;
+    :class:`blenav.trust.UntrustedTargetError` when its ``"blenav"`` meta names (``_target_``, at any depth) a
+    class blenav does not build from configs -- the resume of a run reads the file here too."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
     try:
         with torch.serialization.safe_globals(list(SAFE_GLOBALS)):
-            return torch.load(path, map_location="cpu", weights_only=True)
+            ck = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:  # the restricted unpickler stopped before building the object
         m = re.search(r"WeightsUnpickler error:\s*(.+?)(\n\n|$)", str(exc), re.S)
         detail = " ".join((m.group(1) if m else str(exc).split("\n")[0]).split())[:200]
@@ -150,6 +168,9 @@ def load_file(path: str | Path) -> dict:
         raise _refusal(path, names, detail) from None
     except Exception as exc:  # not a zip/pickle, truncated, ... (torch raises RuntimeError, KeyError, EOFError)
         raise _unreadable(path, f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}") from None
+    if isinstance(ck, dict) and KEY in ck:
+        check_targets(ck[KEY], f"checkpoint {path}", prefix=KEY)  # the meta may name nothing but blenav's classes
+    return ck
 
 
 def _unreadable(path: Path, detail: str) -> ValueError:
@@ -159,7 +180,8 @@ def _unreadable(path: Path, detail: str) -> ValueError:
 
 def read_checkpoint(path: str | Path, what: str = "blenav", require_meta: bool = True) -> dict:
     """The whole checkpoint dict of ``path`` (state dict, optimizer states, counters, the ``"blenav"`` meta),
-    on the CPU, read by :func:`load_file` (weights only: a file that would run code is refused).
+    on the CPU, read by :func:`load_file` (weights only: a file that would run code, or whose meta names a class
+    that is not blenav's, is refused).
     FileNotFoundError without the file; ValueError when ``require_meta`` and it has no ``"blenav"`` entry
     (``what`` names the expected kind in the message)."""
     path = Path(path)
@@ -183,7 +205,7 @@ def load_module(path: str | Path) -> tuple[CrossPhoneModule, dict]:
     if meta.get("kind") == "mapprior":
         raise ValueError(f"{path} is a map prior checkpoint, not a cross-phone localizer: load it with "
                          "blenav.learn.mapprior_checkpoint.load_mapprior or load_map_prior")
-    locnet, transnet = build_networks(meta["model"], len(meta["beacons"]))
+    locnet, transnet = build_networks(meta["model"], len(meta["beacons"]), where=f"checkpoint {path}")
     n_m = ck["state_dict"].get("M", torch.zeros(0, 0))
     module = CrossPhoneModule(locnet, transnet, M=torch.zeros_like(n_m), meta=meta)
     module.load_state_dict(ck["state_dict"])

@@ -15,6 +15,7 @@ checkpoint hands it the loader, ``MapPrior(path, loader=TorchBackend)``, or call
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -23,14 +24,21 @@ from hydra.utils import instantiate
 
 from blenav.models.mapprior import MapPriorNet
 from blenav.runtime.map_prior import MapPrior
+from blenav.trust import check_targets
 
 from .checkpoint import KEY, read_checkpoint
 
 KIND = "mapprior"
 
 
-def build_net(model: dict, n_points: int, step_hz: float) -> MapPriorNet:
-    """:class:`MapPriorNet` from a model node's ``net`` (``_target_`` and sizes) for windows of n_points."""
+def build_net(model: dict, n_points: int, step_hz: float, where: str = "model config") -> MapPriorNet:
+    """:class:`MapPriorNet` from a model node's ``net`` (``_target_`` and sizes) for windows of n_points. Every
+    ``_target_`` of the node must be one of blenav's (:func:`blenav.trust.check_targets`, refusals name ``where``):
+    the node may come from a checkpoint file."""
+    if not isinstance(model, Mapping) or not model.get("net"):
+        raise ValueError(f"{where}: the model node has no net (a {type(model).__name__}); was it written by "
+                         "train.py experiment=mapprior?")
+    check_targets(model, where, prefix="model")
     net = instantiate(model["net"], n_points=int(n_points), step_hz=float(step_hz))
     if not isinstance(net, MapPriorNet):
         raise ValueError(f"model.net must build a MapPriorNet, got {type(net).__name__}")
@@ -53,7 +61,7 @@ def load_mapprior(path: str | Path) -> tuple[MapPriorNet, dict]:
     if meta.get("kind") != KIND:
         raise ValueError(f"{path}: a {meta.get('kind', 'crossphone')} checkpoint, not a map prior")
     w = meta["window"]
-    net = build_net(meta["model"], w["n_points"], w["step_hz"])
+    net = build_net(meta["model"], w["n_points"], w["step_hz"], where=f"checkpoint {path}")
     state = {k[len("net."):]: v for k, v in ck["state_dict"].items() if k.startswith("net.")}
     net.load_state_dict(state)
     return net.eval(), meta

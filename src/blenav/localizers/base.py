@@ -114,10 +114,13 @@ def build_localizer(label: str, node, shared=None) -> Localizer:
     """The localizer of config ``node`` (``_target_`` plus its settings; ``label`` is not passed on).
 
     Nested nodes are handed over unconverted (``_recursive_=False``): a localizer builds its own
-    components, so a misspelt key fails inside the method that owns it, with its name."""
+    components, so a misspelt key fails inside the method that owns it, with its name. Every ``_target_`` of
+    the node, at any depth, must be one of blenav's classes (:func:`blenav.trust.check_targets`, before
+    anything is imported): the node may come from a file or the command line."""
     from hydra.errors import InstantiationException
-    from hydra.utils import instantiate
     from omegaconf import DictConfig, OmegaConf
+
+    from blenav.trust import safe_instantiate
 
     kw = OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else dict(node)
     kw.pop("label", None)
@@ -126,7 +129,8 @@ def build_localizer(label: str, node, shared=None) -> Localizer:
         raise ValueError(f"method {label!r} has no _target_ (the class of its localizer, e.g. "
                          f"blenav.localizers.ParticleFilterLocalizer: see conf/localizer/)")
     try:
-        loc = instantiate(OmegaConf.create(kw), name=label, shared=shared, _recursive_=False)
+        loc = safe_instantiate(OmegaConf.create(kw), f"method {label!r}", f"methods.{label}", name=label,
+                               shared=shared, _recursive_=False)
     except InstantiationException as exc:  # hydra wraps the constructor's own error: keep only that
         cause = exc.__cause__
         raise ValueError(str(cause) if cause is not None else f"method {label!r}: {exc}") from exc

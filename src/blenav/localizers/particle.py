@@ -30,6 +30,7 @@ from blenav.filters.measurement import FixLikelihood, MeasurementModel
 from blenav.filters.method import MapSpec, Method
 from blenav.filters.runner import run_session
 from blenav.filters.steps import StepDetectorConfig
+from blenav.trust import UntrustedTargetError, safe_instantiate
 
 from .base import Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext
 
@@ -40,12 +41,12 @@ def _schema(cls, *nodes):
     return OmegaConf.to_object(merged)
 
 
-def _component(node):
-    """A component from its config node (``_target_``), or the object itself when already built."""
+def _component(node, where: str = "component", path: str = ""):
+    """A component from its config node (``_target_``), or the object itself when already built. Every
+    ``_target_`` of the node must be one of :data:`blenav.trust.TARGETS`, checked before anything is imported
+    (a refusal names ``where`` and the key path from ``path``)."""
     if isinstance(node, (dict, DictConfig)):
-        from hydra.utils import instantiate
-
-        return instantiate(node)
+        return safe_instantiate(node, where, path)
     return node
 
 
@@ -80,14 +81,19 @@ class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelC
         def build(node: str, make):
             try:
                 return make()
+            except UntrustedTargetError:
+                raise  # names the method and the key path already
             except Exception as exc:  # hydra/omegaconf raise many types: name the method and its node
                 raise ValueError(f"method {name!r}, {node}: {_reason(exc)}") from exc
 
-        motion_model = build("motion", lambda: _component(motion))
+        where = f"method {name!r}"
+        motion_model = build("motion", lambda: _component(motion, where, "motion"))
         if isinstance(measurements, (dict, DictConfig)):
-            meas = [build(f"measurements.{k}", lambda v=v: _component(v)) for k, v in measurements.items()]
+            meas = [build(f"measurements.{k}", lambda k=k, v=v: _component(v, where, f"measurements.{k}"))
+                    for k, v in measurements.items()]
         else:
-            meas = [build("measurements", lambda v=v: _component(v)) for v in (measurements or [])]
+            meas = [build("measurements", lambda i=i, v=v: _component(v, where, f"measurements[{i}]"))
+                    for i, v in enumerate(measurements or [])]
         spec = build("map", lambda: _schema(MapSpec, map))
         fcfg = build("filter", lambda: _schema(FilterConfig, shared.get("filter"), filter))
         att = build("attitude", lambda: _schema(AttitudeConfig, shared.get("attitude"), attitude))

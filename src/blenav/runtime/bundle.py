@@ -27,7 +27,9 @@ which starts at the session's first sample). :meth:`Bundle.run_session` replays 
 gives exactly what :func:`blenav.filters.runner.run_session` gives with the same fixes and seed.
 
 A bundle refuses a building (or a session's building) whose BLE beacons or floor plans are not its own
-(:mod:`blenav.runtime.signature`), and a folder whose files are not the ones its manifest records (sha256).
+(:mod:`blenav.runtime.signature`), a folder whose files are not exactly the ones its manifest records (sha256; an
+empty manifest, a missing, changed or unlisted file), and settings that name a class other than blenav's
+(:data:`blenav.trust.TARGETS`; the motion model one of :data:`MOTION_TARGETS`), checked by name before any import.
 
 Imports numpy, pandas (through blenav.data) and onnxruntime; never torch, lightning or hydra.
 """
@@ -52,6 +54,7 @@ import numpy as np
 from blenav.features.mapgrid import pad_to_multiple
 from blenav.limits import LimitError, check_range
 from blenav.onnx_io import blenav_version, check_weights, read_metadata, session
+from blenav.trust import TARGETS, UntrustedTargetError, check_targets
 
 from .map_prior import OnnxBackend
 from .onnx_localizer import LocalizerSession
@@ -107,14 +110,37 @@ class TrackPoint(NamedTuple):
 
 # --- the method --------------------------------------------------------------------------------------------
 
-def _instantiate(node: dict):
-    """An object of ``node['_target_']`` (a class under ``blenav.filters.``) with the other keys as arguments."""
+#: the motion models a bundle's settings may name (``motion._target_``): blenav's, by their dotted names
+MOTION_TARGETS = frozenset(t for t in TARGETS if t.startswith("blenav.filters.motion."))
+
+
+def check_targets_of(settings: dict, where: str) -> None:
+    """A bundle's settings name no class but blenav's (:func:`blenav.trust.check_targets`), and ``motion._target_``
+    one of :data:`MOTION_TARGETS`: a one-line :class:`blenav.trust.UntrustedTargetError` naming ``where`` (the
+    settings file) and the field, before anything is imported."""
+    motion = settings.get("motion") if isinstance(settings, dict) else None
+    if not isinstance(motion, dict):
+        raise ValueError(f"{where}: motion must be an object with a _target_ (a motion model), got "
+                         f"{type(motion).__name__}")
+    target = motion.get("_target_")
+    if not isinstance(target, str) or target not in MOTION_TARGETS:
+        raise UntrustedTargetError(f"{where}: motion._target_ = {str(target)[:120]!r} is not one of blenav's motion "
+                                   f"models ({', '.join(sorted(MOTION_TARGETS))})")
+    check_targets(settings, where)
+
+
+def _instantiate(node: dict, where: str = SETTINGS):
+    """An object of ``node['_target_']`` (one of :data:`MOTION_TARGETS`, checked by name before anything is
+    imported: :func:`check_targets_of`) with the other keys as arguments; ``where``: the settings file, named in a
+    refusal (ValueError also for arguments the class does not take)."""
+    check_targets_of({"motion": node}, where)
     node = dict(node)
-    target = str(node.pop("_target_", ""))
-    if not target.startswith("blenav.filters."):
-        raise ValueError(f"bundle settings: motion target {target!r} is not a blenav.filters class")
+    target = node.pop("_target_")
     mod, _, name = target.rpartition(".")
-    return getattr(importlib.import_module(mod), name)(**node)
+    try:
+        return getattr(importlib.import_module(mod), name)(**node)
+    except TypeError as exc:  # an argument the class does not take
+        raise ValueError(f"{where}: motion ({name}): {exc}") from None
 
 
 def _dataclass(cls, node: dict | None, where: str):
@@ -151,8 +177,10 @@ def check_settings(settings: dict, where: str) -> None:
     check_size(1, n, dim, where, field="filter.n_particles")
 
 
-def build_method(settings: dict, prior=None):
-    """The :class:`blenav.filters.method.Method` of a bundle's settings; ``prior``: a map prior (or None)."""
+def build_method(settings: dict, prior=None, where: str = SETTINGS):
+    """The :class:`blenav.filters.method.Method` of a bundle's settings; ``prior``: a map prior (or None);
+    ``where``: the settings file, named in errors. Every ``_target_`` of the settings must be blenav's
+    (:func:`blenav.trust.check_targets`), the motion model's one of :data:`MOTION_TARGETS`."""
     from blenav.filters.attitude import AttitudeConfig
     from blenav.filters.engine import EstimateMode, FilterConfig, Resampling
     from blenav.filters.map_prior import MapPriorLikelihood
@@ -160,6 +188,7 @@ def build_method(settings: dict, prior=None):
     from blenav.filters.method import HeadingMode, InitMode, MapSpec, Method
     from blenav.filters.steps import StepDetectorConfig
 
+    check_targets_of(settings, where)
     f = _dataclass(FilterConfig, settings.get("filter"), "filter")
     f.resampling, f.estimate = Resampling(f.resampling), EstimateMode(f.estimate)
     f.divergence_sigma = float(f.divergence_sigma)
@@ -168,7 +197,7 @@ def build_method(settings: dict, prior=None):
     meas = [FixLikelihood(source=FIX_SOURCE, **dict(settings.get("fix") or {}))]
     if prior is not None and settings.get("prior") is not None:
         meas.append(MapPriorLikelihood(prior=prior, **dict(settings["prior"])))
-    return Method("bundle", f, _instantiate(settings["motion"]), meas, spec,
+    return Method("bundle", f, _instantiate(settings.get("motion"), where), meas, spec,
                   _dataclass(AttitudeConfig, settings.get("attitude"), "attitude"),
                   _dataclass(StepDetectorConfig, settings.get("steps"), "steps"))
 
@@ -432,6 +461,7 @@ class Bundle:
             raise ValueError(f"bundle {root} has no {variant!r} variant (has {have})")
         settings = json.loads((root / SETTINGS).read_text(encoding="utf-8"))
         check_settings(settings, str(root / SETTINGS))
+        check_targets_of(settings, str(root / SETTINGS))  # names only blenav's classes: checked before anything is built
         signature = json.loads((root / BUILDING).read_text(encoding="utf-8"))
         float_path = root / variant_name(LOCALIZER, "float")
         # the metadata is read from the float graph (the ORT variants may not keep it); the float variant's graph
@@ -468,7 +498,7 @@ class Bundle:
 
     def method(self):
         """A fresh filter method of the bundle's settings (its measurement models hold per-run state)."""
-        return build_method(self.settings, self.prior)
+        return build_method(self.settings, self.prior, str(self.root / SETTINGS))
 
     def localizer(self, building, floor=None, seed: int = 0, **kw) -> BundleLocalizer:
         """The push API on ``building`` (see :class:`BundleLocalizer`)."""
@@ -516,15 +546,44 @@ class Bundle:
         return out
 
 
+#: the files every bundle has, so every manifest lists them
+REQUIRED_FILES = (SETTINGS, BUILDING, LOCALIZER + ".onnx")
+
+
 def verify_files(root: Path, manifest: dict) -> None:
-    """Every file the manifest lists exists with its recorded sha256 (a changed, missing file is named)."""
+    """The folder holds exactly the files the manifest lists (besides the manifest itself), each with its recorded
+    size and sha256. Refused with a one-line ValueError naming the bundle and what differs: a manifest without a
+    ``files`` table (or an empty one, or one that lacks settings.json, building.json or localizer.onnx), an entry
+    that is not a plain relative path inside the folder, a missing or changed file, a file the manifest does not
+    list (a bundle is verified whole: nothing unlisted is read beside the checked files)."""
+    files = manifest.get("files")
+    if not isinstance(files, dict) or not files:
+        what = "empty" if files == {} else "missing" if files is None else f"a {type(files).__name__}, not a table"
+        raise ValueError(f"bundle {root}: {MANIFEST} lists no files ('files' is {what}); a bundle that cannot be "
+                         "verified is refused: export it again")
+    lacking = [f for f in REQUIRED_FILES if f not in files]
+    if lacking:
+        raise ValueError(f"bundle {root}: {MANIFEST} does not list {', '.join(lacking)}; export it again")
     bad = []
-    for rel, info in (manifest.get("files") or {}).items():
+    for rel, info in files.items():
+        if not isinstance(rel, str) or rel.startswith("/") or "\\" in rel or any(
+                part in ("", ".", "..") for part in rel.split("/")):
+            bad.append(f"{str(rel)[:80]!r} is not a path inside the bundle")
+            continue
         p = root / rel
+        want = info.get("sha256") if isinstance(info, dict) else None
+        size = info.get("bytes") if isinstance(info, dict) else None
         if not p.is_file():
             bad.append(f"{rel} missing")
-        elif (got := sha256_file(p)) != info.get("sha256"):
-            bad.append(f"{rel} changed (sha256 {got[:12]}..., manifest {str(info.get('sha256'))[:12]}...)")
+        elif isinstance(size, int) and p.stat().st_size != size:
+            bad.append(f"{rel} changed ({p.stat().st_size} bytes, manifest {size})")
+        elif (got := sha256_file(p)) != want:
+            bad.append(f"{rel} changed (sha256 {got[:12]}..., manifest {str(want)[:12]}...)")
+    extra = sorted(q.relative_to(root).as_posix() for q in root.rglob("*")
+                   if not q.is_dir() and q.relative_to(root).as_posix() not in files and q != root / MANIFEST)
+    if extra:
+        shown = ", ".join(extra[:5]) + (f" and {len(extra) - 5} more" if len(extra) > 5 else "")
+        bad.append(f"{len(extra)} file(s) the manifest does not list: {shown}")
     if bad:
         raise ValueError(f"bundle {root} is not the one exported: {'; '.join(bad)}; export it again")
 
