@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 
 from .building_files import check_anchors_on_floors, load_anchors, load_geojson, parse_floor
-from .floor import FREE, OCCUPIED, UNKNOWN, Floor, Region, floor_key  # noqa: F401  (FREE..UNKNOWN: importers/ilc20)
+from .floor import Floor, Region, floor_key
 from .issues import Issue, error, raise_or_log
 from .schema import ANCHOR_POSITION_COLUMNS
 from .yaml_file import load_yaml
