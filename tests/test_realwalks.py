@@ -134,7 +134,7 @@ def test_odometry_argument_equals_an_odometry_csv(tiny_dataset):
     import shutil
 
     from blenav.data import Dataset
-    from blenav.eval.realwalks import RealWalkPF
+    from blenav.localizers.realwalk import RealWalkPF
     from blenav.localizers import RunContext
     from blenav.filters.runner import run_session
 
@@ -167,11 +167,11 @@ def test_ahrs_odometry_reads_the_pdr_rows_ahrs(tmp_path):
     """The AHRS heading of the PDR odometry is the PDR motion model's: the same ("imu", ...) cache entry, computed
     with the magnetometer's hard-iron offset (a sentinel in that entry is what pdr_odometry reads)."""
     from blenav.data import Dataset
-    from blenav.eval.realwalks import pdr_odometry
+    from blenav.filters.pdr_odometry import pdr_odometry
     from blenav.filters.attitude import AttitudeConfig, estimate_attitude
     from blenav.filters.runner import hard_iron_offset
     from blenav.filters.steps import SessionArrays
-    from blenav.eval.realwalks import _NO_ANCHORS
+    from blenav.filters.pdr_odometry import _NO_ANCHORS
 
     ds = Dataset.open(simulate_small(tmp_path / "d", 3, 20, 1))
     s = ds.session(ds.session_ids[0])
@@ -320,12 +320,12 @@ def test_sparse_role_hears_only_its_beacons(tmp_path):
 def test_step_flags_are_detected_once_per_walk(tiny_dataset, monkeypatch):
     """The PDR odometry and the step-length fit of one walk share its step flags through the cache."""
     from blenav.data import Dataset
-    from blenav.eval import realwalks
+    import blenav.filters.pdr_odometry as odo
 
     calls = []
-    real = realwalks.detect_steps
-    monkeypatch.setattr(realwalks, "detect_steps", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = odo.detect_steps
+    monkeypatch.setattr(odo, "detect_steps", lambda *a, **k: calls.append(1) or real(*a, **k))
     s = next(iter(Dataset.open(tiny_dataset).sessions()))
     cache: dict = {}
-    a = realwalks._step_flags(s, None, cache)
-    assert np.array_equal(realwalks._step_flags(s, StepDetectorConfig(), cache), a) and len(calls) == 1
+    a = odo._step_flags(s, None, cache)
+    assert np.array_equal(odo._step_flags(s, StepDetectorConfig(), cache), a) and len(calls) == 1

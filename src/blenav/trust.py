@@ -44,7 +44,7 @@ TARGETS: frozenset[str] = frozenset({
     "blenav.localizers.ranging.GridL1Localizer", "blenav.localizers.ranging.GridL2Localizer",
     "blenav.localizers.ranging.SrlsLocalizer",
     "blenav.backend.localizer.BackendLocalizer",
-    "blenav.eval.realwalks.RealWalkPF",
+    "blenav.localizers.realwalk.RealWalkPF",
     # a particle filter's motion models (conf/filter/motion, the bundle's settings.json)
     "blenav.filters.motion.RandomWalk", "blenav.filters.motion.DeadReckoning", "blenav.filters.motion.ImuProposal",
     "blenav.filters.motion.OdometryIncrement", "blenav.filters.motion.Pdr",

@@ -1,180 +1,18 @@
-"""Real phone walks (issue 17, the ILC 2.0 recordings): Roy's odometry filters on PDR odometry, fused with
-the fixes of a fingerprint localizer trained on the dataset's own train walks.
+"""Real phone walks (issue 17, the ILC 2.0 recordings): the experiment's train walks and the tables of its results.
 
-:class:`RealWalkPF` is a :class:`~blenav.localizers.ParticleFilterLocalizer` (the same config node: ``motion``,
-``measurements``, ``map``, ``filter``, ...) with one addition for walks that have no ``odometry.csv``:
-
-``odometry`` (optional)
-    ``{heading: orientation | ahrs, step_length: 0.7 | null}``: the filter runs on a PDR odometry track
-    (:func:`blenav.filters.motion_pdr.pdr_track`: detected steps along the phone's heading, world-aligned
-    because the heading is magnetic-north referenced and the floor frame is east/north), handed to
-    :func:`~blenav.filters.runner.run_session` as ``odometry=`` in place of ``odometry.csv``, so that Roy's
-    odometry increment (eq. 3.7) and the learned map prior (eq. 3.8), which read odometry, run on a phone walk.
-    ``heading: orientation`` uses the phone's rotation vector (``orientation.csv``; the walk is skipped with the
-    reason when it has none), ``ahrs`` blenav's Madgwick AHRS with magnetometer (the same AHRS, hard-iron offset
-    and cache entry as the filters' PDR motion model: :func:`blenav.filters.runner.session_imu`). ``step_length:
-    null`` fits one step length on the train walks (:meth:`fit`: the surveyed path length between their first and
-    last waypoints over the steps detected there; 0.7 m until fitted / without train walks).
-
-Fixes come through the experiment's ``fixes`` block like every other fused filter (:mod:`blenav.eval.fixes`: a role
-per fix set, its ``compute`` node, e.g. ``${methods.knn_wifi}``, the KNN-WiFi row's own trained localizer; a fix
-likelihood with ``role:`` reads it; ``use_std: true`` weighs each fix by the localizer's own std). With ``map.init:
-fix`` the filter starts around the first fix (no ground truth used). Estimates are the filter's own (no padding to
-the session's ends); waypoints outside them are scored with the experiment's ``scoring.hold_ends``
-(:func:`blenav.eval.metrics.waypoint_metrics`).
-
-Everything else is the particle filter's: ``map.init: groundtruth`` starts at the first surveyed waypoint
-(the ground truth interpolated at the session start, i.e. the first waypoint when the walk starts there).
+The localizer of the experiment's PDR rows is :class:`blenav.localizers.realwalk.RealWalkPF` (its PDR odometry:
+:mod:`blenav.filters.pdr_odometry`).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-import logging
 
 import numpy as np
-import pandas as pd
-
-from blenav.errors import MissingStream
-from blenav.filters.attitude import AttitudeConfig
-from blenav.filters.measurement import AnchorTable
-from blenav.filters.motion_pdr import pdr_track
-from blenav.filters.runner import session_imu
-from blenav.filters.steps import SessionArrays, StepDetectorConfig, detect_steps
-from blenav.localizers.base import Estimate, RunContext, Trained
-from blenav.localizers.particle import ParticleFilterLocalizer
 
 from .common import write_text
 
-log = logging.getLogger("blenav.eval.realwalks")
-
-__all__ = ["RealWalkPF", "pdr_odometry", "fit_step_length", "train_ids", "table_rows", "floor_table", "verdicts",
-           "summary_table"]
-
-HEADINGS = ("orientation", "ahrs")
-DEFAULT_STEP_M = 0.7
-_NO_ANCHORS = AnchorTable.empty()
-
-
-def _orientation_track(session, heading: str, att: AttitudeConfig, steps: StepDetectorConfig,
-                       cache: dict | None) -> tuple[np.ndarray, np.ndarray]:
-    """(q_t (Q,) s, q (Q, 4) w, x, y, z): the device->world orientation the PDR heading comes from."""
-    if heading == "orientation":
-        o = session.orientation if (session.root / "orientation.csv").is_file() else None
-        if o is None or not len(o):
-            raise MissingStream(f"session {session.id} has no orientation.csv (the phone's rotation vector), which "
-                                f"the PDR heading 'orientation' needs")
-        return o["t"].to_numpy(float), o[["qw", "qx", "qy", "qz"]].to_numpy(float)
-    arrays = SessionArrays.from_session(session, _NO_ANCHORS)
-    q, _ = session_imu(session.id, arrays, att, steps, cache)  # the PDR motion model's AHRS (hard-iron removed)
-    return arrays.imu_t, q
-
-
-def _step_flags(session, steps: StepDetectorConfig | None, cache: dict | None) -> np.ndarray:
-    """(T,) bool: the steps detected in the session's imu.csv (:func:`detect_steps`), once per ``cache`` (the
-    PDR odometry and the step-length fit of the same walk share them)."""
-    steps = steps or StepDetectorConfig()
-    key = ("rw-steps", session.id, repr(steps))
-    if cache is not None and key in cache:
-        return cache[key]
-    imu = session.imu
-    flags = detect_steps(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), steps)
-    if cache is not None:
-        cache[key] = flags
-    return flags
-
-
-def pdr_odometry(session, heading: str = "orientation", step_length: float = DEFAULT_STEP_M,
-                 att: AttitudeConfig | None = None, steps: StepDetectorConfig | None = None,
-                 cache: dict | None = None) -> pd.DataFrame:
-    """The session's PDR odometry (DataFrame t, x, y: s, world-aligned m from 0), as ``odometry.csv`` holds it.
-
-    Raises :class:`MissingStream` without IMU data or (``heading='orientation'``) without orientation.csv."""
-    if heading not in HEADINGS:
-        raise ValueError(f"odometry.heading must be one of {HEADINGS}, got {heading!r}")
-    att, steps = att or AttitudeConfig(), steps or StepDetectorConfig()
-    key = ("rw-pdr", session.id, heading, float(step_length), repr(att), repr(steps))
-    if cache is not None and key in cache:
-        return cache[key]
-    imu = session.imu
-    if len(imu) < 2:
-        raise MissingStream(f"session {session.id} has no IMU data, which the PDR odometry needs")
-    q_t, q = _orientation_track(session, heading, att, steps, cache)
-    t, xy = pdr_track(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), q_t, q, step_length, steps,
-                      flags=_step_flags(session, steps, cache))
-    df = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1]})
-    if cache is not None:
-        cache[key] = df
-    return df
-
-
-def fit_step_length(sessions: list, steps: StepDetectorConfig | None = None, cache: dict | None = None) -> dict:
-    """One step length (m) for the walker of ``sessions`` (labelled): the surveyed path length between each walk's
-    first and last waypoint (straight lines between waypoints, so a lower bound of the walked length) summed over
-    the walks, over the steps detected in those spans. Returns ``{"step_length_m", "walks", "steps", "path_m"}``."""
-    path = n = 0.0
-    used = 0
-    for s in sessions:
-        gt, imu = s.groundtruth, s.imu
-        if len(gt) < 2 or len(imu) < 2:
-            continue
-        t_steps = imu["t"].to_numpy(float)[_step_flags(s, steps, cache)]
-        t0, t1 = float(gt["t"].iloc[0]), float(gt["t"].iloc[-1])
-        k = int(((t_steps > t0) & (t_steps <= t1)).sum())
-        d = np.diff(gt[["x", "y"]].to_numpy(float), axis=0)
-        path += float(np.hypot(d[:, 0], d[:, 1]).sum())
-        n += k
-        used += 1
-    if n < 10:
-        raise MissingStream(f"fewer than 10 steps detected between the waypoints of {used} train walk(s): no step "
-                            f"length to fit")
-    return {"step_length_m": path / n, "walks": used, "steps": int(n), "path_m": path}
-
-
-class RealWalkPF(ParticleFilterLocalizer, Trained):
-    """A particle filter on real walks: PDR odometry computed from the IMU (module doc)."""
-
-    def __init__(self, name: str, shared=None, odometry=None, **pf):
-        super().__init__(name, shared, **pf)
-        odo = dict(odometry or {})
-        unknown = set(odo) - {"heading", "step_length"}
-        if unknown:
-            raise ValueError(f"method {name!r}, odometry: unknown key(s) {sorted(unknown)}; known: heading, "
-                             f"step_length")
-        self.odometry = odo if odometry is not None else None
-        if self.odometry is not None and self.odometry.get("heading", "orientation") not in HEADINGS:
-            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS}, got "
-                             f"{self.odometry['heading']!r}")
-        self.step_length = odo.get("step_length", DEFAULT_STEP_M)
-        self.fitted_step: float | None = None
-
-    def fit(self, sessions: list, ctx: RunContext) -> dict | None:
-        if self.odometry is None or self.step_length is not None:
-            return None
-        key = ("rw-step-length", tuple(s.id for s in sessions), repr(self.method.steps))  # per detector
-        if key not in ctx.cache:
-            ctx.cache[key] = fit_step_length(sessions, self.method.steps, ctx.cache)
-        self.fitted_step = float(ctx.cache[key]["step_length_m"])
-        return {"step_length": ctx.cache[key]}
-
-    def _step(self) -> float:
-        if self.step_length is not None:
-            return float(self.step_length)
-        return self.fitted_step if self.fitted_step is not None else DEFAULT_STEP_M
-
-    def odometry_for(self, session, ctx: RunContext) -> pd.DataFrame | None:
-        """The PDR odometry the filter runs on (None without ``odometry``: the session's odometry.csv)."""
-        if self.odometry is None:
-            return None
-        return pdr_odometry(session, self.odometry.get("heading", "orientation"), self._step(), self.method.attitude,
-                            self.method.steps, ctx.cache)
-
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
-        est = super().run(session, n_runs, seed, ctx)
-        if self.odometry is not None:
-            est.notes.append(f"PDR odometry: heading from {self.odometry.get('heading', 'orientation')}, step "
-                             f"{self._step():.3f} m")
-        return est
+__all__ = ["train_ids", "table_rows", "floor_table", "verdicts", "summary_table"]
 
 
 # ------------------------------------------------------------------------------------------ tables

@@ -126,7 +126,7 @@ class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelC
     # ------------------------------------------------------------------ run
     def odometry_for(self, session, ctx: RunContext):
         """An odometry track (DataFrame t, x, y) to use in place of the session's odometry.csv, or None (use it); a
-        subclass computes one (e.g. PDR odometry on phone walks, :class:`blenav.eval.realwalks.RealWalkPF`)."""
+        subclass computes one (e.g. PDR odometry on phone walks, :class:`blenav.localizers.realwalk.RealWalkPF`)."""
         return None
 
     def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
