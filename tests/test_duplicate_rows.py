@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from blenav.data import Dataset, validate
-from blenav.data.session import BURST_MAX_ROWS
+from blenav.data.streams import BURST_MAX_ROWS
 
 RSSI = "sessions/walk0/rssi.csv"
 ROW = 40  # line 42 of rssi.csv: anchor b1 at t = 2 s in the tiny dataset

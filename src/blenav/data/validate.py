@@ -7,7 +7,8 @@ from pathlib import Path
 from .building import load_building
 from .issues import Issue, error
 from .schema import FORMAT, STREAMS
-from .session import check_session_files, check_session_meta, load_stream
+from .session import check_session_files, check_session_meta
+from .streams import load_stream
 from .yaml_file import load_yaml
 
 
