@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables crossphone-sweep mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables mapping-curve realwalks-tables clean-demo
+.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables crossphone-sweep mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables mapping-curve realwalks-tables regression-check clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -292,7 +292,7 @@ selfcal-tables: $(STAMP)
 	      methods.pf_ps_map_offset=null out=data/results/office_mixed_owncal/$$S progress=false plots=false || exit 1; \
 	done
 	cp data/results/office_mixed_selfcal/results.md docs/results/office_mixed_selfcal_mapfusion_002.md
-	$(BIN)/python -m blenav.eval.merge docs/results/office_mixed_selfcal.md \
+	$(BIN)/python -m blenav.cli.tables merge docs/results/office_mixed_selfcal.md \
 	    "Self-calibrating receivers on the mixed-phone office (calibrated on the iPhone 7 walk)" \
 	    data/results/office_mixed_selfcal $$(ls -d data/results/office_mixed_owncal/*/ | sed 's|/$$|:own-calibration/|')
 
@@ -326,7 +326,7 @@ crf-tables: $(STAMP)
 	    sessions=8 progress=false
 	$(BIN)/blenav-eval overwrite=true experiment=crf_004_table1 data=$(CRF_DATA) out=data/results/crf_004_table1 progress=false
 	$(BIN)/blenav-eval overwrite=true experiment=crf_004_fig12 data=$(CRF_DATA) out=data/results/crf_004_fig12 progress=false
-	$(BIN)/python -m blenav.crf.tables data/results/crf_004_table1 data/results/crf_004_fig12 \
+	$(BIN)/python -m blenav.cli.tables crf data/results/crf_004_table1 data/results/crf_004_fig12 \
 	    docs/results/crf_004_tables.md
 
 # Issue 18 sec. 2: the leaderboard -- every method of the project and the PCRLB -- over a fleet of datasets as one
@@ -347,7 +347,7 @@ leaderboard: $(STAMP)
 	$(BIN)/blenav-eval -m overwrite=true experiment=leaderboard data=$(LB_SIM)$(if $(LB_REAL),$(lb_comma)$(LB_REAL)) runs=$(LB_RUNS) \
 	    'out=$(LB_OUT)/$${hydra:job.num}' hydra/launcher=joblib hydra.launcher.n_jobs=$(LB_JOBS) \
 	    hydra.sweep.dir=$(LB_OUT)/.multirun progress=false $(LB_ARGS)
-	$(BIN)/python -m blenav.eval.merge --leaderboard $(LB_OUT)/fleet.md "Leaderboard over the fleet (make leaderboard)" \
+	$(BIN)/python -m blenav.cli.tables leaderboard $(LB_OUT)/fleet.md "Leaderboard over the fleet (make leaderboard)" \
 	    $(LB_OUT)
 
 realism: $(STAMP)
@@ -359,7 +359,7 @@ FENG_RAW ?= ../shared/data/raw/feng_wifi_rtt
 feng-tables: $(STAMP)
 	rm -rf data/feng_wifi_rtt && $(BIN)/blenav-import feng_wifi_rtt $(FENG_RAW) data/feng_wifi_rtt
 	$(BIN)/blenav-eval overwrite=true experiment=crf_004_feng data=data/feng_wifi_rtt out=data/results/crf_004_feng progress=false
-	$(BIN)/python -m blenav.eval.feng_rtt data/results/crf_004_feng/results.json docs/results/feng_rtt.md "make feng-tables"
+	$(BIN)/python -m blenav.cli.tables feng data/results/crf_004_feng/results.json docs/results/feng_rtt.md "make feng-tables"
 
 # Issue 17 sec. 2: every method on the ILC 2.0 real walks (three floors of site1), per floor, from the raw archives:
 # import, beacon map from the train walks only (blenav-map writes only the walks it maps: the full import gets its
@@ -369,7 +369,7 @@ feng-tables: $(STAMP)
 # Second map prior (leave one floor out): for each floor F, a prior trained on the train walks of the other floors
 # (experiment=mapprior_ilc on their realwalks train-ids, waypoints interpolated linearly at training time; trained once, reused when
 # $(RW_FLOOR_PRIOR)_not_F_onnx exists), run on F's learned-map rows (experiment=mapprior_ilc_rows, model=) into
-# $(RW_OUT_OTHER)/F; blenav.eval.realwalks_priors writes both priors' rows beside the heuristic map PF.
+# $(RW_OUT_OTHER)/F; python -m blenav.cli.realwalks priors writes both priors' rows beside the heuristic map PF.
 RW_RAW ?= ../shared/data/raw/ilc20
 RW_DATA ?= data/ilc20
 RW_OUT ?= data/results/realwalks
@@ -410,8 +410,13 @@ realwalks-tables: $(STAMP)
 	    $(BIN)/python export.py ckpt=$(RW_FLOOR_PRIOR)_not_$$F/last.ckpt out=$(RW_FLOOR_PRIOR)_not_$${F}_onnx; } && \
 	  $(BIN)/blenav-eval overwrite=true experiment=mapprior_ilc_rows data=$(RW_DATA)/$$F runs=$(RW_RUNS) \
 	      model_path=$(RW_FLOOR_PRIOR)_not_$${F}_onnx out=$(RW_OUT_OTHER)/$$F progress=false || exit 1; done
-	$(BIN)/python -m blenav.eval.realwalks_priors $(RW_OUT) $(RW_OUT_OTHER) '$(RW_FLOOR_PRIOR)_not_{floor}_onnx' \
+	$(BIN)/python -m blenav.cli.realwalks priors $(RW_OUT) $(RW_OUT_OTHER) '$(RW_FLOOR_PRIOR)_not_{floor}_onnx' \
 	    docs/results-ilc20.md README.md
+
+# Issue 27: twelve experiments, shrunk (5 min), rerun and compared bit for bit with the numbers of b6170be (exit 1 on
+# a difference); what it covers and how to refresh the reference: tools/regression_snapshot.py
+regression-check: $(STAMP)
+	$(BIN)/python tools/regression_snapshot.py check --work data/regression --ref tests/regression/snapshot_b6170be.json
 
 clean-demo:
 	rm -rf $(DEMO)
