@@ -165,3 +165,41 @@ def test_eval_runs_are_bounded(tiny_dataset, tmp_path, runs, words):
     with pytest.raises(EvalError) as e:
         evaluate(cfg)
     assert _one_line(e) == f"eval config: {words} (independent runs of a filter per session)"
+
+
+def test_bundle_metadata_files_are_size_checked_before_reading(tmp_path, monkeypatch):
+    """A manifest or settings.json padded to megabytes is refused by its size, naming the file, before json reads it;
+    a settings.json that is not an object is refused in one line."""
+    from blenav.runtime.bundle import MANIFEST, SETTINGS, Bundle
+
+    root = _bundle(tmp_path, n_particles=100)
+    monkeypatch.setenv("BLENAV_MAX_JSON_MB", "0.001")  # 1 kB
+    (root / MANIFEST).write_text(json.dumps({"format": "x", "pad": "x" * 5000}))
+    n = (root / MANIFEST).stat().st_size
+    with pytest.raises(LimitError) as e:
+        Bundle.open(root, verify=False)
+    assert _one_line(e).startswith(f"{root / MANIFEST}: manifest file of {n:,} bytes, above the limit of 1,048 bytes")
+    monkeypatch.delenv("BLENAV_MAX_JSON_MB")
+    (tmp_path / "b2").mkdir()
+    root = _bundle(tmp_path / "b2", n_particles=100)
+    (root / SETTINGS).write_text("[1, 2]")
+    with pytest.raises(ValueError, match=r"settings.json: not a settings object, a list"):
+        Bundle.open(root, verify=False)
+    (root / SETTINGS).write_text("{\"filter\": ")
+    with pytest.raises(ValueError, match=r"settings.json: not JSON \(Expecting value: line 1 column 12\)"):
+        Bundle.open(root, verify=False)
+
+
+def test_onnx_model_size_is_checked_before_onnxruntime_reads_it(tmp_path, monkeypatch):
+    from blenav.onnx_io import session
+
+    p = tmp_path / "big.onnx"
+    p.write_bytes(b"\0" * 4096)
+    monkeypatch.setenv("BLENAV_MAX_MODEL_MB", "0.001")
+    with pytest.raises(LimitError) as e:
+        session(p)
+    assert _one_line(e) == (f"{p}: ONNX model file of 4,096 bytes, above the limit of 1,048 bytes "
+                            "(set BLENAV_MAX_MODEL_MB, in MiB, to allow more)")
+    monkeypatch.setenv("BLENAV_MAX_MODEL_MB", "1")
+    with pytest.raises(ValueError, match="is not an ONNX model onnxruntime can load"):  # size fine: onnxruntime's turn
+        session(p)

@@ -15,6 +15,9 @@ or config and the field (:class:`LimitError`, a ``ValueError``: the CLIs' known-
   (``BLENAV_MAX_ARCHIVE_RATIO``, default :data:`DEFAULT_MAX_ARCHIVE_RATIO`: the members read may expand to at
   most that many times the archive's size, plus :data:`ARCHIVE_RATIO_FREE_MB` MiB; the ILC archives expand about
   5.5 times).
+* Files read whole: :func:`read_json` (a bundle's or an export's metadata, ``BLENAV_MAX_JSON_MB``, default
+  :data:`DEFAULT_MAX_JSON_MB` MiB) and ONNX graphs (:func:`max_model_bytes`, ``BLENAV_MAX_MODEL_MB``, default
+  :data:`DEFAULT_MAX_MODEL_MB` MiB, checked by :func:`blenav.onnx_io.session`), their size checked before reading.
 
 Standard library and numpy only: every layer may import it.
 """
@@ -31,6 +34,12 @@ import numpy as np
 DEFAULT_MAX_MEMORY_GB = 8.0
 DEFAULT_MAX_MEMBER_MB = 256.0
 DEFAULT_MAX_ARCHIVE_RATIO = 200.0
+#: largest metadata JSON file (a bundle's manifest, settings, building signature, an export's meta.json) read
+#: whole: ``BLENAV_MAX_JSON_MB`` MiB; blenav writes them at a few kB to a few hundred kB (a building signature
+#: lists the beacons)
+DEFAULT_MAX_JSON_MB = 16.0
+#: largest ONNX graph handed to onnxruntime: ``BLENAV_MAX_MODEL_MB`` MiB (blenav's networks export at 0.1-20 MB)
+DEFAULT_MAX_MODEL_MB = 512.0
 #: expansion any archive may have regardless of its ratio (a 2 kB zip of a 100 kB text file is no bomb)
 ARCHIVE_RATIO_FREE_MB = 64.0
 
@@ -130,6 +139,39 @@ def check_memory(nbytes: float, what: str, where: str) -> None:
 def max_member_bytes() -> float:
     """Largest archive member read into memory: ``BLENAV_MAX_ARCHIVE_MEMBER_MB`` MiB (default 256)."""
     return _env_float("BLENAV_MAX_ARCHIVE_MEMBER_MB", DEFAULT_MAX_MEMBER_MB) * MIB
+
+
+def check_file_size(path, what: str, limit: float, var: str) -> None:
+    """Refuse (:class:`LimitError`) a file of more than ``limit`` bytes before it is read; ``var``: the
+    environment variable that raises the limit."""
+    size = os.stat(path).st_size
+    if size > limit:
+        raise LimitError(f"{path}: {what} file of {size:,} bytes, above the limit of {int(limit):,} bytes "
+                         f"(set {var}, in MiB, to allow more)")
+
+
+def max_model_bytes() -> float:
+    """Largest ONNX model file: ``BLENAV_MAX_MODEL_MB`` MiB (default 512)."""
+    return _env_float("BLENAV_MAX_MODEL_MB", DEFAULT_MAX_MODEL_MB) * MIB
+
+
+def read_json(path, what: str = "metadata"):
+    """The JSON document of ``path`` (a file from a stranger: a bundle's or an export's metadata), its size
+    checked before it is read (``BLENAV_MAX_JSON_MB``, default :data:`DEFAULT_MAX_JSON_MB`) and its syntax
+    refused in one line naming the file (:class:`LimitError` / ``ValueError``)."""
+    import json
+    from pathlib import Path
+
+    path = Path(path)
+    check_file_size(path, what, _env_float("BLENAV_MAX_JSON_MB", DEFAULT_MAX_JSON_MB) * MIB, "BLENAV_MAX_JSON_MB")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not JSON ({exc.msg}: line {exc.lineno} column {exc.colno})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: nested too deeply to read") from None
 
 
 def max_archive_ratio() -> float:

@@ -40,6 +40,8 @@ from typing import Sequence
 
 import numpy as np
 
+from blenav.limits import check_file_size, max_model_bytes
+
 
 def session(path: str | Path, threads: int = 1):
     """onnxruntime session of ``path``: CPU, ``threads`` intra-op threads, 1 inter-op thread, sequential."""
@@ -51,6 +53,7 @@ def session(path: str | Path, threads: int = 1):
     so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     if not Path(path).is_file():
         raise FileNotFoundError(f"ONNX model {path} does not exist")
+    check_file_size(path, "ONNX model", max_model_bytes(), "BLENAV_MAX_MODEL_MB")  # before onnxruntime parses it
     try:
         return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime's InvalidProtobuf, InvalidGraph, ... (RuntimeError-like, not ValueError)

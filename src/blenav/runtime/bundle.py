@@ -52,7 +52,7 @@ from typing import Callable, Iterable, NamedTuple
 import numpy as np
 
 from blenav.features.mapgrid import pad_to_multiple
-from blenav.limits import LimitError, check_range
+from blenav.limits import LimitError, check_range, read_json
 from blenav.onnx_io import blenav_version, check_weights, read_metadata, session
 from blenav.trust import TARGETS, UntrustedTargetError, check_targets
 
@@ -221,7 +221,7 @@ class _MapBackend(OnnxBackend):
     :class:`~blenav.runtime.map_prior.OnnxBackend` (its encoders) over the bundle's file names and manifest."""
 
     def __init__(self, root: Path, variant: str, threads: int, digest: str):
-        self.meta = json.loads((root / "meta.json").read_text(encoding="utf-8"))
+        self.meta = read_json(root / "meta.json")
         self.map_sess = session(root / variant_name(MAP_GRAPHS[0], variant), threads)
         self.traj_sess = session(root / variant_name(MAP_GRAPHS[1], variant), threads)
         self.weights_hash = f"bundle-{variant}:{digest[:16]}"
@@ -448,10 +448,9 @@ class Bundle:
         if not mpath.is_file():
             raise FileNotFoundError(f"{root} is not a blenav bundle (no {MANIFEST}); write one with `python export.py "
                                     "bundle=true ckpt=RUN/last.ckpt out=BUNDLE`")
-        try:
-            manifest = json.loads(mpath.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{mpath}: not JSON ({exc})") from None
+        manifest = read_json(mpath, "manifest")
+        if not isinstance(manifest, dict):
+            raise ValueError(f"{mpath}: not a manifest (a JSON object), a {type(manifest).__name__}")
         if manifest.get("format") != FORMAT:
             raise ValueError(f"{mpath}: format {manifest.get('format')!r}, this blenav reads {FORMAT!r}")
         if verify:
@@ -459,10 +458,12 @@ class Bundle:
         have = manifest.get("variants_available") or ["float"]
         if variant not in have:
             raise ValueError(f"bundle {root} has no {variant!r} variant (has {have})")
-        settings = json.loads((root / SETTINGS).read_text(encoding="utf-8"))
+        settings = read_json(root / SETTINGS, "settings")
+        if not isinstance(settings, dict):
+            raise ValueError(f"{root / SETTINGS}: not a settings object, a {type(settings).__name__}")
         check_settings(settings, str(root / SETTINGS))
         check_targets_of(settings, str(root / SETTINGS))  # names only blenav's classes: checked before anything is built
-        signature = json.loads((root / BUILDING).read_text(encoding="utf-8"))
+        signature = read_json(root / BUILDING, "building signature")
         float_path = root / variant_name(LOCALIZER, "float")
         # the metadata is read from the float graph (the ORT variants may not keep it); the float variant's graph
         # reuses that session instead of loading the file a second time

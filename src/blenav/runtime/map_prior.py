@@ -41,7 +41,6 @@ This module needs numpy (and onnxruntime for an ONNX directory).
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from pathlib import Path
 from typing import Callable
@@ -49,6 +48,7 @@ from typing import Callable
 import numpy as np
 
 from blenav.features.mapgrid import NetGrid, floor_key, net_grid, pad_to_multiple
+from blenav.limits import read_json
 from blenav.onnx_io import check_weights, session
 
 SCORE_FLOOR = 1e-12
@@ -69,9 +69,9 @@ class OnnxBackend:
         if missing:
             raise FileNotFoundError(f"{root} lacks {missing}; write it with `python export.py ckpt=RUN/last.ckpt "
                                     "out=DIR`")
-        self.meta = json.loads(paths[2].read_text(encoding="utf-8"))
-        if self.meta.get("kind") != "mapprior":
-            raise ValueError(f"{paths[2]} is not a map prior export (kind {self.meta.get('kind')!r})")
+        self.meta = read_json(paths[2])
+        if not isinstance(self.meta, dict) or self.meta.get("kind") != "mapprior":
+            raise ValueError(f"{paths[2]} is not a map prior export (kind {self.meta.get('kind') if isinstance(self.meta, dict) else None!r})")
         self.map_sess = session(paths[0], threads)
         self.traj_sess = session(paths[1], threads)
         check_export(root, self.meta)
