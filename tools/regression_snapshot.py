@@ -138,8 +138,9 @@ class Runner:
             f.flush()
             rc = subprocess.run(cmd, cwd=REPO, env=self.env, stdout=f, stderr=subprocess.STDOUT).returncode
         if rc != 0:
-            tail = log.read_text().splitlines()[-15:]
-            raise RuntimeError(f"{name}: exit {rc}: {' '.join(cmd)}\n  " + "\n  ".join(tail) + f"\n  (log: {log})")
+            tail = [x for x in log.read_text().splitlines() if x.strip()][-15:]
+            raise RuntimeError(f"{name}: exit {rc}: {tail[-1] if tail else '(no output)'}\n  command: {' '.join(cmd)}"
+                               f"\n  " + "\n  ".join(tail) + f"\n  (log: {log})")
         return time.perf_counter() - t0
 
     def need(self, name: str) -> Path:
