@@ -43,9 +43,9 @@ import torch
 
 from blenav.cli.sim import run as sim_run
 from blenav.configs import compose
-from blenav.learn.mapprior_data import target_tbar, unique_weights
+from blenav.learn.mapprior.data import target_tbar, unique_weights
 from blenav.learn.train import train
-from blenav.learn.mapprior_checkpoint import load_map_prior
+from blenav.learn.mapprior.checkpoint import load_map_prior
 from blenav.runtime.map_prior import MapPrior
 from timing import median_ms
 

@@ -145,7 +145,7 @@ def main() -> int:
 
     torch.set_num_threads(1)
     from blenav.data import Dataset
-    from blenav.learn.mapprior_checkpoint import load_map_prior
+    from blenav.learn.mapprior.checkpoint import load_map_prior
     from blenav.runtime import Bundle
 
     tmp = None

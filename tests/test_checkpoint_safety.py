@@ -20,7 +20,7 @@ import torch
 
 from blenav.configs import compose
 from blenav.learn.checkpoint import SAFE_GLOBALS, UnsafeCheckpointError, load_file, load_module, read_checkpoint
-from blenav.learn.mapprior_checkpoint import load_map_prior, load_mapprior
+from blenav.learn.mapprior.checkpoint import load_map_prior, load_mapprior
 from blenav.learn.train import train
 from helpers import simulate_small
 

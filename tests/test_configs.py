@@ -72,7 +72,8 @@ def test_every_eval_experiment_composes_and_builds(experiment):
 
 @pytest.mark.parametrize("experiment", TRAIN)
 def test_every_train_experiment_composes(experiment):
-    from blenav.learn.data_config import MapPriorDataConfig, WindowDataConfig
+    from blenav.learn.data_config import WindowDataConfig
+    from blenav.learn.mapprior.data_config import MapPriorDataConfig
 
     cfg = compose("train", f"experiment={experiment}", "data=DIR")
     OmegaConf.to_container(cfg, resolve=True)

@@ -50,6 +50,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("blenav.localizers",),              # the methods behind one interface (they may train: learn is below)
     ("blenav.backend",),                 # the factor-graph back-end, one of the localizers
     ("blenav.eval",),                    # the evaluation harness and its experiments
+    ("blenav.reporting",),               # the README / docs tables written from evaluations' results
+    ("blenav.reporting",),               # the README / docs tables written from evaluations' results
     ("blenav.configs",),                 # composes conf/ (Hydra): only entry points call it
     ("blenav.cli",),                     # the command lines
 )
@@ -212,10 +214,10 @@ def test_runtime_map_prior_runs_a_checkpoint_only_with_the_loader_it_is_handed(t
 
     ck = tmp_path / "last.ckpt"
     ck.write_bytes(b"not read")
-    with pytest.raises(ValueError, match=r"loader=blenav\.learn\.mapprior_checkpoint\.TorchBackend"):
+    with pytest.raises(ValueError, match=r"loader=blenav\.learn\.mapprior\.checkpoint\.TorchBackend"):
         MapPrior(ck)
 
-    class Backend:  # what a loader returns (blenav.learn.mapprior_checkpoint.TorchBackend for a real one)
+    class Backend:  # what a loader returns (blenav.learn.mapprior.checkpoint.TorchBackend for a real one)
         meta = {"resolution_m": 0.5, "window": {"window_s": 5.0, "step_hz": 1.0, "n_points": 6}, "channels": 3}
         weights_hash = "fake"
 

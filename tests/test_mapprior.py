@@ -18,8 +18,8 @@ from PIL import Image
 from blenav.configs import compose
 from blenav.data import FREE, OCCUPIED, Floor
 from blenav.features.mapgrid import net_grid, resample_free
-from blenav.learn.mapprior_checkpoint import build_net, load_map_prior, load_mapprior
-from blenav.learn.mapprior_data import (
+from blenav.learn.mapprior.checkpoint import build_net, load_map_prior, load_mapprior
+from blenav.learn.mapprior.data import (
     Collate,
     MapPriorDataModule,
     feasible_weights,
@@ -29,8 +29,8 @@ from blenav.learn.mapprior_data import (
     unique_weights,
     window_ends,
 )
-from blenav.learn.mapprior_module import MapPriorModule
-from blenav.learn.mapprior_train import mapprior_data_config
+from blenav.learn.mapprior.module import MapPriorModule
+from blenav.learn.mapprior.train import mapprior_data_config
 from blenav.learn.train import train
 from blenav.models.mapprior import MapEncoder, MapPriorNet
 from blenav.runtime.map_prior import LOG_FLOOR, MapPrior

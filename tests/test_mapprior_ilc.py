@@ -83,8 +83,8 @@ def test_trains_on_the_train_walks_with_interpolated_waypoints(three_walks, tmp_
 
 @pytest.mark.realdata
 def test_misspelt_keys_fail_early(three_walks, tmp_path):
-    from blenav.learn.mapprior_data import MapPriorDataModule
-    from blenav.learn.mapprior_train import mapprior_data_config
+    from blenav.learn.mapprior.data import MapPriorDataModule
+    from blenav.learn.mapprior.train import mapprior_data_config
 
     with pytest.raises(ConfigCompositionException, match="extra_path"):
         compose("train", "experiment=mapprior_ilc", f"data={three_walks}", "data.extra_path=[x]")
@@ -97,10 +97,10 @@ def test_misspelt_keys_fail_early(three_walks, tmp_path):
 
 
 def test_priors_table_puts_both_priors_beside_the_heuristic_pf(tmp_path):
-    """blenav.eval.realwalks_priors: the rows of both runs per floor, the verdicts, the page and README splices."""
+    """blenav.reporting.realwalks_priors: the rows of both runs per floor, the verdicts, the page and README splices."""
     import json
 
-    from blenav.eval.realwalks_priors import OTHER, write_priors
+    from blenav.reporting.realwalks_priors import OTHER, write_priors
 
     def res(rows):
         return {"methods": {k: {"error_m": {"mean": m, "p90": 2 * m}} for k, m in rows.items()}}

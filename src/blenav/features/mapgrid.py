@@ -1,5 +1,5 @@
 """A floor on the Map Prior Network's grid (Roy, section 3.2.2), without PyTorch: what training
-(:mod:`blenav.learn.mapprior_data`) and the runtime (:class:`blenav.runtime.map_prior.MapPrior`) both need.
+(:mod:`blenav.learn.mapprior.data`) and the runtime (:class:`blenav.runtime.map_prior.MapPrior`) both need.
 
 The network works at one metric resolution (``resolution_m``). A floor at another resolution is resampled
 to it (:func:`resample_free`) on a grid with the same lower-left origin (:class:`NetGrid`, built by

@@ -14,7 +14,7 @@
 config file beside the checkpoint.
 
 :func:`read_checkpoint` is the one place a blenav checkpoint of either task is read (the map prior's loader,
-:mod:`blenav.learn.mapprior_checkpoint`, and the evaluation use it too); :func:`data_hash` the one hash of
+:mod:`blenav.learn.mapprior.checkpoint`, and the evaluation use it too); :func:`data_hash` the one hash of
 training data stored in them.
 
 Files from strangers. A checkpoint is a pickle, and unpickling runs whatever callables the file names.
@@ -27,7 +27,7 @@ them runs. Resuming a run (:func:`blenav.learn.trainer.fit`) reads the file with
 The meta is data too, yet its ``model`` node names with ``_target_`` the classes to build. :func:`load_file`
 (every read: :func:`load_module`, the export, the map prior's loader, the resume of a run) therefore checks every
 ``_target_`` of the meta, at any depth, against :data:`blenav.trust.TARGETS` by name, before Hydra imports anything,
-and :func:`build_networks` (as :func:`blenav.learn.mapprior_checkpoint.build_net`) checks the node it builds again:
+and :func:`build_networks` (as :func:`blenav.learn.mapprior.checkpoint.build_net`) checks the node it builds again:
 a checkpoint that names another callable (``numpy.savetxt`` deep inside ``locnet``) is refused with
 :class:`blenav.trust.UntrustedTargetError`, naming the file and the key path, and nothing of it runs.
 """
@@ -204,7 +204,7 @@ def load_module(path: str | Path) -> tuple[CrossPhoneModule, dict]:
     meta = ck[KEY]
     if meta.get("kind") == "mapprior":
         raise ValueError(f"{path} is a map prior checkpoint, not a cross-phone localizer: load it with "
-                         "blenav.learn.mapprior_checkpoint.load_mapprior or load_map_prior")
+                         "blenav.learn.mapprior.checkpoint.load_mapprior or load_map_prior")
     locnet, transnet = build_networks(meta["model"], len(meta["beacons"]), where=f"checkpoint {path}")
     n_m = ck["state_dict"].get("M", torch.zeros(0, 0))
     module = CrossPhoneModule(locnet, transnet, M=torch.zeros_like(n_m), meta=meta)

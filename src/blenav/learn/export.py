@@ -41,7 +41,7 @@ export is checked with ``onnx.checker`` and against PyTorch on random inputs (ma
 The pieces :class:`StreamingLocalizer`, :func:`random_inputs`, :func:`export_onnx` and :func:`onnx_max_diff`
 work for bare networks too. Tracing, metadata and sessions are shared with the map prior's export
 (:mod:`blenav.learn.onnx_export`, :mod:`blenav.onnx_io`); :func:`export` dispatches a map prior checkpoint to
-:mod:`blenav.learn.mapprior_export`.
+:mod:`blenav.learn.mapprior.export`.
 """
 
 from __future__ import annotations
@@ -251,7 +251,7 @@ def export(cfg) -> Path:
     """``cfg.ckpt`` (a ``last.ckpt`` of ``train(cfg)``) -> ``cfg.out``, opset ``cfg.opset`` (default 17).
     Returns the output path. Dispatches on the checkpoint's meta ``kind``: a cross-phone localizer (no kind)
     gives one .onnx file; a map prior (``kind: mapprior``) a directory with two graphs and meta.json
-    (:mod:`blenav.learn.mapprior_export`)."""
+    (:mod:`blenav.learn.mapprior.export`)."""
     from .checkpoint import load_module, read_meta
 
     opset = cfg.get("opset", DEFAULT_OPSET) if hasattr(cfg, "get") else getattr(cfg, "opset", DEFAULT_OPSET)
@@ -259,7 +259,7 @@ def export(cfg) -> Path:
     if not Path(cfg.ckpt).is_file():
         raise FileNotFoundError(f"checkpoint {cfg.ckpt} does not exist")
     if read_meta(cfg.ckpt).get("kind") == "mapprior":
-        from .mapprior_export import export_checkpoint
+        from .mapprior.export import export_checkpoint
 
         return export_checkpoint(cfg.ckpt, cfg.out, opset=opset)
     module, meta = load_module(cfg.ckpt)

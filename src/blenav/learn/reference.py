@@ -21,7 +21,7 @@ def torch_pipeline(bundle, ckpt: Path, mapprior_ckpt: Path, session, seed: int):
     from blenav.filters.runner import run_session
     from blenav.learn.checkpoint import load_module
     from blenav.learn.export import streaming_net
-    from blenav.learn.mapprior_checkpoint import load_map_prior
+    from blenav.learn.mapprior.checkpoint import load_map_prior
     from blenav.runtime.bundle import FIX_SOURCE, build_method
 
     module, meta = load_module(ckpt)

@@ -346,14 +346,14 @@ def train(cfg: DictConfig, callbacks: list | None = None,
     methods on one split without windowing the dataset again); another data config is an error.
 
     ``cfg.task`` picks what is fitted: ``crossphone`` (default, this module) or ``mapprior`` (the map prior
-    network of Roy section 3.2.2, :func:`blenav.learn.mapprior_train.train_mapprior`; ``experiment=mapprior``)."""
+    network of Roy section 3.2.2, :func:`blenav.learn.mapprior.train.train_mapprior`; ``experiment=mapprior``)."""
     task = str(cfg.get("task") or "crossphone")
     if task not in TASKS:
         raise ValueError(f"task={task!r} is not one of {TASKS}")
     if cfg.get("threads"):  # e.g. threads=1 on a shared machine: oversubscribed cores slow torch down a lot
         torch.set_num_threads(int(cfg.threads))
     if task == "mapprior":
-        from .mapprior_train import train_mapprior  # only this task needs the map prior's data stack
+        from .mapprior.train import train_mapprior  # only this task needs the map prior's data stack
 
         return train_mapprior(cfg, callbacks=callbacks)
     if (cfg.get("model") or {}).get("kind") == "mapprior":

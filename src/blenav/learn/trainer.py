@@ -1,5 +1,5 @@
 """The Lightning run both training tasks share (:func:`blenav.learn.train.train` for the cross-phone localizer,
-:func:`blenav.learn.mapprior_train.train_mapprior` for the map prior): seeding and the run folder, loggers,
+:func:`blenav.learn.mapprior.train.train_mapprior` for the map prior): seeding and the run folder, loggers,
 ``OUT/last.ckpt`` after every epoch, and resuming from it.
 
 A run started again with the same ``out`` resumes from ``OUT/last.ckpt``: optimizer and scheduler states,

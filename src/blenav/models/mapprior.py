@@ -1,6 +1,6 @@
 """The Map Prior Network (MPN) of Roy, section 3.2.2, as plain ``torch.nn.Module``s.
 
-Notation (used throughout :mod:`blenav.learn.mapprior_module` and :mod:`blenav.runtime.map_prior`):
+Notation (used throughout :mod:`blenav.learn.mapprior.module` and :mod:`blenav.runtime.map_prior`):
 
 - ``M``: occupancy map of one floor resampled to the network's resolution ``resolution_m`` (m/px),
   a free-space mask on [0, 1] (1 = free, 0 = obstacle or unknown), image row order (row 0 on top).
@@ -11,7 +11,7 @@ Notation (used throughout :mod:`blenav.learn.mapprior_module` and :mod:`blenav.r
 - DMT ``f(M)`` (c, H, W): the Deep Map Tensor, same H, W as the map, c channels (c = 32 in the thesis).
 - DTV ``g(O)`` (c,): the Deep Trajectory Vector, the last hidden state of a 2-layer LSTM over ``O``.
 - score ``S(x | M, O) = f(M)_x . g(O)`` (eq. 3.8, Roy): the likelihood score that the window *ends* at
-  pixel x. Trained to regress T = 1e-6 exp(14 T_bar) (see :mod:`blenav.learn.mapprior_data`), so scores lie
+  pixel x. Trained to regress T = 1e-6 exp(14 T_bar) (see :mod:`blenav.learn.mapprior.data`), so scores lie
   roughly in [0, 1.2]; they are not normalised and may be slightly negative.
 
 :class:`MapEncoder` is f (a small U-Net, Ronneberger et al. via Roy [42, 43]), :class:`TrajectoryEncoder`

@@ -30,8 +30,8 @@ the U-Net (:attr:`MapPrior.encode_calls` counts the runs).
 Backends. An export directory runs in onnxruntime (:class:`OnnxBackend`), after :func:`check_export` found
 each graph's weights equal to the hash recorded at export and each file equal to meta.json's sha256. A checkpoint (``RUN/last.ckpt``)
 needs PyTorch, which this layer does not import: the caller hands MapPrior the loader,
-``MapPrior(path, loader=blenav.learn.mapprior_checkpoint.TorchBackend)`` (or calls
-``blenav.learn.mapprior_checkpoint.load_map_prior(path)``). A backend has ``meta`` (the checkpoint's or
+``MapPrior(path, loader=blenav.learn.mapprior.checkpoint.TorchBackend)`` (or calls
+``blenav.learn.mapprior.checkpoint.load_map_prior(path)``). A backend has ``meta`` (the checkpoint's or
 meta.json's), ``weights_hash`` (str, part of the DMT cache key), ``encode_map(mask (H, W) float32) -> (c, H, W)``
 and ``encode_trajectory(odo_px (K, n_points, 2) float32) -> (K, c)``.
 
@@ -115,7 +115,7 @@ class MapPrior:
     """Learned map prior from an export directory (onnxruntime) or, with ``loader``, a checkpoint file.
 
     ``loader``: a callable that turns a file into a backend (see the module docstring), e.g.
-    ``blenav.learn.mapprior_checkpoint.TorchBackend`` for a ``.ckpt``; not used for a directory.
+    ``blenav.learn.mapprior.checkpoint.TorchBackend`` for a ``.ckpt``; not used for a directory.
     ``cache_dir``: where DMTs are stored as ``dmt_<key>.npy`` (None: memory only). ``threads``: onnxruntime
     intra-op threads (PyTorch keeps its own setting).
     """
@@ -129,8 +129,8 @@ class MapPrior:
             if loader is None:
                 raise ValueError(f"map prior {source} is a file (a checkpoint?): MapPrior runs an export directory "
                                  "in onnxruntime; for a checkpoint pass the PyTorch loader, MapPrior(path, "
-                                 "loader=blenav.learn.mapprior_checkpoint.TorchBackend) or blenav.learn."
-                                 "mapprior_checkpoint.load_map_prior(path), or export it first with `python "
+                                 "loader=blenav.learn.mapprior.checkpoint.TorchBackend) or blenav.learn."
+                                 "mapprior.checkpoint.load_map_prior(path), or export it first with `python "
                                  "export.py ckpt=RUN/last.ckpt out=DIR`")
             self._backend = loader(source)
         else:

@@ -60,7 +60,7 @@ from torch.utils.data import DataLoader, Dataset as TorchDataset, Sampler
 from blenav.data import Dataset
 from blenav.features.mapgrid import NetGrid, net_grid
 
-from .data_config import AugmentConfig, MapPriorDataConfig  # noqa: F401  (schemas, torch-free; AugmentConfig re-exported)
+from .data_config import MapPriorDataConfig  # the schema of the data node (torch-free)
 
 SPLITS = {"train": 0, "val_seen": 1, "val_unseen": 2}
 

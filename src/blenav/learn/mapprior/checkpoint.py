@@ -1,7 +1,7 @@
 """What a map prior checkpoint carries besides weights, how to rebuild its network, and the PyTorch loader the
 runtime's :class:`blenav.runtime.map_prior.MapPrior` is handed for a checkpoint.
 
-Checkpoint meta (``checkpoint["blenav"]``, written by :func:`blenav.learn.mapprior_train.build_meta`):
+Checkpoint meta (``checkpoint["blenav"]``, written by :func:`blenav.learn.mapprior.train.build_meta`):
 ``kind: "mapprior"``, ``model`` (the resolved model node), ``resolution_m``, ``window`` {window_s, step_hz,
 n_points}, ``channels`` c, ``size_multiple`` (the U-Net's), ``target`` {scale, gain, feasible_tbar},
 ``augment``, ``crop_px``, ``buildings`` / ``val_buildings``, ``data_hash``. :func:`load_mapprior` rebuilds the
@@ -26,7 +26,7 @@ from blenav.models.mapprior import MapPriorNet
 from blenav.runtime.map_prior import MapPrior
 from blenav.trust import check_targets
 
-from .checkpoint import KEY, read_checkpoint
+from ..checkpoint import KEY, read_checkpoint
 
 KIND = "mapprior"
 

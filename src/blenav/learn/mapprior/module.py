@@ -3,7 +3,7 @@ train / validation / test.
 
 Notation as in :mod:`blenav.models.mapprior`: M free mask at ``model.resolution_m``, O odometry window,
 DMT f(M), DTV g(O), S = f(M)_x . g(O) (eq. 3.8, Roy). Data, targets T = 1e-6 exp(14 T_bar) and loss weights
-come from :mod:`blenav.learn.mapprior_data`.
+come from :mod:`blenav.learn.mapprior.data`.
 
 Loss: weighted MSE over every pixel of every crop, sum(w (S - T)^2) / sum(w) (Roy: MSE(T, S) with
 feasible regions weighted by the inverse of their area). Logged per stage (``train``, ``val``, and one
@@ -12,7 +12,7 @@ the share of the crop's free pixels whose score beats the score at the true wind
 for a prior that knows nothing). ``val/*`` is the first validation split (held-out sessions of the training
 buildings when there are any, else the held-out buildings).
 
-The module stores its ``meta`` in every checkpoint (see :mod:`blenav.learn.mapprior_checkpoint`).
+The module stores its ``meta`` in every checkpoint (see :mod:`blenav.learn.mapprior.checkpoint`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import torch
 
 from blenav.models.mapprior import MapPriorNet
 
-from .checkpoint import KEY
+from ..checkpoint import KEY
 
 
 class MapPriorModule(L.LightningModule):

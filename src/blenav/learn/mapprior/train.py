@@ -13,12 +13,12 @@ Real walks with surveyed waypoints (issue 17, a prior trained on other floors of
         "data.sessions=[$(python -m blenav.cli.realwalks train-ids data/ilc20/F2),$(... B1)]"
 
 trains on the train walks (the split of ``blenav-eval experiment=realwalks``) of the imported floors, their
-positions between waypoints interpolated linearly at training time (:mod:`blenav.learn.mapprior_data`, "Sparse
+positions between waypoints interpolated linearly at training time (:mod:`blenav.learn.mapprior.data`, "Sparse
 ground truth"); the checkpoint meta records the datasets, floors, the sessions read and how many had waypoint
 ground truth.
 
-The pieces: data :mod:`blenav.learn.mapprior_data`, module and loss :mod:`blenav.learn.mapprior_module`,
-checkpoint meta and loading :mod:`blenav.learn.mapprior_checkpoint` (:func:`build_meta` here writes it).
+The pieces: data :mod:`blenav.learn.mapprior.data`, module and loss :mod:`blenav.learn.mapprior.module`,
+checkpoint meta and loading :mod:`blenav.learn.mapprior.checkpoint` (:func:`build_meta` here writes it).
 """
 
 from __future__ import annotations
@@ -31,11 +31,12 @@ from omegaconf import DictConfig, OmegaConf
 
 from blenav.models.mapprior import MapPriorNet
 
-from .checkpoint import data_hash
-from .mapprior_checkpoint import KIND, build_net
-from .mapprior_data import MapPriorDataConfig, MapPriorDataModule
-from .mapprior_module import MapPriorModule
-from .trainer import fit, start_run
+from ..checkpoint import data_hash
+from ..trainer import fit, start_run
+from .checkpoint import KIND, build_net
+from .data import MapPriorDataModule
+from .data_config import MapPriorDataConfig
+from .module import MapPriorModule
 
 
 def mapprior_data_config(cfg: DictConfig) -> MapPriorDataConfig:
@@ -45,7 +46,7 @@ def mapprior_data_config(cfg: DictConfig) -> MapPriorDataConfig:
 
 
 def build_meta(model: dict, dm: MapPriorDataModule, net: MapPriorNet) -> dict:
-    """The checkpoint meta (see :mod:`blenav.learn.mapprior_checkpoint`) of a run on ``dm`` with ``net``."""
+    """The checkpoint meta (see :mod:`blenav.learn.mapprior.checkpoint`) of a run on ``dm`` with ``net``."""
     c = dm.cfg
     tracks = dm.sets["train"].tracks
     return {"kind": KIND, "model": model, "resolution_m": float(model["resolution_m"]),
