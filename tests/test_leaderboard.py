@@ -1,6 +1,6 @@
 """blenav-eval experiment=leaderboard: every method of the project composes, the table / PCRLB / peak memory /
 families / TUM trajectories / CDF are written, the PCRLB is skipped on data without simulator parameters, and
-the fleet merge (blenav.eval.merge --leaderboard) writes one table. Tiny sims (seconds); the slow methods
+the fleet merge (python -m blenav.cli.tables leaderboard) writes one table. Tiny sims (seconds); the slow methods
 (back-end, CRF) are switched off in the run test, but are built (so checked) by the composition test."""
 
 from __future__ import annotations
@@ -82,9 +82,9 @@ def test_leaderboard_on_a_tiny_sim(tiny, tmp_path):
     assert "PCRLB: not a simulated dataset" in (tmp_path / "lb2" / "results.md").read_text()
 
     # the fleet merge: both folders in one table
-    from blenav.eval.merge import main as merge_main
+    from blenav.cli.tables import main as tables_main
 
-    assert merge_main(["--leaderboard", str(tmp_path / "fleet.md"), "Fleet", str(out), str(tmp_path / "lb2")]) == 0
+    assert tables_main(["leaderboard", str(tmp_path / "fleet.md"), "Fleet", str(out), str(tmp_path / "lb2")]) == 0
     merged = json.loads((tmp_path / "fleet.json").read_text())
     assert [d["name"] for d in merged["datasets"]] == ["sim", "real"]
     assert set(merged["methods"]["RW"]["rmse_m"]) == {"sim", "real"} and merged["methods"]["RW"]["sessions"] == 2
@@ -138,7 +138,7 @@ def test_static_survey_drawn_as_points_and_legend_inside_the_figure(tmp_path):
 
 def test_fleet_as_a_hydra_multirun_then_merged(tiny, tmp_path):
     """blenav-eval -m ... data=A,B with the joblib launcher: one output folder per dataset, merged into one
-    table by python -m blenav.eval.merge --leaderboard (only the fast centroid row kept)."""
+    table by python -m blenav.cli.tables leaderboard (only the fast centroid row kept)."""
     import subprocess
     import sys
 
@@ -155,7 +155,7 @@ def test_fleet_as_a_hydra_multirun_then_merged(tiny, tmp_path):
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     assert (fleet / "0" / "results.json").is_file() and (fleet / "1" / "results.json").is_file()
-    r = subprocess.run([sys.executable, "-m", "blenav.eval.merge", "--leaderboard", str(tmp_path / "fleet.md"), "Fleet",
+    r = subprocess.run([sys.executable, "-m", "blenav.cli.tables", "leaderboard", str(tmp_path / "fleet.md"), "Fleet",
                         str(fleet)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     merged = json.loads((tmp_path / "fleet.json").read_text())

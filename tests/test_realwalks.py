@@ -273,10 +273,12 @@ def test_one_fix_localizer_per_node_shared_with_its_row(tmp_path):
 
 def test_train_ids_and_table_rows_come_from_the_experiment(tmp_path):
     """train-ids is the harness's split of the composed experiment; the tables' rows are the YAML's labels (the entry
-    point blenav.cli.realwalks composes the experiment, blenav.eval.realwalks reads the nodes it is handed)."""
+    point blenav.cli.realwalks composes the experiment, blenav.eval.realwalks / blenav.reporting.realwalks read the nodes
+    they are handed)."""
     from blenav.cli.realwalks import table_rows_of, train_ids_of
     from blenav.eval.harness import open_dataset, scored_sessions, train_test
-    from blenav.eval.realwalks import OUTCOMES, train_ids
+    from blenav.eval.realwalks import train_ids
+    from blenav.reporting.realwalks import OUTCOMES
 
     data = _as_waypoint_walks(simulate_small(tmp_path / "d", 3, 20, 4))
     cfg = _cfg("experiment=realwalks", f"data={data}")

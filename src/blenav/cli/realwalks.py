@@ -1,12 +1,14 @@
-"""``python -m blenav.cli.realwalks train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README]``: the steps of
-``make realwalks-tables`` (docs/results-ilc20.md) that read the realwalks experiment's config.
+"""``python -m blenav.cli.realwalks train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README] | priors MAIN
+OTHER PRIOR_PATTERN PAGE.md [README]``: the steps of ``make realwalks-tables`` (docs/results-ilc20.md).
 
 An entry point composes ``conf/`` (:func:`blenav.configs.compose`, ``experiment=realwalks``) and hands the nodes
-down to :mod:`blenav.eval.realwalks`, which composes nothing: ``train-ids`` prints the experiment's train walks of
-the dataset DATA, comma-separated, for ``blenav-map --sessions`` (:func:`~blenav.eval.realwalks.train_ids`, the
-harness's own split); ``tables`` writes the per-floor pages, the summary and the README table from the floors'
-results.json (:func:`~blenav.eval.realwalks.write_tables`), in the rows of the composed experiment
-(:func:`~blenav.eval.realwalks.table_rows`).
+down to :mod:`blenav.eval.realwalks` and :mod:`blenav.reporting.realwalks`, which compose nothing: ``train-ids``
+prints the experiment's train walks of the dataset DATA, comma-separated, for ``blenav-map --sessions``
+(:func:`~blenav.eval.realwalks.train_ids`, the harness's own split); ``tables`` writes the per-floor pages, the
+summary and the README table from the floors' results.json (:func:`~blenav.reporting.realwalks.write_tables`), in
+the rows of the composed experiment (:func:`~blenav.reporting.realwalks.table_rows`); ``priors`` writes the
+learned-map rows of both map priors beside the heuristic map PF
+(:func:`~blenav.reporting.realwalks_priors.write_priors`).
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ import sys
 from .common import guarded, pop_debug
 
 PROG = "python -m blenav.cli.realwalks"
-USAGE = f"usage: {PROG} train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README]"
+USAGE = (f"usage: {PROG} train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README] | priors MAIN OTHER "
+         f"PRIOR_PATTERN PAGE.md [README]")
 
 
 def experiment_config(*overrides: str, experiment: str = "realwalks"):
@@ -38,10 +41,10 @@ def train_ids_of(data: str, train_fraction: float | None = None, seed: int | Non
 
 
 def table_rows_of(experiment: str = "realwalks") -> dict[str, tuple[str, ...]]:
-    """The table rows (:func:`blenav.eval.realwalks.table_rows`) of the composed ``experiment``'s methods."""
+    """The table rows (:func:`blenav.reporting.realwalks.table_rows`) of the composed ``experiment``'s methods."""
     from omegaconf import OmegaConf
 
-    from blenav.eval.realwalks import table_rows
+    from blenav.reporting.realwalks import table_rows
 
     return table_rows(OmegaConf.to_container(experiment_config(experiment=experiment).methods, resolve=False))
 
@@ -51,10 +54,14 @@ def _main(argv: list[str]) -> int:
     if cmd == "train-ids" and len(args) == 1:
         print(",".join(train_ids_of(args[0])))
     elif cmd == "tables" and 2 <= len(args) <= 4:
-        from blenav.eval.realwalks import write_tables
+        from blenav.reporting.realwalks import write_tables
 
         print(write_tables(args[0], args[1], table_rows_of(), floors_dir=args[2] if len(args) > 2 else None,
                            readme=args[3] if len(args) > 3 else None))
+    elif cmd == "priors" and len(args) in (4, 5):
+        from blenav.reporting.realwalks_priors import write_priors
+
+        print(write_priors(args[0], args[1], args[2], args[3], args[4] if len(args) > 4 else None))
     else:
         sys.exit(USAGE)
     return 0

@@ -6,10 +6,10 @@ heuristic-map rows and the learned-map rows with the procedural prior) and ``OTH
 (``blenav-eval experiment=mapprior_ilc_rows ... model=FLOOR_PRIOR``: the learned-map rows, labelled ``... (other
 floors)``, with a prior trained on the other floors' train walks), and the priors' ``meta.json`` (what each was
 trained on). Writes the table and the verdicts between ``<!-- realwalks-priors-table -->`` markers of a markdown
-page (and the table alone into the README's). Only numbers of those files are written; nothing is computed
-but the comparisons.
+page (and the table alone into the README's), through :func:`blenav.reporting.splice.splice`. Only numbers of those
+files are written; nothing is computed but the comparisons.
 
-    python -m blenav.eval.realwalks_priors MAIN OTHER PRIOR_PATTERN PAGE.md [README.md]
+    python -m blenav.cli.realwalks priors MAIN OTHER PRIOR_PATTERN PAGE.md [README.md]
 
 ``PRIOR_PATTERN``: the floor priors' directory with ``{floor}`` for the tested floor, e.g.
 ``data/runs/realwalks_prior_not_{floor}_onnx``.
@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .realwalks import _splice
+from .splice import splice
 
 __all__ = ["ROWS", "priors_table", "priors_verdicts", "write_priors"]
 
@@ -110,16 +110,8 @@ def write_priors(main_root: str, other_root: str, prior_pattern: str, page: str,
     parts += [_prior_note(prior_pattern, f) for f in sorted(main)] + [""]
     parts += [f"- {v}" for f in sorted(main) for v in priors_verdicts(f, main[f], other[f])]
     body = "\n".join(parts)
-    _splice(page, body, append=True, tag=TAG)
+    splice(page, body, TAG, append=True)
     if readme:  # the README gets the table only where its markers are
-        _splice(readme, table, tag=TAG)
+        splice(readme, table, TAG)
     return body
 
-
-if __name__ == "__main__":  # python -m blenav.eval.realwalks_priors MAIN OTHER PRIOR_PATTERN PAGE.md [README.md]
-    import sys
-
-    a = sys.argv[1:]
-    if len(a) not in (4, 5):
-        sys.exit("usage: python -m blenav.eval.realwalks_priors MAIN OTHER PRIOR_PATTERN PAGE.md [README.md]")
-    print(write_priors(a[0], a[1], a[2], a[3], a[4] if len(a) > 4 else None))
