@@ -51,8 +51,6 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("blenav.backend",),                 # the factor-graph back-end, one of the localizers
     ("blenav.eval",),                    # the evaluation harness and its experiments
     ("blenav.reporting",),               # the README / docs tables written from evaluations' results
-    ("blenav.reporting",),               # the README / docs tables written from evaluations' results
-    ("blenav.reporting",),               # the README / docs tables written from evaluations' results
     ("blenav.configs",),                 # composes conf/ (Hydra): only entry points call it
     ("blenav.cli",),                     # the command lines
 )
