@@ -1,4 +1,4 @@
-"""LocNet on fingerprint windows (blenav.learn.fingerprint_train): the run's config as conf/train.yaml gives it, built
+"""LocNet on fingerprint windows (blenav.learn.fingerprint.train): the run's config as conf/train.yaml gives it, built
 from the training node conf/localizer/fingerprint.yaml composes,
 the windows handed to the trainer through the data module's own code (tensors, validation cap), and the
 checkpoint's data_path naming the walks' dataset. Synthetic ILC walks (tests/test_fingerprint.py's coded walks)."""
@@ -18,7 +18,7 @@ def test_array_windows_use_the_data_module_and_its_validation_cap(walks, tmp_pat
     default_rng([seed, 2]), in order)."""
     import torch
 
-    from blenav.learn.fingerprint_train import ArrayWindows, dataset_root, run_config
+    from blenav.learn.fingerprint.train import ArrayWindows, dataset_root, run_config
     from blenav.learn.train import data_config
 
     ss = [walks.session("mall_F1_walkA"), walks.session("mall_F1_walkB")]
@@ -58,7 +58,7 @@ def test_run_config_is_what_conf_train_yaml_gives(model, tmp_path):
     from omegaconf import OmegaConf
 
     from blenav.configs import compose
-    from blenav.learn.fingerprint_train import run_config
+    from blenav.learn.fingerprint.train import run_config
 
     net, trainer = {"lr": 0.002}, {"budget": {"max_steps": 7}}
     new = run_config(training_node(), model, tmp_path / "run", tmp_path, 3, net, trainer, 0.5, 4, 1, False,

@@ -29,7 +29,7 @@ per building and floor:
    steps; the cross-phone evaluation's KNN) on windows scaled to unit norm (``metric: cosine``, the default:
    a scan listing few access points is otherwise the nearest neighbour of everything) or on the u scale as it is
    (``euclidean``); ``locnet`` / ``transnet_locnet``: the
-   networks of ``conf/model/<model>.yaml`` trained by :func:`blenav.learn.fingerprint_train.train_network` (the
+   networks of ``conf/model/<model>.yaml`` trained by :func:`blenav.learn.fingerprint.train.train_network` (the
    project's trainer: step budget + early stopping of ``conf/trainer/cpu.yaml``, seeded; labels normalised by
    the network's ``xy_mean`` / ``xy_scale``; inputs u / 100) on a seeded ``val_fraction`` of the train walks
    held out for validation. Torch is imported only here.
@@ -219,7 +219,7 @@ class FingerprintLocalizer(Localizer, Trained):
         return info
 
     def _fit_network(self, key, S, P, xy, walk_of, used, names, ctx, info):
-        from blenav.learn.fingerprint_train import train_network  # torch: only on the learned path
+        from blenav.learn.fingerprint.train import train_network  # torch: only on the learned path
 
         root = Path(ctx.out) if ctx is not None and ctx.out is not None else Path(tempfile.mkdtemp(prefix="fp_"))
         out = root / "fingerprint" / self.name.replace("/", "_").replace(" ", "_") / key.replace("/", "_")

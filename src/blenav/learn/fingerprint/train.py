@@ -26,8 +26,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from blenav.features.scale import U_SCALE
 
-from .data import WindowDataModule, window_dataset
-from .data_config import WindowDataConfig
+from ..data import WindowDataModule, window_dataset
+from ..data_config import WindowDataConfig
 
 
 class ArrayWindows(WindowDataModule):
@@ -106,7 +106,7 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
     The run folder ``out`` is emptied first (the trainer would resume a run of other data from its
     last.ckpt). Returns (predict: S (K, F, H) u scale -> (K, 2) m, the training report of
     :func:`blenav.learn.train.training_report` plus ``train_windows`` / ``val_windows`` / ``val_walks``)."""
-    from .train import data_config, train
+    from ..train import data_config, train
 
     out = Path(out)
     cfg = run_config(training, model, out, dataset_root(sessions), seed, net, trainer, val_fraction, batch_size,
