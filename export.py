@@ -30,7 +30,7 @@ def _data_path(cfg: DictConfig, meta: dict) -> str | None:
 def bundle(cfg: DictConfig) -> Path:
     """Write the runtime bundle of conf/export.yaml's bundle keys into ``cfg.out`` (replacing a bundle there)."""
     from blenav.data import Dataset
-    from blenav.learn.checkpoint import read_meta
+    from blenav.learn.common.checkpoint import read_meta
     from blenav.learn.export import export
     from blenav.runtime.bundle import LOCALIZER, MANIFEST, MAP_DIR, finish_bundle, variant_name
     from blenav.runtime.map_prior import MapPrior

@@ -23,7 +23,7 @@ def task(cfg: DictConfig) -> float | None:
     if key:
         if key not in metrics:
             raise ValueError(f"optimized_metric={key!r} was not measured; measured: {sorted(metrics)}")
-        from blenav.learn.sweep import record_trial
+        from blenav.learn.common.sweep import record_trial
 
         record_trial(cfg, float(metrics[key]))
         return float(metrics[key])

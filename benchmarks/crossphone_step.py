@@ -27,9 +27,9 @@ import torch
 from torch.utils.data import ConcatDataset, DataLoader
 
 from blenav.configs import compose
-from blenav.learn import losses
-from blenav.learn.data import WindowDataModule, _collate
-from blenav.learn.train import build_module, data_config
+from blenav.learn.crossphone import losses
+from blenav.learn.crossphone.data import WindowDataModule, _collate
+from blenav.learn.crossphone.train import build_module, data_config
 
 
 def median_ms(fn, repeat: int) -> float:

@@ -9,7 +9,7 @@ exists): ``--small`` walks of 240 s (default 12: about 2,300 training windows af
 ``data.holdout=0``) runs to its end: early stopping or the step budget. Printed per size: training windows,
 steps, stop reason, wall time (the whole fit: validation checks, checkpoints and the report included), the
 best validation error beside KNN's on the same windows, and the verdict against the budget. The step
-budget is the default ``auto`` one (:func:`blenav.learn.train.budget_steps`: about 6,500 steps of batch 128 at
+budget is the default ``auto`` one (:func:`blenav.learn.common.budget.budget_steps`: about 6,500 steps of batch 128 at
 2.3k windows -- ``data.batch_size: auto`` picks 128 under 2,560 windows and doubles the steps -- about 6,700 of
 batch 256 at 10k, 15,000 at 50k). The 1-min load average before and after each run is printed, and the process' CPU
 time beside the wall time: on a shared machine the times change a lot. ``--threads 0`` (the default here) is

@@ -2,7 +2,7 @@
 
 Default model sizes (conf/model/transnet_locnet.yaml and conf/model/locnet.yaml), B = 50 beacons, H = 5 steps.
 Weights are untrained (latency does not depend on them) but the ONNX file is written by the same code
-path as ``python export.py`` (:func:`blenav.learn.export.export_module`, with its checks). One call = one
+path as ``python export.py`` (:func:`blenav.learn.crossphone.export.export_module`, with its checks). One call = one
 window with explicit LSTM state in and out (the streaming step of an app). Median over ``--calls`` calls
 after ``--warmup`` calls; the target is 1 ms per window (Roy measured about 20 ms for the BLE model on an
 iPhone 8 with PyTorch mobile, section 4).
@@ -22,9 +22,9 @@ from omegaconf import OmegaConf
 from blenav.configs import compose
 from blenav.features.scale import U_SCALE
 from blenav.features.windows import WindowConfig
-from blenav.learn.checkpoint import build_networks
-from blenav.learn.export import export_module, random_inputs, streaming_net
-from blenav.learn.module import CrossPhoneModule
+from blenav.learn.crossphone.checkpoint import build_networks
+from blenav.learn.crossphone.export import export_module, random_inputs, streaming_net
+from blenav.learn.crossphone.module import CrossPhoneModule
 from blenav.runtime import OnnxLocalizer
 from timing import median_ms
 

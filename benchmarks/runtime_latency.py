@@ -80,8 +80,8 @@ class TorchGraph:
     def __init__(self, ckpt: Path):
         import torch
 
-        from blenav.learn.checkpoint import load_module
-        from blenav.learn.export import streaming_net
+        from blenav.learn.crossphone.checkpoint import load_module
+        from blenav.learn.crossphone.export import streaming_net
 
         self.torch = torch
         module, self.meta = load_module(ckpt)

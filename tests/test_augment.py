@@ -1,12 +1,12 @@
-"""Receiver augmentation: a random phone per training window (blenav.learn.augment)."""
+"""Receiver augmentation: a random phone per training window (blenav.learn.crossphone.augment)."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from blenav.learn.augment import ReceiverAugment
-from blenav.learn.module import CrossPhoneModule
+from blenav.learn.crossphone.augment import ReceiverAugment
+from blenav.learn.crossphone.module import CrossPhoneModule
 from blenav.models import LocNet
 
 

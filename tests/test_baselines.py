@@ -14,9 +14,9 @@ from threadpoolctl import threadpool_limits
 
 from blenav.configs import compose
 from blenav.features.scale import U_SCALE
-from blenav.learn.baselines import (BASELINES, BayesianGrid, KRRKF, KNNBaseline, cv_kalman_gain,
-                                    cv_kalman_smooth, fingerprint, make_baseline)
-from blenav.learn.checkpoint import build_networks
+from blenav.learn.crossphone.baselines import (BASELINES, BayesianGrid, KRRKF, KNNBaseline, cv_kalman_gain,
+                                               cv_kalman_smooth, fingerprint, make_baseline)
+from blenav.learn.crossphone.checkpoint import build_networks
 from blenav.models import DLRNN
 
 BEACONS = np.array([[0, 0], [10, 0], [20, 0], [0, 10], [10, 10], [20, 10]], float)

@@ -16,8 +16,8 @@ import pytest
 from blenav.configs import compose
 from blenav.data import Dataset
 from blenav.features.windows import WindowConfig, beacon_order, select_beacons, session_windows, spread_beacons
-from blenav.learn.data import WindowDataModule
-from blenav.learn.train import data_config
+from blenav.learn.crossphone.data import WindowDataModule
+from blenav.learn.crossphone.train import data_config
 
 WARN = "outside the model's beacon list"
 

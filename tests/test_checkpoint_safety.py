@@ -1,7 +1,7 @@
 """Files from strangers (issue 19, section 3): checkpoints are read with ``torch.load(weights_only=True)``.
 
 - every kind of checkpoint train.py writes loads that way with the allow-list
-  :data:`blenav.learn.checkpoint.SAFE_GLOBALS` (and names nothing outside torch's own allow-list, so the
+  :data:`blenav.learn.common.checkpoint.SAFE_GLOBALS` (and names nothing outside torch's own allow-list, so the
   list can stay empty; a type added to a checkpoint later fails here first);
 - a checkpoint whose pickle would run code (a callable that writes a marker file) is refused by every
   loader -- the cross-phone loader, the map prior loader, ``export.py`` and a resumed ``train.py`` run --
@@ -19,7 +19,8 @@ import pytest
 import torch
 
 from blenav.configs import compose
-from blenav.learn.checkpoint import SAFE_GLOBALS, UnsafeCheckpointError, load_file, load_module, read_checkpoint
+from blenav.learn.common.checkpoint import SAFE_GLOBALS, UnsafeCheckpointError, load_file, read_checkpoint
+from blenav.learn.crossphone.checkpoint import load_module
 from blenav.learn.mapprior.checkpoint import load_map_prior, load_mapprior
 from blenav.learn.train import train
 from helpers import simulate_small

@@ -72,7 +72,7 @@ def test_every_eval_experiment_composes_and_builds(experiment):
 
 @pytest.mark.parametrize("experiment", TRAIN)
 def test_every_train_experiment_composes(experiment):
-    from blenav.learn.data_config import WindowDataConfig
+    from blenav.learn.crossphone.data_config import WindowDataConfig
     from blenav.learn.mapprior.data_config import MapPriorDataConfig
 
     cfg = compose("train", f"experiment={experiment}", "data=DIR")
@@ -210,8 +210,8 @@ def renamed_phones(two_phones, tmp_path) -> Path:
 
 def test_crossphone_split_on_other_receiver_names(renamed_phones):
     """The documented override: only data.train_devices and data.test_devices are named."""
-    from blenav.learn.data import WindowDataModule
-    from blenav.learn.train import data_config
+    from blenav.learn.crossphone.data import WindowDataModule
+    from blenav.learn.crossphone.train import data_config
 
     cfg = compose("eval", "experiment=crossphone_003", f"data={renamed_phones}", "data.train_devices=[phone-a]",
                   "data.test_devices=[phone-b]")

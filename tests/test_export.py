@@ -19,9 +19,10 @@ from blenav.cli.sim import run as sim_run
 from blenav.configs import compose
 from blenav.data import Dataset
 from blenav.features.windows import WindowConfig, session_windows
-from blenav.learn import export as export_mod
-from blenav.learn.checkpoint import load_module
-from blenav.learn.export import INPUT_TRANSFORM, export, random_inputs
+from blenav.learn.crossphone import export as export_mod
+from blenav.learn.crossphone.checkpoint import load_module
+from blenav.learn.crossphone.export import INPUT_TRANSFORM, random_inputs
+from blenav.learn.export import export
 from blenav.learn.train import train
 from blenav.runtime import OnnxLocalizer
 

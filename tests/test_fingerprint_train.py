@@ -19,7 +19,7 @@ def test_array_windows_use_the_data_module_and_its_validation_cap(walks, tmp_pat
     import torch
 
     from blenav.learn.fingerprint.train import ArrayWindows, dataset_root, run_config
-    from blenav.learn.train import data_config
+    from blenav.learn.crossphone.train import data_config
 
     ss = [walks.session("mall_F1_walkA"), walks.session("mall_F1_walkB")]
     root = dataset_root(ss)
@@ -78,7 +78,7 @@ def test_locnet_checkpoint_records_the_walks_dataset(walks, tmp_path):
     """A short LocNet run on WiFi windows: data_path of the checkpoint is the dataset, config.yaml its data node."""
     import yaml
 
-    from blenav.learn.checkpoint import read_meta
+    from blenav.learn.common.checkpoint import read_meta
     from blenav.localizers import RunContext
     from blenav.localizers.fingerprint import FingerprintLocalizer
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from blenav.learn.losses import (brand_statistics, localization_loss, position_smoothness_loss, ssl_loss,
-                                 temporal_smoothness_loss, total_loss)
+from blenav.learn.crossphone.losses import (brand_statistics, localization_loss, position_smoothness_loss, ssl_loss,
+                                            temporal_smoothness_loss, total_loss)
 
 
 def _windows(rng, n=6, B=4, H=3):
@@ -58,7 +58,7 @@ def test_smoothness_and_localization_losses():
 
 def test_ssl_loss_equals_its_dense_form_with_gradients():
     """The sorted-prefix-sum evaluation of eq. 3.2 gives the direct form's value and gradient."""
-    from blenav.learn.losses import ssl_loss_dense
+    from blenav.learn.crossphone.losses import ssl_loss_dense
 
     gen = torch.Generator().manual_seed(3)
     S = torch.rand(16, 12, 5, generator=gen) * 0.6 * (torch.rand(16, 12, 5, generator=gen) > 0.5)

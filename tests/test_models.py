@@ -150,7 +150,7 @@ def test_transnet_sees_a_local_time_window_and_locnet_the_whole_window():
 
 @pytest.mark.onnx
 def test_onnx_export_matches_pytorch(tmp_path):
-    from blenav.learn.export import StreamingLocalizer, export_onnx, onnx_max_diff, random_inputs
+    from blenav.learn.crossphone.export import StreamingLocalizer, export_onnx, onnx_max_diff, random_inputs
 
     m = seeded(0, lambda: StreamingLocalizer(LocNet(7, hidden=16), TransNet(7))).eval()
     path = export_onnx(m, random_inputs(7, 5, 2, 16, batch=2, u_max=0.4, zero_state=True), tmp_path / "m.onnx")

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from blenav.learn.losses import brand_statistics, ssl_loss, temporal_smoothness_loss
-from blenav.learn.module import CrossPhoneModule
+from blenav.learn.crossphone.losses import brand_statistics, ssl_loss, temporal_smoothness_loss
+from blenav.learn.crossphone.module import CrossPhoneModule
 from blenav.models import LocNet, TransNet
 
 

@@ -13,9 +13,11 @@ import pytest
 import torch
 
 from blenav.configs import compose
-from blenav.learn.schedule import lr_factor
-from blenav.learn.train import BUDGET, budget, budget_steps, train, training_report
-from blenav.learn.trainer import TrainingMonitor
+from blenav.learn.common.budget import BUDGET, budget, budget_steps
+from blenav.learn.common.report import training_report
+from blenav.learn.common.schedule import lr_factor
+from blenav.learn.common.trainer import TrainingMonitor
+from blenav.learn.train import train
 
 TINY = ["model=locnet", "data.batch_size=32", "trainer.enable_progress_bar=false", "model.locnet.hidden=16",
         "model.locnet.fc_hidden=8", "data.holdout=0", "data.val_fraction=0.3", "plots=false"]
@@ -54,8 +56,8 @@ def test_the_auto_budget_grows_with_the_survey_as_a_square_root_between_base_and
 
 
 def test_the_auto_batch_halves_below_ten_batches_an_epoch_and_a_given_batch_stays():
-    from blenav.learn.data import WindowDataModule, auto_batch_size
-    from blenav.learn.data_config import WindowDataConfig
+    from blenav.learn.crossphone.data import WindowDataModule, auto_batch_size
+    from blenav.learn.crossphone.data_config import WindowDataConfig
 
     assert [auto_batch_size(n) for n in (1, 2339, 2559, 2560, 50_000)] == [128, 128, 128, 256, 256]
     small = WindowDataModule(WindowDataConfig(path="x"))
@@ -67,7 +69,7 @@ def test_the_auto_batch_halves_below_ten_batches_an_epoch_and_a_given_batch_stay
     for bad in (0, "big", 2.5, True):
         with pytest.raises(ValueError, match="data.batch_size"):
             WindowDataConfig(path="x", batch_size=bad)
-    from blenav.learn.train import data_config
+    from blenav.learn.crossphone.train import data_config
 
     assert data_config(compose("train", "data.path=x")).batch_size == "auto"
     with pytest.raises(ValueError, match="data.batch_size=-3"):
@@ -207,7 +209,7 @@ def test_optuna_sweep_command_finds_and_records_the_best_trial(two_phones, tmp_p
 def test_ssl_loss_both_forms_match_the_equations_with_gradients(heard, chunk, monkeypatch):
     """ssl_loss (the compiled loop on CPU tensors, chunk None; the tensor form of other devices in chunks of 3
     windows) gives the value and the gradient of the direct form of eqs. 3.2-3.4."""
-    from blenav.learn import losses
+    from blenav.learn.crossphone import losses
 
     gen = torch.Generator().manual_seed(7)
     S = (torch.rand(10, 9, 4, generator=gen) * 0.6 * (torch.rand(10, 9, 4, generator=gen) < heard)).double()
@@ -234,19 +236,19 @@ def test_ssl_loss_both_forms_match_the_equations_with_gradients(heard, chunk, mo
 
 def test_last_checkpoint_follows_the_validation_cadence():
     """OUT/last.ckpt every check_val_every_n_epoch epochs (a checkpoint per 9-step epoch of a 2k survey was waste)."""
-    from blenav.learn.train import _val_cadence
-    from blenav.learn.trainer import last_checkpoint
+    from blenav.learn.common.budget import val_cadence
+    from blenav.learn.common.trainer import last_checkpoint
 
-    assert _val_cadence(50, 10) == {"check_val_every_n_epoch": 5, "val_check_interval": 1.0}
-    assert _val_cadence(50, 200) == {"check_val_every_n_epoch": 1, "val_check_interval": 50}
+    assert val_cadence(50, 10) == {"check_val_every_n_epoch": 5, "val_check_interval": 1.0}
+    assert val_cadence(50, 200) == {"check_val_every_n_epoch": 1, "val_check_interval": 50}
     assert last_checkpoint(Path("x"), 5)._every_n_epochs == 5 and last_checkpoint(Path("x"))._every_n_epochs == 1
 
 
 def test_validation_windows_are_capped_by_a_seeded_subset(two_phones, tmp_path):
     """data.val_max_windows keeps that many of the validation windows (the same ones for the same seed, labels
     with their windows); KNN's validation error is computed on the same subset."""
-    from blenav.learn.data import WindowDataModule
-    from blenav.learn.train import data_config, knn_val_error
+    from blenav.learn.crossphone.data import WindowDataModule
+    from blenav.learn.crossphone.train import data_config, knn_val_error
 
     def dm(*extra):
         d = WindowDataModule(data_config(cfg(two_phones, tmp_path, *extra)))

@@ -32,7 +32,7 @@ from hypothesis import strategies as st
 from omegaconf import OmegaConf
 
 from blenav.cli.common import _hydra_args
-from blenav.learn.checkpoint import build_networks, load_module
+from blenav.learn.crossphone.checkpoint import build_networks, load_module
 from blenav.learn.export import export
 from blenav.learn.mapprior.checkpoint import build_net, load_mapprior
 from blenav.runtime.bundle import (DEFAULT_SETTINGS, FORMAT, MANIFEST, MOTION_TARGETS, Bundle, build_method,

@@ -28,7 +28,7 @@ def register_configs() -> None:
     ``attitude/schema``       :class:`blenav.filters.attitude.AttitudeConfig`         conf/attitude/*.yaml
     ``plan_error/schema``     :class:`blenav.eval.plan_errors.PlanErrorConfig`        conf/eval.yaml
     ``beacon_map/schema``     :class:`blenav.eval.beacon_map.BeaconMapConfig`         conf/eval.yaml
-    ``windows/schema``        :class:`blenav.learn.data_config.WindowDataConfig`      conf/windows/default.yaml
+    ``windows/schema``        :class:`blenav.learn.crossphone.data_config.WindowDataConfig`      conf/windows/default.yaml
     ``windows/mapprior_schema`` :class:`blenav.learn.mapprior.data_config.MapPriorDataConfig`  conf/windows/mapprior.yaml
     ``backend/schema``        :class:`blenav.backend.config.BackendConfig`            conf/backend/default.yaml
     ========================  ======================================================  =====================
@@ -44,7 +44,7 @@ def register_configs() -> None:
     from blenav.eval.plan_errors import PlanErrorConfig
     from blenav.filters.attitude import AttitudeConfig
     from blenav.filters.engine import FilterConfig
-    from blenav.learn.data_config import WindowDataConfig
+    from blenav.learn.crossphone.data_config import WindowDataConfig
     from blenav.learn.mapprior.data_config import MapPriorDataConfig
     from blenav.sim.config import SimConfig
 

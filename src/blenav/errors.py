@@ -4,7 +4,8 @@ import them (standard library only).
 All are ``ValueError`` subclasses: the known-error channel of the command lines (:mod:`blenav.cli.common`), which
 end a known error as one line ``PROG: error: MESSAGE``. An exception that only one module raises and catches stays
 in that module (e.g. :class:`blenav.runtime.signature.BuildingMismatch`,
-:class:`blenav.learn.checkpoint.UnsafeCheckpointError`); :mod:`blenav.trust` and :mod:`blenav.limits` keep their own.
+:class:`blenav.learn.common.checkpoint.UnsafeCheckpointError`); :mod:`blenav.trust` and :mod:`blenav.limits` keep their
+own.
 
 ==========================  ======================================================================================
 :class:`MissingStream`      a session lacks a stream a method needs (features, filters, localizers, eval, backend)

@@ -25,7 +25,7 @@ and its data. :func:`check_weights` recomputes both and refuses a file whose wei
 tensors that changed, appeared or disappeared: a corrupted or edited file is caught before it localizes
 anything. It is a check of integrity, not of origin: whoever can edit the weights can rewrite the hash.
 
-Writers live in :mod:`blenav.learn.onnx_export` (tracing needs PyTorch); readers in :mod:`blenav.runtime`.
+Writers live in :mod:`blenav.learn.common.onnx_export` (tracing needs PyTorch); readers in :mod:`blenav.runtime`.
 Needs numpy; ``onnx`` and ``onnxruntime`` are imported only by the functions that use them.
 """
 

@@ -115,7 +115,7 @@ def _check_reuse(ck: Path, dm, model: DictConfig | None = None, tcfg: DictConfig
     when ``model`` is given, with another model config (sizes, lr, loss weights, augmentation), or, when the
     training config ``tcfg`` is given, a run that ended at another step budget (resuming it to this one would
     restart its learning-rate schedule midway: not the run this budget makes)."""
-    from blenav.learn.checkpoint import KEY, read_checkpoint
+    from blenav.learn.common.checkpoint import KEY, read_checkpoint
 
     if not ck.is_file():
         return None
@@ -133,7 +133,8 @@ def _check_reuse(ck: Path, dm, model: DictConfig | None = None, tcfg: DictConfig
                             f"delete {ck.parent} or choose another out=")
     done = state.get("blenav_training") or {}
     if tcfg is not None and done.get("stage") == "supervised" and done.get("stop_reason") == "max_steps":
-        from blenav.learn.train import budget, run_budget_steps
+        from blenav.learn.common.budget import budget
+        from blenav.learn.crossphone.train import run_budget_steps
 
         had = int(done.get("budget_steps") or done.get("steps") or 0)
         want = run_budget_steps(budget(tcfg), dm)
@@ -145,7 +146,7 @@ def _check_reuse(ck: Path, dm, model: DictConfig | None = None, tcfg: DictConfig
 
 def _predict_module(ck: Path):
     from blenav.features.scale import U_SCALE
-    from blenav.learn.checkpoint import load_module
+    from blenav.learn.crossphone.checkpoint import load_module
 
     module, _ = load_module(ck)
 
@@ -168,9 +169,9 @@ def _predict_onnx(path: str, building):
 
 def evaluate_crossphone(cfg: DictConfig) -> dict:
     """Train-if-needed, fit, predict, score; writes OUT/results.json, results.md and plots."""
-    from blenav.learn.baselines import make_baseline
-    from blenav.learn.data import WindowDataModule
-    from blenav.learn.train import data_config
+    from blenav.learn.crossphone.baselines import make_baseline
+    from blenav.learn.crossphone.data import WindowDataModule
+    from blenav.learn.crossphone.train import data_config
 
     out = Path(cfg.out)
     try:

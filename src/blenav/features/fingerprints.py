@@ -21,7 +21,7 @@ heard in the step is 0 = the *fill* value ``fill_dbm``; a reading at or below ``
 but heard ``floor_u`` (:func:`blenav.features.windows.rssi_to_u`). Several readings of one source in a step
 are averaged on that scale. A window is H = ``history`` consecutive steps, S (K, F, H), oldest step first,
 the layout :class:`blenav.models.LocNet`, :class:`blenav.models.TransNet` and the baselines of
-:mod:`blenav.learn.baselines` read.
+:mod:`blenav.learn.crossphone.baselines` read.
 
 WiFi rows with ``t - t_seen`` above ``wifi_max_age_s`` (Android returns cached results: the ILC importer keeps
 when the phone last heard the access point in ``t_seen``) are dropped when that setting is given.

@@ -4,7 +4,7 @@ the runtime.
 - The thesis scale u = rssi_dBm + :data:`THESIS_OFFSET_DB` (Table 3.2 of the thesis: about 30 for a beacon
   at 1 m, i.e. the -70 dBm 1 m level of our receiver model); 0 means "not heard".
 - The networks read u / :data:`U_SCALE` (values in [0, about 0.7]): the statistic similarity loss weighs
-  deviations by exp((S - M) / 0.1), which overflows on the raw thesis scale (see :mod:`blenav.learn.losses`).
+  deviations by exp((S - M) / 0.1), which overflows on the raw thesis scale (see :mod:`blenav.learn.crossphone.losses`).
 """
 
 #: thesis scale: u = rssi_dbm + THESIS_OFFSET_DB

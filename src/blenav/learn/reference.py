@@ -19,8 +19,8 @@ def torch_pipeline(bundle, ckpt: Path, mapprior_ckpt: Path, session, seed: int):
 
     from blenav.features.windows import WindowConfig, session_windows
     from blenav.filters.runner import run_session
-    from blenav.learn.checkpoint import load_module
-    from blenav.learn.export import streaming_net
+    from blenav.learn.crossphone.checkpoint import load_module
+    from blenav.learn.crossphone.export import streaming_net
     from blenav.learn.mapprior.checkpoint import load_map_prior
     from blenav.runtime.bundle import FIX_SOURCE, build_method
 

@@ -25,7 +25,7 @@ per building and floor:
 3. labels: the position at the window's last step time, **interpolated linearly between the surveyed
    waypoints** (sparse ground truth; :meth:`Session.positions_at`); windows outside the waypoints' time span
    are dropped (counted in the report), as are windows in which no feature was heard;
-4. ``knn``: :class:`blenav.learn.baselines.KNNBaseline` (k nearest fingerprints, the mean over a window's heard
+4. ``knn``: :class:`blenav.learn.crossphone.baselines.KNNBaseline` (k nearest fingerprints, the mean over a window's heard
    steps; the cross-phone evaluation's KNN) on windows scaled to unit norm (``metric: cosine``, the default:
    a scan listing few access points is otherwise the nearest neighbour of everything) or on the u scale as it is
    (``euclidean``); ``locnet`` / ``transnet_locnet``: the
@@ -75,11 +75,11 @@ class _FloorModel:
 
 
 def knn_model(S: np.ndarray, xy: np.ndarray, k: int, weights: str, cov_floor_m: float, metric: str = "cosine"):
-    """KNN on windows S (N, F, H) u scale with labels xy (N, 2) m (:class:`~blenav.learn.baselines.KNNBaseline`,
+    """KNN on windows S (N, F, H) u scale with labels xy (N, 2) m (:class:`~blenav.learn.crossphone.baselines.KNNBaseline`,
     on :func:`~blenav.features.fingerprints.unit_windows` when ``metric`` is ``cosine``, on S itself when
     ``euclidean``); returns predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)), cov the neighbours' position
     covariance (population, uniform weights) + cov_floor_m^2 I."""
-    from blenav.learn.baselines import KNNBaseline, fingerprint
+    from blenav.learn.crossphone.baselines import KNNBaseline, fingerprint
 
     if metric not in ("cosine", "euclidean"):
         raise ValueError(f"metric must be 'cosine' or 'euclidean', got {metric!r}")

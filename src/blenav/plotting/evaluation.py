@@ -107,7 +107,7 @@ def figure_trajectories(session: Session, tracks: dict[str, tuple[np.ndarray, np
 
 
 def figure_learning_curves(history: Sequence[dict], knn_val_err_m: float | None = None, title: str = "") -> Figure:
-    """Learning curves of one training run (:class:`blenav.learn.trainer.TrainingMonitor` history): left, the
+    """Learning curves of one training run (:class:`blenav.learn.common.trainer.TrainingMonitor` history): left, the
     training and validation loss per validation check against optimizer steps (log scale) and the learning
     rate (right axis); right, the validation error in metres with KNN's on the same validation windows."""
     fig = new_figure(9.0, 3.6)

@@ -6,7 +6,7 @@ Layout (``python export.py bundle=true ckpt=RUN/last.ckpt out=BUNDLE [mapprior=R
                                   latency and accuracy change against the float models
     BUNDLE/settings.json          the filter, motion, fix and map-prior settings of the pipeline
     BUNDLE/building.json          the building's signature: beacon order and positions, floor-plan hashes
-    BUNDLE/localizer.onnx         the cross-phone localizer (TransNet + LocNet, metadata as blenav.learn.export)
+    BUNDLE/localizer.onnx         the cross-phone localizer (TransNet + LocNet, metadata as blenav.learn.crossphone.export)
     BUNDLE/localizer.ort          ... in ONNX Runtime's ORT format (mobile builds)
     BUNDLE/localizer.int8.onnx    ... dynamically quantised to int8 weights (onnxruntime.quantization)
     BUNDLE/localizer.int8.ort     ... both

@@ -1,4 +1,4 @@
-"""Run an exported cross-phone localizer (:mod:`blenav.learn.export`) with onnxruntime, as an app would.
+"""Run an exported cross-phone localizer (:mod:`blenav.learn.crossphone.export`) with onnxruntime, as an app would.
 
 Windows S are (K, B, H) float32 on the thesis scale u: rows in the model's beacon order (:attr:`beacons`),
 columns oldest..newest step of ``1 / step_hz`` s, u = rssi_dbm + offset_db (at least floor_u) for a heard

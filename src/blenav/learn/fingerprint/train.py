@@ -5,10 +5,11 @@ error).
 
 The windows are made by :mod:`blenav.features.fingerprints` (S (N, F, H) on the u scale, features = WiFi
 access points and/or BLE anchors instead of the BLE beacons of the cross-phone windows); :class:`ArrayWindows`
-hands them to the trainer as the :class:`~blenav.learn.data.WindowDataModule` it expects, already set up: the data
-module's tensors (:func:`~blenav.learn.data.window_dataset`), loaders, batch layout, seeded ``torch.Generator`` and
-validation cap (``data.val_max_windows``, :meth:`~blenav.learn.data.WindowDataModule.cap_validation`). Validation
-windows are those of a seeded ``val_fraction`` of the training walks (whole walks, as the data module's own split).
+hands them to the trainer as the :class:`~blenav.learn.crossphone.data.WindowDataModule` it expects, already set
+up: the data module's tensors (:func:`~blenav.learn.crossphone.data.window_dataset`), loaders, batch layout, seeded
+``torch.Generator`` and validation cap (``data.val_max_windows``,
+:meth:`~blenav.learn.crossphone.data.WindowDataModule.cap_validation`). Validation windows are those of a seeded
+``val_fraction`` of the training walks (whole walks, as the data module's own split).
 The run's config is the one ``conf/train.yaml`` with ``model=<model>`` gives, built from the ``training`` node the
 localizer is handed (``conf/localizer/fingerprint.yaml`` composes conf/train.yaml's data, trainer and model nodes
 there: nothing below the entry points composes a config), the ``net`` / ``trainer`` overrides merged over it and
@@ -26,8 +27,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from blenav.features.scale import U_SCALE
 
-from ..data import WindowDataModule, window_dataset
-from ..data_config import WindowDataConfig
+from ..crossphone.data import WindowDataModule, window_dataset
+from ..crossphone.data_config import WindowDataConfig
 
 
 class ArrayWindows(WindowDataModule):
@@ -105,8 +106,9 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
 
     The run folder ``out`` is emptied first (the trainer would resume a run of other data from its
     last.ckpt). Returns (predict: S (K, F, H) u scale -> (K, 2) m, the training report of
-    :func:`blenav.learn.train.training_report` plus ``train_windows`` / ``val_windows`` / ``val_walks``)."""
-    from ..train import data_config, train
+    :func:`blenav.learn.common.report.training_report` plus ``train_windows`` / ``val_windows`` / ``val_walks``)."""
+    from ..crossphone.train import data_config
+    from ..train import train
 
     out = Path(out)
     cfg = run_config(training, model, out, dataset_root(sessions), seed, net, trainer, val_fraction, batch_size,

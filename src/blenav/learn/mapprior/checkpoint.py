@@ -5,7 +5,7 @@ Checkpoint meta (``checkpoint["blenav"]``, written by :func:`blenav.learn.mappri
 ``kind: "mapprior"``, ``model`` (the resolved model node), ``resolution_m``, ``window`` {window_s, step_hz,
 n_points}, ``channels`` c, ``size_multiple`` (the U-Net's), ``target`` {scale, gain, feasible_tbar},
 ``augment``, ``crop_px``, ``buildings`` / ``val_buildings``, ``data_hash``. :func:`load_mapprior` rebuilds the
-network from it with no config file (reading through :func:`blenav.learn.checkpoint.read_checkpoint`, as the
+network from it with no config file (reading through :func:`blenav.learn.common.checkpoint.read_checkpoint`, as the
 cross-phone side does).
 
 The runtime does not import this module (it is below ``learn/`` and torch-free): a caller that wants to run a
@@ -26,7 +26,7 @@ from blenav.models.mapprior import MapPriorNet
 from blenav.runtime.map_prior import MapPrior
 from blenav.trust import check_targets
 
-from ..checkpoint import KEY, read_checkpoint
+from ..common.checkpoint import KEY, read_checkpoint
 
 KIND = "mapprior"
 

@@ -41,7 +41,7 @@ from blenav.models.mapprior import MapPriorNet
 from blenav.onnx_io import blenav_version, check_weights, json_props, max_diff, session
 from blenav.runtime.map_prior import LOG_FLOOR, MAP_ENCODER_ONNX, META_JSON, SCORE_FLOOR, TRAJECTORY_ENCODER_ONNX
 
-from ..onnx_export import DEFAULT_OPSET, trace_onnx
+from ..common.onnx_export import DEFAULT_OPSET, trace_onnx
 from .checkpoint import load_mapprior
 
 TOL = 1e-4

@@ -22,7 +22,7 @@ import torch
 
 from blenav.models.mapprior import MapPriorNet
 
-from ..checkpoint import KEY
+from ..common.checkpoint import KEY
 
 
 class MapPriorModule(L.LightningModule):

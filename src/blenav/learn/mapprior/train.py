@@ -4,7 +4,7 @@
 :func:`blenav.learn.train.train`) runs :func:`train_mapprior`: Adam (lr 0.01, batch 32 as Roy),
 ``trainer.max_epochs`` epochs of ``data.samples_per_epoch`` windows, optional early stopping
 (``early_stopping`` node), ``RUN/last.ckpt`` written every epoch and resumed from when present (optimizer,
-epoch and step counters, and the epoch-indexed data draw included; the run is :mod:`blenav.learn.trainer`,
+epoch and step counters, and the epoch-indexed data draw included; the run is :mod:`blenav.learn.common.trainer`,
 shared with the cross-phone localizer).
 
 Real walks with surveyed waypoints (issue 17, a prior trained on other floors of a mall)::
@@ -31,8 +31,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from blenav.models.mapprior import MapPriorNet
 
-from ..checkpoint import data_hash
-from ..trainer import fit, start_run
+from ..common.checkpoint import data_hash
+from ..common.trainer import fit, start_run
 from .checkpoint import KIND, build_net
 from .data import MapPriorDataModule
 from .data_config import MapPriorDataConfig

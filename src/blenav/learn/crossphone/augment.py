@@ -3,7 +3,7 @@
 Phones differ in the level they report (an offset of up to about 15 dB between the brands of Roy's
 Table 3.2), in the slope of reported vs. true level (automatic gain control) and in how many packets
 they miss. A window S (B, H) on the normalised scale u / 100 (u = rssi + 100, 0 = not heard, see
-:mod:`blenav.learn.losses`) is re-received by a random phone:
+:mod:`blenav.learn.crossphone.losses`) is re-received by a random phone:
 
     u' = u_ref + a (u - u_ref) + delta,   a ~ N(1, gain_std^2),  delta ~ N(0, offset_db_std^2) dB,
 

@@ -1,13 +1,13 @@
 """The LightningModule of the cross-phone localizer: wraps built networks, one step for train/val/test.
 
 Batches are dicts: ``S`` (b, B, H) windows on the normalised scale u / 100 (see
-:mod:`blenav.learn.losses`), ``xy`` (b, 2) metres (NaN rows for unlabelled windows), optionally
+:mod:`blenav.learn.crossphone.losses`), ``xy`` (b, 2) metres (NaN rows for unlabelled windows), optionally
 ``S_prev`` (b, B, H) the window one step earlier for the position-smoothness loss. With ``transnet`` None
 the module is plain LocNet (scenario 1 and the baselines 1/2 of Roy). Loss weights follow eq. 3.6;
 ``M`` (B, B) is the known brand's statistics matrix (eq. 3.1) when the SSL term is used. ``augment``
-(:class:`blenav.learn.augment.ReceiverAugment`) re-receives training windows by random phones.
+(:class:`blenav.learn.crossphone.augment.ReceiverAugment`) re-receives training windows by random phones.
 
-Learning rate: Adam at ``optimizer``'s lr times :func:`blenav.learn.trainer.lr_factor` of the optimizer step
+Learning rate: Adam at ``optimizer``'s lr times :func:`blenav.learn.common.schedule.lr_factor` of the optimizer step
 when ``schedule`` is given (``{"kind", "warmup_steps", "total_steps", "min_lr_ratio"}``: linear warm-up, then
 cosine or one-cycle; a ``LambdaLR`` stepped every optimizer step, its state resumes with the checkpoint),
 else constant. ``stage = "semi"`` (the semi-supervised stage of scenario 3) trains at the constant
@@ -21,9 +21,9 @@ from functools import partial
 import lightning as L
 import torch
 
+from ..common.schedule import lr_factor
 from .augment import ReceiverAugment
 from .losses import localization_loss, position_smoothness_loss, ssl_loss, temporal_smoothness_loss, total_loss
-from .schedule import lr_factor
 
 
 class CrossPhoneModule(L.LightningModule):
@@ -36,9 +36,9 @@ class CrossPhoneModule(L.LightningModule):
         self.optimizer_factory = optimizer
         self.weights = {"loc": 1.0, "ps": 0.0, "ssl": 0.0, "ts": 0.0, **(weights or {})}
         self.tau = tau
-        self.meta = meta or {}  # stored in checkpoints under "blenav" (see blenav.learn.checkpoint)
+        self.meta = meta or {}  # stored in checkpoints under "blenav" (see blenav.learn.crossphone.checkpoint)
         self.schedule = dict(schedule) if schedule else None
-        self.training_info: dict = {}  # training report so far (blenav.learn.train), saved with the checkpoint
+        self.training_info: dict = {}  # training report so far (crossphone.train), saved with the checkpoint
         self.stage = "supervised"  # "semi": scenario 3's stage, constant lr semi_lr
         self.semi_lr = 1e-4
         self.augment = augment if augment is not None and augment.active else None

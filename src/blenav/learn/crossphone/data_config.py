@@ -1,7 +1,7 @@
 """The schema of the cross-phone training-data node (``data`` of conf/train.yaml and conf/eval.yaml), torch-free.
 
 :class:`WindowDataConfig` (``conf/windows/default.yaml``, RSSI windows of the cross-phone localizers,
-:class:`blenav.learn.data.WindowDataModule`; the map prior's is :mod:`blenav.learn.mapprior.data_config`).
+:class:`blenav.learn.crossphone.data.WindowDataModule`; the map prior's is :mod:`blenav.learn.mapprior.data_config`).
 :func:`blenav.configs.register_configs` stores it as ``windows/schema``, so a misspelt key in a ``data`` node fails
 when the config is composed. This module imports neither torch nor lightning: the entry points register the
 schemas without loading them.
@@ -46,7 +46,7 @@ class WindowDataConfig:
     history: int = 5
     step_hz: float = 1.0
     steps: WindowSteps = WindowSteps.time  # scan: fingerprint surveys, H consecutive scans at one point
-    # windows per optimizer step: a number, or auto (blenav.learn.data.auto_batch_size: 256, or 128 on a survey
+    # windows per optimizer step: a number, or auto (blenav.learn.crossphone.data.auto_batch_size: 256, or 128 on a survey
     # of fewer than 2,560 training windows, with twice the auto step budget)
     batch_size: Any = "auto"
     seed: int = 0

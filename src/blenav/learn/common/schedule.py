@@ -1,7 +1,7 @@
 """The learning-rate schedule of the step budget (``trainer.budget`` of conf/trainer/cpu.yaml), torch-free.
 
 :func:`lr_factor` is the multiplier of the base learning rate per optimizer step that
-:class:`blenav.learn.module.CrossPhoneModule` hands to ``torch.optim.lr_scheduler.LambdaLR``.
+:class:`blenav.learn.crossphone.module.CrossPhoneModule` hands to ``torch.optim.lr_scheduler.LambdaLR``.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Tracing a PyTorch network to ONNX, shared by both exports (the cross-phone localizer,
-:mod:`blenav.learn.export`, and the map prior, :mod:`blenav.learn.mapprior.export`).
+:mod:`blenav.learn.crossphone.export`, and the map prior, :mod:`blenav.learn.mapprior.export`).
 
 :func:`trace_onnx` runs the TorchScript exporter (the dynamo one needs onnxscript, not a dependency) with its
 expected warnings silenced, then :func:`blenav.onnx_io.finish_model` writes the doc strings and metadata and

@@ -1,14 +1,14 @@
-"""The Lightning run both training tasks share (:func:`blenav.learn.train.train` for the cross-phone localizer,
-:func:`blenav.learn.mapprior.train.train_mapprior` for the map prior): seeding and the run folder, loggers,
-``OUT/last.ckpt`` after every epoch, and resuming from it.
+"""The Lightning run both training tasks share (:func:`blenav.learn.crossphone.train.train_crossphone` for the
+cross-phone localizer, :func:`blenav.learn.mapprior.train.train_mapprior` for the map prior): seeding and the run
+folder, loggers, ``OUT/last.ckpt`` after every epoch, and resuming from it.
 
 A run started again with the same ``out`` resumes from ``OUT/last.ckpt``: optimizer and scheduler states,
 epoch and step counters (and whatever the module saves in ``on_save_checkpoint``).
 
-The cross-phone task also uses the pieces of a step budget defined here: :func:`lr_factor` (linear warm-up,
-then cosine decay or one-cycle, as a function of the optimizer step), :class:`TrainingMonitor` (learning
-curves, the best validation check and its weights, all resumable with the checkpoint) and
-:func:`stop_reason` (why a fit ended).
+The cross-phone task also uses the pieces of a step budget defined here: :class:`TrainingMonitor` (learning
+curves, the best validation check and its weights, all resumable with the checkpoint), :class:`StepBudget` and
+:func:`stop_reason` (why a fit ended); the budget itself is :mod:`blenav.learn.common.budget`, the learning-rate
+schedule :func:`blenav.learn.common.schedule.lr_factor`.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ import lightning as L
 import torch
 
 from .checkpoint import SAFE_GLOBALS, load_file
-from .schedule import SCHEDULES, lr_factor  # noqa: F401  (re-exported: the step budget's pieces live here)
 
 LAST = "last.ckpt"
 CKPT_EVERY = "ckpt_every_n_epochs"  # a key of fit()'s trainer_kw: OUT/last.ckpt every so many epochs

@@ -1,35 +1,26 @@
-"""What a cross-phone checkpoint carries besides weights, and how to rebuild its networks.
-
-``train(cfg)`` stores a ``"blenav"`` entry in every Lightning checkpoint (via
-:meth:`CrossPhoneModule.on_save_checkpoint`) with:
-
-- ``model``: the resolved ``cfg.model`` node (``_target_`` of ``locnet`` / ``transnet``, sizes, lr, weights);
-- ``beacons``: the fixed beacon order of S's rows (sorted BLE anchor ids of the building);
-- ``window``: the :class:`blenav.features.windows.WindowConfig` fields (history H, step_hz, offset_db, floor_u)
-  and ``u_scale`` (networks read u / u_scale);
-- ``building``: building id; ``data_hash``: sha256 of the training windows and labels (first 16 hex);
-- ``train_devices`` / ``known_devices`` / ``unlabelled_devices``: device models used.
-
-:func:`load_module` rebuilds the :class:`CrossPhoneModule` from that entry and the state dict, with no
-config file beside the checkpoint.
-
-:func:`read_checkpoint` is the one place a blenav checkpoint of either task is read (the map prior's loader,
-:mod:`blenav.learn.mapprior.checkpoint`, and the evaluation use it too); :func:`data_hash` the one hash of
+"""Reading blenav checkpoints of every task (the cross-phone localizer, the map prior), safely, and the one hash of
 training data stored in them.
+
+Every Lightning checkpoint ``train(cfg)`` writes carries a ``"blenav"`` entry (:data:`KEY`), the meta its task
+rebuilds its networks from with no config file beside the checkpoint (:mod:`blenav.learn.crossphone.checkpoint`,
+:mod:`blenav.learn.mapprior.checkpoint`). :func:`read_checkpoint` is the one place such a file is read (both tasks'
+loaders, the resume of a run and the evaluation use it); :func:`data_hash` the one hash of training data stored in
+them.
 
 Files from strangers. A checkpoint is a pickle, and unpickling runs whatever callables the file names.
 :func:`load_file` therefore reads with ``torch.load(..., weights_only=True)``: torch's restricted unpickler
 builds tensors, dicts, lists, tuples, str, numbers, bool and None and nothing else, plus the types in
 :data:`SAFE_GLOBALS` (handed to ``torch.serialization.safe_globals``). A file that names anything else is
 refused with :class:`UnsafeCheckpointError` (naming the file and the callables it asks for) before any of
-them runs. Resuming a run (:func:`blenav.learn.trainer.fit`) reads the file with it first.
+them runs. Resuming a run (:func:`blenav.learn.common.trainer.fit`) reads the file with it first.
 
 The meta is data too, yet its ``model`` node names with ``_target_`` the classes to build. :func:`load_file`
-(every read: :func:`load_module`, the export, the map prior's loader, the resume of a run) therefore checks every
-``_target_`` of the meta, at any depth, against :data:`blenav.trust.TARGETS` by name, before Hydra imports anything,
-and :func:`build_networks` (as :func:`blenav.learn.mapprior.checkpoint.build_net`) checks the node it builds again:
-a checkpoint that names another callable (``numpy.savetxt`` deep inside ``locnet``) is refused with
-:class:`blenav.trust.UntrustedTargetError`, naming the file and the key path, and nothing of it runs.
+(every read: the tasks' loaders, the export, the resume of a run) therefore checks every ``_target_`` of the meta,
+at any depth, against :data:`blenav.trust.TARGETS` by name, before Hydra imports anything, and each task's network
+builder (:func:`blenav.learn.crossphone.checkpoint.build_networks`, :func:`blenav.learn.mapprior.checkpoint.build_net`)
+checks the node it builds again: a checkpoint that names another callable (``numpy.savetxt`` deep inside
+``locnet``) is refused with :class:`blenav.trust.UntrustedTargetError`, naming the file and the key path, and
+nothing of it runs.
 """
 
 from __future__ import annotations
@@ -39,16 +30,12 @@ import pickle
 import pickletools
 import re
 import zipfile
-from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 import torch
-from hydra.utils import instantiate
 
 from blenav.trust import check_targets
-
-from .module import CrossPhoneModule
 
 KEY = "blenav"
 
@@ -73,20 +60,6 @@ def data_hash(*arrays: np.ndarray) -> str:
         h.update(str(a.shape).encode())
         h.update(a.tobytes())
     return h.hexdigest()[:16]
-
-
-def build_networks(model_cfg: dict, n_beacons: int, where: str = "model config"):
-    """(locnet, transnet or None) from a ``model`` node (``_target_`` entries) for B beacons. Every ``_target_`` of
-    the node must be one of blenav's (:func:`blenav.trust.check_targets`; ``where`` names the node's source in the
-    refusal): the node may come from a checkpoint file."""
-    if not isinstance(model_cfg, Mapping) or not model_cfg.get("locnet"):
-        raise ValueError(f"{where}: the model node has no locnet (a {type(model_cfg).__name__}); was it written by "
-                         "train.py?")
-    check_targets(model_cfg, where, prefix="model")
-    locnet = instantiate(model_cfg["locnet"], n_beacons=n_beacons)
-    tn = model_cfg.get("transnet")
-    transnet = instantiate(tn, n_beacons=n_beacons) if tn else None
-    return locnet, transnet
 
 
 def _unsafe_globals(path: Path) -> list[str] | None:
@@ -195,18 +168,6 @@ def read_checkpoint(path: str | Path, what: str = "blenav", require_meta: bool =
 
 
 def read_meta(path: str | Path) -> dict:
+    """The ``"blenav"`` meta of a checkpoint of either task (its ``kind``: none for a cross-phone localizer,
+    ``mapprior`` for a map prior)."""
     return read_checkpoint(path, "blenav cross-phone")[KEY]
-
-
-def load_module(path: str | Path) -> tuple[CrossPhoneModule, dict]:
-    """(module in eval mode, meta) from a checkpoint written by ``train(cfg)``."""
-    ck = read_checkpoint(path, "blenav cross-phone")
-    meta = ck[KEY]
-    if meta.get("kind") == "mapprior":
-        raise ValueError(f"{path} is a map prior checkpoint, not a cross-phone localizer: load it with "
-                         "blenav.learn.mapprior.checkpoint.load_mapprior or load_map_prior")
-    locnet, transnet = build_networks(meta["model"], len(meta["beacons"]), where=f"checkpoint {path}")
-    n_m = ck["state_dict"].get("M", torch.zeros(0, 0))
-    module = CrossPhoneModule(locnet, transnet, M=torch.zeros_like(n_m), meta=meta)
-    module.load_state_dict(ck["state_dict"])
-    return module.eval(), meta

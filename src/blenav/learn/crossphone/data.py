@@ -26,7 +26,7 @@ from .data_config import WindowDataConfig  # the schema of the data node (torch-
 
 #: ``data.batch_size: auto`` (:func:`auto_batch_size`): the batch of a survey with at least
 #: AUTO_MIN_BATCHES batches an epoch, else AUTO_SMALL_BATCH with AUTO_BATCH / AUTO_SMALL_BATCH times the auto step
-#: budget (blenav.learn.train.budget_steps). Chosen on the validation windows of a simulated 2,340-window
+#: budget (blenav.learn.common.budget.budget_steps). Chosen on the validation windows of a simulated 2,340-window
 #: campus_floor survey (docs/results-003-crossphone.md, ``benchmarks/crossphone_train.py --sizes small``): batch
 #: 256 and 3,245 steps stopped at the budget still improving (3.4 min); batch 128 and 6,490 steps stopped early at
 #: step 5,016 (converged, 3.7 min on both cores); a step of 128 costs 35 against 54 ms for 256 (both cores,
@@ -170,7 +170,7 @@ class WindowDataModule(L.LightningDataModule):
 
     def train_hash(self) -> str:
         """Hash of the labelled training windows and labels (stored with a model; reuse checks compare it)."""
-        from .checkpoint import data_hash
+        from ..common.checkpoint import data_hash
 
         tr = self.sets["train"].tensors
         return data_hash(tr[0].numpy(), tr[2].numpy())
