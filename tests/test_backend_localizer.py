@@ -18,11 +18,12 @@ def sim(tmp_path_factory):
 
 def _method(data):
     from blenav.configs import compose
-    from blenav.eval.harness import shared_settings
+    from blenav.eval.config import parse_eval_config
     from blenav.localizers import build_localizer
 
-    cfg = compose("eval", "experiment=frontend_000", f"data={data}", "+localizer@methods.B-end=backend")
-    return build_localizer("B-end", cfg.methods["B-end"], shared_settings(cfg))
+    cfg = parse_eval_config(compose("eval", "experiment=frontend_000", f"data={data}",
+                                    "+localizer@methods.B-end=backend"))
+    return build_localizer("B-end", cfg.methods["B-end"], cfg.shared())
 
 
 def test_backend_localizer_smooths_the_runs_and_maps_the_beacons(sim):
@@ -96,24 +97,24 @@ def test_batch_run_in_pieces_equals_run_session(sim):
 
 
 def test_f_end_and_b_end_share_one_closed_loop(sim):
-    """Two methods that differ only in label and estimate compute the loop once per session (ctx.cache); the
+    """Two methods that differ only in label and estimate compute the loop once per session (inputs.cache); the
     F-end is the closed-loop filter, the B-end the smoothed trajectory; feedbacks happened."""
     from blenav.configs import compose
     from blenav.data import Dataset
-    from blenav.eval.harness import shared_settings
-    from blenav.localizers import RunContext, build_localizer
+    from blenav.eval.config import parse_eval_config
+    from blenav.localizers import RunInputs, build_localizer
 
-    cfg = compose("eval", "experiment=backend_000", f"data={sim}",
-                  "methods.F-end.backend.loop.period_s=15", "methods.B-end.backend.loop.period_s=15")
+    cfg = parse_eval_config(compose("eval", "experiment=backend_000", f"data={sim}",
+                                    "methods.F-end.backend.loop.period_s=15", "methods.B-end.backend.loop.period_s=15"))
     ds = Dataset.open(sim)
     s = ds.session(ds.session_ids[0])
-    ctx = RunContext(cache={})
-    f = build_localizer("F-end", cfg.methods["F-end"], shared_settings(cfg)).run(s, 1, 3, ctx)
-    b = build_localizer("B-end", cfg.methods["B-end"], shared_settings(cfg)).run(s, 1, 3, ctx)
+    inputs = RunInputs(cache={})
+    f = build_localizer("F-end", cfg.methods["F-end"], cfg.shared()).run(s, 1, 3, inputs)
+    b = build_localizer("B-end", cfg.methods["B-end"], cfg.shared()).run(s, 1, 3, inputs)
     np.testing.assert_array_equal(f.position, b.outputs["front_end"])
     np.testing.assert_array_equal(b.position, f.outputs["smoothed"])
     assert f.outputs["feedbacks"] >= 2
-    assert sum(1 for k in ctx.cache if k[0] == "closed-loop") == 1
+    assert sum(1 for k in inputs.cache if k[0] == "closed-loop") == 1
 
 
 def test_the_range_model_does_not_inherit_an_earlier_sessions_receiver_offset(sim):

@@ -46,11 +46,13 @@ def test_experiment_lists_are_complete():
 
 @pytest.mark.parametrize("experiment", EVAL)
 def test_every_eval_experiment_composes_and_builds(experiment):
+    from blenav.eval.config import parse_eval_config
     from blenav.eval.harness import build_methods
 
     cfg = compose("eval", f"experiment={experiment}", "data=DIR")
     OmegaConf.to_container(cfg, resolve=True)  # every interpolation resolves
-    if cfg.experiment.get("kind") == "crossphone":  # learned methods: model configs, not localizers
+    typed = parse_eval_config(cfg)  # every key known to the eval schema
+    if typed.experiment.evaluator_target.endswith("CrossPhoneEvaluator"):  # learned methods: model configs
         for key, spec in cfg.experiment.learned.items():
             if spec is not None:
                 assert spec.model.name, key

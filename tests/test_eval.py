@@ -16,6 +16,7 @@ from PIL import Image
 from blenav.configs import cli_overrides
 from blenav.data import Dataset
 from blenav.errors import EvalError
+from blenav.eval.config import parse_eval_config
 from blenav.eval.harness import evaluate
 from blenav.importers import run_import
 from helpers import simulate_small
@@ -165,12 +166,13 @@ def test_results_md_names_inverted_orderings(tmp_path):
 
     res = {"experiment": "frontend_000", "title": "t", "dataset": "d", "runs": 2, "sessions": ["s"], "init_s": 10,
            "methods": {"RW": m(2.0), "DR": m(9.0, 18.0), "IMU": m(2.2, 18.0)}}
-    write_markdown(tmp_path / "r.md", res, cfg("experiment=frontend_000", "data=x"))
+    experiment = parse_eval_config(cfg("experiment=frontend_000", "data=x")).experiment
+    write_markdown(tmp_path / "r.md", res, experiment)
     text = (tmp_path / "r.md").read_text()
     assert "expected RMSE order IMU < RW < DR; measured RW < IMU < DR" in text
     assert "Inverted: IMU (2.20 m) is worse than RW (2.00 m)" in text and "18.0 deg" in text
     res["methods"]["IMU"] = m(1.9, 2.0)
-    write_markdown(tmp_path / "r.md", res, cfg("experiment=frontend_000", "data=x"))
+    write_markdown(tmp_path / "r.md", res, experiment)
     assert "The ordering holds." in (tmp_path / "r.md").read_text()
 
 

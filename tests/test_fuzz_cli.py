@@ -74,7 +74,7 @@ class Env:
                            "plots=false", "progress=false", "calibration=none", *overrides)
         self.fresh()
         self.snapshot = read_everything(self.data)
-        self.results = normalized(evaluate(self.cfg))
+        self.results = normalized(evaluate(self.cfg).to_json())
 
     def fresh(self) -> Path:
         shutil.rmtree(self.out, ignore_errors=True)
@@ -127,7 +127,7 @@ def run_eval(env: Env):
     """('ok', results) or ('refused', the exception); any other exception propagates (a traceback for the user)."""
     shutil.rmtree(env.out, ignore_errors=True)
     try:
-        return "ok", evaluate(env.cfg)
+        return "ok", evaluate(env.cfg).to_json()
     except (EvalError, DatasetError) as exc:
         return "refused", exc
     except ValueError as exc:  # the CLI prints it as one line too, but it should say which method and file
@@ -288,7 +288,7 @@ def test_an_imu_with_every_time_twice_runs_the_imu_methods(tmp_path):
     df = pd.read_csv(p)
     pd.concat([df, df]).sort_values("t", kind="stable").to_csv(p, index=False)
     res = evaluate(compose("eval", "experiment=frontend_000", f"data={root}", "runs=1", f"out={tmp_path / 'o'}",
-                           "plots=false", "progress=false", "calibration=none"))
+                           "plots=false", "progress=false", "calibration=none")).to_json()
     assert {m["rmse_m"]["n"] for m in res["methods"].values()} == {1}
     bad = [(p, v) for p, v in numbers(res) if not math.isfinite(v)]
     assert not bad, bad
@@ -306,7 +306,7 @@ def test_an_imu_that_ends_before_the_ground_truth_starts_gives_no_nan(tmp_path):
     gt = pd.read_csv(s / "groundtruth.csv")
     gt[gt["t"] >= 10.0].to_csv(s / "groundtruth.csv", index=False)
     res = evaluate(compose("eval", "experiment=frontend_000", f"data={root}", "runs=1", f"out={tmp_path / 'o'}",
-                           "plots=false", "progress=false", "calibration=none", "init_s=1"))
+                           "plots=false", "progress=false", "calibration=none", "init_s=1")).to_json()
     bad = [(p, v) for p, v in numbers(res) if not math.isfinite(v)]
     assert not bad, bad
     assert all("orientation_rmse_deg" not in m for m in res["methods"].values())

@@ -14,6 +14,7 @@ import yaml
 from PIL import Image
 
 from blenav.configs import compose
+from blenav.eval.config import parse_eval_config
 from blenav.eval.harness import build_methods, evaluate
 from helpers import simulate_small
 
@@ -183,7 +184,8 @@ def test_leaderboard_results_md_prints_the_common_lines(tmp_path):
                "beacon_map": {"source": "given", "noise_m": 0.5, "vertical": False},
                "dropped": {"walk-A": {"rssi": {"unknown-anchor": 3}}}}
     md = {}
-    for name, c in (("leaderboard", cfg("experiment=leaderboard", "data=unused")), ("default", None)):
+    for name, c in (("leaderboard", parse_eval_config(cfg("experiment=leaderboard", "data=unused")).experiment),
+                    ("default", None)):
         write_markdown(tmp_path / f"{name}.md", results, c)
         md[name] = (tmp_path / f"{name}.md").read_text()
     assert "| 1 | PF-PL | PF classical |" in md["leaderboard"] and "| 1 | PF-PL |" not in md["default"]

@@ -96,8 +96,8 @@ def test_step_detector_and_attitude_are_settable_per_method():
 
 def test_capabilities_are_declared():
     ms = build_methods(compose("eval", "experiment=mapprior_003_table37", "data=unused"))
-    assert isinstance(ms["dense-BLE"], FixConsumer) and ms["dense-BLE"].fix_roles() == {"dense"}
-    assert ms["sparse-BLE+IO+map"].fix_roles() == {"sparse"} and ms["IO"].fix_roles() == set()
+    assert isinstance(ms["dense-BLE"], FixConsumer) and ms["dense-BLE"].fix_roles() == ["dense"]
+    assert ms["sparse-BLE+IO+map"].fix_roles() == ["sparse"] and ms["IO"].fix_roles() == []
     assert isinstance(ms["IO"], ParticleFilterLocalizer) and not ms["IO"].wants_path_loss_fit()
     ps = build_methods(_cfg("unused", "unused"))["PF-PS"]
     assert ps.wants_path_loss_fit()

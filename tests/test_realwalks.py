@@ -259,12 +259,13 @@ def test_waypoint_scoring_holds_the_ends_only_when_asked():
 def test_one_fix_localizer_per_node_shared_with_its_row(tmp_path):
     """fixes.compute per role: roles with equal nodes share one localizer, and a node equal to a methods row is that
     row's own localizer (trained once by the harness, not a second copy)."""
+    from blenav.eval.config import parse_eval_config
     from blenav.eval.harness import build_fix_provider, build_methods
 
     cfg = _cfg("experiment=realwalks", f"data={tmp_path}", "+fixes.again=null",
                '+fixes.compute.again="${methods.knn_wifi}"')
     methods = build_methods(cfg)
-    prov = build_fix_provider(cfg, methods, tmp_path)
+    prov = build_fix_provider(parse_eval_config(cfg), methods, tmp_path)
     loc = prov.localizers
     assert loc["wifi"] is methods["KNN-WiFi"] and loc["again"] is loc["wifi"]
     assert loc["ble"] is methods["KNN-BLE"] and loc["both"] is methods["KNN-WiFi+BLE"]
@@ -276,14 +277,16 @@ def test_train_ids_and_table_rows_come_from_the_experiment(tmp_path):
     point blenav.cli.realwalks composes the experiment, blenav.eval.realwalks / blenav.reporting.realwalks read the nodes
     they are handed)."""
     from blenav.cli.realwalks import table_rows_of, train_ids_of
+    from blenav.eval.config import parse_eval_config
     from blenav.eval.harness import open_dataset, scored_sessions, train_test
     from blenav.eval.realwalks import train_ids
     from blenav.reporting.realwalks import OUTCOMES
 
     data = _as_waypoint_walks(simulate_small(tmp_path / "d", 3, 20, 4))
     cfg = _cfg("experiment=realwalks", f"data={data}")
-    ds = open_dataset(cfg)
-    train, test = train_test(cfg, ds, scored_sessions(cfg, ds)[0])
+    ecfg = parse_eval_config(cfg)
+    ds = open_dataset(ecfg)
+    train, test = train_test(ecfg, ds, scored_sessions(ecfg, ds))
     assert train_ids(cfg) == [s.id for s in train] and len(train) == 2
     assert train_ids_of(str(data)) == train_ids(cfg)
     assert len(train_ids_of(str(data), train_fraction=0.75)) == 3

@@ -40,8 +40,9 @@ from blenav.configs import compose
 from blenav.data import Dataset
 from blenav.data.writer import write_csv
 from blenav.errors import MissingStream
-from blenav.eval.harness import build_fix_provider, build_methods
-from blenav.localizers.base import RunContext
+from blenav.eval.config import parse_eval_config
+from blenav.eval.harness import build_fix_provider, build_methods, method_inputs
+from blenav.localizers.inputs import RunInputs
 from blenav.localizers.confine import confine
 from fuzz_helpers import CI, SLOW
 
@@ -245,10 +246,10 @@ def check_methods(methods, root: Path, seed: int) -> int:
     ran = 0
     for label, m, (cfg, built) in methods:
         if id(cfg) not in providers:  # per experiment and example: the fix provider caches per session
-            providers[id(cfg)] = build_fix_provider(cfg, built, root / "out")
-        ctx = RunContext(cache={}, fixes=providers[id(cfg)], out=root / "out")
-        try:
-            est = m.run(session, 1, seed, ctx)
+            providers[id(cfg)] = build_fix_provider(parse_eval_config(cfg), built, root / "out")
+        inputs = RunInputs(cache={}, out=root / "out")
+        try:  # the session's fixes resolved as the harness does (a missing role: skipped, with the reason)
+            est = m.run(session, 1, seed, method_inputs(m, session, inputs, providers[id(cfg)]))
         except MissingStream as exc:
             _event(f"{label}: skipped ({str(exc)[:40]})")
             continue
@@ -260,7 +261,7 @@ def check_methods(methods, root: Path, seed: int) -> int:
         assert np.isfinite(p).all(), f"{label}: {np.isnan(p).any(axis=-1).sum()} NaN positions of {p.shape[1]}"
         if est.cov is not None:
             assert np.isfinite(est.cov).all(), f"{label}: non-finite covariance"
-        out, info = confine(est, session.floor, snap_free=m.uses_floor_plan, cache=ctx.cache)
+        out, info = confine(est, session.floor, snap_free=m.uses_floor_plan, cache=inputs.cache)
         q = out.position
         assert np.isfinite(q).all(), label
         inside = (q[..., 0] >= x0) & (q[..., 0] <= x1) & (q[..., 1] >= y0) & (q[..., 1] <= y1)

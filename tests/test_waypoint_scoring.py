@@ -6,9 +6,9 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
 
 from blenav.errors import EvalError
+from blenav.eval.config import SplitConfig
 from blenav.eval.harness import split_sessions
 from blenav.eval.metrics import errors_at_waypoints, pool, waypoint_metrics
 
@@ -38,7 +38,7 @@ def _walks(floor, n):
 
 def test_split_by_walk_is_seeded_per_floor_and_leaves_a_test_walk():
     walks = _walks("F1", 7) + _walks("F2", 2) + _walks("B1", 1)
-    cfg = OmegaConf.create({"train_fraction": 0.5, "seed": 3})
+    cfg = SplitConfig(train_fraction=0.5, seed=3)
     train, test = split_sessions(walks[::-1], cfg)  # the input order does not matter
     again, _ = split_sessions(walks, cfg)
     assert [s.id for s in train] == [s.id for s in again]
@@ -47,7 +47,7 @@ def test_split_by_walk_is_seeded_per_floor_and_leaves_a_test_walk():
     assert len(ids(train, "F2")) == 1 and len(ids(test, "F2")) == 1
     assert ids(train, "B1") == ["B1_00"] and ids(test, "B1") == []  # one walk: train only
     assert not set(ids(train, "F1")) & set(ids(test, "F1"))
-    other, _ = split_sessions(walks, OmegaConf.create({"train_fraction": 0.5, "seed": 4}))
+    other, _ = split_sessions(walks, SplitConfig(train_fraction=0.5, seed=4))
     assert [s.id for s in other] != [s.id for s in train]
     with pytest.raises(EvalError, match="train_fraction"):
-        split_sessions(walks, OmegaConf.create({"train_fraction": 1.0}))
+        split_sessions(walks, SplitConfig(train_fraction=1.0))

@@ -45,6 +45,9 @@ TARGETS: frozenset[str] = frozenset({
     "blenav.localizers.ranging.SrlsLocalizer",
     "blenav.backend.localizer.BackendLocalizer",
     "blenav.localizers.realwalk.RealWalkPF",
+    # evaluators (conf/experiment: experiment.evaluator; blenav.eval.evaluators)
+    "blenav.eval.trajectory.TrajectoryEvaluator", "blenav.eval.leaderboard.LeaderboardEvaluator",
+    "blenav.eval.crossphone.CrossPhoneEvaluator",
     # a particle filter's motion models (conf/filter/motion, the bundle's settings.json)
     "blenav.filters.motion.RandomWalk", "blenav.filters.motion.DeadReckoning", "blenav.filters.motion.ImuProposal",
     "blenav.filters.motion.OdometryIncrement", "blenav.filters.motion.Pdr",

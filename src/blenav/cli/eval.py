@@ -11,12 +11,14 @@ map to one output name (``s 000``, ``s_000``) are refused before any work."""
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from functools import partial
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from blenav.configs import cli_overrides
+from blenav.eval.result import summary_lines
 
 from .common import run_hydra
 from .outdir import fresh_output
@@ -24,40 +26,20 @@ from .outdir import fresh_output
 PROG = "blenav-eval"
 
 
-def summary_lines(res: dict) -> list[str]:
-    """One console line per method: its error, or why it was skipped."""
-    out = []
-    for name, m in res["methods"].items():
-        if "rmse_m" not in m:
-            out.append(f"{name:12s} skipped on {len(m['skipped'])} session(s): {next(iter(m['skipped'].values()))}")
-        elif m.get("kind") == "bound":  # the leaderboard's PCRLB (blenav.eval.pcrlb): no estimates, no timing
-            out.append(f"{name:12s} RMSE {m['rmse_m']['mean']:.2f} m  (lower bound on the position error)")
-        elif "per_device" in m:  # a window-level comparison (crossphone): absolute error per window
-            e = m["error_m"]
-            out.append(f"{name:22s} error mean {e['mean']:.2f} m  median {e['median']:.2f}  p90 {e['p90']:.2f}  "
-                       f"max {e['max']:.2f}  ({m['n_windows']} windows)")
-        else:
-            r = m["rmse_m"]
-            out.append(f"{name:12s} RMSE {r['mean']:.2f} +- {r['stderr']:.2f} m  p75 {m['error_m']['p75']:.2f} m  "
-                       f"({m['realtime_factor']:.0f}x real time)")
-    for sid, streams in (res.get("dropped") or {}).items():
-        what = "; ".join(f"{stream}: " + ", ".join(f"{n} {why}" for why, n in reasons.items())
-                         for stream, reasons in streams.items())
-        out.append(f"dropped rows in {sid}: {what}")
-    return out
-
-
 def task(cfg: DictConfig) -> None:
-    from blenav.eval.harness import evaluate
+    """The composed config parsed once into :class:`~blenav.eval.config.EvalConfig` (a missing dataset path, a misspelt
+    key, a bad value fail here, before any output), its evaluator built, run into a fresh OUT; the summary printed."""
+    from blenav.eval.config import parse_eval_config
+    from blenav.eval.evaluators import build_evaluator
 
-    if OmegaConf.is_missing(cfg.data, "path"):
-        raise ValueError("name the dataset to evaluate on: data=DIR (a format-v1 dataset folder)")
-    inputs = [cfg.data.path, cfg.get("model_path")]  # never inside an OUT that overwrite=true deletes
-    with fresh_output(cfg.out, bool(cfg.get("overwrite", False)), inputs) as tmp:
-        res = evaluate(OmegaConf.merge(cfg, {"out": str(tmp)}))
+    ecfg = parse_eval_config(cfg)
+    evaluator = build_evaluator(ecfg)
+    inputs = [ecfg.data.path, ecfg.model_path]  # never inside an OUT that overwrite=true deletes
+    with fresh_output(ecfg.out, ecfg.overwrite, inputs) as tmp:
+        res = evaluator.run(dataclasses.replace(ecfg, out=str(tmp)))
     for line in summary_lines(res):
         print(line)
-    print(f"wrote {cfg.out}/results.json")
+    print(f"wrote {ecfg.out}/results.json")
 
 
 def main() -> None:

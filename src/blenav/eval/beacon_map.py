@@ -115,15 +115,17 @@ def given_map(building) -> pd.DataFrame:
                          "y": a["y"].to_numpy(float)})
 
 
-def run_per_run_maps(method, session, si: int, runs: int, seed: int, ctx, cfg: BeaconMapConfig) -> Estimate:
+def run_per_run_maps(method, session, si: int, runs: int, seed: int, inputs_for, cfg: BeaconMapConfig) -> Estimate:
     """``method`` on ``session`` once per run, each run with its own perturbed map; the estimates stacked
-    (``outputs['beacon_error']`` holds the per-run prior / optimized errors)."""
+    (``outputs['beacon_error']`` holds the per-run prior / optimized errors). ``inputs_for(session)``: the run's
+    :class:`~blenav.localizers.inputs.RunInputs` for the session with that run's map (its fixes resolved on it)."""
     truth = true_xy(session.building.anchors)
     ests, prior_err, opt_err = [], [], []
     seeds = np.random.SeedSequence(int(seed)).generate_state(runs)
     for r in range(runs):
         b = perturb(session.building, cfg, si, r)
-        est = method.run(session.with_building(b), 1, int(seeds[r]), ctx)
+        s = session.with_building(b)
+        est = method.run(s, 1, int(seeds[r]), inputs_for(s))
         prior_err.append(map_error(given_map(b), truth))
         opt_err.append(map_error(est.outputs.get("beacon_map"), truth))
         ests.append(est)

@@ -1,4 +1,5 @@
-"""``evaluate_crossphone(cfg)``: the cross-phone comparison of Roy, section 3.1.4 (Tables 3.3-3.5).
+"""The cross-phone comparison of Roy, section 3.1.4 (Tables 3.3-3.5): :class:`CrossPhoneEvaluator`
+(``experiment.evaluator._target_: blenav.eval.crossphone.CrossPhoneEvaluator``, old spelling ``kind: crossphone``).
 
 Every method sees the same split (:func:`blenav.features.windows.split_by_device` with ``cfg.data``): the
 learned methods train through :func:`blenav.learn.train.train` into ``OUT/runs/<key>`` (a run that is
@@ -32,6 +33,7 @@ exported model (its beacon list must match the building).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import shutil
 import time
@@ -43,7 +45,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from blenav.errors import DatasetError, EvalError
 
-from .common import write_json
+from .config import EvalConfig
+from .evaluators import Evaluator
+from .result import MethodResult, WindowResult, WindowStats, write_results
 
 log = logging.getLogger("blenav.eval")
 
@@ -80,16 +84,16 @@ class TestWindows:
                             "(data.test_devices=[...]) or keep data.holdout > 0")
 
 
-def _train_run(cfg: DictConfig, key: str, spec: DictConfig, run_dir: Path, dm) -> tuple[Path, bool]:
-    """Train (or resume, or reuse) one learned method; returns its last.ckpt."""
+def _train_run(cfg: EvalConfig, key: str, spec: dict, run_dir: Path, dm) -> tuple[Path, bool, dict]:
+    """Train (or resume, or reuse) one learned method (``spec``: its ``experiment.learned`` node); returns its
+    last.ckpt, whether it was reused without a training step, and its training report. The training config is built
+    from the typed settings (:func:`blenav.learn.train.train` takes a DictConfig)."""
     from blenav.learn.train import train
 
     tcfg = OmegaConf.create({"seed": cfg.seed, "out": str(run_dir), "semi": spec.get("semi"),
-                             "threads": cfg.get("threads"), "plots": bool(cfg.get("plots", True)),
-                             "data": OmegaConf.to_container(cfg.data, resolve=True),
-                             "model": OmegaConf.to_container(spec.model, resolve=True),
-                             "trainer": {**OmegaConf.to_container(cfg.trainer, resolve=True),
-                                         "enable_progress_bar": bool(cfg.get("progress", False))}})
+                             "threads": cfg.threads, "plots": cfg.plots, "data": dataclasses.asdict(cfg.data),
+                             "model": spec["model"],
+                             "trainer": {**(cfg.trainer or {}), "enable_progress_bar": cfg.progress}})
     init = spec.get("init_from")
     ck = run_dir / "last.ckpt"
     copied = False
@@ -167,27 +171,33 @@ def _predict_onnx(path: str, building):
     return model.predict
 
 
-def evaluate_crossphone(cfg: DictConfig) -> dict:
+class CrossPhoneEvaluator(Evaluator):
+    """Learned and baseline localizers scored per RSSI window and phone (module doc)."""
+
+    def run(self, cfg: EvalConfig) -> WindowResult:
+        return evaluate_crossphone(cfg)
+
+
+def evaluate_crossphone(cfg: EvalConfig) -> WindowResult:
     """Train-if-needed, fit, predict, score; writes OUT/results.json, results.md and plots."""
     from blenav.learn.crossphone.baselines import make_baseline
     from blenav.learn.crossphone.data import WindowDataModule
-    from blenav.learn.crossphone.train import data_config
 
     out = Path(cfg.out)
     try:
-        dm = WindowDataModule(data_config(cfg))
+        dm = WindowDataModule(dataclasses.replace(cfg.data))  # its own copy: the data module may fill in settings
         dm.setup()
     except (ValueError, DatasetError, FileNotFoundError) as exc:
         raise EvalError(str(exc)) from exc
     test = TestWindows(dm)
-    runs_dir = Path(cfg.experiment.get("runs_dir") or out / "runs")
+    runs_dir = Path(cfg.experiment.runs_dir or out / "runs")
     train_S, train_xy = (t.numpy() for t in (dm.sets["train"].tensors[0], dm.sets["train"].tensors[2]))
     from blenav.features.scale import U_SCALE
 
     train_S = train_S * U_SCALE  # baselines read the thesis scale
-    onnx_model = cfg.get("model_path")
+    onnx_model = cfg.model_path
     predictors, sources, train_s, trainings = {}, {}, {}, {}
-    for key, spec in (cfg.experiment.get("learned") or {}).items():
+    for key, spec in (cfg.experiment.learned or {}).items():
         if spec is None:  # switched off by an experiment (`learned.semi: null`)
             continue
         label = str(spec.get("label", key))
@@ -203,21 +213,20 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
         train_s[label] = None if reused else time.perf_counter() - t0
         predictors[label] = _predict_module(ck)
         sources[label] = f"{'reused' if reused else 'trained'}: {ck.parent}"
-    for key, spec in (cfg.experiment.get("baselines") or {}).items():
+    for key, spec in (cfg.experiment.baselines or {}).items():
         if spec is None:
             continue
-        kw = OmegaConf.to_container(spec, resolve=True) or {}
+        kw = dict(spec or {})
         name = str(kw.pop("label", key))
         t0 = time.perf_counter()
         b = make_baseline(name, **kw)
         b.fit(train_S, train_xy)
         train_s[name] = time.perf_counter() - t0
         predictors[name], sources[name] = b.predict_sequence, "fitted"
-    results = {"experiment": cfg.experiment.name, "title": cfg.experiment.get("title", ""),
-               "dataset": str(Path(cfg.data.path)), "sessions": [s.id for s in test.sessions], "seed": int(cfg.seed),
-               "runs": 1, "split": {k: sorted({s.device_model for s in v}) for k, v in dm.groups.items()},
-               "train_sessions": [s.id for s in dm.groups["train"]],
-               "no_fix_windows": test.no_fix, "methods": {}}
+    res = WindowResult(cfg.experiment.name, cfg.experiment.title, str(Path(cfg.data.path)), 1,
+                       [s.id for s in test.sessions], cfg.seed,
+                       split={k: sorted({s.device_model for s in v}) for k, v in dm.groups.items()},
+                       train_sessions=[s.id for s in dm.groups["train"]], no_fix_windows=test.no_fix)
     errors: dict[str, dict[str, np.ndarray]] = {}
     for name, predict in predictors.items():
         t0 = time.perf_counter()
@@ -229,18 +238,13 @@ def evaluate_crossphone(cfg: DictConfig) -> dict:
                 raise EvalError(f"{name} gave a non-finite position on session {s.id}")
             errs[s.id] = np.linalg.norm(p - xy, axis=1)
         errors[name] = errs
-        results["methods"][name] = _method_result(errs, test.sessions, time.perf_counter() - t0, train_s[name],
-                                                  sources[name])
-        if name in trainings:
-            results["methods"][name]["training"] = trainings[name]
+        res.methods[name] = _method_result(errs, test.sessions, time.perf_counter() - t0, train_s[name], sources[name])
+        res.methods[name].training = trainings.get(name)
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "results.json", results)
-    from .report import write_crossphone_markdown
-
-    write_crossphone_markdown(out / "results.md", results, cfg)
-    if cfg.get("plots", True):
-        _plots(out, results, errors)
-    return results
+    write_results(out, res, cfg.experiment)
+    if cfg.plots:
+        _plots(out, res, errors)
+    return res
 
 
 def brand_of(session) -> str:
@@ -248,7 +252,8 @@ def brand_of(session) -> str:
     return str(session.meta.get("receiver_brand") or session.device_model)
 
 
-def _method_result(errs: dict[str, np.ndarray], sessions, predict_s: float, train_s: float, source: str) -> dict:
+def _method_result(errs: dict[str, np.ndarray], sessions, predict_s: float, train_s: float | None,
+                   source: str) -> MethodResult:
     by_dev: dict[str, list] = {}
     by_brand: dict[str, list] = {}
     for s in sessions:
@@ -258,21 +263,21 @@ def _method_result(errs: dict[str, np.ndarray], sessions, predict_s: float, trai
     from .metrics import summary
 
     rmse = np.array([np.sqrt(np.mean(e ** 2)) for e in errs.values()])
-    return {"error_m": _error_stats(allerr), "rmse_m": summary(rmse),
-            "per_device": {d: _error_stats(np.concatenate(v)) for d, v in sorted(by_dev.items())},
-            "per_brand": {b: _error_stats(np.concatenate(v)) for b, v in sorted(by_brand.items())},
-            "per_session": {s.id: {"error_m": _error_stats(errs[s.id]), "device_model": s.device_model}
-                            for s in sessions},
-            "train_s": train_s, "predict_s": predict_s, "n_windows": int(allerr.size), "source": source}
+    windows = WindowStats(per_device={d: _error_stats(np.concatenate(v)) for d, v in sorted(by_dev.items())},
+                          per_brand={b: _error_stats(np.concatenate(v)) for b, v in sorted(by_brand.items())},
+                          train_s=train_s, predict_s=predict_s, n_windows=int(allerr.size), source=source)
+    return MethodResult(kind="windows", metrics={"error_m": _error_stats(allerr), "rmse_m": summary(rmse)},
+                        per_session={s.id: {"error_m": _error_stats(errs[s.id]), "device_model": s.device_model}
+                                     for s in sessions}, windows=windows)
 
 
-def _plots(out: Path, results: dict, errors: dict[str, dict[str, np.ndarray]]) -> None:
+def _plots(out: Path, res: WindowResult, errors: dict[str, dict[str, np.ndarray]]) -> None:
     from blenav import plotting
 
     from .metrics import cdf_band
 
     grid = np.linspace(0, 15, 301)
     cdfs = {n: cdf_band([np.concatenate(list(e.values()))], grid, q=(0.5, 0.5, 0.5)) for n, e in errors.items()}
-    plotting.save_figure(plotting.figure_error_cdf(grid, cdfs, results["title"]), out / "error_cdf.png")
-    per_dev = {n: {d: v["mean"] for d, v in m["per_device"].items()} for n, m in results["methods"].items()}
-    plotting.save_figure(plotting.figure_per_device(per_dev, results["title"]), out / "per_device.png")
+    plotting.save_figure(plotting.figure_error_cdf(grid, cdfs, res.title), out / "error_cdf.png")
+    per_dev = {n: {d: v["mean"] for d, v in m.windows.per_device.items()} for n, m in res.methods.items()}
+    plotting.save_figure(plotting.figure_per_device(per_dev, res.title), out / "per_device.png")

@@ -49,11 +49,11 @@ import numpy as np
 import pandas as pd
 
 from blenav.errors import MissingStream
-from blenav.filters.measurement import FixLikelihood
 from blenav.filters.method import Method
 from blenav.filters.runner import run_session
 from blenav.features.windows import spread_beacons
 from blenav.localizers import ParticleFilterLocalizer
+from blenav.localizers.inputs import Fixes, RoleFixes
 
 from .common import output_name
 
@@ -249,23 +249,25 @@ class FixProvider:
             self._mem[key] = (est.t[ok].copy(), xy[ok].copy(), sd[ok].copy())
         return self._mem[key]
 
-    # ------------------------------------------------------------------ per method
-    def prepare(self, method: Method, session) -> pd.DataFrame | None:
-        """Point every fix likelihood of ``method`` that has a ``role`` at that role's fixes for ``session``
-        (sets its ``source``); returns the computed fixes to add in memory (None when all are named
-        sources of the session's fixes.csv)."""
-        extra, added = [], set()
-        for m in method.measurements:
-            role = m.role if isinstance(m, FixLikelihood) else None
-            if role is None:
+    # ------------------------------------------------------------------ per method and session
+    def resolve(self, roles, session) -> Fixes:
+        """The fixes of ``roles`` (in the order the method reads them) on ``session``, as the typed
+        :class:`~blenav.localizers.inputs.Fixes` a localizer's run receives. The first role that has none
+        (:class:`MissingStream`) ends the resolution: it and the roles after it carry that reason (the method is
+        skipped on the session, and fixes it would not read are not computed)."""
+        got, missing = {}, {}
+        for role in roles:
+            if missing:
+                missing[role] = next(iter(missing.values()))
                 continue
-            t, xy, sd, src = self._fixes(role, session)
-            m.source = src
-            if (role, session.id) in self._computed and src not in added:
-                # not in the session's fixes.csv: add in memory (once per source)
-                added.add(src)
-                extra.append(pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1], "std": sd, "source": src}))
-        return pd.concat(extra, ignore_index=True) if extra else None
+            try:
+                t, xy, sd, src = self._fixes(role, session)
+            except MissingStream as exc:
+                missing[role] = str(exc)
+                continue
+            key = (role, session.id)
+            got[role] = RoleFixes(t, xy, sd, src, computed=key in self._computed, wall_s=self.compute_s.get(key))
+        return Fixes(got, missing)
 
     def describe(self) -> dict:
         """For results.json: role -> {session: what was used}, plus the sparse beacons chosen per building."""

@@ -1,10 +1,13 @@
-"""``evaluate(cfg)``: every method of an experiment on every selected labelled session, R runs each.
+"""The steps of a trajectory evaluation: every method of an experiment on every selected labelled session, R runs
+each (:class:`blenav.eval.trajectory.TrajectoryEvaluator` runs them in order; ``evaluate(cfg)`` runs any experiment
+with its evaluator, :mod:`blenav.eval.evaluators`).
 
 Every method is a :class:`~blenav.localizers.Localizer` built from its config node (``_target_``, see
 ``conf/localizer/``); the harness runs it through that interface alone and scores the
-:class:`~blenav.localizers.Estimate` it returns. The steps, each a function: build the methods, select
-the sessions, attach the models and fixes the methods declare they want, calibrate, run, aggregate,
-write.
+:class:`~blenav.localizers.Estimate` it returns. The steps, each a function of the typed
+:class:`~blenav.eval.config.EvalConfig`: build the methods, select the sessions, attach the models and fixes the
+methods declare they want (the fixes resolved per session into :class:`~blenav.localizers.inputs.Fixes` before
+the method runs), calibrate, run, aggregate into :class:`~blenav.eval.result.MethodResult`, write.
 
 Writes ``OUT/results.json`` (schema below), ``OUT/results.md`` (a table like the papers') and, unless
 ``plots=false``, PNG plots. ``results.json``::
@@ -41,28 +44,29 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
 
 from blenav.data import Dataset, check_session_in_building
 from blenav.errors import DatasetError, EvalError, MissingStream
 from blenav.filters.attitude import misalignment_deg
 from blenav.filters.calibration import fit_sessions
-from blenav.limits import LimitError, check_range
-from blenav.localizers import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext,
-                               Trained, build_localizer)
+from blenav.localizers import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, Trained,
+                               build_localizer)
 from blenav.localizers.confine import confine
+from blenav.localizers.inputs import RunInputs
 from blenav.eval import beacon_map as BM
 from blenav.eval.plan_errors import PlanErrorConfig, perturb_building
 
-from .common import check_output_names, json_default, output_name, write_json
+from .common import json_default, output_name
+from .config import EvalConfig, SplitConfig, parse_eval_config
+from .evaluators import evaluate
 from .fixes import FixProvider
 from .floors import floor_accuracy
-from .leaderboard import PeakMemory
 from .metrics import cdf_band, pool, session_metrics, waypoint_metrics
+from .result import MethodResult, TrajectoryResult, write_results
 
 log = logging.getLogger("blenav.eval")
 
@@ -72,16 +76,14 @@ _json_default = json_default  # the name other modules used before blenav.eval.c
 
 
 # ------------------------------------------------------------------------------------------ build
-def shared_settings(cfg: DictConfig) -> DictConfig:
-    """The experiment-wide settings every localizer receives as ``shared``: ``filter`` and ``attitude``."""
-    return OmegaConf.create({"filter": cfg.get("filter") or {}, "attitude": cfg.get("attitude") or {}})
-
-
-def build_methods(cfg: DictConfig) -> dict[str, Localizer]:
-    """Every method of ``cfg.methods``, keyed by its label (fails early on unknown keys or targets)."""
-    if "methods" not in cfg or not cfg.methods:
+def build_methods(cfg: EvalConfig) -> dict[str, Localizer]:
+    """Every method of ``cfg.methods``, keyed by its label (fails early on unknown keys or targets); each receives the
+    experiment-wide ``filter`` / ``attitude`` settings (:meth:`EvalConfig.shared`). A composed DictConfig (scripts,
+    tests) is parsed first, a dataset path not needed."""
+    cfg = parse_eval_config(cfg, require_data=False)
+    if not cfg.methods:
         raise EvalError("the experiment defines no methods")
-    shared = shared_settings(cfg)
+    shared = cfg.shared()
     out = {}
     for key, node in cfg.methods.items():
         if node is None:  # switched off by an override (methods.KEY=null)
@@ -95,13 +97,6 @@ def build_methods(cfg: DictConfig) -> dict[str, Localizer]:
             msg = str(exc)
             raise EvalError(msg if label in msg else f"method {label!r}: {msg}") from exc
     return out
-
-
-def model_path(cfg: DictConfig) -> str | None:
-    """The learned model's path, ``model_path`` (``model_path=DIR`` on the command line; ``model=DIR`` is deprecated, see
-    :func:`blenav.configs.cli_overrides`: ``model`` names the network config group)."""
-    v = cfg.get("model_path")
-    return str(v) if v else None
 
 
 def attach_models(methods: dict[str, Localizer], path: str | None) -> dict | None:
@@ -124,57 +119,42 @@ def attach_models(methods: dict[str, Localizer], path: str | None) -> dict | Non
     return {"path": path, "unavailable": unavailable} if unavailable else None
 
 
-def build_fix_provider(cfg: DictConfig, methods: dict[str, Localizer], out: Path) -> FixProvider | None:
+def build_fix_provider(cfg: EvalConfig, methods: dict[str, Localizer], out: Path) -> FixProvider | None:
     """The experiment's :class:`FixProvider` (``cfg.fixes``), or None when it has no ``fixes`` block."""
-    fx = cfg.get("fixes")
+    fx = cfg.fixes
     if fx is None:
         return None
-    roles = {r: fx.get(r) for r in fx if r not in FIXES_OPTIONS}
     used = set().union(*[m.fix_roles() for m in methods.values() if isinstance(m, FixConsumer)])
-    missing = used - set(roles)
+    missing = used - set(fx.roles)
     if missing:
         raise EvalError(f"methods use fix role(s) {sorted(missing)} that the experiment's fixes block does not define")
-    for r, v in roles.items():  # a misspelt option (fixes.rate: 2, fixes.sparse_beacon: 6) must not become a role
-        if v is not None and not isinstance(v, str):
-            raise EvalError(f"fixes.{r}={v!r}: not a role (a role's value is a fixes.csv source name or null) and not "
-                            f"an option of the fixes block {list(FIXES_OPTIONS)}")
-    localizers = fix_localizers(cfg, roles, methods)
-    sb = fx.get("sparse_beacons", 4)
-    sb = int(sb) if isinstance(sb, (int, float)) else [str(b) for b in sb]
+    localizers = fix_localizers(cfg, methods)
     try:
-        return FixProvider(roles, localizers, sb, out, seed=int(cfg.seed), rate_hz=float(fx.get("rate_hz", 1.0)),
-                           write=bool(fx.get("write", False)))
+        return FixProvider(fx.roles, localizers, fx.sparse_beacons, out, seed=cfg.seed, rate_hz=fx.rate_hz,
+                           write=fx.write)
     except ValueError as exc:
         raise EvalError(str(exc)) from exc
 
 
-#: the keys of an experiment's ``fixes`` block that are not roles
-FIXES_OPTIONS = ("compute", "sparse_beacons", "rate_hz", "write")
-
-
-def fix_localizers(cfg: DictConfig, roles: dict, methods: dict[str, Localizer]) -> dict[str, Localizer]:
+def fix_localizers(cfg: EvalConfig, methods: dict[str, Localizer]) -> dict[str, Localizer]:
     """role -> the localizer computing its fixes (:mod:`blenav.eval.fixes`): ``fixes.compute`` is one node for every
     role or ``{role: node}``; roles with equal nodes share one instance, and a node equal to a ``methods`` row is that
     row's localizer (so ``${methods.knn_wifi}`` is trained and kept once, not twice)."""
-    comp = cfg.fixes.get("compute")
-    if comp is None:
+    fx = cfg.fixes
+    if fx.compute is None:
         return {}
-    per_role = "_target_" not in comp
-    if per_role and set(comp) - set(roles):
-        raise EvalError(f"fixes.compute names role(s) {sorted(set(comp) - set(roles))} that the fixes block does "
-                        f"not define (roles: {sorted(roles)})")
-    as_key = lambda node: json.dumps(OmegaConf.to_container(node, resolve=True), sort_keys=True, default=str)
+    as_key = lambda node: json.dumps(node, sort_keys=True, default=str)
     by_node = {as_key(node): methods[str(node.get("label", k))] for k, node in (cfg.methods or {}).items()
                if node is not None and str(node.get("label", k)) in methods}
-    shared, out = shared_settings(cfg), {}
-    for r in roles:
-        node = comp.get(r) if per_role else comp
+    shared, out = cfg.shared(), {}
+    for r in fx.roles:
+        node = fx.compute.get(r) if fx.per_role else fx.compute
         if node is None:
             continue
         key = as_key(node)
         if key not in by_node:
             try:
-                by_node[key] = build_localizer(f"BLE fixes ({r})" if not per_role else f"fixes ({r})", node, shared)
+                by_node[key] = build_localizer(f"BLE fixes ({r})" if not fx.per_role else f"fixes ({r})", node, shared)
             except Exception as exc:
                 raise EvalError(f"fixes.compute: {exc}") from exc
         out[r] = by_node[key]
@@ -202,35 +182,6 @@ def select_sessions(ds: Dataset, ids, exclude: set = frozenset()) -> list:
     return moving or sessions  # static surveys are calibration data unless they are all there is
 
 
-def _schema_node(cfg: DictConfig, key: str, schema):
-    """``cfg[key]`` checked against the dataclass ``schema`` (a misspelt key fails here, also one added with
-    Hydra's ``+``, which bypasses the schema)."""
-    import difflib
-    from dataclasses import fields
-
-    node = cfg.get(key) or {}
-    known = [f.name for f in fields(schema)]
-    for k in node:
-        if k not in known:
-            near = difflib.get_close_matches(str(k), known, n=1)
-            hint = f" (did you mean {key}.{near[0]}?)" if near else ""
-            raise EvalError(f"{key}: unknown key {k!r}{hint}; known: {', '.join(known)}")
-    try:
-        return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), node))
-    except Exception as exc:  # omegaconf's errors for unknown keys / wrong types, or our ValueError
-        raise EvalError(f"{key}: {exc}") from exc
-
-
-def plan_error_config(cfg: DictConfig) -> PlanErrorConfig:
-    """``cfg.plan_error`` as :class:`PlanErrorConfig`."""
-    return _schema_node(cfg, "plan_error", PlanErrorConfig)
-
-
-def beacon_map_config(cfg: DictConfig) -> BM.BeaconMapConfig:
-    """``cfg.beacon_map`` as :class:`~blenav.eval.beacon_map.BeaconMapConfig`."""
-    return _schema_node(cfg, "beacon_map", BM.BeaconMapConfig)
-
-
 def with_wrong_plans(sessions: list, pe: PlanErrorConfig, out_dir: Path) -> tuple[list, dict]:
     """The sessions with their buildings' plans replaced by wrong ones (one per building, shared by its
     sessions; streams and their caches are kept), and the per-building summaries."""
@@ -242,32 +193,30 @@ def with_wrong_plans(sessions: list, pe: PlanErrorConfig, out_dir: Path) -> tupl
     return [s.with_building(wrong[s.building.id]) for s in sessions], info
 
 
-def open_dataset(cfg: DictConfig) -> Dataset:
+def open_dataset(cfg: EvalConfig) -> Dataset:
     try:
         return Dataset.open(cfg.data.path)
     except DatasetError as exc:
         raise EvalError(f"cannot open dataset {cfg.data.path}: {exc}") from exc
 
 
-def scored_sessions(cfg: DictConfig, ds: Dataset) -> tuple[list, object]:
-    """The sessions to score and the calibration spec (``calibration``: its sessions are not scored); every
-    session is checked to lie in its building."""
-    cal_spec = cfg.get("calibration", "auto")
-    exclude = set(cal_spec) if not isinstance(cal_spec, str) and cal_spec is not None else set()
+def scored_sessions(cfg: EvalConfig, ds: Dataset) -> list:
+    """The sessions to score (the sessions ``calibration`` names are not scored); every session is checked to lie in
+    its building."""
     try:  # the data layer's rules (a floor without free space, ground truth off the plan, ...) are the readers'
-        sessions = select_sessions(ds, cfg.get("sessions"), exclude=exclude)
+        sessions = select_sessions(ds, cfg.session_ids, exclude=cfg.calibration_sessions)
         for s in sessions:
             check_session_in_building(s)
     except DatasetError as exc:
         raise EvalError(str(exc)) from exc
-    return sessions, cal_spec
+    return sessions
 
 
-def split_sessions(sessions: list, split) -> tuple[list, list]:
+def split_sessions(sessions: list, split: SplitConfig) -> tuple[list, list]:
     """(train, test): per building and floor, a seeded permutation of the walks (by session id, so the
     split depends only on the seed and the walks), the first ``round(train_fraction * n)`` of them train
     (at least one, and at least one left to test when a floor has two or more walks)."""
-    frac, seed = float(split.get("train_fraction", 0.5)), int(split.get("seed", 0))
+    frac, seed = float(split.train_fraction), int(split.seed)
     if not 0.0 < frac < 1.0:
         raise EvalError(f"split.train_fraction must be in (0, 1), got {frac}")
     groups: dict = {}
@@ -283,14 +232,14 @@ def split_sessions(sessions: list, split) -> tuple[list, list]:
     return train, test
 
 
-def train_test(cfg: DictConfig, ds: Dataset, sessions: list) -> tuple[list, list]:
+def train_test(cfg: EvalConfig, ds: Dataset, sessions: list) -> tuple[list, list]:
     """(train walks, scored walks) of the experiment's ``split``: ``{train: [ids]}`` names the train walks (not
     scored), ``{train_fraction, seed}`` splits each floor's walks (:func:`split_sessions`); no split: ([], sessions)."""
-    split = cfg.get("split")
+    split = cfg.split
     if split is None:
         return [], sessions
-    if split.get("train"):
-        train = select_sessions(ds, [str(i) for i in split.train])
+    if split.train:
+        train = select_sessions(ds, split.train)
         test = [s for s in sessions if s.id not in {t.id for t in train}]
         if not test:
             raise EvalError("split.train names every evaluated session: nothing left to score")
@@ -298,22 +247,22 @@ def train_test(cfg: DictConfig, ds: Dataset, sessions: list) -> tuple[list, list
     return split_sessions(sessions, split)
 
 
-def _floor_accuracy(cfg: DictConfig, train: list, sessions: list) -> dict | None:
+def floor_accuracy_of(cfg: EvalConfig, train: list, sessions: list) -> dict | None:
     """Which floor each test walk is on, from the train walks' scans (:mod:`blenav.eval.floors`; several floors)."""
     try:
-        return floor_accuracy(cfg.get("floor_classifier"), train, sessions)
+        return floor_accuracy(cfg.floor_classifier, train, sessions)
     except (ValueError, MissingStream) as exc:
         raise EvalError(f"floor_classifier: {exc}") from exc
 
 
-def fit_trained(methods: dict[str, Localizer], train: list, ctx: RunContext) -> dict:
+def fit_trained(methods: dict[str, Localizer], train: list, inputs: RunInputs) -> dict:
     """Train the methods that learn from the dataset (:class:`Trained`) on ``train``; their reports by name
     (a method whose training data lacks what it needs is reported, and then skipped at run time)."""
     reports = {}
     for name, m in methods.items():
         if isinstance(m, Trained):
             try:
-                reports[name] = m.fit(train, ctx)
+                reports[name] = m.fit(train, inputs)
             except MissingStream as exc:
                 reports[name] = {"unavailable": str(exc)}
                 log.warning("%s cannot be trained: %s", name, exc)
@@ -384,25 +333,37 @@ def orientation_rmse(est: Estimate, session) -> float | None:
     return float(np.sqrt(np.mean(ang**2)))
 
 
+def method_inputs(method: Localizer, session, inputs: RunInputs, fixes: FixProvider | None) -> RunInputs:
+    """The inputs of one run of ``method`` on ``session``: ``inputs`` with, for a :class:`FixConsumer`, the session's
+    fixes of its roles (:meth:`FixProvider.resolve`; None without a ``fixes`` block)."""
+    if fixes is None or not isinstance(method, FixConsumer):
+        return inputs
+    return inputs.with_fixes(fixes.resolve(method.fix_roles(), session))
+
+
 def session_seed(seed: int, index: int) -> int:
     """The seed of the ``index``-th session: the same random stream for every method."""
     return int(seed) * 1_000_003 + 1000 * index
 
 
-def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: int, init_s: float, ctx: RunContext,
-               progress, beacon_map: BM.BeaconMapConfig | None = None, hold_ends: bool = False) -> MethodOutcome:
+def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: int, init_s: float, inputs: RunInputs,
+               progress, beacon_map: BM.BeaconMapConfig | None = None, hold_ends: bool = False,
+               fixes: FixProvider | None = None) -> MethodOutcome:
     """``method`` on every session (R runs each), scored against the ground truth; sessions where it cannot
     run (:class:`MissingStream`) are skipped with the reason, other errors name the method and session.
+    ``inputs``: what every run shares (the cache, the output folder); a :class:`FixConsumer` gets the session's
+    fixes of its roles from ``fixes`` with them (:meth:`FixProvider.resolve`, for the session it runs on).
     ``beacon_map`` with ``noise_m > 0``: every run on its own perturbed map (:mod:`blenav.eval.beacon_map`).
     ``hold_ends`` (the experiment's ``scoring.hold_ends``): waypoints outside an estimate's span are scored against
     its first / last estimate (:func:`~blenav.eval.metrics.waypoint_metrics`)."""
     oc = MethodOutcome()
+    inputs_for = lambda session: method_inputs(method, session, inputs, fixes)  # noqa: E731
     for si, s in enumerate(sessions):
         try:
             if beacon_map is not None and beacon_map.perturbed:
-                est = BM.run_per_run_maps(method, s, si, runs, session_seed(seed, si), ctx, beacon_map)
+                est = BM.run_per_run_maps(method, s, si, runs, session_seed(seed, si), inputs_for, beacon_map)
             else:
-                est = method.run(s, runs, session_seed(seed, si), ctx)
+                est = method.run(s, runs, session_seed(seed, si), inputs_for(s))
         except MissingStream as exc:  # e.g. no IMU in a fixed-receiver recording: skip, and say so
             oc.skipped[s.id] = str(exc)
             log.warning("skipping %s on %s: %s", name, s.id, exc)
@@ -410,7 +371,7 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
             continue
         except (ValueError, DatasetError) as exc:
             raise EvalError(f"method {name}, session {s.id}: {exc}") from exc
-        est, moved = confine(est, s.floor, snap_free=method.uses_floor_plan, cache=ctx.cache)  # stay on the floor
+        est, moved = confine(est, s.floor, snap_free=method.uses_floor_plan, cache=inputs.cache)  # stay on the floor
         gt = s.groundtruth
         try:
             if s.groundtruth_sparse:  # sparse surveyed waypoints: the estimate interpolated at each waypoint time
@@ -448,116 +409,29 @@ def beacon_errors(est: Estimate, session) -> dict | None:
 
 
 # ------------------------------------------------------------------------------------------ aggregate
-def aggregate(oc: MethodOutcome, runs: int) -> dict:
-    """The results.json entry of one method: pooled metrics, timing, recoveries, notes, per session."""
+def aggregate(oc: MethodOutcome, runs: int) -> MethodResult:
+    """One method's row: pooled metrics, timing, recoveries, notes, per session."""
     if not oc.metrics:
-        return {"skipped": oc.skipped}
-    agg = pool(oc.metrics)
-    if oc.skipped:
-        agg["skipped"] = oc.skipped
+        return MethodResult(skipped=oc.skipped)
     ests = list(oc.results.values())
     wall = sum(e.wall_s for e in ests)
     duration = sum(float(e.t[-1] - e.t[0]) for e in ests)
     notes: list[str] = []
     for e in ests:
         notes += [n for n in e.notes if n not in notes]
-    agg.update({"wall_s": wall, "realtime_factor": duration * runs / max(wall, 1e-9),
-                "recoveries": sum(len(e.events) for e in ests), "map_notes": notes,
-                "confined": {k: sum(m["confined"][k] for m in oc.metrics.values())
-                             for k in ("bbox", "off_free", "free", "estimates")}})
+    res = MethodResult(metrics=pool(oc.metrics), skipped=oc.skipped, wall_s=wall,
+                       realtime_factor=duration * runs / max(wall, 1e-9), recoveries=sum(len(e.events) for e in ests),
+                       map_notes=notes, confined={k: sum(m["confined"][k] for m in oc.metrics.values())
+                                                  for k in ("bbox", "off_free", "free", "estimates")})
     errs = [m["beacon_error_m"] for m in oc.metrics.values() if "beacon_error_m" in m]
     if errs:
-        agg["beacon_error_m"] = {k: float(np.mean([e[k] for e in errs if e[k] is not None]))
-                                 if any(e[k] is not None for e in errs) else None for k in ("prior", "optimized")}
+        res.beacon_error_m = {k: float(np.mean([e[k] for e in errs if e[k] is not None]))
+                              if any(e[k] is not None for e in errs) else None for k in ("prior", "optimized")}
     orient = [m["orientation_rmse_deg"] for m in oc.metrics.values() if "orientation_rmse_deg" in m]
     if orient:
-        agg["orientation_rmse_deg"] = float(np.mean(orient))
-    agg["per_session"] = {k: {kk: vv for kk, vv in v.items() if kk != "_runs"} for k, v in oc.metrics.items()}
-    return agg
-
-
-# ------------------------------------------------------------------------------------------ evaluate
-def evaluate(cfg: DictConfig) -> dict:
-    """Run the experiment of ``cfg`` and write its outputs; returns the results dictionary.
-
-    Sessions: ``cfg.sessions`` or, by default, every labelled session that is not a static survey
-    (surveys calibrate the path-loss model) nor named by ``calibration``; a dataset of surveys only is
-    evaluated on its surveys. An experiment of ``kind: crossphone`` (learned localizers scored per window,
-    Roy's Tables 3.3-3.5) runs :func:`blenav.eval.crossphone.evaluate_crossphone` instead.
-    """
-    if cfg.experiment.get("kind") == "crossphone":
-        from .crossphone import evaluate_crossphone
-
-        return evaluate_crossphone(cfg)
-    ds = open_dataset(cfg)
-    methods = build_methods(cfg)
-    check_output_names(methods, "method")  # OUT/<session>/trajectories/<method>.tum: one file per method
-    model_info = attach_models(methods, model_path(cfg))
-    sessions, cal_spec = scored_sessions(cfg, ds)
-    plan_error = plan_error_config(cfg)
-    bmap = beacon_map_config(cfg)
-    try:  # bounded before any work (blenav.limits: 1..100,000; runs x particles: the filter's memory check)
-        runs = check_range(cfg.runs, "runs", "eval config")
-    except LimitError as exc:
-        raise EvalError(str(exc)) from None
-    out = Path(cfg.out)
-    plan_info = None
-    if plan_error.active:
-        sessions, plan_info = with_wrong_plans(sessions, plan_error, out / "plans")
-    train, sessions = train_test(cfg, ds, sessions)
-    check_output_names([s.id for s in train + sessions], "session")  # OUT/<session>/, OUT/fixes/<session>/
-    sessions, bmap_info = BM.with_source(sessions, bmap)
-    provider = build_fix_provider(cfg, methods, out)
-    own = {k: m for k, m in (provider.methods if provider else {}).items() if all(m is not x for x in methods.values())}
-    every = {**methods, **own}  # the fix localizers are calibrated and trained too (a row's own one: once)
-    calibration = calibrate(every, ds, sessions, cal_spec)
-    out.mkdir(parents=True, exist_ok=True)
-    ctx = RunContext(cache={}, fixes=provider, out=out)  # map geometry per floor, AHRS per session: shared
-    training = fit_trained(every, train, ctx) if train else {}
-    results = {"experiment": cfg.experiment.name, "title": cfg.experiment.get("title", ""), "dataset": str(ds.root),
-               "runs": runs, "sessions": [s.id for s in sessions], "init_s": float(cfg.init_s), "seed": int(cfg.seed),
-               "calibration": calibration, "methods": {}}
-    if model_info:
-        results["model"] = model_info
-    if plan_info is not None:
-        results["plan_error"] = {**asdict(plan_error), "buildings": plan_info}
-    if bmap.source != "given" or bmap.perturbed:
-        results["beacon_map"] = {**asdict(bmap), "buildings": bmap_info}
-    if train:
-        results["split"] = {**OmegaConf.to_container(cfg.split, resolve=True), "train": [s.id for s in train]}
-    fa = _floor_accuracy(cfg, train, sessions)
-    if fa is not None:
-        results["floor_accuracy"] = fa
-    dropped = dropped_rows(sessions)  # reads every stream and floor plan before the first method: no method's memory counts them
-    if dropped:
-        results["dropped"] = dropped
-    outcomes: dict[str, MethodOutcome] = {}
-    with _Progress(bool(cfg.get("progress", False)), len(methods) * len(sessions)) as progress:
-        for name, method in methods.items():
-            with PeakMemory(cfg.get("peak_memory", "none")) as mem:  # blenav.eval.leaderboard: rss | tracemalloc | none
-                oc = run_method(name, method, sessions, runs, int(cfg.seed), float(cfg.init_s), ctx, progress, bmap,
-                                hold_ends=bool((cfg.get("scoring") or {}).get("hold_ends", False)))
-            results["methods"][name] = aggregate(oc, runs)
-            if mem.result() is not None and oc.metrics:
-                results["methods"][name]["peak_memory"] = mem.result()
-            if training.get(name) is not None:
-                results["methods"][name]["training"] = training[name]
-            if oc.metrics:
-                outcomes[name] = oc
-    if provider is not None:
-        results["fixes"] = provider.describe()
-        key_of = {id(m): k for k, m in every.items()}  # every role under its own source, shared localizers too
-        fix_training = {provider.computed_source(r): training[key_of[id(m)]] for r, m in provider.localizers.items()
-                        if training.get(key_of.get(id(m))) is not None}
-        if fix_training:
-            results["fixes"]["training"] = fix_training
-    bounds = None
-    if cfg.experiment.get("kind") == "leaderboard":  # the PCRLB rows and families (blenav.eval.leaderboard)
-        from .leaderboard import finish
-
-        bounds = finish(results, ds, sessions, cfg)
-    write_outputs(out, results, outcomes, sessions, cfg, bounds)
-    return results
+        res.orientation_rmse_deg = float(np.mean(orient))
+    res.per_session = {k: {kk: vv for kk, vv in v.items() if kk != "_runs"} for k, v in oc.metrics.items()}
+    return res
 
 
 def dropped_rows(sessions: list) -> dict:
@@ -575,17 +449,16 @@ def dropped_rows(sessions: list) -> dict:
     return out
 
 
-def write_outputs(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions, cfg: DictConfig,
-                  bounds: dict | None = None) -> None:
-    """results.json, results.md and (unless ``plots=false``) the plots; ``bounds``: the leaderboard's
-    (:func:`blenav.eval.leaderboard.finish`), whose figures are drawn with the same error CDFs."""
-    write_json(out / "results.json", results)
+def write_outputs(out: Path, res: TrajectoryResult, outcomes: dict[str, MethodOutcome], sessions, cfg: EvalConfig,
+                  more_plots=None) -> None:
+    """results.json and results.md (:func:`blenav.eval.result.write_results`), the per-session files and (unless
+    ``plots=false``) the plots; ``more_plots(out, res, outcomes, sessions, grid, cdfs)``: an evaluator's own figures
+    (the leaderboard's, :meth:`blenav.eval.leaderboard.LeaderboardEvaluator.figures`), drawn with the same error
+    CDFs (``cdfs[name]``: the median over runs on ``grid``)."""
+    write_results(out, res, cfg.experiment)
     write_session_files(out, outcomes, sessions)
-    from .report import write_markdown
-
-    write_markdown(out / "results.md", results, cfg)
-    if cfg.get("plots", True):
-        _plots(out, results, outcomes, sessions, bounds)
+    if cfg.plots:
+        _plots(out, res, outcomes, sessions, more_plots)
 
 
 def write_session_files(out: Path, outcomes: dict[str, MethodOutcome], sessions) -> None:
@@ -620,7 +493,7 @@ def write_session_files(out: Path, outcomes: dict[str, MethodOutcome], sessions)
                         d / f"bias_{output_name(name)}.csv", index=False)
 
 
-def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], sessions, bounds: dict | None = None) -> None:
+def _plots(out: Path, res: TrajectoryResult, outcomes: dict[str, MethodOutcome], sessions, more_plots=None) -> None:
     from blenav import plotting
 
     grid = np.linspace(0, 15, 301)
@@ -629,10 +502,8 @@ def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], session
     for name, oc in outcomes.items():  # the error CDFs, built once: error_cdf.png and the leaderboard's
         R = next(iter(oc.results.values())).position.shape[0]
         cdfs[name] = cdf_band([np.concatenate([oc.metrics[s]["_runs"]["err"][r] for s in oc.metrics]) for r in range(R)], grid)
-    if bounds is not None:
-        from .leaderboard import plot
-
-        plot(out, results, outcomes, sessions, grid, {n: c[1] for n, c in cdfs.items()}, bounds)  # the medians
+    if more_plots is not None:
+        more_plots(out, res, outcomes, sessions, grid, {n: c[1] for n, c in cdfs.items()})  # the medians
     if not outcomes:
         return
     sessions = [s for s in sessions if all(s.id in oc.results for oc in outcomes.values())] or sessions
@@ -640,9 +511,9 @@ def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], session
         rmses[name] = np.concatenate([oc.metrics[s]["_runs"]["rmse"] for s in oc.metrics])
         first = sessions[0].id if sessions[0].id in oc.metrics else next(iter(oc.metrics))
         err_t[name] = (oc.metrics[first]["_runs"]["t"], oc.metrics[first]["_runs"]["err_all"])
-    plotting.save_figure(plotting.figure_error_cdf(grid, cdfs, results["title"]), out / "error_cdf.png")
-    plotting.save_figure(plotting.figure_rmse_box(rmses, results["title"]), out / "rmse_box.png")
-    plotting.save_figure(plotting.figure_error_over_time(err_t, results["init_s"], sessions[0].id),
+    plotting.save_figure(plotting.figure_error_cdf(grid, cdfs, res.title), out / "error_cdf.png")
+    plotting.save_figure(plotting.figure_rmse_box(rmses, res.title), out / "rmse_box.png")
+    plotting.save_figure(plotting.figure_error_over_time(err_t, res.init_s, sessions[0].id),
                          out / "error_over_time.png")
     s = sessions[0]
     tracks = {name: (oc.results[s.id].t, oc.results[s.id].position[0]) for name, oc in outcomes.items()
@@ -650,7 +521,7 @@ def _plots(out: Path, results: dict, outcomes: dict[str, MethodOutcome], session
     plotting.save_figure(plotting.figure_trajectories(s, tracks), out / "trajectories.png")
 
 
-class _Progress:
+class Progress:
     """A tqdm bar over method x session (or nothing); closed before any error is printed, so the error line
     is never drawn over by the bar."""
 

@@ -14,9 +14,10 @@ def train_ids(cfg) -> list[str]:
     (:func:`blenav.eval.harness.train_test`, the one source of the split), so that a beacon map estimated from them
     by ``blenav-map --sessions`` sees no test walk. The entry point composes ``cfg``
     (``python -m blenav.cli.realwalks train-ids DATA``)."""
+    from .config import parse_eval_config
     from .harness import open_dataset, scored_sessions, train_test
 
+    cfg = parse_eval_config(cfg)
     ds = open_dataset(cfg)
-    sessions, _ = scored_sessions(cfg, ds)
-    train, _ = train_test(cfg, ds, sessions)
+    train, _ = train_test(cfg, ds, scored_sessions(cfg, ds))
     return [s.id for s in train]

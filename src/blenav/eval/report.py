@@ -12,13 +12,14 @@ def _f(v, nd=2) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
 
 
-def write_markdown(path: Path, results: dict, cfg=None) -> None:
+def write_markdown(path: Path, results: dict, experiment=None) -> None:
     """results.md of an evaluation. Every experiment prints one frame: the heading and what was evaluated, what
     the methods were given (path-loss calibration, wrong plans, beacon map), the experiment's tables, then the
     map notes, the estimates kept on the floor, the rows dropped while reading, the paper comparison and the
-    plots. The tables: the papers' layout (:func:`_method_tables`), or for ``experiment.kind: leaderboard`` one
-    table sorted by RMSE with the PCRLB rows, peak memory and the skipped methods (:func:`_leaderboard_tables`)."""
-    leaderboard = cfg is not None and "experiment" in cfg and cfg.experiment.get("kind") == "leaderboard"
+    plots. The tables: the papers' layout (:func:`_method_tables`), or for the leaderboard one table sorted by RMSE
+    with the PCRLB rows, peak memory and the skipped methods (:func:`_leaderboard_tables`). ``experiment``: the
+    :class:`~blenav.eval.config.ExperimentConfig` (its evaluator, its ``paper``), or None."""
+    leaderboard = experiment is not None and experiment.is_leaderboard
     intro, tables, plots = (_leaderboard_tables if leaderboard else _method_tables)(results)
     ms = {n: m for n, m in results["methods"].items() if "rmse_m" in m}
     lines = [f"# {results['experiment']}: {results.get('title', '')}", "", intro, "",
@@ -27,7 +28,7 @@ def write_markdown(path: Path, results: dict, cfg=None) -> None:
     if notes:
         lines += ["", "Map notes:", ""] + [f"- {n}" for n in notes]
     lines += _confined_lines(ms) + _dropped_lines(results)
-    lines += _paper_comparison(results, ms, cfg)
+    lines += _paper_comparison(results, ms, experiment)
     lines += ["", plots]
     write_text(path, "\n".join(lines) + "\n")
 
@@ -234,10 +235,10 @@ def _calibration_line(results: dict) -> str:
             f"std {c['residual_std_db']:.1f} dB, {c['n_readings']} readings): {c['note']}.")
 
 
-def _paper_comparison(results: dict, ms: dict, cfg) -> list[str]:
+def _paper_comparison(results: dict, ms: dict, experiment) -> list[str]:
     """Does the measured RMSE ordering follow the paper's? Name every inverted pair and what the data
     say about it (the AHRS error for inertial models), so a reader sees at once where and why we differ."""
-    paper = (cfg.experiment.get("paper") if cfg is not None and "experiment" in cfg else None) or {}
+    paper = (experiment.paper if experiment is not None else None) or {}
     order = [m for m in paper.get("ordering", []) if m in ms]
     if len(order) < 2:
         return []
@@ -273,7 +274,7 @@ def _paper_comparison(results: dict, ms: dict, cfg) -> list[str]:
 
 # --------------------------------------------------------------------------- cross-phone (Roy, Tables 3.3-3.5)
 
-def write_crossphone_markdown(path: Path, results: dict, cfg=None) -> None:
+def write_crossphone_markdown(path: Path, results: dict, experiment=None) -> None:
     """Tables 3.3 (per phone mean/std), 3.4 (overall statistics) and 3.5 (per brand) of Roy, measured."""
     ms = results["methods"]
     names = list(ms)

@@ -7,7 +7,8 @@ naming it as ``_target_``; the evaluation harness needs no change.
 from .base import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext, Trained,
                    build_localizer)
 from .fixtrack import FixTrackLocalizer
+from .inputs import Fixes, RoleFixes, RunInputs
 from .particle import ParticleFilterLocalizer
 
-__all__ = ["Estimate", "FixConsumer", "FixTrackLocalizer", "Localizer", "ModelConsumer", "Trained",
-           "ParticleFilterLocalizer", "PathLossCalibrated", "RunContext", "build_localizer"]
+__all__ = ["Estimate", "FixConsumer", "FixTrackLocalizer", "Fixes", "Localizer", "ModelConsumer", "Trained",
+           "ParticleFilterLocalizer", "PathLossCalibrated", "RoleFixes", "RunContext", "RunInputs", "build_localizer"]

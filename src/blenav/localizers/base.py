@@ -4,7 +4,7 @@
 A :class:`Localizer` is built from its config node (``_target_`` plus its settings, see
 :func:`build_localizer`) and run on one session at a time::
 
-    est = localizer.run(session, n_runs, seed, ctx)   # -> Estimate
+    est = localizer.run(session, n_runs, seed, inputs)   # -> Estimate
 
 The evaluation harness knows nothing else about a method: it scores ``est.position`` against the
 session's ground truth, counts ``est.events``, and writes ``est.outputs`` where they are documented.
@@ -12,7 +12,8 @@ Methods that need something from the evaluation declare it by deriving from a ca
 
 * :class:`PathLossCalibrated`: path-loss parameters fitted on labelled data (``calibration=``);
 * :class:`FixConsumer`: position fixes of named roles (``dense``, ``sparse``) from the experiment's
-  ``fixes`` block, handed over in ``ctx.fixes``;
+  ``fixes`` block, resolved for the session before the run and handed over as arrays in ``inputs.fixes``
+  (:class:`~blenav.localizers.inputs.Fixes`): a localizer never calls back into the evaluation;
 * :class:`ModelConsumer`: a trained model given by path (``model_path``);
 * :class:`Trained`: a method that learns from the dataset's own labelled train sessions (fingerprinting:
   KNN, LocNet on WiFi/BLE scans) before it is run on the scored ones (the experiment's ``split``).
@@ -24,26 +25,17 @@ the method's ``skipped``. Bad settings or data raise ``ValueError``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable
 
 from blenav.filters.estimate import Estimate
 
-__all__ = ["Estimate", "RunContext", "Localizer", "PathLossCalibrated", "FixConsumer", "ModelConsumer",
-           "Trained", "build_localizer"]
+from .inputs import Fixes, RoleFixes, RunInputs
 
-@dataclass
-class RunContext:
-    """What the evaluation shares with every method of one experiment.
+__all__ = ["Estimate", "RunInputs", "Fixes", "RoleFixes", "RunContext", "Localizer", "PathLossCalibrated",
+           "FixConsumer", "ModelConsumer", "Trained", "build_localizer"]
 
-    ``cache``: a dict shared by all methods on the same sessions (per-floor map geometry, per-session AHRS;
-    keys are the methods' own); ``fixes``: the experiment's fix provider (:class:`blenav.eval.fixes.FixProvider`)
-    or None; ``out``: the evaluation's output folder (None outside an evaluation)."""
-
-    cache: dict = field(default_factory=dict)
-    fixes: Any = None
-    out: Path | None = None
+#: the name :class:`RunInputs` had when it carried the fix provider itself (localizers' signatures, scripts)
+RunContext = RunInputs
 
 
 class Localizer:
@@ -60,9 +52,9 @@ class Localizer:
     def __init__(self, name: str, shared=None):
         self.name = str(name)
 
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
+    def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         """All ``n_runs`` runs on ``session``, seeded by ``seed`` (a method without randomness returns R
-        identical runs)."""
+        identical runs); ``inputs``: what the run gives it besides the session (:class:`RunInputs`)."""
         raise NotImplementedError
 
     def __repr__(self) -> str:
@@ -81,9 +73,12 @@ class PathLossCalibrated:
 
 
 class FixConsumer:
-    """A method that weighs position fixes of named roles of the experiment's ``fixes`` block."""
+    """A method that weighs position fixes of named roles of the experiment's ``fixes`` block; its run finds them in
+    ``inputs.fixes[role]`` (:class:`~blenav.localizers.inputs.RoleFixes`)."""
 
-    def fix_roles(self) -> set[str]:
+    def fix_roles(self) -> list[str]:
+        """The roles, in the order the method reads them (the first that a session lacks is the reason it is
+        skipped there)."""
         raise NotImplementedError
 
 
@@ -102,7 +97,7 @@ class Trained:
     """A method that is trained on labelled sessions of the dataset it is evaluated on (the train walks of
     the experiment's ``split``), before it runs on the scored (test) sessions."""
 
-    def fit(self, sessions: list, ctx: RunContext) -> dict | None:
+    def fit(self, sessions: list, inputs: RunInputs) -> dict | None:
         """Train on ``sessions`` (labelled; a session whose ground truth is sparse waypoints,
         ``session.groundtruth_sparse``, gives labels only at or between its waypoints, and the method says how it
         used them). Returns a JSON-able report for ``methods.NAME.training`` in results.json, or None.

@@ -15,7 +15,8 @@ import numpy as np
 
 from blenav.errors import MissingStream
 
-from .base import Estimate, FixConsumer, Localizer, RunContext
+from .base import Estimate, FixConsumer, Localizer
+from .inputs import RunInputs
 
 
 class FixTrackLocalizer(Localizer, FixConsumer):
@@ -29,17 +30,17 @@ class FixTrackLocalizer(Localizer, FixConsumer):
         super().__init__(name, shared)
         self.role = str(role)
 
-    def fix_roles(self) -> set[str]:
-        return {self.role}
+    def fix_roles(self) -> list[str]:
+        return [self.role]
 
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
-        provider = ctx.fixes if ctx is not None else None
-        if provider is None:
+    def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
+        if inputs is None or inputs.fixes is None:
             raise ValueError(f"method {self.name} scores {self.role} fixes but the experiment has no fixes block")
         t0 = time.perf_counter()
-        t, xy, _ = provider.fixes_for(self.role, session)
+        f = inputs.fixes[self.role]  # MissingStream when the session has none
+        t, xy = f.t, f.xy
         if not len(t):
             raise MissingStream(f"no {self.role} fixes for session {session.id}")
         pos = np.broadcast_to(xy, (n_runs,) + xy.shape).copy()
-        wall = provider.compute_s.get((self.role, session.id), time.perf_counter() - t0)
+        wall = f.wall_s if f.wall_s is not None else time.perf_counter() - t0
         return Estimate(self.name, session.id, t, pos, None, [], {}, n_runs * wall, [])

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from blenav.filters.attitude import AttitudeConfig
@@ -32,7 +33,8 @@ from blenav.filters.runner import run_session
 from blenav.filters.steps import StepDetectorConfig
 from blenav.trust import UntrustedTargetError, safe_instantiate
 
-from .base import Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext
+from .base import Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated
+from .inputs import Fixes, RunInputs
 
 
 def _schema(cls, *nodes):
@@ -116,21 +118,41 @@ class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelC
     def apply_path_loss_fit(self, fit) -> None:
         apply_fit(self.method.measurements, fit)
 
-    def fix_roles(self) -> set[str]:
-        return {m.role for m in self.method.measurements if isinstance(m, FixLikelihood) and m.role is not None}
+    def fix_roles(self) -> list[str]:
+        """The fix roles of the filter's fix likelihoods, in the order it reads them (once each)."""
+        return list(dict.fromkeys(m.role for m in self.method.measurements
+                                  if isinstance(m, FixLikelihood) and m.role is not None))
+
 
     def attach_model(self, path: str | None, load: Callable[[str, Callable], Any]) -> str | None:
         # this module's loader looked up at call time (tests and other runtimes replace it)
         return map_prior.attach_prior(self.method.measurements, path, loader=lambda p: load(p, load_prior))
 
     # ------------------------------------------------------------------ run
-    def odometry_for(self, session, ctx: RunContext):
+    def odometry_for(self, session, inputs: RunInputs):
         """An odometry track (DataFrame t, x, y) to use in place of the session's odometry.csv, or None (use it); a
         subclass computes one (e.g. PDR odometry on phone walks, :class:`blenav.localizers.realwalk.RealWalkPF`)."""
         return None
 
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
-        ctx = ctx or RunContext()
-        extra = ctx.fixes.prepare(self.method, session) if ctx.fixes is not None else None
-        return run_session(self.method, session, n_runs, seed, cache=ctx.cache, fixes=extra,
-                           odometry=self.odometry_for(session, ctx))
+    def use_fixes(self, fixes: Fixes | None) -> pd.DataFrame | None:
+        """Point every fix likelihood that has a ``role`` at that role's fixes (its ``source``); returns the fixes to
+        add to the session's fixes.csv in memory (those computed for this run, once per source), or None."""
+        if fixes is None:
+            return None
+        extra, added = [], set()
+        for m in self.method.measurements:
+            if not isinstance(m, FixLikelihood) or m.role is None:
+                continue
+            f = fixes[m.role]  # MissingStream when the session has none
+            m.source = f.source
+            if f.computed and f.source not in added:
+                added.add(f.source)
+                extra.append(pd.DataFrame({"t": f.t, "x": f.xy[:, 0], "y": f.xy[:, 1], "std": f.std,
+                                           "source": f.source}))
+        return pd.concat(extra, ignore_index=True) if extra else None
+
+    def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
+        inputs = inputs or RunInputs()
+        extra = self.use_fixes(inputs.fixes)
+        return run_session(self.method, session, n_runs, seed, cache=inputs.cache, fixes=extra,
+                           odometry=self.odometry_for(session, inputs))

@@ -33,7 +33,8 @@ from __future__ import annotations
 import pandas as pd
 
 from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fit_step_length, pdr_odometry
-from blenav.localizers.base import Estimate, RunContext, Trained
+from blenav.localizers.base import Estimate, Trained
+from blenav.localizers.inputs import RunInputs
 from blenav.localizers.particle import ParticleFilterLocalizer
 
 __all__ = ["RealWalkPF"]
@@ -56,29 +57,29 @@ class RealWalkPF(ParticleFilterLocalizer, Trained):
         self.step_length = odo.get("step_length", DEFAULT_STEP_M)
         self.fitted_step: float | None = None
 
-    def fit(self, sessions: list, ctx: RunContext) -> dict | None:
+    def fit(self, sessions: list, inputs: RunInputs) -> dict | None:
         if self.odometry is None or self.step_length is not None:
             return None
         key = ("rw-step-length", tuple(s.id for s in sessions), repr(self.method.steps))  # per detector
-        if key not in ctx.cache:
-            ctx.cache[key] = fit_step_length(sessions, self.method.steps, ctx.cache)
-        self.fitted_step = float(ctx.cache[key]["step_length_m"])
-        return {"step_length": ctx.cache[key]}
+        if key not in inputs.cache:
+            inputs.cache[key] = fit_step_length(sessions, self.method.steps, inputs.cache)
+        self.fitted_step = float(inputs.cache[key]["step_length_m"])
+        return {"step_length": inputs.cache[key]}
 
     def _step(self) -> float:
         if self.step_length is not None:
             return float(self.step_length)
         return self.fitted_step if self.fitted_step is not None else DEFAULT_STEP_M
 
-    def odometry_for(self, session, ctx: RunContext) -> pd.DataFrame | None:
+    def odometry_for(self, session, inputs: RunInputs) -> pd.DataFrame | None:
         """The PDR odometry the filter runs on (None without ``odometry``: the session's odometry.csv)."""
         if self.odometry is None:
             return None
         return pdr_odometry(session, self.odometry.get("heading", "orientation"), self._step(), self.method.attitude,
-                            self.method.steps, ctx.cache)
+                            self.method.steps, inputs.cache)
 
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
-        est = super().run(session, n_runs, seed, ctx)
+    def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
+        est = super().run(session, n_runs, seed, inputs)
         if self.odometry is not None:
             est.notes.append(f"PDR odometry: heading from {self.odometry.get('heading', 'orientation')}, step "
                              f"{self._step():.3f} m")
