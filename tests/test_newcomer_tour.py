@@ -1,20 +1,25 @@
 """The five-minute tour on the ``small`` preset works as written (issue 19, section 4): simulate, train the
-scenario-2 localizer, export it, write its fixes -- four commands, no error. And the devices of the
+scenario-2 localizer, export it, write its fixes -- four commands, no error, and the test error train.py
+prints is the one of the fixes the exported model writes on the test phone's walk. And the devices of the
 cross-phone experiments follow the dataset (conf/experiment/crossphone_s2.yaml, resolver
 ``blenav.dataset_devices``)."""
 
 from __future__ import annotations
 
+import ast
 import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
 from blenav.configs import compose
+from blenav.data import Dataset
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -45,13 +50,28 @@ def test_the_tour_runs_on_the_small_preset(small, tmp_path):
     run = tmp_path / "run"
     r = _run([sys.executable, "train.py", "experiment=crossphone_s2", f"data={small}", f"out={run}",
               "trainer.max_epochs=1", "trainer.enable_progress_bar=false"])
-    assert "test/err_m" in r.stdout.strip().splitlines()[-1]
+    test_err = ast.literal_eval(r.stdout.strip().splitlines()[-1])["test/err_m"]  # train.py's last line: metrics
     r = _run([sys.executable, "export.py", f"ckpt={run / 'last.ckpt'}", f"out={run / 'model.onnx'}"])
     assert r.stdout.strip() == f"wrote {run / 'model.onnx'}"
     data = Path(shutil.copytree(small, tmp_path / "small"))  # fixes.csv goes into the dataset
     r = _run([BIN / "blenav-fixes", data, run / "model.onnx"])
     assert r.stdout.startswith("wrote ") and "to 2 session(s)" in r.stdout and not r.stderr.strip()
     assert len(list(data.glob("sessions/*/fixes.csv"))) == 2
+    # the printed test error is the exported model's: the mean distance of its fixes on the test phone's walk to
+    # the ground truth, over the windows the test step scores (each with a previous window, so not the first one;
+    # labelled, so ending within the ground truth); 4 decimals printed, fixes written to 0.1 mm
+    train_devices = yaml.safe_load((run / "config.yaml").read_text())["data"]["train_devices"]
+    test = [s for s in Dataset.open(data).sessions() if s.device_model not in train_devices]
+    assert [s.device_model for s in test] == ["pixel-3xl"]
+    err = []
+    for s in test:
+        fixes, gt = pd.read_csv(s.root / "fixes.csv"), s.groundtruth
+        fixes = fixes[fixes["t"] <= gt["t"].iloc[-1]].iloc[1:]
+        err.append(np.hypot(fixes["x"] - np.interp(fixes["t"], gt["t"], gt["x"]),
+                            fixes["y"] - np.interp(fixes["t"], gt["t"], gt["y"])))
+    assert test_err == pytest.approx(np.concatenate(err).mean(), abs=5e-4)
+    x0, x1, y0, y1 = test[0].floor.extent
+    assert np.isfinite(test_err) and 0 < test_err < np.hypot(x1 - x0, y1 - y0)  # inside the 20 x 15 m floor
     # --calibrate on a walk the model trained on warns (issue 19); on a walk it never saw, it does not
     from blenav.runtime import OnnxLocalizer
 
