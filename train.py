@@ -1,38 +1,9 @@
 """Train a learned localizer from a Hydra config: ``python train.py [overrides]`` (see conf/train.yaml);
 ``model=NAME`` chooses the network config (conf/model/NAME.yaml), as everywhere. Errors the user can fix
-print one line (``--debug`` shows the traceback); an interrupted run resumes from OUT/last.ckpt."""
+print one line (``--debug`` shows the traceback); an interrupted run resumes from OUT/last.ckpt.
+The same as ``blenav-train``: :mod:`blenav.cli.train` (the work: :func:`blenav.learn.train.train`)."""
 
-import sys
-
-from omegaconf import DictConfig, OmegaConf
-
-from blenav.cli.common import run_hydra
-from blenav.configs import cli_overrides
-
-
-def task(cfg: DictConfig) -> float | None:
-    """Train; returns ``metrics[cfg.optimized_metric]`` when that is set (the objective of a hyper-parameter
-    sweep, ``hparams_search=crossphone_optuna``), else None."""
-    from blenav.learn.train import train
-
-    if OmegaConf.is_missing(cfg.data, "path") or not cfg.data.get("path"):
-        raise ValueError("name the dataset to train on: data=DIR (a format-v1 dataset folder)")
-    metrics, _ = train(cfg)
-    print({k: round(v, 4) for k, v in metrics.items()})
-    key = cfg.get("optimized_metric")
-    if key:
-        if key not in metrics:
-            raise ValueError(f"optimized_metric={key!r} was not measured; measured: {sorted(metrics)}")
-        from blenav.learn.common.sweep import record_trial
-
-        record_trial(cfg, float(metrics[key]))
-        return float(metrics[key])
-    return None
-
-
-def main() -> None:
-    run_hydra("train.py", "train", task, sys.argv[1:], convert=cli_overrides)  # data=DIR -> data.path=DIR
-
+from blenav.cli.train import main
 
 if __name__ == "__main__":
     main()

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib.util
 import json
 import os
 import sys
@@ -37,7 +36,6 @@ import pandas as pd
 
 from timing import timed_updates
 
-REPO = Path(__file__).resolve().parents[1]
 BUDGET_MS = 5.0
 WARM_S = 10.0
 
@@ -56,6 +54,7 @@ def build(work: Path) -> dict:
     export the bundle. Latency does not depend on how well they are trained."""
     from blenav.cli.sim import run as sim_run
     from blenav.configs import compose
+    from blenav.learn.bundle import export_bundle
     from blenav.learn.train import train
 
     data = work / "data"
@@ -65,11 +64,8 @@ def build(work: Path) -> dict:
                   "trainer.max_epochs=150", "model.lr=3e-3"))
     train(compose("train", "experiment=mapprior", f"data={data}", f"out={work / 'mp'}", "trainer.enable_progress_bar=false",
                   "data.samples_per_epoch=64", "data.val_samples=32", "trainer.max_epochs=1", "early_stopping=null"))
-    spec = importlib.util.spec_from_file_location("blenav_export_script", REPO / "export.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    mod.bundle(compose("export", "bundle=true", f"ckpt={work / 'loc' / 'last.ckpt'}", f"out={work / 'B'}",
-                       f"mapprior={work / 'mp' / 'last.ckpt'}", f"data={data}", "eval_sessions=1"))
+    export_bundle(compose("export", "bundle=true", f"ckpt={work / 'loc' / 'last.ckpt'}", f"out={work / 'B'}",
+                          f"mapprior={work / 'mp' / 'last.ckpt'}", f"data={data}", "eval_sessions=1"))
     return {"bundle": work / "B", "ckpt": work / "loc" / "last.ckpt", "mapprior": work / "mp" / "last.ckpt",
             "data": data}
 

@@ -1,7 +1,8 @@
 """The runtime bundle (issue 18, section 1 and the bundle item of section 4).
 
-- round trip: ``export.py bundle=true`` writes the localizer, the map prior, their ORT and int8 variants (measured in
-  the manifest), settings and the building's signature; every variant opens and localizes;
+- round trip: ``export_bundle(cfg)`` (``export.py bundle=true``) writes the localizer, the map prior, their ORT and
+  int8 variants (measured in the manifest), settings and the building's signature; every variant opens and
+  localizes; ``python export.py bundle=true`` writes the same files; what it refuses fails before a bundle is left;
 - the CLI writes t,x,y,std, one row per filter step; its imports and its run load no torch, lightning or hydra;
 - refusal: another building's beacons (missing, extra, moved) or floor plan, or a changed file, are named;
 - parity: the bundle (onnxruntime, push API) reproduces the PyTorch pipeline (torch networks, batch windows,
@@ -10,7 +11,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
 import subprocess
@@ -23,6 +23,7 @@ import pytest
 
 from blenav.configs import compose
 from blenav.data import Dataset
+from blenav.learn.bundle import export_bundle
 from blenav.learn.export import export
 from blenav.learn.train import train
 from blenav.runtime import Bundle, BuildingMismatch
@@ -36,13 +37,6 @@ TINY_MP = ["trainer.enable_progress_bar=false", "data.samples_per_epoch=64", "da
            "trainer.max_epochs=1", "early_stopping=null"]
 
 
-def _export_py():
-    spec = importlib.util.spec_from_file_location("blenav_export_script", REPO / "export.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):
     """A 'small' building with 3 one-minute walks, a tiny LocNet and map prior, and their bundle."""
@@ -54,7 +48,7 @@ def made(tmp_path_factory):
     train(compose("train", "experiment=mapprior", f"data={data}", f"out={root / 'mp'}", *TINY_MP))
     cfg = compose("export", "bundle=true", f"ckpt={root / 'loc' / 'last.ckpt'}", f"out={root / 'B'}",
                   f"mapprior={root / 'mp' / 'last.ckpt'}", f"data={data}", "eval_sessions=1")
-    _export_py().bundle(cfg)
+    assert export_bundle(cfg) == root / "B"
     return {"root": root, "data": data, "bundle": root / "B", "loc": root / "loc" / "last.ckpt",
             "mp": root / "mp" / "last.ckpt"}
 
@@ -79,6 +73,47 @@ def test_round_trip_files_variants_and_manifest(made):
     for v in m["variants_available"]:
         est = Bundle.open(B, variant=v).run_session(s, seed=1)
         assert len(est) > 30 and all(np.isfinite([e.x, e.y, e.std]).all() for e in est)
+
+
+def test_export_py_writes_the_same_bundle(made, tmp_path):
+    """``python export.py bundle=true`` (the entry point over export_bundle) from the same checkpoints: without
+    variants, the same graphs, settings and building byte for byte, and the summary names the bundle."""
+    out = tmp_path / "C"
+    r = subprocess.run([sys.executable, "export.py", "bundle=true", "variants=false", f"ckpt={made['loc']}",
+                        f"out={out}", f"mapprior={made['mp']}", f"data={made['data']}", "eval_sessions=1"],
+                       cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.startswith(f"wrote bundle {out}: building 'small', 8 beacons, map prior: yes, variants ['float']")
+    m = json.loads((out / MANIFEST).read_text())
+    assert m["variants_available"] == ["float"] and not (tmp_path / "C.part").exists()
+    assert len(m["files"]) == 6 and set(m["files"]) < set(json.loads((made["bundle"] / MANIFEST).read_text())["files"])
+    for f in m["files"]:
+        assert (out / f).read_bytes() == (made["bundle"] / f).read_bytes(), f
+
+
+def test_export_bundle_refuses_before_leaving_a_bundle(made, tmp_path):
+    """Each refusal names what is wrong; none leaves OUT or OUT.part behind."""
+    def cfg(*over):
+        return compose("export", "bundle=true", f"ckpt={made['loc']}", f"out={tmp_path / 'B'}", f"data={made['data']}",
+                       "eval_sessions=1", "variants=false", *over)
+
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(ValueError, match=r"out=.*/f exists and is not a bundle"):
+        export_bundle(cfg(f"out={tmp_path / 'f'}"))
+    with pytest.raises(ValueError, match=r"is a map prior: a bundle is made around a cross-phone localizer"):
+        export_bundle(cfg(f"ckpt={made['mp']}"))
+    with pytest.raises(FileNotFoundError, match=r"dataset .*/nope \(the localizer's training data\) does not exist"):
+        export_bundle(cfg(f"data={tmp_path / 'nope'}"))
+    data = Path(shutil.copytree(made["data"], tmp_path / "d2"))
+    anchors = next((data / "buildings").iterdir()) / "anchors.csv"
+    a = pd.read_csv(anchors)
+    a.loc[a.index[a["kind"] == "ble"][0], "x"] += 2.0
+    a.to_csv(anchors, index=False)
+    with pytest.raises(BuildingMismatch, match=r"building 'small' is not the one the localizer was trained on: .*moved"):
+        export_bundle(cfg(f"data={data}"))
+    with pytest.raises(FileNotFoundError, match=r"mapprior=.*/nope.ckpt does not exist"):
+        export_bundle(cfg(f"mapprior={tmp_path / 'nope.ckpt'}"))  # after the localizer's export: the .part goes
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d2", "f"]
 
 
 def test_cli_writes_t_x_y_std_and_loads_no_torch(made, tmp_path):

@@ -3,7 +3,7 @@
 The import graph of ``src/blenav/learn`` (every import: module level, lazy and type-only, as tests/test_layers.py
 counts them) has these edges between its packages only: ``common`` imports no model package; ``crossphone`` and
 ``mapprior`` import ``common`` and not each other; ``fingerprint`` runs the cross-phone pipeline (``crossphone``,
-``common`` and the ``train`` entry); the entries ``train``, ``export`` and ``reference`` sit above the models.
+``common`` and the ``train`` entry); the entries ``train``, ``export`` (and ``bundle`` over it) and ``reference`` sit above the models.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ ALLOWED = {
     "fingerprint": {"common", "crossphone", "fingerprint", "train"},
     "train": {"crossphone", "mapprior"},
     "export": {"common", "crossphone", "mapprior"},
+    "bundle": {"common", "export"},
     "reference": {"crossphone", "mapprior"},
 }
 

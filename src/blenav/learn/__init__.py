@@ -6,6 +6,7 @@
 - :mod:`blenav.learn.mapprior`: the learned map prior;
 - :mod:`blenav.learn.fingerprint`: LocNet / TransNet+LocNet on fingerprint windows of real walks;
 - the entries over them: :func:`blenav.learn.train.train` (``python train.py``; ``cfg.task`` picks the model),
-  :func:`blenav.learn.export.export` (``python export.py``; the checkpoint's kind picks the export) and
+  :func:`blenav.learn.export.export` (``python export.py``; the checkpoint's kind picks the export),
+  :func:`blenav.learn.bundle.export_bundle` (``python export.py bundle=true``: a runtime bundle) and
   :mod:`blenav.learn.reference` (the PyTorch pipeline a runtime bundle of both models must reproduce).
 """

@@ -1,0 +1,109 @@
+"""``export_bundle(cfg)``: ``python export.py bundle=true ckpt=RUN/last.ckpt out=BUNDLE [mapprior=...] [data=DIR]``
+(conf/export.yaml's bundle keys) as a plain function: a cross-phone localizer checkpoint, its building and optionally
+a map prior -> one runtime bundle folder (:mod:`blenav.runtime.bundle` lays it out, measures the variants and writes
+manifest.json). It lives in learn/ because the localizer is traced to ONNX from its torch checkpoint here.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from types import SimpleNamespace
+
+from omegaconf import DictConfig, OmegaConf
+
+from blenav.data import Dataset
+from blenav.runtime.bundle import LOCALIZER, MANIFEST, MAP_DIR, finish_bundle, variant_name
+from blenav.runtime.map_prior import MapPrior
+from blenav.runtime.signature import BuildingMismatch, building_signature, compare
+from blenav.trust import check_targets
+
+from .common.checkpoint import read_meta
+from .export import export
+
+
+def _data_path(cfg: DictConfig, meta: dict) -> str | None:
+    """The dataset of the localizer: ``data=``, else the path the checkpoint records, else RUN/config.yaml's."""
+    if OmegaConf.select(cfg, "data.path", default=None):
+        return str(cfg.data.path)
+    if meta.get("data_path"):
+        return str(meta["data_path"])
+    run_cfg = Path(cfg.ckpt).parent / "config.yaml"
+    if run_cfg.is_file():
+        node = OmegaConf.load(run_cfg)
+        path = OmegaConf.select(node, "data.path", default=None)
+        return str(path) if path else None
+    return None
+
+
+def export_bundle(cfg: DictConfig) -> Path:
+    """Write the runtime bundle of conf/export.yaml's bundle keys into ``cfg.out`` (replacing a bundle there); returns
+    ``cfg.out``. It is built in ``OUT.part`` and renamed when whole, so a failure leaves no half bundle. The
+    checkpoint must be a localizer of the dataset's building (same signature); the variants' pipeline runs on up to
+    ``cfg.eval_sessions`` labelled sessions of that building, the ones not trained on when there are such."""
+    out = Path(cfg.out)
+    if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / MANIFEST).is_file())):
+        raise ValueError(f"out={out} exists and is not a bundle: choose a new folder")
+    if not Path(cfg.ckpt).is_file():
+        raise FileNotFoundError(f"checkpoint {cfg.ckpt} does not exist")
+    meta = read_meta(cfg.ckpt)
+    if meta.get("kind") == "mapprior":
+        raise ValueError(f"ckpt={cfg.ckpt} is a map prior: a bundle is made around a cross-phone localizer "
+                         "(ckpt=RUN/last.ckpt of train.py experiment=crossphone_*); pass the map prior as mapprior=...")
+    path = _data_path(cfg, meta)
+    building, sessions = None, []
+    if path:
+        if not Path(path).is_dir():
+            raise FileNotFoundError(f"dataset {path} (the localizer's training data) does not exist: pass data=DIR")
+        ds = Dataset.open(path)
+        if meta.get("building") not in ds.building_ids:
+            raise ValueError(f"dataset {path} has no building {meta.get('building')!r} (the localizer's; it has "
+                             f"{ds.building_ids})")
+        building = ds.building(meta["building"])
+        trained = set(meta.get("train_sessions") or [])
+        mine = [s for s in ds.sessions(labelled=True) if s.meta.get("building") == building.id
+                and len(s.rssi) and len(s.groundtruth)]
+        if "odometry" in str(cfg.runtime.motion.get("_target_", "")).lower():
+            mine = [s for s in mine if len(s.odometry)]
+        unseen = [s for s in mine if s.id not in trained]
+        sessions = (unseen or mine)[: int(cfg.eval_sessions)]
+    sig = meta.get("building_signature")
+    if sig is None and building is None:
+        raise ValueError("the bundle needs the localizer's building (beacons, floor plans) and the checkpoint does "
+                         "not record it: name its dataset, data=DIR")
+    if building is not None:
+        here = building_signature(building)
+        if sig is not None and compare(sig, here):
+            raise BuildingMismatch(f"dataset {path}: building {building.id!r} is not the one the localizer was trained "
+                                   f"on: {'; '.join(compare(sig, here))}")
+        sig = sig or here
+    tmp = out.with_name(out.name + ".part")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        opset = int(cfg.get("opset") or 17)
+        export(SimpleNamespace(ckpt=str(cfg.ckpt), out=str(tmp / variant_name(LOCALIZER, "float")), opset=opset))
+        models = {"localizer": {"checkpoint": str(Path(cfg.ckpt).resolve()), "building": meta.get("building"),
+                                "data_hash": meta.get("data_hash")}}
+        if cfg.get("mapprior"):
+            mp = Path(cfg.mapprior)
+            if mp.is_dir():
+                MapPrior(mp)  # checks the export (hashes) before it is copied
+                shutil.copytree(mp, tmp / MAP_DIR, ignore=shutil.ignore_patterns("dmt_*"))
+            elif mp.is_file():
+                if read_meta(mp).get("kind") != "mapprior":
+                    raise ValueError(f"mapprior={mp} is not a map prior checkpoint (train.py experiment=mapprior)")
+                export(SimpleNamespace(ckpt=str(mp), out=str(tmp / MAP_DIR), opset=opset))
+            else:
+                raise FileNotFoundError(f"mapprior={mp} does not exist (a last.ckpt or an export directory)")
+            models["map_prior"] = {"source": str(mp.resolve())}
+        settings = OmegaConf.to_container(cfg.runtime, resolve=True)
+        check_targets(settings, "export config", prefix="runtime")  # settings.json may name only blenav's classes
+        finish_bundle(tmp, sig, settings, variants=bool(cfg.variants), sessions=sessions,
+                      extra={"models": models, "data": str(Path(path).resolve()) if path else None})
+        shutil.rmtree(out, ignore_errors=True)
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)  # never leave half a bundle
+        raise
+    return out
