@@ -6,11 +6,13 @@ Runs ``blenav-eval`` in this process under :func:`sys.settrace` and, at every ca
 looks at its arguments: a call *receives the config* when an argument is an omegaconf DictConfig / ListConfig (the
 composed one, one of its nodes, or one built from them: the localizers' ``shared`` settings, the cross-phone training
 config), or the parsed :class:`blenav.eval.config.EvalConfig` or any dict, list or dataclass reachable from it (e.g.
-a ``methods`` node handed to ``build_localizer``). Prints the number of distinct modules and of distinct
-functions ("stops") that received it, and the modules, in the order first reached; then the calls from a localizer
+a ``methods`` node handed to ``build_localizer``); ``self`` does not count (a config object's own methods). Prints
+the number of distinct modules and of distinct functions ("stops") that received it, and the modules, in the order
+first reached; then the calls from a localizer
 (``blenav.localizers``, ``blenav.backend``) into ``blenav.eval`` (a localizer calling back up into the evaluation).
 Counts calls, not imports; a module that reads the config through an attribute of an object it was given (not an
-argument) is not counted. Also the count of modules that receive the composed DictConfig itself or one of its nodes.
+argument) is not counted. Also the count of modules that receive the composed DictConfig itself, a copy of it (its
+root has the eval root's keys), or one of their nodes.
 """
 
 from __future__ import annotations
@@ -54,8 +56,10 @@ def main(args: list[str]) -> None:
 
     def kind(v) -> str | None:
         if isinstance(v, (DictConfig, ListConfig)):
-            try:
-                return "raw" if any(v._get_root() is r for r in roots) else "built"
+            try:  # the composed eval config, a node of it, or a copy of it (its root has the eval root's keys)
+                root = v._get_root()
+                copy = {"experiment", "data", "runs"} <= set(root)
+                return "raw" if copy or any(root is r for r in roots) else "built"
             except Exception:  # noqa: BLE001 -- a node in construction
                 return "built"
         if type(v).__name__ == "EvalConfig" and id(v) not in seen_typed:
@@ -84,6 +88,8 @@ def main(args: list[str]) -> None:
         if code.co_flags & 0x08:  # **kwargs
             n = code.co_argcount + code.co_kwonlyargcount + bool(code.co_flags & 0x04)
             vals += list(loc.get(code.co_varnames[n], {}).values())
+        if names and names[0] == "self":  # a method of the config object itself (a property) is not a stop
+            vals = vals[1:]
         kinds = {kind(v) for v in vals} - {None}
         if kinds:
             stops.setdefault((mod, code.co_name), None)
