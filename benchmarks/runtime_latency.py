@@ -71,7 +71,8 @@ def build(work: Path) -> dict:
 
 
 class TorchGraph:
-    """The checkpoint's LocNet in PyTorch eager, with the interface of :class:`blenav.runtime.bundle.LocalizerGraph`."""
+    """The checkpoint's LocNet in PyTorch eager, with the interface of
+    :class:`blenav.runtime.bundle.graphs.LocalizerGraph`."""
 
     def __init__(self, ckpt: Path):
         import torch

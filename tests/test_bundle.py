@@ -140,7 +140,7 @@ print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "
 def test_bundle_graph_is_the_onnx_localizer_code(made):
     """The bundle's localizer graph and OnnxLocalizer share one implementation (LocalizerSession): the same sizes,
     beacons and, on the same windows, the same (K, 2) m to the bit; NaN where nothing was heard."""
-    from blenav.runtime.bundle import LocalizerGraph
+    from blenav.runtime.bundle.graphs import LocalizerGraph
     from blenav.runtime.onnx_localizer import LocalizerSession, OnnxLocalizer
 
     g = Bundle.open(made["bundle"]).graph

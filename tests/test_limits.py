@@ -119,7 +119,7 @@ def test_bundle_settings_memory_refused_with_the_number(tmp_path, monkeypatch):
 
 
 def test_bundle_settings_rates_and_windows_are_bounded(tmp_path):
-    from blenav.runtime.bundle import check_settings
+    from blenav.runtime.bundle.settings import check_settings
 
     with pytest.raises(LimitError, match=r"S: filter.rate_hz = 0 is outside \[0.001, 1,000\] Hz"):
         check_settings({"filter": {"rate_hz": 0}, "motion": {}}, "S")

@@ -35,8 +35,9 @@ from blenav.cli.common import _hydra_args
 from blenav.learn.crossphone.checkpoint import build_networks, load_module
 from blenav.learn.export import export
 from blenav.learn.mapprior.checkpoint import build_net, load_mapprior
-from blenav.runtime.bundle import (DEFAULT_SETTINGS, FORMAT, MANIFEST, MOTION_TARGETS, Bundle, build_method,
-                                   verify_files)
+from blenav.runtime.bundle import DEFAULT_SETTINGS, FORMAT, MANIFEST, Bundle
+from blenav.runtime.bundle.settings import MOTION_TARGETS, build_method
+from blenav.runtime.bundle.verify import verify_files
 from blenav.trust import (HYDRA_TARGETS, TARGETS, UntrustedTargetError, check_hydra_node, check_targets,
                           safe_instantiate)
 

@@ -13,7 +13,8 @@ from types import SimpleNamespace
 from omegaconf import DictConfig, OmegaConf
 
 from blenav.data import Dataset
-from blenav.runtime.bundle import LOCALIZER, MANIFEST, MAP_DIR, finish_bundle, variant_name
+from blenav.runtime.bundle import LOCALIZER, MANIFEST, MAP_DIR, variant_name
+from blenav.runtime.bundle.write import finish_bundle
 from blenav.runtime.map_prior import MapPrior
 from blenav.runtime.signature import BuildingMismatch, building_signature, compare
 from blenav.trust import check_targets

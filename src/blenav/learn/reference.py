@@ -22,7 +22,8 @@ def torch_pipeline(bundle, ckpt: Path, mapprior_ckpt: Path, session, seed: int):
     from blenav.learn.crossphone.checkpoint import load_module
     from blenav.learn.crossphone.export import streaming_net
     from blenav.learn.mapprior.checkpoint import load_map_prior
-    from blenav.runtime.bundle import FIX_SOURCE, build_method
+    from blenav.runtime.bundle import FIX_SOURCE
+    from blenav.runtime.bundle.settings import build_method
 
     module, meta = load_module(ckpt)
     net = streaming_net(module, meta)

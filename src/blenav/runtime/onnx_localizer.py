@@ -41,7 +41,7 @@ class LocalizerSession:
     """The graph of an exported localizer in an onnxruntime session ``sess`` (inputs S (K, B, H), h0, c0 (layers, K,
     hidden); outputs xy (K, 2) m, h, c) with its decoded metadata ``meta``: the sizes B, H, layers and hidden read
     from the graph, and :meth:`predict_windows` from a zero LSTM state. What :class:`OnnxLocalizer` (one exported
-    file) and a runtime bundle's graph (:class:`blenav.runtime.bundle.LocalizerGraph`) share."""
+    file) and a runtime bundle's graph (:class:`blenav.runtime.bundle.graphs.LocalizerGraph`) share."""
 
     def __init__(self, path: str | Path, meta: dict, sess):
         self.path, self._meta, self._sess = Path(path), meta, sess
