@@ -15,7 +15,7 @@ Config node (``conf/localizer/backend.yaml``)::
     range_from_front_end: true  # the back-end's path loss = the front-end's PathLossRange (after any fit)
 
 Two methods of an experiment that differ only in ``label`` and ``estimate`` (F-end, B-end) share one computation
-per session (``ctx.cache``).
+per session (``inputs.cache``).
 
 ``outputs``: ``beacon_map`` (DataFrame anchor_id, x, y, z, std_m, n_ranges, status: the final smoothing's map,
 mean over back-ends when ``per_run``), ``smoothed`` (R, K, 2), ``front_end`` (R, K, 2) the closed-loop filter,
@@ -37,7 +37,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from blenav.errors import MissingStream
 from blenav.filters.measurement import PathLossRange
-from blenav.localizers.base import Estimate, Localizer, PathLossCalibrated, RunContext
+from blenav.localizers.base import Estimate, Localizer, PathLossCalibrated, RunInputs
 
 from .config import load_backend_config
 from .inputs import beacon_priors, path_loss_model, session_attitude, session_imu, session_ranges
@@ -96,7 +96,7 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
         return path_loss_model(self.cfg)
 
     # ------------------------------------------------------------------ run
-    def _inputs(self, session, ctx: RunContext):
+    def _inputs(self, session, inputs: RunInputs):
         """(imu, ranges, beacons, attitude) of the session for the back-end."""
         if not session.has("imu"):
             raise MissingStream("no IMU data, which the back-end's preintegrated IMU factors need")
@@ -111,9 +111,9 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
         beacons = beacon_priors(anchors, self.cfg.priors.beacon_sigma_m, self.cfg.priors.beacon_sigma_z_m)
         ranges = session_ranges(session, beacons, self._range_model(), anchors)
         key = ("backend-ahrs", session.id, repr(self.front.method.attitude))
-        if key not in ctx.cache:
-            ctx.cache[key] = session_attitude(session, self.front.method.attitude)
-        return session_imu(session), ranges, beacons, ctx.cache[key]
+        if key not in inputs.cache:
+            inputs.cache[key] = session_attitude(session, self.front.method.attitude)
+        return session_imu(session), ranges, beacons, inputs.cache[key]
 
     def _key(self, session, n_runs: int, seed: int) -> tuple:
         """What the computation depends on: the settings (not label / estimate), the session and its map."""
@@ -122,30 +122,30 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
         return ("closed-loop", session.id, int(n_runs), int(seed), self.per_run, self.range_from_front_end,
                 self._settings, repr(self.cfg), fp)
 
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
+    def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         """The closed loop on ``session`` (computed once per session for F-end / B-end pairs); ``wall_s`` is the
         whole computation's."""
-        ctx = ctx or RunContext()
+        inputs = inputs or RunInputs()
         key = self._key(session, n_runs, seed)
-        shared = ctx.cache.get(key)
+        shared = inputs.cache.get(key)
         if shared is None:
-            shared = self._compute(session, n_runs, seed, ctx)
-            ctx.cache[key] = shared
+            shared = self._compute(session, n_runs, seed, inputs)
+            inputs.cache[key] = shared
         t, front, smoothed, bias, outputs, events, notes, wall = shared
         pos = smoothed if self.estimate == "smoothed" else front
         outputs = {**outputs, "smoothed": smoothed, "front_end": front, "bias": bias}
         return Estimate(self.name, session.id, t, pos, None, events, outputs, wall, list(notes))
 
-    def _compute(self, session, n_runs: int, seed: int, ctx: RunContext) -> tuple:
+    def _compute(self, session, n_runs: int, seed: int, inputs: RunInputs) -> tuple:
         t0 = time.perf_counter()
-        imu, ranges, beacons, att = self._inputs(session, ctx)
+        imu, ranges, beacons, att = self._inputs(session, inputs)
         method = self.front.method
         loops = ([(n_runs, seed)] if not self.per_run
                  else [(1, int(s)) for s in np.random.SeedSequence(seed).generate_state(n_runs)])
         fronts, smooths, biases, maps, secs, fails, notes, events, offsets = [], [], [], [], [], [], [], [], []
         n_feedbacks = 0
         for i, (R, sd) in enumerate(loops):
-            out = run_closed_loop(method, session, R, sd, self.cfg, imu, ranges, beacons, att, ctx.cache)
+            out = run_closed_loop(method, session, R, sd, self.cfg, imu, ranges, beacons, att, inputs.cache)
             f = out.front
             fronts.append(f.position)
             events += f.events

@@ -27,7 +27,7 @@ from blenav.errors import MissingStream
 from blenav.filters.calibration import apply_fit
 from blenav.filters.measurement import AnchorTable, PathLossRange
 
-from .base import Estimate, Localizer, PathLossCalibrated, RunContext
+from .base import Estimate, Localizer, PathLossCalibrated, RunInputs
 
 
 class WeightedCentroidLocalizer(Localizer, PathLossCalibrated):
@@ -56,7 +56,7 @@ class WeightedCentroidLocalizer(Localizer, PathLossCalibrated):
     def apply_path_loss_fit(self, fit) -> None:
         apply_fit([self.path_loss], fit)
 
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
+    def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         t0 = time.perf_counter()
         anchors = AnchorTable.from_frame(session.building.anchors, "ble")
         known = np.isfinite(anchors.xyz[:, :2]).all(axis=1)

@@ -50,7 +50,7 @@ from blenav.filters.attitude import AttitudeConfig, estimate_attitude, yaw_of_de
 from blenav.filters.steps import StepDetectorConfig, step_flags
 from blenav.limits import check_range
 
-from .base import Estimate, Localizer, RunContext
+from .base import Estimate, Localizer, RunInputs
 
 __all__ = ["CrfLocalizer", "MODALITIES", "parse_modalities"]
 
@@ -144,18 +144,18 @@ class CrfLocalizer(Localizer):
             raise MissingStream(f"session {session.id} has no visual fixes (visual.csv absent or empty): online "
                                 f"calibration of {self.name} calibrates at visual fixes (004 sec. V-B)")
 
-    def _grid(self, session, ctx: RunContext | None):
+    def _grid(self, session, inputs: RunInputs | None):
         key = ("crf-grid", session.building.id, str(session.meta.get("floor")), self.cell_m, self.max_step_m,
                self.min_free_fraction)
-        cache = ctx.cache if ctx is not None else {}
+        cache = inputs.cache if inputs is not None else {}
         if key not in cache:
             cache[key] = build_grid(session.floor, self.cell_m, self.max_step_m, self.min_free_fraction)
         return cache[key]
 
-    def _imu(self, session, ctx: RunContext | None):
+    def _imu(self, session, inputs: RunInputs | None):
         """(step times (S,) s, step AHRS yaw (S,) rad, IMU times (T,), AHRS yaw (T,), q (T, 4)) of the session."""
         key = ("crf-imu", session.id, repr(self.attitude), repr(self.steps))
-        cache = ctx.cache if ctx is not None else {}
+        cache = inputs.cache if inputs is not None else {}
         if key not in cache:
             # imu_features' AHRS and its step detector, the latter compiled (blenav.filters.steps.step_flags: same flags)
             c = np.ascontiguousarray
@@ -172,11 +172,11 @@ class CrfLocalizer(Localizer):
             cache[key] = (imu_t[flags], yaw[flags], imu_t, yaw, q)
         return cache[key]
 
-    def _offline(self, session, ctx, wifi, ble):
+    def _offline(self, session, inputs, wifi, ble):
         # per session: the static sessions are those of the building other than the session itself
         key = ("crf-offline", str(session.root.parent.parent), session.id, self.ble_n, self.ble_min_rssi_dbm,
                self.rtt_min_wifi_rssi_dbm)
-        cache = ctx.cache if ctx is not None else {}
+        cache = inputs.cache if inputs is not None else {}
         if key not in cache:
             stat = static_sessions(session, cache)
             cache[key] = (offline_calibration(stat, wifi, ble, self.ble_n, self.ble_min_rssi_dbm,
@@ -204,12 +204,12 @@ class CrfLocalizer(Localizer):
         return unary
 
     # ------------------------------------------------------------------ run
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
+    def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         t0 = time.perf_counter()
         self._check_streams(session)
         wifi, ble = anchor_tables(session.building, session.meta.get("floor"))
         notes: list[str] = []
-        grid = self._grid(session, ctx)
+        grid = self._grid(session, inputs)
         t_first, t_last = session_span(session)
         K = window_count(t_first, t_last, self.window_s)
         radio = preprocess(session, t_first, K, self.window_s, self.ble_min_rssi_dbm, self.rtt_min_wifi_rssi_dbm,
@@ -219,14 +219,14 @@ class CrfLocalizer(Localizer):
         ble_prior = np.where(np.isfinite(ble.tx_power_dbm), ble.tx_power_dbm, self.ble_tx_default)
         base = Calibration.empty(len(wifi.ids), len(ble.ids))
         if self.calibration == "offline":
-            cal, ids = self._offline(session, ctx, wifi, ble)
+            cal, ids = self._offline(session, inputs, wifi, ble)
             if cal is None:
                 raise MissingStream(f"offline calibration of {self.name} needs labelled static points (sessions with "
                                     f"carrier: static in building {session.meta.get('building')}); the dataset has none")
             base = cal
             notes.append(f"offline calibration from static session(s) {', '.join(ids)}")
         track = CalibrationTrack.constant(base, ble_prior)
-        imu = self._imu(session, ctx) if "IMU" in self.modalities else None
+        imu = self._imu(session, inputs) if "IMU" in self.modalities else None
         vis = session.visual if session.has("visual") else None
         if self.calibration == "online":
             fixes = vis[["t", "x", "y", "z", "yaw"]].to_numpy(float)

@@ -57,7 +57,7 @@ import numpy as np
 from blenav.errors import MissingStream
 from blenav.features import fingerprints as FP
 
-from .base import Estimate, Localizer, RunContext, Trained
+from .base import Estimate, Localizer, RunInputs, Trained
 
 log = logging.getLogger("blenav.localizers.fingerprint")
 
@@ -151,7 +151,7 @@ class FingerprintLocalizer(Localizer, Trained):
         self._unfitted = "was not fitted (no train walks: the experiment needs a split)"  # why run() cannot
 
     # ------------------------------------------------------------------ training
-    def fit(self, sessions: list, ctx: RunContext | None = None) -> dict:
+    def fit(self, sessions: list, inputs: RunInputs | None = None) -> dict:
         """Fit one model per building/floor on the labelled ``sessions``; returns the training report
         (``labels``, ``features``, ``model``, per floor: walks, windows, dropped windows, features, fit_s,
         and the network's training report)."""
@@ -168,13 +168,13 @@ class FingerprintLocalizer(Localizer, Trained):
                   "fill": f"a source not heard = {self.cfg.fill_dbm:g} dBm (u = 0)", "floors": {}}
         self.floors = {}
         for key, walks in groups.items():
-            report["floors"][key] = self._fit_floor(key, walks, ctx)
+            report["floors"][key] = self._fit_floor(key, walks, inputs)
         if not self.floors:
             self._unfitted = f"was not fitted: no train walk has {self.cfg.features} readings inside its waypoints"
             raise MissingStream(f"{self.name}: no train walk has {self.cfg.features} readings inside its waypoints")
         return report
 
-    def _fit_floor(self, key: str, walks: list, ctx) -> dict:
+    def _fit_floor(self, key: str, walks: list, inputs) -> dict:
         t0 = time.perf_counter()
         tables, used = [], []
         for s in walks:
@@ -211,17 +211,18 @@ class FingerprintLocalizer(Localizer, Trained):
         if self.model == "knn":
             predict = knn_model(S, xy, self.k, self.weights, self.cov_floor_m, self.metric)
         else:
-            predict = self._fit_network(key, S, P, xy, walk_of, used, names, ctx, info)
+            predict = self._fit_network(key, S, P, xy, walk_of, used, names, inputs, info)
         self.floors[key] = _FloorModel(columns, predict)
         info["fit_s"] = time.perf_counter() - t0
         log.info("%s: %s fitted on %d windows of %d walks, %d features (%.1f s)", self.name, key, len(S), len(used),
                  len(names), info["fit_s"])
         return info
 
-    def _fit_network(self, key, S, P, xy, walk_of, used, names, ctx, info):
+    def _fit_network(self, key, S, P, xy, walk_of, used, names, inputs, info):
         from blenav.learn.fingerprint.train import train_network  # torch: only on the learned path
 
-        root = Path(ctx.out) if ctx is not None and ctx.out is not None else Path(tempfile.mkdtemp(prefix="fp_"))
+        given = inputs.out if inputs is not None else None
+        root = Path(given) if given is not None else Path(tempfile.mkdtemp(prefix="fp_"))
         out = root / "fingerprint" / self.name.replace("/", "_").replace(" ", "_") / key.replace("/", "_")
         net_predict, rep = train_network(S, P, xy, walk_of, used, names, self.cfg, self.model, self.training, out,
                                          seed=self.seed,
@@ -235,7 +236,7 @@ class FingerprintLocalizer(Localizer, Trained):
         return predict
 
     # ------------------------------------------------------------------ running
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
+    def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         t0 = time.perf_counter()
         key = FP.floor_of(session)
         if key not in self.floors:

@@ -63,7 +63,7 @@ from blenav.errors import MissingStream
 from blenav.filters.calibration import apply_fit
 from blenav.filters.measurement import AnchorTable, PathLossRange
 
-from .base import Estimate, Localizer, PathLossCalibrated, RunContext
+from .base import Estimate, Localizer, PathLossCalibrated, RunInputs
 from .ranging_solvers import collinear_anchors, free_cells, grid_costs, srls
 from .ranging_windows import (NO_ANCHORS, WindowRanges, ble_readings, correction_at, dist3, online_corrections,
                               rtt_readings, window_ranges)
@@ -123,13 +123,13 @@ class RangeBaseline(Localizer, PathLossCalibrated):
         apply_fit([self.path_loss], fit)
 
     # -------------------------------------------------------------------------------------- calibration data
-    def _offline_sessions(self, session, ctx: RunContext | None) -> list:
+    def _offline_sessions(self, session, inputs: RunInputs | None) -> list:
         """Labelled static sessions of ``session``'s building (``calibration_sessions``: 'auto' or ids), never
         ``session`` itself."""
         from blenav.data import Dataset
 
         root = session.root.parent.parent
-        cache = ctx.cache if ctx is not None else {}
+        cache = inputs.cache if inputs is not None else {}
         key = ("ranging-dataset", str(root))
         if key not in cache:
             cache[key] = Dataset.open(root)
@@ -143,7 +143,7 @@ class RangeBaseline(Localizer, PathLossCalibrated):
             cand = [s for s in ds.sessions(ids) if s.id != session.id] if ids else []
         return cand
 
-    def _corrections(self, session, ctx, wr: WindowRanges, rtt, ble, notes: list):
+    def _corrections(self, session, inputs, wr: WindowRanges, rtt, ble, notes: list):
         """(W, A_rtt) RTT offsets (m) and (W, A_ble) BLE 1 m levels (dBm) in force at each window."""
         (tr, ir, rr, ar), (tb, ib, sb, ab) = rtt, ble
         W = len(wr.t_stamp)
@@ -152,7 +152,7 @@ class RangeBaseline(Localizer, PathLossCalibrated):
         gamma, d0 = self.path_loss.gamma, self.path_loss.d0
         do_rtt, do_ble = "rtt" in self.calibration_modalities, "ble" in self.calibration_modalities
         if self.calibration == "offline" and (do_rtt or do_ble):
-            cal = self._offline_sessions(session, ctx)
+            cal = self._offline_sessions(session, inputs)
             if not cal:
                 raise MissingStream(f"offline calibration needs labelled static sessions of building "
                                     f"{session.building.id} besides {session.id} (calibration_sessions="
@@ -185,7 +185,7 @@ class RangeBaseline(Localizer, PathLossCalibrated):
         return off, axw
 
     # -------------------------------------------------------------------------------------- run
-    def run(self, session, n_runs: int, seed: int, ctx: RunContext | None = None) -> Estimate:
+    def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         t_start = time.perf_counter()
         notes: list[str] = []
         empty_rtt = (np.zeros(0), np.zeros(0, int), np.zeros(0),
@@ -219,13 +219,13 @@ class RangeBaseline(Localizer, PathLossCalibrated):
         (tr, ir, rr, ar), (tb, ib, sb, ab) = rtt, ble
         # windows over the raw readings (RSSI medians for BLE: the distance is monotone in the RSSI)
         wr = window_ranges([tr, tb], [ir, ib], [rr, sb], [ar.xyz, ab.xyz], ["rtt", "ble"], vt, vxy, self.window_s)
-        off, axw = self._corrections(session, ctx, wr, rtt, ble, notes)
+        off, axw = self._corrections(session, inputs, wr, rtt, ble, notes)
         nr = len(ar.ids)
         d = wr.d.copy()
         d[:, :nr] -= off
         if len(ab.ids):
             d[:, nr:] = self.path_loss.d0 * 10.0 ** ((axw - d[:, nr:]) / (10.0 * self.path_loss.gamma))
-        xy = self.solve(session, ctx, wr.anchors, d)
+        xy = self.solve(session, inputs, wr.anchors, d)
         enough = np.isfinite(d).sum(axis=1) >= self.min_ranges
         xy[~enough] = np.nan
         if self.visual:
@@ -249,7 +249,7 @@ class RangeBaseline(Localizer, PathLossCalibrated):
         pos = np.broadcast_to(xy, (n_runs,) + xy.shape).copy()
         return Estimate(self.name, session.id, stamp, pos, None, [], {}, n_runs * (time.perf_counter() - t_start), notes)
 
-    def solve(self, session, ctx, anchors: np.ndarray, d: np.ndarray) -> np.ndarray:
+    def solve(self, session, inputs, anchors: np.ndarray, d: np.ndarray) -> np.ndarray:
         """(W, 2) estimates from ranges ``d`` (W, A) m (NaN = none) to ``anchors`` (A, 3) m."""
         raise NotImplementedError
 
@@ -257,8 +257,8 @@ class RangeBaseline(Localizer, PathLossCalibrated):
 class _GridBaseline(RangeBaseline):
     loss = "l2"
 
-    def solve(self, session, ctx, anchors, d):
-        cells = free_cells(session.floor, self.grid_m, ctx.cache if ctx is not None else None)
+    def solve(self, session, inputs, anchors, d):
+        cells = free_cells(session.floor, self.grid_m, inputs.cache if inputs is not None else None)
         if not len(cells):
             raise MissingStream(f"floor {session.floor.id} of {session.building.id} has no free cell at {self.grid_m:g} m")
         best = grid_costs(cells, anchors, d, self.device_z, self.loss)
@@ -289,7 +289,7 @@ class SrlsLocalizer(RangeBaseline):
 
     solver = "srls"
 
-    def solve(self, session, ctx, anchors, d):
+    def solve(self, session, inputs, anchors, d):
         r2 = d * d - (anchors[None, :, 2] - self.device_z) ** 2
         # a negative range (Android reports some) squared would pretend a distance: such ranges count as 0
         r2 = np.where(np.isfinite(d) & (d < 0), 0.0, r2)
