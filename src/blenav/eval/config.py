@@ -332,7 +332,8 @@ def _field(tp, value, path: str):
 
 
 def _convert(tp, value, path: str):
-    """A primitive: bool must be a bool; int / float / str converted as the harness did (``int(cfg.runs)``)."""
+    """A primitive: bool must be a bool; int / float / str converted as the harness did (``int(cfg.runs)``), but a
+    float that is not whole is refused for an int (never truncated)."""
     if tp is bool:
         if not isinstance(value, bool):
             raise EvalError(f"{path}={value!r}: true or false")
@@ -340,10 +341,12 @@ def _convert(tp, value, path: str):
     if tp in (int, float):
         if isinstance(value, bool) or not isinstance(value, (int, float, str)):
             raise EvalError(f"{path}={value!r}: a number")
+        if tp is int and isinstance(value, float) and not value.is_integer():  # not truncated: 2.5 runs is an error
+            raise EvalError(f"{path}={value!r}: a whole number")
         try:
             return tp(value)
-        except ValueError as exc:
-            raise EvalError(f"{path}={value!r}: a number") from exc
+        except (ValueError, OverflowError) as exc:
+            raise EvalError(f"{path}={value!r}: a {'whole ' if tp is int else ''}number") from exc
     if tp is str:
         if isinstance(value, (dict, list)):
             raise EvalError(f"{path}={value!r}: a string")
