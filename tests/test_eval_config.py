@@ -73,7 +73,8 @@ def test_fixes_block_roles_and_options():
 def test_session_ids_and_calibration_sessions():
     assert parse("sessions=a,b").session_ids == ["a", "b"]
     assert parse("sessions=[a,3]").session_ids == ["a", "3"]
-    assert parse().session_ids is None
+    assert parse().session_ids is None and parse("sessions=7").session_ids == ["7"]
+    assert parse("+peak_memory=null").peak_memory == "none"
     assert parse("calibration=[s1,s2]").calibration_sessions == {"s1", "s2"}
     assert parse("calibration=none").calibration_sessions == set()
 

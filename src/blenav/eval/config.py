@@ -199,8 +199,12 @@ class EvalConfig:
     fix_sources: dict | None = None
 
     def __post_init__(self):
+        if isinstance(self.sessions, (int, float)) and not isinstance(self.sessions, bool):
+            self.sessions = [str(self.sessions)]  # sessions=7: one id that Hydra read as a number
         if self.sessions is not None and not isinstance(self.sessions, (str, list)):
             raise EvalError(f"sessions={self.sessions!r}: session ids, a list or comma-separated")
+        if self.peak_memory is None:  # peak_memory=null: not measured, as before
+            self.peak_memory = "none"
         cal = self.calibration
         if not (cal is None or isinstance(cal, str) or isinstance(cal, list)):
             raise EvalError(f"calibration={cal!r}: auto, none or a list of session ids")
