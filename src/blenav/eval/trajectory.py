@@ -38,18 +38,18 @@ class TrajectoryEvaluator(Evaluator):
         methods = H.build_methods(cfg)
         check_output_names(methods, "method")  # OUT/<session>/trajectories/<method>.tum: one file per method
         model_info = H.attach_models(methods, cfg.model_path or None)
-        sessions = H.scored_sessions(cfg, ds)
+        selected = H.scored_sessions(cfg, ds)
         try:  # bounded before any work (blenav.limits: 1..100,000; runs x particles: the filter's memory check)
             runs = check_range(cfg.runs, "runs", "eval config")
         except LimitError as exc:
             raise EvalError(str(exc)) from None
         out = Path(cfg.out)
         plan_info = None
-        if cfg.plan_error.active:
-            sessions, plan_info = H.with_wrong_plans(sessions, cfg.plan_error, out / "plans")
-        train, sessions = H.train_test(cfg, ds, sessions)
-        check_output_names([s.id for s in train + sessions], "session")  # OUT/<session>/, OUT/fixes/<session>/
-        sessions, bmap_info = BM.with_source(sessions, cfg.beacon_map)
+        if cfg.plan_error.active:  # every method gets the wrong plans; scored against the true ground truth
+            selected, plan_info = H.with_wrong_plans(selected, cfg.plan_error, out / "plans")
+        train, test = H.train_test(cfg, ds, selected)
+        check_output_names([s.id for s in train + test], "session")  # OUT/<session>/, OUT/fixes/<session>/
+        sessions, bmap_info = BM.with_source(test, cfg.beacon_map)  # the scored sessions, with the beacon map given
         provider = H.build_fix_provider(cfg, methods, out)
         own = {k: m for k, m in (provider.methods if provider else {}).items()
                if all(m is not x for x in methods.values())}
