@@ -157,3 +157,31 @@ def test_a_file_that_is_no_checkpoint_is_one_clear_error(tmp_path):
     torch.save([1, 2, 3], plain)
     with pytest.raises(ValueError, match="not a blenav checkpoint"):
         read_checkpoint(plain)
+
+
+@pytest.mark.parametrize("change, words", [
+    (lambda m: m.__setitem__("beacons", [f"b{i}" for i in range(200_000)]), "locnet.lstm.weight_ih_l0 of shape"),
+    (lambda m: m["model"]["locnet"].update(hidden=10**6), "the meta does not describe these weights"),
+    (lambda m: m["model"]["locnet"].update(hidden=-1), "build no network: Error in call to target"),
+    (lambda m: m["model"]["transnet"].update(channels=[10**6, 10**6]), "build no network"),
+])
+def test_sizes_in_the_meta_are_checked_against_the_weights_before_building(checkpoints, tmp_path, change, words):
+    """Red-team (issue 28 sec. 2): the meta's beacon list and model sizes are the sizes the networks are built with;
+    200,000 beacons built 100,000 x 8 x ... weights before load_state_dict failed (2,000,000: 7.9 GB RSS, then a
+    RuntimeError traceback), hidden=10**6 asked for terabytes, hidden=-1 was Hydra's InstantiationException. Now
+    each is one ValueError naming the checkpoint, before memory is claimed (the shapes come from the meta device)."""
+    ck = torch.load(checkpoints["s3"], map_location="cpu", weights_only=True)
+    change(ck["blenav"])
+    torch.save(ck, tmp_path / "big.ckpt")
+    with pytest.raises(ValueError) as e:
+        load_module(tmp_path / "big.ckpt")
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(f"checkpoint {tmp_path / 'big.ckpt'}: blenav.") and words in msg
+
+
+def test_a_meta_that_is_not_a_table_is_one_clear_error(checkpoints, tmp_path):
+    ck = torch.load(checkpoints["s3"], map_location="cpu", weights_only=True)
+    ck["blenav"] = [1]
+    torch.save(ck, tmp_path / "list.ckpt")
+    with pytest.raises(ValueError, match="'blenav' is a list, not a table"):
+        read_checkpoint(tmp_path / "list.ckpt")

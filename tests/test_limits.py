@@ -132,6 +132,26 @@ def test_bundle_settings_rates_and_windows_are_bounded(tmp_path):
     check_settings(json.loads(json.dumps(DEFAULT_SETTINGS)), "S")  # the shipped settings pass
 
 
+@pytest.mark.parametrize("node, key, value, words", [
+    ("fix", "sigma_m", "x", "is not a number"), ("fix", "sigma_m", float("nan"), "is not a number"),
+    ("fix", "sigma_m", -3, "is negative"), ("filter", "ess_threshold", "x", "is not a number"),
+    ("filter", "divergence_sigma", "x", "is not a number"), ("filter", "reinit_radius_m", float("inf"), "is infinite"),
+    ("map", "init_sigma_m", float("nan"), "is not a number"), ("motion", "sigma2_per_s", -1, "is negative"),
+    ("motion", "sigma_theta", True, "is not a number")])
+def test_bundle_settings_other_numbers_name_settings_json_and_the_field(node, key, value, words):
+    """Red-team (issue 28): a string, NaN, a negative or an infinite noise scale elsewhere in settings.json was a
+    traceback (numpy's isfinite / 'less' on a str) or a NaN track ending in 'cannot convert float NaN to integer'
+    with no file named; now one LimitError naming settings.json and the field, before anything is built."""
+    from blenav.runtime.bundle import DEFAULT_SETTINGS
+    from blenav.runtime.bundle.settings import check_settings
+
+    settings = json.loads(json.dumps(DEFAULT_SETTINGS))
+    settings[node][key] = value
+    with pytest.raises(LimitError) as e:
+        check_settings(settings, "B/settings.json")
+    assert _one_line(e).startswith(f"B/settings.json: {node}.{key} = {value!r} {words}")
+
+
 # --- the CRF grid and eval runs ----------------------------------------------------------------------------
 
 def test_crf_cell_size_and_grid_memory_are_bounded(monkeypatch):

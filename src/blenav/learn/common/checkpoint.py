@@ -164,6 +164,8 @@ def read_checkpoint(path: str | Path, what: str = "blenav", require_meta: bool =
                          "train.py?")
     if require_meta and KEY not in ck:
         raise ValueError(f"{path}: not a {what} checkpoint (no '{KEY}' entry); was it written by train.py?")
+    if KEY in ck and not isinstance(ck[KEY], dict):
+        raise ValueError(f"{path}: not a {what} checkpoint ('{KEY}' is a {type(ck[KEY]).__name__}, not a table)")
     return ck
 
 

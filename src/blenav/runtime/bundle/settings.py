@@ -11,6 +11,8 @@ and every size they set is bounded (:data:`blenav.limits.RANGES`).
 from __future__ import annotations
 
 import importlib
+import math
+import numbers
 from dataclasses import fields
 
 from blenav.limits import LimitError, check_range
@@ -72,6 +74,35 @@ def _dataclass(cls, node: dict | None, where: str):
     return cls(**node)
 
 
+#: fields of a bundle's settings that are not numbers (enums, the motion model's name)
+_TEXT_FIELDS = frozenset({"filter.resampling", "filter.estimate", "map.init", "map.heading", "motion._target_"})
+#: numbers that may be negative (an angle, a log-weight) / infinite (a check that is off)
+_SIGNED = frozenset({"motion.theta0", "filter.wall_log_penalty"})
+_INFINITE = frozenset({"filter.divergence_sigma", "filter.wall_log_penalty", "filter.patience_s",
+                       "filter.global_after_s"})
+
+
+def _check_numbers(settings: dict, where: str) -> None:
+    """Every other scalar of the ``filter``, ``fix``, ``map`` and ``motion`` nodes (noise scales, radii, fractions)
+    is a number, not NaN, not negative and finite (but :data:`_SIGNED` / :data:`_INFINITE`); ``null`` keeps the
+    default. Else :class:`LimitError` naming ``where`` and the field: a string or a NaN there would otherwise end
+    as numpy's own message deep in the filter, or as a NaN track."""
+    for node in ("filter", "fix", "map", "motion"):
+        values = settings.get(node)
+        if not isinstance(values, dict):
+            continue
+        for key, v in values.items():
+            field = f"{node}.{key}"
+            if field in _TEXT_FIELDS or v is None or field == "filter.n_particles":
+                continue
+            if not isinstance(v, numbers.Real) or isinstance(v, bool) or math.isnan(v):
+                raise LimitError(f"{where}: {field} = {v!r} is not a number")
+            if v < 0 and field not in _SIGNED:
+                raise LimitError(f"{where}: {field} = {v!r} is negative")
+            if math.isinf(v) and field not in _INFINITE:
+                raise LimitError(f"{where}: {field} = {v!r} is infinite")
+
+
 def check_settings(settings: dict, where: str) -> None:
     """Every size the settings set lies in its documented range (:data:`blenav.limits.RANGES`), and the particle
     filter they ask for fits the memory limit (one run, as the push API runs it), before anything is built:
@@ -90,6 +121,7 @@ def check_settings(settings: dict, where: str) -> None:
         check_range(prior["heading_bins"], "heading_bins", where, field="prior.heading_bins")
     if prior.get("window_dt_s") is not None:
         check_range(prior["window_dt_s"], "window_s", where, field="prior.window_dt_s")
+    _check_numbers(settings, where)
     try:
         dim = int(_instantiate(settings["motion"]).state_dim)
     except Exception:  # a bad motion node is refused where the method is built, with its own message
