@@ -278,7 +278,7 @@ def test_train_ids_and_table_rows_come_from_the_experiment(tmp_path):
     they are handed)."""
     from blenav.cli.realwalks import table_rows_of, train_ids_of
     from blenav.eval.config import parse_eval_config
-    from blenav.eval.harness import open_dataset, scored_sessions, train_test
+    from blenav.eval.sessions import open_dataset, scored_sessions, train_test
     from blenav.eval.realwalks import train_ids
     from blenav.reporting.realwalks import OUTCOMES
 

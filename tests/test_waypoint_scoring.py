@@ -9,7 +9,7 @@ import pytest
 
 from blenav.errors import EvalError
 from blenav.eval.config import SplitConfig
-from blenav.eval.harness import split_sessions
+from blenav.eval.sessions import split_sessions
 from blenav.eval.metrics import errors_at_waypoints, pool, waypoint_metrics
 
 

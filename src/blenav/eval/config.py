@@ -57,7 +57,7 @@ KINDS = {"trajectory": "blenav.eval.trajectory.TrajectoryEvaluator",
 @dataclass
 class SplitConfig:
     """``split``: ``train`` names the train walks (not scored); else each floor's walks are split by a seeded
-    permutation, ``train_fraction`` of them train (:func:`blenav.eval.harness.split_sessions`). ``given``: the
+    permutation, ``train_fraction`` of them train (:func:`blenav.eval.sessions.split_sessions`). ``given``: the
     keys as the experiment gave them (results.json repeats them, with the train walks chosen)."""
 
     train: list[str] | None = None

@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from blenav.data import Dataset, check_session_in_building
+from blenav.data import Dataset
 from blenav.errors import DatasetError, EvalError, MissingStream
 from blenav.filters.attitude import misalignment_deg
 from blenav.filters.calibration import fit_sessions
@@ -58,19 +58,18 @@ from blenav.localizers import (Estimate, FixConsumer, Localizer, ModelConsumer, 
 from blenav.localizers.confine import confine
 from blenav.localizers.inputs import RunInputs
 from blenav.eval import beacon_map as BM
-from blenav.eval.plan_errors import PlanErrorConfig, perturb_building
 
 from .common import json_default, output_name
-from .config import EvalConfig, SplitConfig, parse_eval_config
+from .config import EvalConfig, parse_eval_config
 from .evaluators import evaluate
 from .fixes import FixProvider
-from .floors import floor_accuracy
 from .metrics import cdf_band, pool, session_metrics, waypoint_metrics
 from .result import MethodResult, TrajectoryResult, write_results
+from .sessions import select_sessions
 
 log = logging.getLogger("blenav.eval")
 
-__all__ = ["build_methods", "evaluate", "select_sessions", "calibrate", "run_method", "aggregate"]
+__all__ = ["build_methods", "evaluate", "calibrate", "run_method", "aggregate"]
 
 _json_default = json_default  # the name other modules used before blenav.eval.common
 
@@ -159,100 +158,6 @@ def fix_localizers(cfg: EvalConfig, methods: dict[str, Localizer]) -> dict[str, 
                 raise EvalError(f"fixes.compute: {exc}") from exc
         out[r] = by_node[key]
     return out
-
-
-# ------------------------------------------------------------------------------------------ select
-def select_sessions(ds: Dataset, ids, exclude: set = frozenset()) -> list:
-    """``ids`` (labelled sessions), or every labelled session not in ``exclude``: the moving ones, or the
-    static surveys when there is nothing else."""
-    if ids:
-        wanted = [str(i) for i in (ids if not isinstance(ids, str) else ids.split(","))]
-        unknown = [i for i in wanted if i not in ds.session_ids]
-        if unknown:
-            raise EvalError(f"sessions {unknown} are not in {ds.root} (it has {ds.session_ids[:10]}...)")
-        sessions = [ds.session(i) for i in wanted]
-        unl = [s.id for s in sessions if not s.labelled]
-        if unl:
-            raise EvalError(f"sessions {unl} are unlabelled: they have no ground truth to score against")
-        return sessions
-    sessions = [s for s in ds.sessions(labelled=True) if s.id not in exclude]  # calibration sessions are not scored
-    if not sessions:
-        raise EvalError(f"{ds.root} has no labelled session to evaluate")
-    moving = [s for s in sessions if s.carrier != "static"]
-    return moving or sessions  # static surveys are calibration data unless they are all there is
-
-
-def with_wrong_plans(sessions: list, pe: PlanErrorConfig, out_dir: Path) -> tuple[list, dict]:
-    """The sessions with their buildings' plans replaced by wrong ones (one per building, shared by its
-    sessions; streams and their caches are kept), and the per-building summaries."""
-    wrong, info = {}, {}
-    for s in sessions:
-        if s.building.id not in wrong:
-            wrong[s.building.id], info[s.building.id] = perturb_building(s.building, pe, out_dir)
-            log.info("plan errors in %s: %s", s.building.id, info[s.building.id])
-    return [s.with_building(wrong[s.building.id]) for s in sessions], info
-
-
-def open_dataset(cfg: EvalConfig) -> Dataset:
-    try:
-        return Dataset.open(cfg.data.path)
-    except DatasetError as exc:
-        raise EvalError(f"cannot open dataset {cfg.data.path}: {exc}") from exc
-
-
-def scored_sessions(cfg: EvalConfig, ds: Dataset) -> list:
-    """The sessions to score (the sessions ``calibration`` names are not scored); every session is checked to lie in
-    its building."""
-    try:  # the data layer's rules (a floor without free space, ground truth off the plan, ...) are the readers'
-        sessions = select_sessions(ds, cfg.session_ids, exclude=cfg.calibration_sessions)
-        for s in sessions:
-            check_session_in_building(s)
-    except DatasetError as exc:
-        raise EvalError(str(exc)) from exc
-    return sessions
-
-
-def split_sessions(sessions: list, split: SplitConfig) -> tuple[list, list]:
-    """(train, test): per building and floor, a seeded permutation of the walks (by session id, so the
-    split depends only on the seed and the walks), the first ``round(train_fraction * n)`` of them train
-    (at least one, and at least one left to test when a floor has two or more walks)."""
-    frac, seed = float(split.train_fraction), int(split.seed)
-    if not 0.0 < frac < 1.0:
-        raise EvalError(f"split.train_fraction must be in (0, 1), got {frac}")
-    groups: dict = {}
-    for s in sorted(sessions, key=lambda s: s.id):
-        groups.setdefault((s.building.id, str(s.meta.get("floor"))), []).append(s)
-    train, test = [], []
-    for i, key in enumerate(sorted(groups, key=str)):
-        g = groups[key]
-        order = np.random.default_rng([seed, i]).permutation(len(g))
-        n = min(max(1, int(round(frac * len(g)))), max(len(g) - 1, 1))
-        train += [g[j] for j in order[:n]]
-        test += [g[j] for j in order[n:]]
-    return train, test
-
-
-def train_test(cfg: EvalConfig, ds: Dataset, sessions: list) -> tuple[list, list]:
-    """(train walks, scored walks) of the experiment's ``split``: ``{train: [ids]}`` names the train walks (not
-    scored), ``{train_fraction, seed}`` splits each floor's walks (:func:`split_sessions`); no split: ([], sessions)."""
-    split = cfg.split
-    if split is None:
-        return [], sessions
-    if split.train:
-        train = select_sessions(ds, split.train)
-        test = [s for s in sessions if s.id not in {t.id for t in train}]
-        if not test:
-            raise EvalError("split.train names every evaluated session: nothing left to score")
-        return train, test
-    return split_sessions(sessions, split)
-
-
-def floor_accuracy_of(cfg: EvalConfig, train: list, sessions: list) -> dict | None:
-    """Which floor each test walk is on, from the train walks' scans (:mod:`blenav.eval.floors`; several floors)."""
-    try:
-        return floor_accuracy(cfg.floor_classifier, train, sessions)
-    except (ValueError, MissingStream) as exc:
-        raise EvalError(f"floor_classifier: {exc}") from exc
 
 
 def fit_trained(methods: dict[str, Localizer], train: list, inputs: RunInputs) -> dict:

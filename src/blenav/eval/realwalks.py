@@ -11,11 +11,11 @@ __all__ = ["train_ids"]
 
 def train_ids(cfg) -> list[str]:
     """The train walks of the composed experiment ``cfg`` (its ``data`` and ``split``), split by the harness itself
-    (:func:`blenav.eval.harness.train_test`, the one source of the split), so that a beacon map estimated from them
+    (:func:`blenav.eval.sessions.train_test`, the one source of the split), so that a beacon map estimated from them
     by ``blenav-map --sessions`` sees no test walk. The entry point composes ``cfg``
     (``python -m blenav.cli.realwalks train-ids DATA``)."""
     from .config import parse_eval_config
-    from .harness import open_dataset, scored_sessions, train_test
+    from .sessions import open_dataset, scored_sessions, train_test
 
     cfg = parse_eval_config(cfg)
     ds = open_dataset(cfg)

@@ -19,6 +19,7 @@ from blenav.localizers.inputs import RunInputs
 
 from . import beacon_map as BM
 from . import harness as H
+from . import sessions as S
 from .common import check_output_names
 from .config import EvalConfig
 from .evaluators import Evaluator
@@ -34,11 +35,11 @@ class TrajectoryEvaluator(Evaluator):
     on its surveys."""
 
     def run(self, cfg: EvalConfig) -> TrajectoryResult:
-        ds = H.open_dataset(cfg)
+        ds = S.open_dataset(cfg)
         methods = H.build_methods(cfg)
         check_output_names(methods, "method")  # OUT/<session>/trajectories/<method>.tum: one file per method
         model_info = H.attach_models(methods, cfg.model_path or None)
-        selected = H.scored_sessions(cfg, ds)
+        selected = S.scored_sessions(cfg, ds)
         try:  # bounded before any work (blenav.limits: 1..100,000; runs x particles: the filter's memory check)
             runs = check_range(cfg.runs, "runs", "eval config")
         except LimitError as exc:
@@ -46,8 +47,8 @@ class TrajectoryEvaluator(Evaluator):
         out = Path(cfg.out)
         plan_info = None
         if cfg.plan_error.active:  # every method gets the wrong plans; scored against the true ground truth
-            selected, plan_info = H.with_wrong_plans(selected, cfg.plan_error, out / "plans")
-        train, test = H.train_test(cfg, ds, selected)
+            selected, plan_info = S.with_wrong_plans(selected, cfg.plan_error, out / "plans")
+        train, test = S.train_test(cfg, ds, selected)
         check_output_names([s.id for s in train + test], "session")  # OUT/<session>/, OUT/fixes/<session>/
         sessions, bmap_info = BM.with_source(test, cfg.beacon_map)  # the scored sessions, with the beacon map given
         provider = H.build_fix_provider(cfg, methods, out)
@@ -67,7 +68,7 @@ class TrajectoryEvaluator(Evaluator):
             res.beacon_map = {**asdict(bmap), "buildings": bmap_info}
         if train:
             res.split = {**cfg.split.given, "train": [s.id for s in train]}
-        res.floor_accuracy = H.floor_accuracy_of(cfg, train, sessions)
+        res.floor_accuracy = S.floor_accuracy_of(cfg, train, sessions)
         # every stream and floor plan read before the first method: no method's memory counts them
         res.dropped = H.dropped_rows(sessions)
         outcomes: dict[str, H.MethodOutcome] = {}
