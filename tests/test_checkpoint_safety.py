@@ -164,12 +164,15 @@ def test_a_file_that_is_no_checkpoint_is_one_clear_error(tmp_path):
     (lambda m: m["model"]["locnet"].update(hidden=10**6), "the meta does not describe these weights"),
     (lambda m: m["model"]["locnet"].update(hidden=-1), "build no network: Error in call to target"),
     (lambda m: m["model"]["transnet"].update(channels=[10**6, 10**6]), "build no network"),
+    (lambda m: m["window"].update(history=10**9), "window.history = 1000000000 is outside [1, 10,000]"),
+    (lambda m: m["window"].update(step_hz=0.0), "window.step_hz = 0.0 is outside"),
 ])
 def test_sizes_in_the_meta_are_checked_against_the_weights_before_building(checkpoints, tmp_path, change, words):
     """Red-team (issue 28 sec. 2): the meta's beacon list and model sizes are the sizes the networks are built with;
     200,000 beacons built 100,000 x 8 x ... weights before load_state_dict failed (2,000,000: 7.9 GB RSS, then a
     RuntimeError traceback), hidden=10**6 asked for terabytes, hidden=-1 was Hydra's InstantiationException. Now
-    each is one ValueError naming the checkpoint, before memory is claimed (the shapes come from the meta device)."""
+    each is one ValueError naming the checkpoint, before memory is claimed (the shapes come from the meta device).
+    window.history=10**9 made export.py allocate 64 GB for its sample inputs, step_hz=0 a ZeroDivisionError."""
     ck = torch.load(checkpoints["s3"], map_location="cpu", weights_only=True)
     change(ck["blenav"])
     torch.save(ck, tmp_path / "big.ckpt")

@@ -24,6 +24,7 @@ import torch
 from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 
+from blenav.limits import check_range
 from blenav.trust import check_targets
 
 from ..common.checkpoint import KEY, read_checkpoint
@@ -52,6 +53,10 @@ def load_module(path: str | Path) -> tuple[CrossPhoneModule, dict]:
         raise ValueError(f"{path} is a map prior checkpoint, not a cross-phone localizer: load it with "
                          "blenav.learn.mapprior.checkpoint.load_mapprior or load_map_prior")
     where = f"checkpoint {path}"
+    window = meta.get("window") if isinstance(meta.get("window"), dict) else {}
+    for key in ("history", "step_hz"):  # sizes of the export's sample inputs and of every window built
+        if key in window:
+            check_range(window[key], key, where, field=f"blenav.window.{key}")
     n_beacons = len(meta["beacons"]) if isinstance(meta.get("beacons"), list) else -1
     with torch.device("meta"):  # sizes from the file, checked against its weights before any memory is claimed
         shapes = _built_shapes(meta["model"], n_beacons, where)
