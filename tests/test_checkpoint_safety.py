@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -188,3 +189,28 @@ def test_a_meta_that_is_not_a_table_is_one_clear_error(checkpoints, tmp_path):
     torch.save(ck, tmp_path / "list.ckpt")
     with pytest.raises(ValueError, match="'blenav' is a list, not a table"):
         read_checkpoint(tmp_path / "list.ckpt")
+
+
+@pytest.mark.parametrize("value, words", [
+    ("${oc.create:{_target_: numpy.savetxt, fname: MARKER, X: [1, 2]}}", "blenav.model.locnet.hidden = '${oc.create"),
+    ('${oc.decode:"{_target_: numpy.savetxt, fname: MARKER, X: [1]}"}', "is an interpolation"),
+])
+def test_an_interpolation_in_the_meta_builds_nothing(checkpoints, tmp_path, value, words):
+    """Red-team (issue 28 sec. 1): check_targets walks the meta as written, but Hydra resolves the node before it
+    builds it, so ``hidden: ${oc.create:{_target_: numpy.savetxt, ...}}`` built and called numpy.savetxt (the marker
+    file was written; LocNet then failed on hidden=None). Refused when the file is read, nothing written."""
+    marker = tmp_path / "marker.txt"
+    ck = torch.load(checkpoints["s3"], map_location="cpu", weights_only=True)
+    ck["blenav"]["model"]["locnet"]["hidden"] = value.replace("MARKER", str(marker))
+    torch.save(ck, tmp_path / "interp.ckpt")
+    with pytest.raises(ValueError, match=re.escape(words)):
+        load_module(tmp_path / "interp.ckpt")
+    assert not marker.exists()
+
+
+def test_a_partial_network_in_the_meta_is_refused(checkpoints, tmp_path):
+    ck = torch.load(checkpoints["s3"], map_location="cpu", weights_only=True)
+    ck["blenav"]["model"]["locnet"]["_partial_"] = True  # was AttributeError: '_DeferredTarget' ... 'state_dict'
+    torch.save(ck, tmp_path / "partial.ckpt")
+    with pytest.raises(ValueError, match=r"blenav.model.locnet._partial_ is set"):
+        load_module(tmp_path / "partial.ckpt")

@@ -143,7 +143,26 @@ def load_file(path: str | Path) -> dict:
         raise _unreadable(path, f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}") from None
     if isinstance(ck, dict) and KEY in ck:
         check_targets(ck[KEY], f"checkpoint {path}", prefix=KEY)  # the meta may name nothing but blenav's classes
+        _check_plain(ck[KEY], path)
     return ck
+
+
+def _check_plain(meta, path: Path) -> None:
+    """The meta holds resolved values only: no ``${...}`` interpolation (Hydra resolves a node before it builds it,
+    and ``${oc.create:{_target_: numpy.savetxt, ...}}`` in a size would build a node no check saw: it wrote its
+    file) and no ``_partial_`` (a network would be a factory). A ValueError naming the checkpoint and the key."""
+    stack = [(meta, KEY)]
+    while stack:
+        n, where = stack.pop()
+        if isinstance(n, str) and "${" in n:
+            raise ValueError(f"checkpoint {path}: {where} = {n[:80]!r} is an interpolation; train.py writes resolved "
+                             "values only, so this file was edited: refused")
+        if isinstance(n, dict):
+            if "_partial_" in n:
+                raise ValueError(f"checkpoint {path}: {where}._partial_ is set; train.py never writes it: refused")
+            stack.extend((v, f"{where}.{k}") for k, v in n.items())
+        elif isinstance(n, (list, tuple)):
+            stack.extend((v, f"{where}[{i}]") for i, v in enumerate(n))
 
 
 def _unreadable(path: Path, detail: str) -> ValueError:
