@@ -257,3 +257,23 @@ def test_runtime_reproduces_the_pytorch_pipeline_within_1cm(made):
         assert len(common) >= len(t_ref) - 1 and len(common) > 30
         err = np.hypot(*(np.array([[e.x, e.y] for e in est])[i] - xy_ref[j]).T)
         assert err.max() < 0.01, f"{sid}: max {err.max():.4f} m"
+
+
+@pytest.mark.parametrize("where", ["bundle/localizer.onnx", "data/sessions/s000/rssi.csv", "data/new.csv", "data"])
+def test_cli_refuses_an_out_that_overwrites_what_it_reads(tmp_path, capsys, where):
+    """Red-team (issue 28 sec. 3): ``--out BUNDLE/localizer.onnx`` replaced the bundle's graph by the CSV and
+    ``--out SESSION/rssi.csv`` the session's readings; now refused in one line before anything is opened."""
+    from blenav.cli.localize import main
+
+    (tmp_path / "bundle").mkdir()
+    session = tmp_path / "data" / "sessions" / "s000"
+    session.mkdir(parents=True)
+    (session / "rssi.csv").write_text("t,anchor_id,rssi\n")
+    (tmp_path / "bundle" / "localizer.onnx").write_bytes(b"graph")
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path / "bundle"), str(session), "--out", str(tmp_path / where), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 1 and err.startswith(f"blenav-localize: error: --out {tmp_path / where} ") and "\n" not in err
+    assert (session / "rssi.csv").read_text() == "t,anchor_id,rssi\n"
+    assert (tmp_path / "bundle" / "localizer.onnx").read_bytes() == b"graph"
+    assert not (tmp_path / "data" / "new.csv").exists()

@@ -42,6 +42,20 @@ def _set_total(bar):
     return set_total
 
 
+def _check_out(out: Path, bundle: Path, session: Path) -> None:
+    """Refuse (ValueError) an ``--out`` that is a folder or lies inside the bundle or the session's dataset: the
+    CSV would overwrite the model or the recording it reads (``--out BUNDLE/localizer.onnx`` replaced the graph,
+    ``--out SESSION/rssi.csv`` the readings)."""
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a folder; give the CSV file to write")
+    dataset = session.resolve().parent.parent if session.resolve().parent.name == "sessions" else session.resolve()
+    target = out.resolve()
+    for what, root in (("the bundle", bundle.resolve()), ("the dataset of the session", dataset)):
+        if target == root or root in target.parents:
+            raise ValueError(f"--out {out} lies inside {what} ({root}): it would overwrite what it reads; write the "
+                             "CSV elsewhere")
+
+
 def _main(argv: list[str] | None) -> int:
     p = argparse.ArgumentParser(prog="blenav-localize", description=__doc__.splitlines()[0])
     p.add_argument("bundle", help="a bundle folder written by `python export.py bundle=true ...`")
@@ -53,6 +67,7 @@ def _main(argv: list[str] | None) -> int:
     p.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads (default %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
+    _check_out(Path(args.out), Path(args.bundle), Path(args.session))
 
     from blenav.runtime import Bundle
 
