@@ -282,3 +282,22 @@ def test_sigterm_raises_terminated_and_the_guard_exits_143(capsys):
         assert done
     finally:
         signal.signal(signal.SIGTERM, old)
+
+
+def test_an_out_inside_the_dataset_is_refused_before_any_work(two_walks, tmp_path):
+    """Red-team (issue 28 sec. 3): out=DATA/sessions/xx wrote results.json and the session folders into the
+    dataset, which then failed to validate ('sessions/xx/session.yaml: [missing-file]'); now one line, and the
+    dataset is as it was."""
+    from blenav.cli.outdir import check_replaceable
+
+    data = tmp_path / "data"
+    shutil.copytree(two_walks, data)
+    before = sorted(p.name for p in (data / "sessions").iterdir())
+    p = _eval(f"data={data}", f"out={data / 'sessions' / 'xx'}", *FAST)
+    assert _one_line(p) == (f"blenav-eval: error: out={data / 'sessions' / 'xx'} lies inside {data}, an input of "
+                            "this run: the output would change it; choose another out=")
+    assert sorted(p.name for p in (data / "sessions").iterdir()) == before
+    (tmp_path / "model").mkdir()  # a model folder (map prior export) is an input too
+    with pytest.raises(ValueError, match="lies inside"):
+        check_replaceable(tmp_path / "model" / "eval", False, inputs=[data, tmp_path / "model"])
+    assert check_replaceable(tmp_path / "elsewhere", False, inputs=[data, tmp_path / "model"]) is False

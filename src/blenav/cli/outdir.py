@@ -50,6 +50,10 @@ def check_replaceable(out: Path, overwrite: bool, inputs=(), shown: str | None =
     shown = shown or str(out)
     if not out.name or out.name in (".", ".."):
         raise ValueError(f"out={shown}: name a folder of its own for the output")
+    within = [str(p) for p in inputs if p and Path(p).is_dir() and _inside(out, Path(p))]
+    if within:  # out=DATA/sessions/x would become a session of the dataset, out=BUNDLE/x an unlisted file of it
+        raise ValueError(f"out={shown} lies inside {', '.join(within)}, an input of this run: the output would "
+                         "change it; choose another out=")
     if not out.exists():
         return False
     if not out.is_dir():
