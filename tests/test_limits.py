@@ -223,3 +223,15 @@ def test_onnx_model_size_is_checked_before_onnxruntime_reads_it(tmp_path, monkey
     monkeypatch.setenv("BLENAV_MAX_MODEL_MB", "1")
     with pytest.raises(ValueError, match="is not an ONNX model onnxruntime can load"):  # size fine: onnxruntime's turn
         session(p)
+
+
+def test_read_json_names_the_file_for_a_huge_integer(tmp_path):
+    """Red-team (issue 28 sec. 4): a manifest.json holding a 5,000-digit integer ended as Python's own 'Exceeds the
+    limit (4300 digits) ...' with no file named; now the message starts with the file."""
+    from blenav.limits import read_json
+
+    p = tmp_path / "manifest.json"
+    p.write_text('{"format": ' + "1" * 5000 + "}")
+    with pytest.raises(ValueError) as e:
+        read_json(p, "manifest")
+    assert _one_line(e).startswith(f"{p}: not readable JSON (Exceeds the limit (4300 digits)")

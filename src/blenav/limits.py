@@ -172,6 +172,8 @@ def read_json(path, what: str = "metadata"):
         raise ValueError(f"{path}: not JSON ({exc.msg}: line {exc.lineno} column {exc.colno})") from None
     except RecursionError:
         raise ValueError(f"{path}: nested too deeply to read") from None
+    except ValueError as exc:  # an integer of more than 4,300 digits (int's conversion limit)
+        raise ValueError(f"{path}: not readable JSON ({' '.join(str(exc).split())[:160]})") from None
 
 
 def max_archive_ratio() -> float:
