@@ -4,6 +4,7 @@ resampling, the runtime's DMT cache, ONNX export with parity, and clear errors."
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -322,3 +323,30 @@ def test_cli_train_and_export(small_dataset, tmp_path):
     subprocess.run([sys.executable, "export.py", f"ckpt={run / 'last.ckpt'}", f"out={out}"], cwd=REPO, check=True,
                    capture_output=True)
     assert {p.name for p in out.iterdir()} >= {"map_encoder.onnx", "trajectory_encoder.onnx", "meta.json"}
+
+
+@pytest.mark.onnx
+def test_an_export_meta_json_sizes_are_bounded(trained, small_dataset, tmp_path, monkeypatch):
+    """Red-team (issue 28 sec. 2): meta.json is not covered by the graphs' hashes, and its resolution_m set the grid
+    a floor is resampled to: 1e-4 asked numpy for 27.9 GiB, 0 was a ZeroDivisionError, 'abc' a bare 'could not
+    convert string to float'. Now its sizes are ranges named with the file, and the grid's memory is checked."""
+    from blenav.data import Dataset
+    from blenav.learn.export import export
+    from blenav.limits import LimitError, MemoryLimitError
+
+    ckpt, _ = trained
+    out = Path(export(compose("export", f"ckpt={ckpt}", f"out={tmp_path / 'mp'}")))
+    meta = json.loads((out / "meta.json").read_text())
+    for value, words in [(1e-4, "resolution_m = 0.0001 is outside [0.01, 100] m"), (0, "resolution_m = 0 is outside"),
+                         ("abc", "resolution_m = 'abc' is not a number")]:
+        (out / "meta.json").write_text(json.dumps({**meta, "resolution_m": value}))
+        with pytest.raises(LimitError, match=re.escape(f"{out / 'meta.json'}: {words}")):
+            MapPrior(out)
+    (out / "meta.json").write_text(json.dumps({**meta, "window": {**meta["window"], "n_points": 10**9}}))
+    with pytest.raises(LimitError, match=re.escape("window.n_points = 1000000000 is outside [1, 10,000]")):
+        MapPrior(out)
+    (out / "meta.json").write_text(json.dumps({**meta, "resolution_m": 0.01}))
+    monkeypatch.setenv("BLENAV_MAX_MEMORY_GB", "0.001")
+    prior = MapPrior(out)
+    with pytest.raises(MemoryLimitError, match=r"grid at resolution_m = 0.01 m with 8 channels needs about"):
+        prior.bind(next(Dataset.open(small_dataset).sessions()).floor)

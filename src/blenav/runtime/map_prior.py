@@ -48,7 +48,7 @@ from typing import Callable
 import numpy as np
 
 from blenav.features.mapgrid import NetGrid, floor_key, net_grid, pad_to_multiple
-from blenav.limits import read_json
+from blenav.limits import check_memory, check_range, read_json
 from blenav.onnx_io import check_weights, session
 
 SCORE_FLOOR = 1e-12
@@ -77,7 +77,7 @@ class OnnxBackend:
         check_export(root, self.meta)
         h = hashlib.sha256(paths[0].read_bytes())
         self.weights_hash = "onnx:" + h.hexdigest()[:16]
-        self.resolution_m = float(self.meta["resolution_m"])
+        self.resolution_m = check_range(self.meta.get("resolution_m"), "cell_m", str(paths[2]), field="resolution_m")
 
     def encode_map(self, mask: np.ndarray) -> np.ndarray:
         h, w = mask.shape
@@ -138,9 +138,14 @@ class MapPrior:
         meta = self._backend.meta
         self.source = source
         self.meta: dict = meta
-        self.resolution_m = float(meta["resolution_m"])
-        w = meta["window"]
-        self.window_s, self.step_hz, self.n_points = float(w["window_s"]), float(w["step_hz"]), int(w["n_points"])
+        where = f"map prior {source / META_JSON if source.is_dir() else source}"
+        self.where = where
+        # sizes from a file: bounded before a floor is resampled at them (resolution_m = 1e-4 asked 28 GiB)
+        self.resolution_m = check_range(meta.get("resolution_m"), "cell_m", where, field="resolution_m")
+        w = meta.get("window") if isinstance(meta.get("window"), dict) else {}
+        self.window_s = check_range(w.get("window_s"), "window_s", where, field="window.window_s")
+        self.step_hz = check_range(w.get("step_hz"), "step_hz", where, field="window.step_hz")
+        self.n_points = check_range(w.get("n_points"), "history", where, field="window.n_points")
         self.channels = int(meta["channels"])
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         self.encode_calls = 0  # U-Net runs (cache misses)
@@ -172,6 +177,9 @@ class MapPrior:
         """Make ``floor`` (a :class:`blenav.data.Floor`) current: DMT from memory, disk cache, or one U-Net run."""
         key = floor_key(floor, self.resolution_m, self.weights_hash)
         if key not in self._memory:
+            h, w = (int(round(n * float(floor.resolution) / self.resolution_m)) for n in np.shape(floor.free_mask))
+            check_memory(h * w * (4.0 * self.channels + 2), f"a {h:,} x {w:,} grid at resolution_m = "
+                         f"{self.resolution_m:g} m with {self.channels} channels", self.where)
             grid, mask = net_grid(floor, self.resolution_m)
             path = self.cache_dir / f"dmt_{key[:32]}.npy" if self.cache_dir is not None else None
             dmt = None
