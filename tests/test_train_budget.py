@@ -287,3 +287,21 @@ def test_a_finished_run_of_another_budget_is_not_silently_extended(tmp_path):
         _check_reuse(ck, DM(), None, auto)
     assert _check_reuse(ck, DM(), None, compose("train", "trainer.budget.max_steps=3000")) == 3000
     assert _check_reuse(ck, DM(), None, None) == 3000  # scenario 3 continuing scenario 2's run: no budget check
+
+
+@pytest.mark.parametrize("where", ["root", "data", "inside"])
+def test_a_run_folder_in_a_dataset_or_at_the_root_is_refused(tmp_path, monkeypatch, where):
+    """Red-team (issue 28 sec. 3): train.py out=/ wrote last.ckpt, config.yaml, training.json and logs/ into /, and
+    out=DATA the run's files into the dataset; start_run now refuses both before seeding or creating anything."""
+    from blenav.learn.common.trainer import start_run
+
+    data = tmp_path / "data"
+    (data / "sessions").mkdir(parents=True)
+    (data / "dataset.yaml").write_text("format: 1\n")
+    out = {"root": Path("/"), "data": data, "inside": data / "sessions" / "run"}[where]
+    monkeypatch.setattr(L, "seed_everything", lambda *a, **k: pytest.fail("seeded before the check"))
+    with pytest.raises(ValueError, match="name a folder of its own" if where == "root" else "lies in the dataset"):
+        start_run(0, out)
+    assert not (data / "sessions" / "run").exists()
+    monkeypatch.undo()
+    assert start_run(0, tmp_path / "run") == tmp_path / "run" and (tmp_path / "run").is_dir()  # beside: fine

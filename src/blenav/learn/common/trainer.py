@@ -29,10 +29,24 @@ CKPT_EVERY = "ckpt_every_n_epochs"  # a key of fit()'s trainer_kw: OUT/last.ckpt
 
 def start_run(seed: int, out: str | Path) -> Path:
     """``lightning.seed_everything(seed)`` (workers too) and the run folder ``out`` (created); returns it."""
-    L.seed_everything(int(seed), workers=True)
     out = Path(out)
+    check_run_folder(out)
+    L.seed_everything(int(seed), workers=True)
     out.mkdir(parents=True, exist_ok=True)
     return out
+
+
+def check_run_folder(out: Path) -> None:
+    """Refuse (ValueError, one line) a run folder that is a file system root or lies in a dataset (a folder with
+    dataset.yaml and sessions/, or below one): out=/ wrote last.ckpt, config.yaml, logs/ into /, and out=DATA mixed
+    the run into the dataset it reads. A folder of an earlier run is fine: the run resumes from its last.ckpt."""
+    resolved = out.resolve()
+    if resolved == Path(resolved.anchor):
+        raise ValueError(f"out={out}: name a folder of its own for the run")
+    for d in (resolved, *resolved.parents):
+        if (d / "dataset.yaml").is_file() and (d / "sessions").is_dir():
+            raise ValueError(f"out={out} lies in the dataset {d}: a run would mix its files into it; choose "
+                             "another out=")
 
 
 def last_checkpoint(out: Path, every_n_epochs: int = 1) -> L.Callback:
