@@ -239,3 +239,25 @@ def test_calibrate_prints_the_error_statistics_and_writes_nothing(dataset, runs,
     assert last == f"sigma_eff_m={st['sigma_eff_m']:.2f}" and st["sessions"] == [sid]
     assert st["sigma_eff_m"] >= st["sigma_m"] > 0 and st["rmse_m"] == pytest.approx(np.sqrt(2) * st["sigma_m"])
     assert sorted(p.name for p in (Path(dataset) / "sessions" / sid).iterdir()) == before  # nothing written
+
+
+@pytest.mark.parametrize("where", ["ckpt", "dataset", "root"])
+def test_export_refuses_an_out_that_replaces_its_checkpoint_or_lands_in_a_dataset(tmp_path, where):
+    """Red-team (issue 28 sec. 3): export.py ckpt=RUN/last.ckpt out=RUN/last.ckpt replaced the checkpoint with the
+    ONNX graph, and out=DATA/sessions/S/rssi.csv a session's readings; refused before the checkpoint is read (the
+    file here is no checkpoint at all, so nothing past the check could pass)."""
+    from types import SimpleNamespace
+
+    ckpt = tmp_path / "run" / "last.ckpt"
+    ckpt.parent.mkdir()
+    ckpt.write_bytes(b"not read")
+    data = tmp_path / "data"
+    (data / "sessions" / "s0").mkdir(parents=True)
+    (data / "dataset.yaml").write_text("format: 1\n")
+    (data / "sessions" / "s0" / "rssi.csv").write_text("t,anchor_id,rssi\n")
+    out = {"ckpt": ckpt, "dataset": data / "sessions" / "s0" / "rssi.csv", "root": Path("/")}[where]
+    words = {"ckpt": "is the checkpoint itself", "dataset": "lies in the dataset", "root": "name a folder"}[where]
+    with pytest.raises(ValueError, match=words):
+        export(SimpleNamespace(ckpt=str(ckpt), out=str(out), opset=None))
+    assert ckpt.read_bytes() == b"not read"
+    assert (data / "sessions" / "s0" / "rssi.csv").read_text() == "t,anchor_id,rssi\n"

@@ -20,6 +20,7 @@ from blenav.runtime.signature import BuildingMismatch, building_signature, compa
 from blenav.trust import check_targets
 
 from .common.checkpoint import read_meta
+from .common.trainer import check_run_folder
 from .export import export
 
 
@@ -45,6 +46,7 @@ def export_bundle(cfg: DictConfig) -> Path:
     out = Path(cfg.out)
     if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / MANIFEST).is_file())):
         raise ValueError(f"out={out} exists and is not a bundle: choose a new folder")
+    check_run_folder(out, "a bundle")  # not /, not inside the dataset it was trained on
     if not Path(cfg.ckpt).is_file():
         raise FileNotFoundError(f"checkpoint {cfg.ckpt} does not exist")
     meta = read_meta(cfg.ckpt)

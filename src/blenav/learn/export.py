@@ -9,6 +9,7 @@ from pathlib import Path
 
 from .common.checkpoint import read_meta
 from .common.onnx_export import DEFAULT_OPSET
+from .common.trainer import check_run_folder
 from .crossphone.checkpoint import load_module
 from .crossphone.export import export_module
 
@@ -20,6 +21,9 @@ def export(cfg) -> Path:
     opset = int(opset if opset is not None else DEFAULT_OPSET)
     if not Path(cfg.ckpt).is_file():
         raise FileNotFoundError(f"checkpoint {cfg.ckpt} does not exist")
+    if Path(cfg.out).resolve() == Path(cfg.ckpt).resolve():  # the export would replace the checkpoint it reads
+        raise ValueError(f"out={cfg.out} is the checkpoint itself; write the export elsewhere")
+    check_run_folder(Path(cfg.out), "an export")
     if read_meta(cfg.ckpt).get("kind") == "mapprior":
         from .mapprior.export import export_checkpoint
 

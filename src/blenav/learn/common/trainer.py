@@ -36,16 +36,16 @@ def start_run(seed: int, out: str | Path) -> Path:
     return out
 
 
-def check_run_folder(out: Path) -> None:
+def check_run_folder(out: Path, what: str = "a run") -> None:
     """Refuse (ValueError, one line) a run folder that is a file system root or lies in a dataset (a folder with
     dataset.yaml and sessions/, or below one): out=/ wrote last.ckpt, config.yaml, logs/ into /, and out=DATA mixed
     the run into the dataset it reads. A folder of an earlier run is fine: the run resumes from its last.ckpt."""
     resolved = out.resolve()
     if resolved == Path(resolved.anchor):
-        raise ValueError(f"out={out}: name a folder of its own for the run")
+        raise ValueError(f"out={out}: name a folder of its own for {what}")
     for d in (resolved, *resolved.parents):
         if (d / "dataset.yaml").is_file() and (d / "sessions").is_dir():
-            raise ValueError(f"out={out} lies in the dataset {d}: a run would mix its files into it; choose "
+            raise ValueError(f"out={out} lies in the dataset {d}: {what} would mix its files into it; choose "
                              "another out=")
 
 
