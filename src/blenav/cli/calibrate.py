@@ -19,6 +19,13 @@ def _main(argv: list[str] | None) -> int:
     p.add_argument("--sessions", default=None, help="comma-separated session ids (default: every labelled session)")
     p.add_argument("--out", default=None, help="write the fit to this YAML file")
     args = p.parse_args(argv)
+    if args.out:
+        from pathlib import Path
+
+        out, data = Path(args.out).resolve(), Path(args.dataset).resolve()
+        if out.is_dir() or (out.exists() and data in out.parents):  # --out SESSION/rssi.csv replaced the readings
+            raise ValueError(f"--out {args.out} is a folder or a file of the dataset {args.dataset}; write the fit "
+                             "to a new file")
 
     import yaml
 
