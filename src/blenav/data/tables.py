@@ -154,7 +154,8 @@ def _read_table(path, header, required, nullable, string, time_column):
         issues.append(error(path, "missing-column", f"header lacks column(s) {', '.join(missing)}; "
                             f"expected {', '.join(columns)}", line=1))
         return None, issues
-    dup = sorted({c for c in header if header.count(c) > 1})
+    seen: set[str] = set()
+    dup = sorted({c for c in header if c in seen or seen.add(c)})  # linear: 2,000,000 columns took hours
     if dup:
         issues.append(error(path, "duplicate-column", f"column(s) {', '.join(dup)} appear twice", line=1))
         return None, issues
