@@ -82,6 +82,18 @@ _INFINITE = frozenset({"filter.divergence_sigma", "filter.wall_log_penalty", "fi
                        "filter.global_after_s"})
 
 
+def _not_numbers() -> frozenset[str]:
+    """Fields of the filter, map and fix nodes whose type is not a number (bool flags, names, enums), from the
+    classes they build (annotations are strings here: ``from __future__ import annotations``)."""
+    from blenav.filters.engine import FilterConfig
+    from blenav.filters.measurement import FixLikelihood
+    from blenav.filters.method import MapSpec
+
+    return frozenset(f"{node}.{f.name}" for node, cls in (("filter", FilterConfig), ("map", MapSpec),
+                                                          ("fix", FixLikelihood))
+                     for f in fields(cls) if not any(t in str(f.type) for t in ("float", "int")))
+
+
 def _check_numbers(settings: dict, where: str) -> None:
     """Every other scalar of the ``filter``, ``fix``, ``map`` and ``motion`` nodes (noise scales, radii, fractions)
     is a number, not NaN, not negative and finite (but :data:`_SIGNED` / :data:`_INFINITE`); ``null`` keeps the
@@ -93,8 +105,9 @@ def _check_numbers(settings: dict, where: str) -> None:
             continue
         for key, v in values.items():
             field = f"{node}.{key}"
-            if field in _TEXT_FIELDS or v is None or field == "filter.n_particles":
-                continue
+            if field in _TEXT_FIELDS or field in _not_numbers() or v is None or field == "filter.n_particles" \
+                    or isinstance(v, (dict, list)):
+                continue  # nested nodes: check_targets_of names a class in them; the constructor refuses the rest
             if not isinstance(v, numbers.Real) or isinstance(v, bool) or math.isnan(v):
                 raise LimitError(f"{where}: {field} = {v!r} is not a number")
             if v < 0 and field not in _SIGNED:
