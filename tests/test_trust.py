@@ -227,7 +227,11 @@ def test_hydra_node_checks_logging_factories_and_search_space():
     for bad, words in [({"job_logging": {"formatters": {"f": {"()": "os.system"}}}}, "hydra.job_logging.formatters.f.()"),
                        ({"hydra_logging": {"handlers": {"h": {"class": "subprocess.Popen"}}}}, "hydra.hydra_logging"),
                        ({"sweeper": {"custom_search_space": "test_trust.record_call"}}, "custom_search_space"),
-                       ({"callbacks": {"c": {"_target_": "test_trust.record_call"}}}, "hydra.callbacks.c._target_")]:
+                       ({"callbacks": {"c": {"_target_": "test_trust.record_call"}}}, "hydra.callbacks.c._target_"),
+                       # red-team: a --config-dir file's env_set reached os.environ (LD_PRELOAD for any child
+                       # process, BLENAV_MAX_MEMORY_GB lifting the memory bound)
+                       ({"job": {"env_set": {"LD_PRELOAD": "/tmp/x.so"}}}, "hydra.job.env_set sets LD_PRELOAD"),
+                       ({"job": {"env_set": {"BLENAV_MAX_MEMORY_GB": "1e9"}}}, "sets BLENAV_MAX_MEMORY_GB")]:
         with pytest.raises(UntrustedTargetError, match=re.escape(words)):
             check_hydra_node(OmegaConf.create(bad), "cfg")
 

@@ -177,6 +177,11 @@ def check_hydra_node(hydra_node, where: str) -> None:
     if isinstance(sweeper, Mapping) and sweeper.get("custom_search_space") is not None:
         raise UntrustedTargetError(f"{where}: hydra.sweeper.custom_search_space names a function for Hydra to call; "
                                    "blenav's configs never set it: remove it")
+    job = node.get("job")
+    env = job.get("env_set") if isinstance(job, Mapping) else None
+    if isinstance(env, Mapping) and env:  # LD_PRELOAD / PYTHONSTARTUP for child processes, BLENAV_MAX_* limits off
+        raise UntrustedTargetError(f"{where}: hydra.job.env_set sets {', '.join(sorted(map(str, env)))[:120]}: "
+                                   "blenav's configs never set environment variables; set them in your shell")
     for key in ("job_logging", "hydra_logging"):
         stack = [(node.get(key), f"hydra.{key}")]
         while stack:
