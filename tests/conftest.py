@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from helpers import RAW, make_tiny_dataset, simulate_small
+from ilc20_helpers import write_coded
 
 
 @pytest.fixture(scope="session")
@@ -33,3 +34,10 @@ def raw_dir():
     if not RAW.is_dir():
         pytest.skip(f"public recordings not found at {RAW} (../shared/data/raw is absent)")
     return RAW
+
+
+@pytest.fixture
+def coded(tmp_path):
+    """Three position-coded ILC 2.0 walks imported (tests/ilc20_helpers.py: :func:`write_coded`): walkA at y = 5 m,
+    walkB at y = 7 m (both trained on), walkC at y = 5 m (tested)."""
+    return write_coded(tmp_path)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,10 @@ from shapely.geometry import LineString, box
 from blenav.data import FREE, OCCUPIED
 from blenav.data.writer import write_building, write_dataset_meta, write_session
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
+#: The repository's root (the folder of pyproject.toml), whatever the depth of the test module asking.
+REPO = next(p for p in Path(__file__).resolve().parents if (p / "pyproject.toml").is_file())
+#: ../shared beside the clone; $BLENAV_SHARED names another (a git worktree elsewhere, say).
+SHARED = Path(os.environ.get("BLENAV_SHARED") or REPO.parent / "shared")
 RAW = SHARED / "data" / "raw"
 
 
@@ -96,3 +100,14 @@ def set_cell(path: Path, line: int, column: str, value: str) -> None:
     cells[col] = value
     ls[line - 1] = ",".join(cells)
     write_lines(path, ls)
+
+
+def training_node() -> dict:
+    """The networks' training node (data, trainer, models) conf/localizer/fingerprint.yaml composes into a method's
+    node, as blenav-eval hands it to the localizer."""
+    from omegaconf import OmegaConf
+
+    from blenav.configs import compose
+
+    cfg = compose("eval", "+localizer@methods.fp=fingerprint")
+    return OmegaConf.to_container(cfg.methods.fp.training, resolve=True)

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import importlib.util
 import math
-from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+from helpers import REPO
+
+BENCH = REPO / "benchmarks"
 
 
 def _load(name: str, monkeypatch):

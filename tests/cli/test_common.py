@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from helpers import make_tiny_dataset
+from helpers import REPO, make_tiny_dataset
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 BIN = Path(sys.executable).parent
 
 

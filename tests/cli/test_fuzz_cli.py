@@ -52,11 +52,13 @@ from fuzz_helpers import (
     two_bad_faults,
 )
 
+from helpers import REPO
+
 pytestmark = pytest.mark.timeout(900)
 #: the evaluation is the slow part: fewer examples than the readers' tests in the default run
 #: the evaluation is the slow part (about 0.7 s an example): 12 examples per test in the default run
 CI_EVAL = settings(CI, max_examples=max(CI.max_examples * 3 // 5, 1))
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 BIN = Path(sys.executable).parent
 #: keys whose values are timings or the dataset's path, not results
 VOLATILE = {"wall_s", "realtime_factor", "dataset"}

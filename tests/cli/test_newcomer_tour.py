@@ -21,7 +21,8 @@ import yaml
 from blenav.configs import compose
 from blenav.data import Dataset
 
-REPO = Path(__file__).resolve().parents[1]
+from helpers import REPO
+
 BIN = Path(sys.executable).parent
 
 

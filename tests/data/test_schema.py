@@ -23,7 +23,7 @@ from blenav.data import Dataset, check_session_in_building, sum_dropped, validat
 from blenav.data.schema import PLAUSIBLE, T_MAX_S
 from blenav.data.writer import write_csv, write_fixes
 from blenav.errors import DatasetError
-from helpers import errors, lines, rel, set_cell
+from helpers import REPO, errors, lines, rel, set_cell
 
 S = "sessions/walk0"
 B = "buildings/house"
@@ -129,7 +129,7 @@ def test_zero_byte_file_is_not_truncated(tiny_dataset):
 
 
 def test_writer_ends_every_file_with_a_newline(tiny_dataset, tmp_path):
-    """The simulator's output is validated for every preset (tests/test_sim.py) and every importer validates
+    """The simulator's output is validated for every preset (tests/sim/test_world.py) and every importer validates
     what it wrote, so the truncation rule holds for them too."""
     files = list(tiny_dataset.rglob("*.csv")) + list(tiny_dataset.rglob("*.yaml"))
     assert len(files) >= 6
@@ -227,7 +227,7 @@ def test_imu_in_milliseconds_of_a_short_session_is_caught_by_its_rate(tiny_datas
 
 
 def test_ranges_are_documented():
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "dataset-format.md").read_text()
+    doc = (REPO / "docs" / "dataset-format.md").read_text()
     for (stream, column), p in PLAUSIBLE.items():
         assert f"`{stream}.csv`" in doc and column in doc and p.rule in doc
     for rule in ("truncated", "time-range", "imu-rate", "floor-no-free-space", "anchor-off-floor",

@@ -111,7 +111,7 @@ def _mapper_class():
 
 
 MapperAtOffset = _mapper_class()
-register("test_beacon_map.MapperAtOffset")  # code, not a file: the config below may name it (blenav.trust)
+register(f"{__name__}.MapperAtOffset")  # code, not a file: the config below may name it (blenav.trust)
 
 
 def test_harness_perturbs_per_run_scores_beacons_and_writes_the_files(tmp_path):
@@ -131,7 +131,7 @@ def test_harness_perturbs_per_run_scores_beacons_and_writes_the_files(tmp_path):
     cfg = compose("eval", "experiment=mapfusion_002", f"data={data}", "runs=3", f"out={out}", "plots=false",
                   "progress=false", "calibration=none", "methods.pf_pl_map=null", "methods.pf_ps=null",
                   "methods.pf_ps_map=null", "methods.pf_pl_offset=null", "methods.pf_ps_map_offset=null",
-                  "+methods.mapper={_target_: test_beacon_map.MapperAtOffset}", "beacon_map.noise_m=2.0",
+                  f"+methods.mapper={{_target_: {__name__}.MapperAtOffset}}", "beacon_map.noise_m=2.0",
                   "beacon_map.vertical=false")
     res = evaluate(cfg)
     m = res["methods"]["mapper"]

@@ -16,7 +16,7 @@ from blenav import limits
 from blenav.errors import ImportError_
 from blenav.importers import run_import
 
-from test_ilc20 import walk_lines, write_floor, write_walk
+from ilc20_helpers import walk_lines, write_floor, write_walk
 
 BIG = "mall/F1/path_data_files/big.txt"
 

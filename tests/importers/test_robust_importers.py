@@ -3,7 +3,7 @@ danis_ble_tracks, kolakowski_ble_calib, ilc20) on small raw inputs.
 
 Each importer gets a small raw folder in its own format: the first lines of the public recordings in
 ../shared/data/raw (marker ``realdata``; skipped with the reason when absent) or, for ILC 2.0, a synthetic
-floor and walk (tests/test_ilc20.py's writer). Each example copies it, applies one generated fault to one
+floor and walk (tests/importers/test_ilc20.py's writer). Each example copies it, applies one generated fault to one
 raw file (truncation at any byte, a byte flipped, a line dropped, duplicated or swapped with another --
 shuffled and duplicated timestamps --, a cell set to NaN / inf / text / empty / a huge number, an RSSI far
 outside (-150, 0) dBm, NaN in the IMU, a file with its header only or no bytes at all, an anchor line removed

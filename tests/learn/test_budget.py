@@ -19,6 +19,8 @@ from blenav.learn.common.schedule import lr_factor
 from blenav.learn.common.trainer import TrainingMonitor
 from blenav.learn.train import train
 
+from helpers import REPO
+
 TINY = ["model=locnet", "data.batch_size=32", "trainer.enable_progress_bar=false", "model.locnet.hidden=16",
         "model.locnet.fc_hidden=8", "data.holdout=0", "data.val_fraction=0.3", "plots=false"]
 
@@ -183,7 +185,7 @@ def test_optuna_sweep_command_finds_and_records_the_best_trial(two_phones, tmp_p
 
     import yaml
 
-    repo = Path(__file__).resolve().parents[1]
+    repo = REPO
     sweep = tmp_path / "sweep"
     cmd = [sys.executable, str(repo / "train.py"), "-m", "hparams_search=crossphone_optuna", "experiment=crossphone_s2",
            f"data={two_phones}", "data.holdout=0", "data.val_fraction=0.3", "data.test_devices=null",

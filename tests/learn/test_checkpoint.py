@@ -24,9 +24,8 @@ from blenav.learn.common.checkpoint import SAFE_GLOBALS, UnsafeCheckpointError, 
 from blenav.learn.crossphone.checkpoint import load_module
 from blenav.learn.mapprior.checkpoint import load_map_prior, load_mapprior
 from blenav.learn.train import train
-from helpers import simulate_small
+from helpers import REPO, simulate_small
 
-REPO = Path(__file__).resolve().parents[1]
 TINY_CP = ["data.batch_size=32", "trainer.enable_progress_bar=false", "trainer.max_epochs=1",
            "model.locnet.hidden=16", "model.locnet.fc_hidden=8"]
 TINY_MP = ["trainer.enable_progress_bar=false", "data.samples_per_epoch=64", "data.val_samples=32",

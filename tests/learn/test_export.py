@@ -26,9 +26,10 @@ from blenav.learn.export import export
 from blenav.learn.train import train
 from blenav.runtime import OnnxLocalizer
 
+from helpers import REPO
+
 pytestmark = pytest.mark.onnx
 
-REPO = Path(__file__).resolve().parents[1]
 MODELS = ["locnet", "transnet_locnet"]
 TOL = 1e-4
 

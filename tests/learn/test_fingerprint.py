@@ -1,18 +1,17 @@
 """LocNet on fingerprint windows (blenav.learn.fingerprint.train): the run's config as conf/train.yaml gives it, built
 from the training node conf/localizer/fingerprint.yaml composes,
 the windows handed to the trainer through the data module's own code (tensors, validation cap), and the
-checkpoint's data_path naming the walks' dataset. Synthetic ILC walks (tests/test_fingerprint.py's coded walks)."""
+checkpoint's data_path naming the walks' dataset. Synthetic ILC walks (the ``coded`` fixture of tests/conftest.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from test_fingerprint import coded as walks  # noqa: F401 -- the fixture: walks A, B (trained), C, imported
-from test_fingerprint import training_node
+from helpers import training_node
 
 
-def test_array_windows_use_the_data_module_and_its_validation_cap(walks, tmp_path):
+def test_array_windows_use_the_data_module_and_its_validation_cap(coded, tmp_path):
     """ArrayWindows: the run config's data node (path = the walks' dataset), the data module's tensors
     (u / 100, float32) and its seeded validation cap data.val_max_windows (8 windows -> 3, the subset of
     default_rng([seed, 2]), in order)."""
@@ -21,9 +20,9 @@ def test_array_windows_use_the_data_module_and_its_validation_cap(walks, tmp_pat
     from blenav.learn.fingerprint.train import ArrayWindows, dataset_root, run_config
     from blenav.learn.crossphone.train import data_config
 
-    ss = [walks.session("mall_F1_walkA"), walks.session("mall_F1_walkB")]
+    ss = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")]
     root = dataset_root(ss)
-    assert root == walks.root.resolve()
+    assert root == coded.root.resolve()
     cfg = run_config(training_node(), "locnet", tmp_path / "run", root, 3, {"lr": 0.002}, {"budget": {"max_steps": 7}},
                      0.5, 4, 1, False, building="mall", sessions=[s.id for s in ss])
     assert cfg.model.lr == 0.002 and cfg.model.name == "locnet" and cfg.trainer.budget.max_steps == 7
@@ -74,7 +73,7 @@ def test_run_config_is_what_conf_train_yaml_gives(model, tmp_path):
     assert new.model.name == model and new.data.seed == 3
 
 
-def test_locnet_checkpoint_records_the_walks_dataset(walks, tmp_path):
+def test_locnet_checkpoint_records_the_walks_dataset(coded, tmp_path):
     """A short LocNet run on WiFi windows: data_path of the checkpoint is the dataset, config.yaml its data node."""
     import yaml
 
@@ -86,13 +85,13 @@ def test_locnet_checkpoint_records_the_walks_dataset(walks, tmp_path):
                                trainer={"budget": {"max_steps": 4, "val_every_steps": 2, "warmup_steps": 1}})
     with pytest.raises(ValueError, match="needs the networks' training config"):
         FingerprintLocalizer("LocNet-WiFi", model="locnet")
-    rep = loc.fit([walks.session("mall_F1_walkA"), walks.session("mall_F1_walkB")], RunContext(out=tmp_path))
+    rep = loc.fit([coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], RunContext(out=tmp_path))
     tr = rep["floors"]["mall/F1"]["training"]
     assert tr["steps"] == 4 and tr["train_windows"] == 5 and tr["val_windows"] == 5
     run = tmp_path / "fingerprint" / "LocNet-WiFi" / "mall_F1"
-    assert read_meta(run / "last.ckpt")["data_path"] == str(walks.root.resolve())  # not the run folder
+    assert read_meta(run / "last.ckpt")["data_path"] == str(coded.root.resolve())  # not the run folder
     data = yaml.safe_load((run / "config.yaml").read_text())["data"]
-    assert data["path"] == str(walks.root.resolve()) and data["val_max_windows"] == 2048 and data["seed"] == 3
+    assert data["path"] == str(coded.root.resolve()) and data["val_max_windows"] == 2048 and data["seed"] == 3
 
 
 def test_compose_inside_a_running_hydra_app():

@@ -35,9 +35,8 @@ from blenav.learn.mapprior.train import mapprior_data_config
 from blenav.learn.train import train
 from blenav.models.mapprior import MapEncoder, MapPriorNet
 from blenav.runtime.map_prior import LOG_FLOOR, MapPrior
-from helpers import simulate_small
+from helpers import REPO, simulate_small
 
-REPO = Path(__file__).resolve().parents[1]
 TINY = ["trainer.enable_progress_bar=false", "data.samples_per_epoch=96", "data.val_samples=32", "data.batch_size=16",
         "data.crop_px=32", "model.net.unet_channels=[4,8]", "model.net.channels=8", "early_stopping=null"]
 

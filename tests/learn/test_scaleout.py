@@ -11,8 +11,9 @@ from pathlib import Path
 import pytest
 import torch
 
+from helpers import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 TINY = ["trainer.max_epochs=1", "trainer.enable_progress_bar=false", "model.locnet.hidden=16",
         "model.locnet.fc_hidden=8", "data.batch_size=32"]
 

@@ -46,8 +46,8 @@ def _cfg(data, out, *over):
 
 def test_a_new_class_runs_without_any_harness_change(tmp_path):
     data = make_tiny_dataset(tmp_path / "tiny")
-    cfg = _cfg(data, tmp_path / "out", "+methods.shifted={_target_: test_localizers.GroundTruthPlusOffset, "
-               "label: shifted, offset_m: 1.5}", "+methods.radio={_target_: test_localizers.NeedsRadio}",
+    cfg = _cfg(data, tmp_path / "out", f"+methods.shifted={{_target_: {__name__}.GroundTruthPlusOffset, "
+               "label: shifted, offset_m: 1.5}", f"+methods.radio={{_target_: {__name__}.NeedsRadio}}",
                "methods.pf_pl_map=null", "methods.pf_ps=null", "methods.pf_ps_map=null", "calibration=none")
     res = evaluate(cfg)
     m = res["methods"]["shifted"]

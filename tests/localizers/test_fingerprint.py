@@ -18,40 +18,8 @@ from blenav.eval.harness import evaluate
 from blenav.features import fingerprints as FP
 from blenav.importers import run_import
 from blenav.localizers.fingerprint import FingerprintLocalizer
-from test_ilc20 import walk_lines, write_floor, write_walk
-
-START = 1_600_000_000_000
-
-
-def training_node() -> dict:
-    """The networks' training node (data, trainer, models) conf/localizer/fingerprint.yaml composes into a method's
-    node, as blenav-eval hands it to the localizer."""
-    from omegaconf import OmegaConf
-
-    cfg = compose("eval", "+localizer@methods.fp=fingerprint")
-    return OmegaConf.to_container(cfg.methods.fp.training, resolve=True)
-
-
-def coded_walk(start: int, y: float, ap_prefix: str = "aa:00") -> list[str]:
-    """A 6 s walk along x at 4 m/s from (5, y) (waypoints at 0.01, 2.51, 5.01 s: 5, 15, 25 m); at the scan of
-    second s (t = s + 0.5) access point ``<prefix>:0c``, c = min(s, 4), is heard at -50 dBm besides the importer
-    test's two (the last scan, after the last waypoint, repeats the code of the one before)."""
-    extra = []
-    for s in range(6):
-        t = start + 1000 * s + 500
-        extra.append((t, f"{t}\tTYPE_WIFI\tcoded\t{ap_prefix}:00:00:0{min(s, 4)}\t-50\t2412\t{t - 100}"))
-    return walk_lines(start=start, waypoints=((5.0, y), (15.0, y), (25.0, y)), extra=extra)
-
-
-@pytest.fixture
-def coded(tmp_path):
-    """walkA at y = 5 m, walkB at y = 7 m (both trained on), walkC at y = 5 m (tested)."""
-    d = write_floor(tmp_path / "raw")
-    for name, y, k in (("walkA", 5.0, 0), ("walkB", 7.0, 1), ("walkC", 5.0, 2)):
-        write_walk(d, name, coded_walk(START + k * 100_000, y))
-    run_import("ilc20", d, tmp_path / "ds")
-    return Dataset.open(tmp_path / "ds")
-
+from helpers import training_node
+from ilc20_helpers import START, coded_walk, write_floor, write_walk
 
 def test_step_vectors_average_a_scan_and_a_ble_window():
     rd = pd.DataFrame({"t": [1.0, 1.0, 2.0, 0.5, 1.8, 2.9], "feature": ["wifi:a", "wifi:b", "wifi:a", "ble:x", "ble:x", "ble:x"],

@@ -131,7 +131,7 @@ def hall(tmp_path_factory) -> Path:
     0.5 m cell centres, one per second (RTT readings noise-free), a visual fix in two of its seconds, and a
     labelled static survey (noisy readings) for offline calibration."""
     root = tmp_path_factory.mktemp("ranging") / "hall"
-    write_dataset_meta(root, "hall", "test_ranging", "CC0", "tests/test_ranging.py")
+    write_dataset_meta(root, "hall", "test_ranging", "CC0", "tests/localizers/test_ranging.py")
     occ = np.full((100, 120), FREE, np.int8)  # 0.1 m/px
     occ[:1, :] = occ[-1:, :] = occ[:, :1] = occ[:, -1:] = OCCUPIED
     anchors = pd.DataFrame({"anchor_id": [f"ap{i}" for i in range(5)], "kind": "wifi_rtt", "x": AP_XYZ[:, 0],

@@ -17,9 +17,9 @@ from blenav.cli.plot import main as plot_main
 from blenav.data import Dataset
 from blenav.data.writer import write_building, write_session
 from blenav.radio_stats import anchor_positions, fit_path_loss, path_loss_rssi, rssi_distance_pairs
-from helpers import tiny_grid
+from helpers import REPO, tiny_grid
 
-SRC = Path(__file__).resolve().parents[1] / "src" / "blenav"
+SRC = REPO / "src" / "blenav"
 
 # anchors of tests/helpers.py: id -> (x, y, z)
 TINY_ANCHORS = {"b1": (1.0, 1.0, 2.5), "b2": (9.0, 1.0, 2.5), "b3": (1.0, 7.0, 2.5), "b4": (9.0, 7.0, 2.5),

@@ -28,10 +28,9 @@ from blenav.learn.export import export
 from blenav.learn.train import train
 from blenav.runtime import Bundle, BuildingMismatch
 from blenav.runtime.bundle import MANIFEST, variant_name
-from helpers import simulate_small
+from helpers import REPO, simulate_small
 
 pytestmark = pytest.mark.onnx
-REPO = Path(__file__).resolve().parents[1]
 TINY_MP = ["trainer.enable_progress_bar=false", "data.samples_per_epoch=64", "data.val_samples=32",
            "data.batch_size=16", "data.crop_px=32", "model.net.unet_channels=[4,8]", "model.net.channels=8",
            "trainer.max_epochs=1", "early_stopping=null"]

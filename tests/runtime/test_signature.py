@@ -1,6 +1,6 @@
 """Issue 18, section 4: a bundle refuses a building whose beacons or floor plan are not its own, with a message that
 says what differs (blenav.runtime.signature; the bundle calls :func:`check_building` in ``Bundle.check_building``,
-``localizer`` and ``run_session``, see tests/test_bundle.py for the refusal through a real bundle).
+``localizer`` and ``run_session``, see tests/runtime/test_bundle.py for the refusal through a real bundle).
 
 No ONNX graph is needed: the signature is the building's, the refusal compares signatures."""
 

@@ -116,7 +116,7 @@ def offset_range_error(r: float, gamma: float, this, values, H) -> np.ndarray:
     10^(-delta / (10 gamma)) (000 sec. IV-B's conversion r = d0 10^((a_X - rssi) / (10 gamma))). Keys: X (Pose3),
     L (Point3), O (1-D). Jacobians: d e / d pose = [0, s u^T R] (GTSAM's Pose3 tangent: rotation, then
     translation in the body frame), d e / d l = -s u^T, d e / d delta = -s d ln(10) / (10 gamma), with u the unit
-    vector from l to t and s the scale. With delta = 0 it is GTSAM's RangeFactor3D (tests/test_backend_graph.py)."""
+    vector from l to t and s the scale. With delta = 0 it is GTSAM's RangeFactor3D (tests/backend/test_graph.py)."""
     keys = this.keys()
     pose = values.atPose3(keys[0])
     l = np.asarray(values.atPoint3(keys[1]), float)

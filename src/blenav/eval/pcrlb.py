@@ -15,7 +15,7 @@ al. 1998, the linear-Gaussian dynamics case)::
 
 so that (matrix inversion lemma) ``J_{k+1} = (Q + F J_k^{-1} F^T)^{-1} + J_z``: with a linear-Gaussian
 measurement ``J_z = H^T R^{-1} H`` this is the Kalman filter's information recursion, and the bound equals
-the KF's covariance (tests/test_pcrlb.py checks it).
+the KF's covariance (tests/eval/test_pcrlb.py checks it).
 
 The model here (all arrays in the floor's world frame, metres, seconds):
 

@@ -6,7 +6,7 @@ sample (the streaming path). Both reproduce ``ahrs.filters.Madgwick.updateIMU``/
 rotated magnetometer quaternion too), the same left-to-right Python float arithmetic, the norms as numpy's
 ``np.linalg.norm`` = sqrt of a BLAS dot (fused multiply-adds from the first element on, as OpenBLAS's
 scalar tail computes it) and ``J.T @ f`` as a sum over the six residuals in order. Measured against
-ahrs on a 384 s, 200 Hz session (tests/test_attitude.py): the quaternions agree to ~1e-15 (bit-identical
+ahrs on a 384 s, 200 Hz session (tests/filters/test_attitude.py): the quaternions agree to ~1e-15 (bit-identical
 on most samples; a BLAS built otherwise rounds some dot products differently, which stays at that level:
 the filter is contracting).
 

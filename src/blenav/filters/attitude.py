@@ -60,7 +60,7 @@ Helpers: :func:`gravity_compensated_acc` (eq. 6 of the paper: a~ = R a + g, g = 
 simulator, like a raw Android magnetometer, adds a per-device hard-iron offset of ~15 uT per axis,
 which otherwise biases the heading by tens of degrees).
 
-Accuracy on the simulator's ``small`` preset, 60 s, 200 Hz, seed 0 (tests/test_attitude.py), median
+Accuracy on the simulator's ``small`` preset, 60 s, 200 Hz, seed 0 (tests/filters/test_attitude.py), median
 misalignment after 5 s: with a calibrated magnetometer in a clean field 0.5-1.7 deg (Madgwick, Mahony)
 and 2.3-4.9 deg (EKF, which has no gyro-bias state); with the default indoor disturbances and a
 fitted hard-iron offset 15-17 deg on a pedestrian session, where the compass alone is 15 deg off.

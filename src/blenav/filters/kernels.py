@@ -6,7 +6,7 @@ models live next to their models under the same rules: :mod:`blenav.filters.moti
 queries, wall crossings).
 
 Every kernel does the operations of the numpy code it replaces in the same order, so the numbers are
-the same bit for bit (tests/test_kernels.py compares them with the numpy expressions):
+the same bit for bit (tests/filters/test_kernels.py compares them with the numpy expressions):
 
 * elementwise arithmetic is written as numpy evaluates it (left to right, no fused multiply-add: numba
   does not contract a * b + c unless asked), with the same float32/float64 conversions;

@@ -158,7 +158,7 @@ class _PathLoss(MeasurementModel):
 
         float32: these arrays are the filter's largest; centimetre resolution is plenty for residuals of
         metres (PF-PL) or dB (PF-PS), and it halves their time. Compiled (measurement_kernels.distances_mp, the
-        inner loop over the particles): the numbers of the numpy expression kept in tests/test_kernels.py
+        inner loop over the particles): the numbers of the numpy expression kept in tests/filters/test_kernels.py
         (dx^2 + dy^2 + dz^2 in float32, then sqrt)."""
         return K.distances_mp(_rows(xy), self.anchors.xyz[idx], float(self.device_z), 0.0)
 

@@ -2,7 +2,7 @@
 anchors, and per particle the sum of its squared float32 residuals in the order numpy's
 ``einsum('rnm,rnm->rn')`` sums them (four SIMD lanes, :func:`_sum_squares_sse`). Written under the bit-identity
 rules of :mod:`blenav.filters.kernels` (single-threaded, cached on disk); log10 of float32 stays in numpy,
-between two kernels. tests/test_kernels.py compares them with the numpy expressions they replaced.
+between two kernels. tests/filters/test_kernels.py compares them with the numpy expressions they replaced.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Compiled (numba) proposals of :mod:`blenav.filters.motion`: :class:`~blenav.filters.motion.RandomWalk` and
 :class:`~blenav.filters.motion.ImuProposal`, one pass over the particles each, with the speed cap's
 all-or-nothing scaling. Written under the bit-identity rules of :mod:`blenav.filters.kernels` (single-threaded,
-cached on disk); tests/test_kernels.py compares them with the numpy expressions they replaced.
+cached on disk); tests/filters/test_kernels.py compares them with the numpy expressions they replaced.
 """
 
 from __future__ import annotations

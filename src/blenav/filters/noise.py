@@ -9,7 +9,7 @@ while it fills an array).
 Determinism: the proxy owns its own Generator (a child of the filter's, see :func:`motion_stream`), and every
 draw from it -- the prefetched blocks, and any other method a model calls -- runs in one worker thread in the
 order the filter requested it. The stream a model sees is therefore a function of the seed and of the
-sequence of requests only, never of thread timing (tests/test_noise.py delays the worker to check it).
+sequence of requests only, never of thread timing (tests/filters/test_noise.py delays the worker to check it).
 """
 
 from __future__ import annotations

@@ -76,7 +76,7 @@ class StepDetector:
 # The same rule as one compiled pass: the Euclidean norm of each accelerometer sample, the trailing mean of the
 # last w = max(1, round(smooth_s rate_hz)) norms (fewer at the start) summed oldest first as the deque of
 # StepDetector, a step at each upward crossing of mean - 9.80665 above threshold at least min_interval_s after
-# the previous step; tests/test_crf.py checks the flags equal StepDetector's. An hour at 200 Hz takes
+# the previous step; tests/crf/test_crf.py checks the flags equal StepDetector's. An hour at 200 Hz takes
 # milliseconds instead of seconds.
 @njit(cache=True, nogil=True)
 def _flags(t, acc, w, threshold, min_interval):

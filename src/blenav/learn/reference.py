@@ -1,4 +1,4 @@
-"""The PyTorch-eager pipeline a runtime bundle must reproduce (tests/test_bundle.py, benchmarks/runtime_latency.py).
+"""The PyTorch-eager pipeline a runtime bundle must reproduce (tests/runtime/test_bundle.py, benchmarks/runtime_latency.py).
 
 torch LocNet over the session's batch windows -> position fixes; the map prior loaded from its checkpoint with
 torch; the bundle's filter settings; :func:`blenav.filters.runner.run_session` with those fixes.

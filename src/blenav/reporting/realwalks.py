@@ -44,7 +44,7 @@ def table_rows(methods: dict) -> dict[str, tuple[str, ...]]:
 
 
 #: the map-prior outcomes of issue 17 (left open by the map-prior issue): (question, row a, row b); a beats b
-#: when its mean error is lower (labels of conf/experiment/realwalks.yaml; tests/test_realwalks.py checks them)
+#: when its mean error is lower (labels of conf/experiment/realwalks.yaml; tests/eval/test_realwalks.py checks them)
 OUTCOMES = (("sparse BLE + odometry + learned map vs dense BLE (WiFi+BLE fixes)", "BLE+PDR+learned-map", "KNN-WiFi+BLE"),
             ("sparse BLE + odometry + learned map vs odometry + learned map", "BLE+PDR+learned-map", "PDR+learned-map"),
             ("sparse BLE + odometry + learned map vs sparse BLE + odometry", "BLE+PDR+learned-map", "BLE+PDR"),

@@ -2,7 +2,7 @@
 shrunk-boundary projections (:mod:`~blenav.filters.map.index`), the obstacle snap of the conditioning
 (:mod:`~blenav.filters.map.conditioning`) and the wall-crossing test of a step (:mod:`~blenav.filters.map.walls`).
 Each does the arithmetic of the numpy / shapely code it replaced in the same order, under the bit-identity rules
-of :mod:`blenav.filters.kernels` (single-threaded, cached on disk); tests/test_kernels.py and the map tests
+of :mod:`blenav.filters.kernels` (single-threaded, cached on disk); tests/filters/test_kernels.py and the map tests
 compare them.
 """
 

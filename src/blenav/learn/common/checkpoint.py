@@ -44,7 +44,7 @@ KEY = "blenav"
 #: ``torch.serialization.get_unsafe_globals_in_checkpoint`` on every kind of checkpoint train.py writes
 #: (LocNet, TransNet+LocNet, DL-RNN, scenario 3 with its semi-supervised stage, the map prior with early
 #: stopping; Lightning 2.6, torch 2.13): they hold tensors, dicts, lists, str, numbers, bool and None only,
-#: so nothing needs allowing and the list is empty (tests/test_checkpoint_safety.py keeps it that way: a
+#: so nothing needs allowing and the list is empty (tests/learn/test_checkpoint.py keeps it that way: a
 #: type added to a checkpoint fails there first). Add a type only if rebuilding it cannot run code.
 SAFE_GLOBALS: tuple = ()
 
