@@ -28,6 +28,13 @@ def two_phones(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="session")
+def three_walks(tmp_path_factory):
+    """A simulated 'small' building, 3 one-minute pedestrian walks, seed 3 (read-only): the map prior's tiny
+    training data of tests/learn/test_mapprior.py, tests/learn/test_checkpoint.py and tests/test_onnx_io.py."""
+    return simulate_small(tmp_path_factory.mktemp("three_walks") / "d", 3, 60, 3)
+
+
 @pytest.fixture
 def raw_dir():
     """../shared/data/raw, or skip with the reason when it is absent."""

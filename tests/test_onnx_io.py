@@ -25,7 +25,6 @@ from blenav.learn.export import export
 from blenav.learn.train import train
 from blenav.runtime import OnnxLocalizer
 from blenav.runtime.map_prior import MapPrior
-from helpers import simulate_small
 
 pytestmark = pytest.mark.onnx
 
@@ -45,10 +44,9 @@ def localizer(two_phones, tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def mapprior_dir(tmp_path_factory) -> Path:
+def mapprior_dir(three_walks, tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("mpx")
-    data = simulate_small(root / "d", 3, 60, 2)
-    train(compose("train", "experiment=mapprior", f"data={data}", f"out={root / 'run'}", *TINY_MP))
+    train(compose("train", "experiment=mapprior", f"data={three_walks}", f"out={root / 'run'}", *TINY_MP))
     return Path(export(compose("export", f"ckpt={root / 'run' / 'last.ckpt'}", f"out={root / 'export'}")))
 
 

@@ -36,11 +36,18 @@ def tiny(tmp_path_factory):
     return make_tiny_dataset(tmp_path_factory.mktemp("cli") / "tiny")
 
 
+# One blenav-eval process each (~5 s): the nearest-key messages are checked in-process by
+# tests/eval/test_config.py::test_a_misspelt_key_or_bad_value_fails_naming_it, the one-line CLI path by '+runz=3'
+# here; the other spellings of a misspelt key run with -m slow.
+SLOW = pytest.mark.slow
+
+
 @pytest.mark.parametrize("override, words", [
     ("+runz=3", ["unknown key 'runz'", "did you mean 'runs'"]),
-    ("runz=3", ["unknown key 'runz'", "did you mean 'runs'"]),
-    ("filter.n_particle=3", ["did you mean 'filter.n_particles'"]),
-    ("+plan_error.barriers=1", ["plan_error.barriers", "did you mean 'plan_error.barriers_per_100m2'"]),
+    pytest.param("runz=3", ["unknown key 'runz'", "did you mean 'runs'"], marks=SLOW),
+    pytest.param("filter.n_particle=3", ["did you mean 'filter.n_particles'"], marks=SLOW),
+    pytest.param("+plan_error.barriers=1", ["plan_error.barriers", "did you mean 'plan_error.barriers_per_100m2'"],
+                 marks=SLOW),
     ("experiment=mapfusion_00", ["no experiment named 'mapfusion_00'", "did you mean 'mapfusion_002'"]),
 ])
 def test_eval_refuses_unknown_keys_with_the_nearest(tiny, tmp_path, override, words):
@@ -57,15 +64,36 @@ def test_a_failing_run_leaves_no_output_folder_and_the_bar_does_not_hide_the_err
     line = _one_line_error(p, "blenav-eval", "reinit_fraction", "PF-PL")
     assert p.stderr.rstrip().endswith(line)  # the last thing on the terminal
     assert not out.exists()
-    p = _run(BIN / "blenav-eval", "experiment=mapfusion_002", f"data={tiny}", f"out={out}", "runs=1",
+
+
+# slow (one more blenav-eval run, ~10 s): the traceback only with --debug is
+# tests/cli/test_outdir.py::test_memory_and_import_errors_are_one_line_and_the_traceback_only_with_debug
+@pytest.mark.slow
+def test_a_failing_run_shows_its_traceback_with_debug(tiny, tmp_path):
+    p = _run(BIN / "blenav-eval", "experiment=mapfusion_002", f"data={tiny}", f"out={tmp_path / 'o'}", "runs=1",
              "calibration=none", "+methods.pf_pl.filter.reinit_fraction=1.5", "--debug")
     assert p.returncode == 1 and "Traceback" in p.stderr
 
 
 def test_train_and_export_say_what_is_missing(tmp_path):
+    from blenav.configs import compose
+    from blenav.learn.export import export
+    from blenav.learn.train import train
+
     _one_line_error(_run(sys.executable, "train.py"), "train.py", "data=DIR")
-    _one_line_error(_run(sys.executable, "train.py", f"data={tmp_path / 'nope'}"), "train.py", "does not exist")
     _one_line_error(_run(sys.executable, "export.py"), "export.py", "ckpt=")
+    # a path that does not exist: the errors the entry points print (in-process; through them: the slow test below)
+    with pytest.raises(ValueError, match=r"nope: \[missing-dataset\] dataset folder does not exist"):
+        train(compose("train", f"data={tmp_path / 'nope'}", f"out={tmp_path / 'run'}"))
+    with pytest.raises(FileNotFoundError, match=r"checkpoint .*x\.ckpt does not exist"):
+        export(compose("export", f"ckpt={tmp_path / 'x.ckpt'}", f"out={tmp_path / 'x.onnx'}"))
+
+
+# slow (two more train.py / export.py processes, ~30 s): the same errors in-process and the one-line path of both
+# entry points are in the test above
+@pytest.mark.slow
+def test_train_and_export_name_a_path_that_does_not_exist(tmp_path):
+    _one_line_error(_run(sys.executable, "train.py", f"data={tmp_path / 'nope'}"), "train.py", "does not exist")
     _one_line_error(_run(sys.executable, "export.py", f"ckpt={tmp_path / 'x.ckpt'}", f"out={tmp_path / 'x.onnx'}"),
                     "export.py", "does not exist")
 
@@ -77,7 +105,11 @@ def test_fixes_refuses_a_file_that_is_not_onnx(tiny, tmp_path):
                     "not an ONNX model")
 
 
-@pytest.mark.parametrize("fault", ["no-building-yaml", "unknown-building", "labelled-without-groundtruth"])
+# One blenav-eval process each (~10 s): the readers' messages are checked in-process (tests/data/test_dataset.py,
+# tests/data/test_schema.py), corrupted datasets through the command line by
+# tests/cli/test_fuzz_cli.py::test_cli_refuses_a_corrupted_dataset_in_one_line; two of the three run with -m slow.
+@pytest.mark.parametrize("fault", ["no-building-yaml", pytest.param("unknown-building", marks=SLOW),
+                                   pytest.param("labelled-without-groundtruth", marks=SLOW)])
 def test_eval_on_a_broken_dataset_is_one_line_naming_the_file(tiny, tmp_path, fault):
     """Issue 19: these printed a ~20-line Hydra traceback ending in the clear message."""
     import shutil

@@ -109,6 +109,9 @@ def test_experiment_devices_follow_the_dataset(small, two_phones, tmp_path):
     assert list(d.known_devices) == ["iphone-7", "iphone-8", "iphone-xr"]
 
 
+# slow (a train.py process, ~12 s): the message is tests/features/test_windows.py's split_by_device check
+# ("no session"), train.py's one-line path tests/cli/test_common.py::test_train_and_export_say_what_is_missing
+@pytest.mark.slow
 def test_named_devices_the_dataset_lacks_are_one_line_naming_its_devices(small, tmp_path):
     r = subprocess.run([sys.executable, "train.py", "experiment=crossphone_s2", f"data={small}",
                         f"out={tmp_path / 'run'}", "data.train_devices=[galaxy-s10]"], cwd=REPO, capture_output=True,

@@ -71,6 +71,12 @@ def test_command_line_conveniences():
     assert cli_overrides(["model=locnet"]) == ["model=locnet"]  # train.py: a network config
 
 
+# slow (two python -m blenav.cli.eval processes on the simulated walks, ~25 s): blenav-eval end to end through its
+# command line (sessions=, overwrite=true, results.json) is tests/cli/test_outdir.py::
+# test_rerun_is_refused_without_overwrite_and_replaces_the_old_output_whole_with_it, the old output left as it was
+# after a failed run test_outdir.py::test_a_run_cut_short_leaves_the_old_output_as_it_was, mapfusion_002 on the
+# simulated walks in-process the tests below
+@pytest.mark.slow
 def test_cli_smoke(small, tmp_path):
     ds = Dataset.open(small)
     sid = ds.session_ids[0]
@@ -103,6 +109,12 @@ def test_session_without_usable_ble_is_skipped_and_said(small, tmp_path):
     m = res["methods"]["PF-PS"]
     assert sid in m["skipped"] and "no usable BLE" in m["skipped"][sid]
     assert sid not in m["per_session"]
+
+
+def test_a_dataset_that_does_not_exist_is_a_clear_error(tmp_path):
+    with pytest.raises(EvalError, match=r"cannot open dataset .*nope"):
+        evaluate(cfg("experiment=mapfusion_002", f"data={tmp_path / 'nope'}", "runs=1", f"out={tmp_path / 'o'}"))
+    assert not (tmp_path / "o").exists()
 
 
 def test_floor_without_free_space_is_a_clear_error(small, tmp_path):

@@ -24,7 +24,7 @@ from blenav.learn.common.checkpoint import SAFE_GLOBALS, UnsafeCheckpointError, 
 from blenav.learn.crossphone.checkpoint import load_module
 from blenav.learn.mapprior.checkpoint import load_map_prior, load_mapprior
 from blenav.learn.train import train
-from helpers import REPO, simulate_small
+from helpers import REPO
 
 TINY_CP = ["data.batch_size=32", "trainer.enable_progress_bar=false", "trainer.max_epochs=1",
            "model.locnet.hidden=16", "model.locnet.fc_hidden=8"]
@@ -50,7 +50,7 @@ class _Payload:
 
 
 @pytest.fixture(scope="module")
-def checkpoints(two_phones, tmp_path_factory):
+def checkpoints(two_phones, three_walks, tmp_path_factory):
     """kind -> last.ckpt of tiny real runs: scenario 3 (TransNet+LocNet, semi-supervised stage, augmentation
     generator state), DL-RNN, and the map prior with early stopping and the cosine schedule."""
     root = tmp_path_factory.mktemp("ckpts")
@@ -58,8 +58,7 @@ def checkpoints(two_phones, tmp_path_factory):
                   "data.train_devices=[iphone-8]", "data.unlabelled_devices=[galaxy-s10]", "semi.epochs=1"))
     train(compose("train", "model=dlrnn", f"data={two_phones}", f"out={root / 'dlrnn'}", "data.batch_size=32",
                   "trainer.enable_progress_bar=false", "trainer.max_epochs=1", "model.locnet.hidden=8"))
-    mp_data = simulate_small(root / "mpdata", 3, 60, 3)
-    train(compose("train", "experiment=mapprior", f"data={mp_data}", f"out={root / 'mp'}", *TINY_MP))
+    train(compose("train", "experiment=mapprior", f"data={three_walks}", f"out={root / 'mp'}", *TINY_MP))
     return {k: root / k / "last.ckpt" for k in ("s3", "dlrnn", "mp")}
 
 

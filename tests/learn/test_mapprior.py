@@ -35,7 +35,7 @@ from blenav.learn.mapprior.train import mapprior_data_config
 from blenav.learn.train import train
 from blenav.models.mapprior import MapEncoder, MapPriorNet
 from blenav.runtime.map_prior import LOG_FLOOR, MapPrior
-from helpers import REPO, simulate_small
+from helpers import REPO
 
 TINY = ["trainer.enable_progress_bar=false", "data.samples_per_epoch=96", "data.val_samples=32", "data.batch_size=16",
         "data.crop_px=32", "model.net.unet_channels=[4,8]", "model.net.channels=8", "early_stopping=null"]
@@ -172,10 +172,8 @@ def test_no_free_space_is_a_clear_error(tmp_path):
 # --- training from the real config -----------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def small_dataset(tmp_path_factory):
-    out = tmp_path_factory.mktemp("mp") / "d"
-    simulate_small(out, 3, 60, 3)
-    return out
+def small_dataset(three_walks):
+    return three_walks  # conftest.py: shared with the other map-prior trainings
 
 
 @pytest.fixture(scope="module")
