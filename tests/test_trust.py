@@ -47,8 +47,13 @@ CALLS: list = []
 
 
 def record_call(*args, **kwargs):
-    """The 'code' a hostile config names (as ``test_trust.record_call``): it records that it ran."""
+    """The 'code' a hostile config names (as :data:`RECORD_CALL`): it records that it ran."""
     CALLS.append((args, kwargs))
+
+
+#: record_call's dotted name as this module is imported (``test_trust`` or ``tests.test_trust``, by import mode): a
+#: config naming it reaches this module's CALLS, not those of a second copy imported under another name.
+RECORD_CALL = f"{__name__}.record_call"
 
 
 # --- the registry ----------------------------------------------------------------------------------------------
@@ -95,11 +100,11 @@ def test_every_registry_entry_is_a_blenav_class():
 
 
 def test_the_test_target_is_reachable_without_the_check():
-    """The property test below is meaningful: Hydra itself would call ``test_trust.record_call``."""
+    """The property test below is meaningful: Hydra itself would call :data:`RECORD_CALL`."""
     from hydra.utils import instantiate
 
     CALLS.clear()
-    instantiate({"a": [{"_target_": "test_trust.record_call", "x": 1}]})
+    instantiate({"a": [{"_target_": RECORD_CALL, "x": 1}]})
     assert CALLS == [((), {"x": 1})]
     CALLS.clear()
 
@@ -226,8 +231,8 @@ def test_hydra_node_checks_logging_factories_and_search_space():
     check_hydra_node(OmegaConf.create(ok), "cfg")
     for bad, words in [({"job_logging": {"formatters": {"f": {"()": "os.system"}}}}, "hydra.job_logging.formatters.f.()"),
                        ({"hydra_logging": {"handlers": {"h": {"class": "subprocess.Popen"}}}}, "hydra.hydra_logging"),
-                       ({"sweeper": {"custom_search_space": "test_trust.record_call"}}, "custom_search_space"),
-                       ({"callbacks": {"c": {"_target_": "test_trust.record_call"}}}, "hydra.callbacks.c._target_"),
+                       ({"sweeper": {"custom_search_space": RECORD_CALL}}, "custom_search_space"),
+                       ({"callbacks": {"c": {"_target_": RECORD_CALL}}}, "hydra.callbacks.c._target_"),
                        # red-team: a --config-dir file's env_set reached os.environ (LD_PRELOAD for any child
                        # process, BLENAV_MAX_MEMORY_GB lifting the memory bound)
                        ({"job": {"env_set": {"LD_PRELOAD": "/tmp/x.so"}}}, "hydra.job.env_set sets LD_PRELOAD"),
@@ -298,9 +303,9 @@ def test_bundle_verification_is_whole(tmp_path):
 
 def test_bundle_open_refuses_settings_naming_another_class(tmp_path):
     s = json.loads(json.dumps(DEFAULT_SETTINGS))
-    s["motion"]["hook"] = {"_target_": "test_trust.record_call"}
+    s["motion"]["hook"] = {"_target_": RECORD_CALL}
     _fake_bundle(tmp_path / "B", s)
-    with pytest.raises(UntrustedTargetError, match=r"settings\.json: motion\.hook\._target_ = 'test_trust\.record_call'"):
+    with pytest.raises(UntrustedTargetError, match=re.escape(f"settings.json: motion.hook._target_ = '{RECORD_CALL}'")):
         Bundle.open(tmp_path / "B")
 
 
@@ -319,7 +324,7 @@ _step = st.one_of(st.tuples(st.just("dict"), _keys, st.dictionaries(_keys, _beni
 @given(steps=st.lists(_step, min_size=1, max_size=6), kwargs=st.dictionaries(_keys, _benign, max_size=2),
        partial=st.booleans(), as_omegaconf=st.booleans())
 def test_a_foreign_target_at_any_depth_is_refused_and_never_called(steps, kwargs, partial, as_omegaconf):
-    node = {**kwargs, "_target_": "test_trust.record_call", **({"_partial_": True} if partial else {})}
+    node = {**kwargs, "_target_": RECORD_CALL, **({"_partial_": True} if partial else {})}
     segments = []
     for kind, key, siblings in reversed(steps):  # from the foreign node outwards
         if kind == "dict":
@@ -336,7 +341,7 @@ def test_a_foreign_target_at_any_depth_is_refused_and_never_called(steps, kwargs
     CALLS.clear()
     with pytest.raises(UntrustedTargetError) as e:
         check_targets(cfg, "generated")
-    assert f"{path} = 'test_trust.record_call'" in str(e.value)
+    assert f"{path} = '{RECORD_CALL}'" in str(e.value)
     with pytest.raises(UntrustedTargetError):
         safe_instantiate(cfg, "generated")
     with pytest.raises(UntrustedTargetError):

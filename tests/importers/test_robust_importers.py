@@ -117,7 +117,7 @@ def build_kolakowski(dst: Path) -> Path:
 
 def build_ilc20(dst: Path) -> Path:
     """A synthetic 40 x 20 m floor and one 6 s walk (50 Hz sensors, beacons, WiFi, 3 waypoints)."""
-    from test_ilc20 import walk_lines, write_floor, write_walk
+    from ilc20_helpers import walk_lines, write_floor, write_walk
 
     d = write_floor(dst)
     write_walk(d, "walkA", walk_lines())
