@@ -47,10 +47,11 @@ def test_knn_finds_the_exact_neighbours(coded):
     one = FingerprintLocalizer("KNN-1", k=1)
     rep = one.fit(train[:1])
     fl = rep["floors"]["mall/F1"]
-    # scans at 0.5 .. 5.5 s; the one at 5.5 s lies after the last waypoint (5.01 s): dropped from training
+    # scans delivered at 0.5 .. 5.5 s, heard at 0.2 .. 5.2 s (the median t_seen of their rows, 0.3 / 2.0 / 0.1 s
+    # before delivery); the one at 5.2 s lies after the last waypoint (5.01 s): dropped from training
     assert fl["windows"] == 5 and fl["dropped_outside_waypoints"] == 1 and fl["n_features"] == 7
     est = one.run(test, 3, seed=0)
-    np.testing.assert_allclose(est.t[:5], [0.5, 1.5, 2.5, 3.5, 4.5])
+    np.testing.assert_allclose(est.t[:5], [0.2, 1.2, 2.2, 3.2, 4.2])
     assert est.position.shape == (3, 6, 2) and np.array_equal(est.position[0], est.position[2])
     want = np.stack([5.0 + 4.0 * (est.t[:5] - 0.01), np.full(5, 5.0)], -1)  # the train walk's labels
     np.testing.assert_allclose(est.position[0, :5], want, atol=1e-9)
@@ -58,10 +59,10 @@ def test_knn_finds_the_exact_neighbours(coded):
     two = FingerprintLocalizer("KNN-2", k=2, cov_floor_m=0.5)
     two.fit(train)
     est = two.run(test, 1, seed=0)
-    inner = (est.t > 0.4) & (est.t < 4.6)
+    inner = (est.t > 0.1) & (est.t < 4.3)
     np.testing.assert_allclose(est.position[0, inner, 1], 6.0, atol=1e-9)
     np.testing.assert_allclose(est.cov[0, inner], np.broadcast_to([[0.25, 0.0], [0.0, 1.25]], (5, 2, 2)), atol=1e-9)
-    assert est.t[0] == 0.5 and est.t[-1] == 5.5  # the first and last scans: nothing padded to the session's ends
+    assert est.t[0] == 0.2 and est.t[-1] == 5.2  # the first and last scans: nothing padded to the session's ends
     with pytest.raises(MissingStream, match="no model for floor"):
         two.floors = {"other/F9": two.floors["mall/F1"]}
         two.run(test, 1, seed=0)
@@ -76,18 +77,18 @@ def test_fit_and_run_through_the_harness_with_a_split(tmp_path):
                   "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
                   "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
                   "methods.pf_ps_map_offset=null", "+split.train_fraction=0.6", "+split.seed=0",
-                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1", "methods.knn.label=KNN-WiFi",
-                  "scoring.hold_ends=true")
+                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1", "methods.knn.cv=null",
+                  "methods.knn.label=KNN-WiFi", "scoring.hold_ends=true")
     res = evaluate(cfg)
     m = res["methods"]["KNN-WiFi"]
     assert len(res["split"]["train"]) == 2 and len(res["sessions"]) == 1
     tr = m["training"]
     assert "interpolated linearly between the surveyed waypoints" in tr["labels"]
     assert tr["floors"]["mall/F1"]["train_walks"] == 2
-    # waypoints at 0.01 / 2.51 / 5.01 s (x = 5, 15, 25 m): the first held from the scan at 0.5 s (x = 6.96) at scoring,
-    # the second exact, the third between the scans at 4.5 and 5.5 s, both found at x = 22.96 m (the last scan
-    # repeats the code of the one before)
-    assert m["error_m"]["mean"] == pytest.approx((1.96 + 0.0 + 2.04) / 3, abs=1e-6)
+    # waypoints at 0.01 / 2.51 / 5.01 s (x = 5, 15, 25 m): the first held from the scan heard at 0.2 s (x = 5.76) at
+    # scoring, the second exact, the third between the scans heard at 4.2 and 5.2 s, both found at x = 21.76 m (the
+    # last scan repeats the code of the one before)
+    assert m["error_m"]["mean"] == pytest.approx((0.76 + 0.0 + 3.24) / 3, abs=1e-6)
 
 
 def _two_floors(tmp_path):
@@ -166,7 +167,7 @@ def test_fingerprint_fixes_are_the_scans_only(coded, tmp_path):
     t, xy, sd, src = prov._fixes("wifi", test)
     est = knn.run(test, 1, 0)
     np.testing.assert_array_equal(t, est.t)
-    assert t[0] == 0.5 and t[-1] == 5.5 and src == "fix-wifi"
+    assert t[0] == 0.2 and t[-1] == 5.2 and src == "fix-wifi"
     np.testing.assert_allclose(sd, est.std[0])
     assert prov._fixes("again", test)[0] is t and len(prov.methods) == 1
 
@@ -182,7 +183,7 @@ def test_fingerprint_fixes_through_the_fix_provider(tmp_path):
                   "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
                   "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
                   "methods.pf_ps_map_offset=null", "split={train_fraction: 0.6, seed: 0}",
-                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1",
+                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1", "methods.knn.cv=null",
                   "+localizer@methods.track=fix_track", "+fixes={dense: null, again: null}",
                   "+fixes.compute={_target_: blenav.localizers.fingerprint.FingerprintLocalizer, k: 1}",
                   "scoring.hold_ends=true")

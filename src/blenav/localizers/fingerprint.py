@@ -57,6 +57,7 @@ import numpy as np
 from blenav.errors import MissingStream
 from blenav.features import fingerprints as FP
 
+from . import knn as KNN
 from .base import Estimate, Localizer, RunInputs, Trained
 
 log = logging.getLogger("blenav.localizers.fingerprint")
@@ -107,7 +108,8 @@ class FingerprintLocalizer(Localizer, Trained):
     def __init__(self, name: str, shared=None, model: str = "knn", features: str = "wifi", k: int = 5,
                  weights: str = "uniform", metric: str = "cosine", history: int = 1, fill_dbm: float = -100.0,
                  floor_u: float = 0.5, ble_window_s: float = 3.0, ble_step_s: float = 1.0,
-                 wifi_max_age_s: float | None = 5.0, min_count: int = 1, max_features="auto", cov_floor_m: float = 1.0,
+                 wifi_max_age_s: float | None = 5.0, wifi_age_ref: str = "scan", wifi_time: str = "heard",
+                 min_count: int = 1, max_features="auto", cov_floor_m: float = 1.0, cv: dict | None = None,
                  net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
                  batch_size: int = 256, seed: int = 0, threads: int | None = 1, plots: bool = False,
                  training: dict | None = None):
@@ -133,12 +135,14 @@ class FingerprintLocalizer(Localizer, Trained):
             self.cfg = FP.FingerprintConfig(features=str(features), history=int(history), fill_dbm=float(fill_dbm),
                                             floor_u=float(floor_u), ble_window_s=float(ble_window_s),
                                             ble_step_s=float(ble_step_s),
-                                            wifi_max_age_s=None if wifi_max_age_s is None else float(wifi_max_age_s))
+                                            wifi_max_age_s=None if wifi_max_age_s is None else float(wifi_max_age_s),
+                                            wifi_age_ref=str(wifi_age_ref), wifi_time=str(wifi_time))
         except ValueError as exc:
             raise ValueError(f"method {name!r}: {exc}") from None
         if metric not in ("cosine", "euclidean"):
             raise ValueError(f"method {name!r}: metric must be 'cosine' or 'euclidean', got {metric!r}")
         self.model, self.k, self.weights, self.metric = model, int(k), weights, metric
+        self.cv = self._cv_grid(name, cv)
         self.min_count, self.cov_floor_m = int(min_count), float(cov_floor_m)
         self.beacons: tuple | None = None  # BLE anchor ids heard at run time (None: all)
         if max_features == "auto":
@@ -149,6 +153,31 @@ class FingerprintLocalizer(Localizer, Trained):
         self.threads, self.plots = threads, bool(plots)
         self.floors: dict[str, _FloorModel] = {}
         self._unfitted = "was not fitted (no train walks: the experiment needs a split)"  # why run() cannot
+
+    @staticmethod
+    def _cv_grid(name: str, cv) -> dict | None:
+        """The KNN's cross-validation block (:mod:`blenav.localizers.knn`): {folds, metric, k, weights, ble_weight}
+        lists, checked; None: no cross-validation (k, weights, metric as given)."""
+        if cv is None:
+            return None
+        from omegaconf import DictConfig, OmegaConf
+
+        if isinstance(cv, DictConfig):
+            cv = OmegaConf.to_container(cv, resolve=True)
+        unknown = set(cv) - {"folds", "metric", "k", "weights", "ble_weight"}
+        if unknown:
+            raise ValueError(f"method {name!r}: cv: unknown keys {sorted(unknown)} (folds, metric, k, weights, ble_weight)")
+        out = {"folds": int(cv.get("folds", 5))}
+        for key, default in (("metric", ["cosine"]), ("k", [5]), ("weights", ["uniform"]), ("ble_weight", [1.0])):
+            v = cv.get(key, default)
+            out[key] = list(v) if isinstance(v, (list, tuple)) else [v]
+            if not out[key]:
+                raise ValueError(f"method {name!r}: cv.{key} is empty")
+        try:
+            KNN.grid(out["metric"], out["k"], out["weights"], out["ble_weight"])
+        except ValueError as exc:
+            raise ValueError(f"method {name!r}: cv: {exc}") from None
+        return out
 
     # ------------------------------------------------------------------ training
     def fit(self, sessions: list, inputs: RunInputs | None = None) -> dict:
@@ -188,7 +217,7 @@ class FingerprintLocalizer(Localizer, Trained):
             return {**info, "unavailable": f"no train walk has {self.cfg.features} readings"}
         names = FP.vocabulary(tables, self.min_count, self.max_features)
         columns = {n: i for i, n in enumerate(names)}
-        S, P, xy, walk_of = [], [], [], []
+        S, P, xy, walk_of, T = [], [], [], [], []
         outside = silent = 0
         for i, (s, rd) in enumerate(zip(used, tables)):
             w, n_out = FP.label_windows(s, FP.session_windows(s, columns, self.cfg, rd))
@@ -202,13 +231,16 @@ class FingerprintLocalizer(Localizer, Trained):
             P.append(w.S[np.where(prev[keep_idx], keep_idx - 1, keep_idx)])
             xy.append(w.xy[keep_idx])
             walk_of.append(np.full(len(keep_idx), i))
-        S, P, xy, walk_of = (np.concatenate(a) for a in (S, P, xy, walk_of))
+            T.append(w.t[keep_idx])
+        S, P, xy, walk_of, T = (np.concatenate(a) for a in (S, P, xy, walk_of, T))
         info.update({"windows": int(len(S)), "dropped_outside_waypoints": int(outside), "dropped_nothing_heard": silent,
                      "n_features": len(names),
                      "n_features_kind": {k: sum(n.startswith(k + ":") for n in names) for k in ("wifi", "ble")}})
         if len(S) < 2:
             return {**info, "unavailable": f"{len(S)} labelled windows (need 2)"}
-        if self.model == "knn":
+        if self.model == "knn" and self.cv is not None:
+            predict = self._fit_knn_cv(S, xy, T, walk_of, used, names, info)
+        elif self.model == "knn":
             predict = knn_model(S, xy, self.k, self.weights, self.cov_floor_m, self.metric)
         else:
             predict = self._fit_network(key, S, P, xy, walk_of, used, names, inputs, info)
@@ -217,6 +249,23 @@ class FingerprintLocalizer(Localizer, Trained):
         log.info("%s: %s fitted on %d windows of %d walks, %d features (%.1f s)", self.name, key, len(S), len(used),
                  len(names), info["fit_s"])
         return info
+
+    def _fit_knn_cv(self, S, xy, T, walk_of, used, names, info):
+        """KNN with metric / k / weights / BLE weight chosen by leave-walks-out cross-validation on ``used`` (the
+        train walks of this floor, whose windows S, labels xy, times T, walk index walk_of these are): their own
+        waypoints score the folds (:func:`blenav.localizers.knn.cross_validate`); no other walk is read."""
+        is_ble = np.array([n.startswith("ble:") for n in names])
+        ble_w = self.cv["ble_weight"] if self.cfg.features == "both" else [1.0]
+        settings = KNN.grid(self.cv["metric"], self.cv["k"], self.cv["weights"], ble_w)
+        waypoints = [(s.groundtruth["t"].to_numpy(float), s.groundtruth[["x", "y"]].to_numpy(float)) for s in used]
+        best, table = KNN.cross_validate(S, xy, T, walk_of, waypoints, settings, is_ble, self.cfg.fill_dbm,
+                                         folds=self.cv["folds"], seed=self.seed)
+        info["cv"] = {"chosen": asdict(best), "folds": self.cv["folds"],
+                      "scored": "mean error (m) at the train walks' waypoints, each walk predicted by a model of "
+                                "the other folds' walks", "table": table}
+        log.info("%s: cross-validated KNN setting %s (%.2f m)", self.name, best,
+                 min(r["cv_error_m"] for r in table))
+        return KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m)
 
     def _fit_network(self, key, S, P, xy, walk_of, used, names, inputs, info):
         from blenav.learn.fingerprint.train import train_network  # torch: only on the learned path

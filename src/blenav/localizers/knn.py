@@ -1,0 +1,180 @@
+"""KNN fingerprinting with its settings chosen by cross-validation on the train walks (issue 29, part 2): the metric,
+k, the neighbours' weighting and (WiFi + BLE) the weight of the BLE part, picked by leave-walks-out cross-validation
+on the walks it is fitted on, so that no scored walk's label reaches the choice.
+
+Metrics, on windows S (N, F, H) of the u scale of :mod:`blenav.features.fingerprints` (u = rssi - fill_dbm, 0 = not
+heard, the not-heard value is ``fill_dbm``):
+
+* ``cosine``: S scaled to unit norm (Euclidean distance between unit vectors = a function of the cosine);
+* ``powed``: u / -fill_dbm (in [0, 1]) raised to the power e, then unit norm: the "powed" representation of
+  Torres-Sospedra et al. (2015), which shrinks weak readings (a -90 dBm access point is heard or not by chance)
+  against strong ones;
+* ``euclidean``: S as it is (dBm differences, a not-heard access point at ``fill_dbm``).
+
+With features from WiFi and BLE each kind's part is scaled to unit norm on its own and the BLE part is multiplied by
+``ble_weight`` before the distance (0: WiFi only).
+
+Weighting of the k neighbours: ``uniform``; ``distance`` (1 / distance); or a number tau: softmax of -d^2 / tau,
+d^2 the squared distance on the unit-norm scale (0..4), relative to the nearest neighbour's.
+
+Each fix has a covariance: the neighbours' weighted position covariance plus ``cov_floor_m``^2 I (its std is
+what the fused filters' fix likelihood may use).
+
+Cross-validation (:func:`cross_validate`): the fitted walks are dealt into ``folds`` groups (seeded permutation);
+each walk's windows are predicted by a model of the other folds' walks, the fixes interpolated at the walk's
+waypoint times (a waypoint before the first fix / after the last against that fix, as the scoring holds the ends)
+and the mean error over every waypoint of every walk is the score of a setting. Ties: the first in grid order.
+numpy only.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+METRICS = ("cosine", "powed", "euclidean")
+POWED_EXPONENT = float(np.e)
+
+
+@dataclass(frozen=True)
+class KnnSetting:
+    """One KNN setting: metric (METRICS), k neighbours, weights (uniform | distance | tau > 0), ble_weight."""
+
+    metric: str = "cosine"
+    k: int = 5
+    weights: object = "uniform"
+    ble_weight: float = 1.0
+
+    def __post_init__(self):
+        if self.metric not in METRICS:
+            raise ValueError(f"metric must be one of {METRICS}, got {self.metric!r}")
+        if int(self.k) < 1:
+            raise ValueError(f"k must be >= 1, got {self.k}")
+        if self.weights not in ("uniform", "distance"):
+            try:
+                ok = float(self.weights) > 0
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise ValueError(f"weights must be uniform, distance or a softmax temperature > 0, got {self.weights!r}")
+        if not float(self.ble_weight) >= 0:
+            raise ValueError(f"ble_weight must be >= 0, got {self.ble_weight}")
+
+
+def represent(S: np.ndarray, metric: str, is_ble: np.ndarray, ble_weight: float, fill_dbm: float) -> np.ndarray:
+    """(N, F*H) float64 vectors of windows S (N, F, H) u scale for ``metric`` (module doc); ``is_ble`` (F,) bool marks
+    the BLE features (their part normalised on its own and scaled by ``ble_weight`` when both kinds are present)."""
+    X = np.asarray(S, float)
+    if metric == "euclidean":
+        return X.reshape(len(X), -1)
+    if metric == "powed":
+        X = np.clip(X / -float(fill_dbm), 0.0, 1.0) ** POWED_EXPONENT
+    parts = []
+    kinds = [is_ble, ~is_ble] if is_ble.any() and (~is_ble).any() else [np.ones(len(is_ble), bool)]
+    for m in kinds:
+        P = X[:, m].reshape(len(X), -1)
+        n = np.sqrt(np.einsum("nf,nf->n", P, P))
+        P = P / np.where(n > 0, n, 1.0)[:, None]
+        parts.append(P * float(ble_weight) if len(kinds) == 2 and m is is_ble else P)
+    return np.concatenate(parts, axis=1)
+
+
+def _sqdist(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    return np.maximum(np.einsum("nf,nf->n", A, A)[:, None] + np.einsum("nf,nf->n", B, B)[None] - 2.0 * A @ B.T, 0.0)
+
+
+def neighbours(Q: np.ndarray, X: np.ndarray, kmax: int) -> tuple[np.ndarray, np.ndarray]:
+    """(idx (K, k), d2 (K, k)): the k = min(kmax, N) nearest rows of X (N, D) to each row of Q (K, D), nearest first,
+    squared Euclidean distances (ties by row order)."""
+    k = min(int(kmax), len(X))
+    D = _sqdist(Q, X)
+    idx = np.argsort(D, axis=1, kind="stable")[:, :k]
+    return idx, np.take_along_axis(D, idx, 1)
+
+
+def combine(idx: np.ndarray, d2: np.ndarray, xy: np.ndarray, k: int, weights, cov_floor_m: float = 1.0
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """(estimates (K, 2) m, covariances (K, 2, 2) m^2) from the first k neighbours ``idx`` / ``d2`` (K, >= k) of
+    labels ``xy`` (N, 2): the weighted mean, and the weighted covariance of the neighbours' positions +
+    cov_floor_m^2 I."""
+    k = min(int(k), idx.shape[1])
+    d2 = d2[:, :k]
+    if weights == "uniform":
+        W = np.ones_like(d2)
+    elif weights == "distance":
+        W = 1.0 / (np.sqrt(d2) + 1e-6)
+    else:
+        W = np.exp(-(d2 - d2[:, :1]) / float(weights))
+    W = W / W.sum(axis=1, keepdims=True)
+    P = xy[idx[:, :k]]  # (K, k, 2)
+    est = np.einsum("nk,nkj->nj", W, P)
+    d = P - est[:, None]
+    cov = np.einsum("nk,nki,nkj->nij", W, d, d) + float(cov_floor_m) ** 2 * np.eye(2)
+    return est, cov
+
+
+def waypoint_errors(t: np.ndarray, est: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray) -> np.ndarray:
+    """(W,) m: the fixes ``est`` (K, 2) at times ``t`` (K,) (sorted), interpolated linearly at the waypoint times
+    ``gt_t`` (W,), against the waypoints ``gt_xy`` (W, 2); ends held (the scoring's ``hold_ends``)."""
+    x = np.interp(gt_t, t, est[:, 0])
+    y = np.interp(gt_t, t, est[:, 1])
+    return np.hypot(x - gt_xy[:, 0], y - gt_xy[:, 1])
+
+
+def grid(metrics, ks, weights, ble_weights) -> list[KnnSetting]:
+    """Every combination, in this order (the tie-break of :func:`cross_validate`)."""
+    return [KnnSetting(m, int(k), w, float(b)) for m, k, w, b in itertools.product(metrics, ks, weights, ble_weights)]
+
+
+def cross_validate(S: np.ndarray, xy: np.ndarray, t: np.ndarray, walk_of: np.ndarray, waypoints: list,
+                   settings: list[KnnSetting], is_ble: np.ndarray, fill_dbm: float, folds: int = 5, seed: int = 0
+                   ) -> tuple[KnnSetting, list[dict]]:
+    """The setting of ``settings`` with the least leave-walks-out error, and every setting's score.
+
+    S (N, F, H) u scale, xy (N, 2) m labels, t (N,) s the windows' times, walk_of (N,) int the walk of each window
+    (index into ``waypoints``: per walk (gt_t (W,), gt_xy (W, 2)), the walk's own waypoints). Every array is of the
+    fitted (train) walks only: nothing else is read. Scores: mean error (m) over all waypoints of the walks."""
+    n_walks = len(waypoints)
+    folds = max(2, min(int(folds), n_walks))
+    fold = np.random.default_rng(seed).permutation(np.arange(n_walks) % folds)
+    kmax = max(s.k for s in settings)
+    err: dict[KnnSetting, list] = {s: [] for s in settings}
+    for rep_key in sorted({(s.metric, s.ble_weight) for s in settings}, key=str):
+        X = represent(S, rep_key[0], is_ble, rep_key[1], fill_dbm)
+        for f in range(folds):
+            tr = fold[walk_of] != f
+            if not tr.any():
+                continue
+            for w in np.flatnonzero(fold == f):
+                q = np.flatnonzero(walk_of == w)
+                if not len(q):
+                    continue
+                o = q[np.argsort(t[q], kind="stable")]
+                idx, d2 = neighbours(X[o], X[tr], kmax)
+                for s in settings:
+                    if (s.metric, s.ble_weight) != rep_key:
+                        continue
+                    est, _ = combine(idx, d2, xy[tr], s.k, s.weights)
+                    err[s].append(waypoint_errors(t[o], est, *waypoints[w]))
+    table = [{"metric": s.metric, "k": s.k, "weights": s.weights, "ble_weight": s.ble_weight,
+              "cv_error_m": float(np.concatenate(err[s]).mean()) if err[s] else float("inf")} for s in settings]
+    best = int(np.argmin([r["cv_error_m"] for r in table]))
+    return settings[best], table
+
+
+def fit(S: np.ndarray, xy: np.ndarray, setting: KnnSetting, is_ble: np.ndarray, fill_dbm: float,
+        cov_floor_m: float):
+    """predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)) of a KNN on windows S (N, F, H) with labels xy (N, 2)."""
+    X = represent(S, setting.metric, is_ble, setting.ble_weight, fill_dbm)
+
+    def predict(Sq):
+        Q = represent(Sq, setting.metric, is_ble, setting.ble_weight, fill_dbm)
+        out_xy, out_cov = np.zeros((len(Q), 2)), np.zeros((len(Q), 2, 2))
+        for i in range(0, len(Q), 512):  # bounded memory: 512 x N distances at a time
+            idx, d2 = neighbours(Q[i:i + 512], X, setting.k)
+            out_xy[i:i + 512], out_cov[i:i + 512] = combine(idx, d2, xy, setting.k, setting.weights, cov_floor_m)
+        return out_xy, out_cov
+
+    return predict

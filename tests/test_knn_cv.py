@@ -1,0 +1,130 @@
+"""Issue 29: WiFi scans read the way they were heard (blenav.features.fingerprints.heard_scans) and the KNN whose
+settings are chosen by leave-walks-out cross-validation on the train walks only (blenav.localizers.knn)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blenav.configs import compose
+from blenav.data import Dataset
+from blenav.eval.harness import evaluate
+from blenav.features import fingerprints as FP
+from blenav.importers import run_import
+from blenav.localizers import knn as KNN
+from test_fingerprint import START, coded_walk
+from test_ilc20 import walk_lines, write_floor, write_walk
+
+
+def test_stale_readings_dropped_and_the_scan_placed_when_heard():
+    # one delivery at t = 10 s: access points heard 0.5, 1.0, 1.5 s before it (this scan), one 4 s before the newest
+    # reading (kept at 5 s), one 9.5 s before it (stale: cached from an earlier scan), one of unknown time (kept);
+    # a second delivery at 12 s whose rows have no t_seen at all keeps its delivery time
+    t = np.array([10.0, 10.0, 10.0, 10.0, 10.0, 10.0, 12.0])
+    seen = np.array([9.5, 9.0, 8.5, 5.5, 0.0, np.nan, np.nan])
+    cfg = FP.FingerprintConfig(wifi_max_age_s=5.0)
+    out = FP.heard_scans(t, seen, cfg)
+    # kept: 9.5, 9.0, 8.5, 5.5 (4.0 s before the newest, 9.5), and the unknown one: at their median t_seen, 8.75 s
+    np.testing.assert_allclose(out, [8.75, 8.75, 8.75, 8.75, np.nan, 8.75, 12.0])
+    # a 3 s threshold also drops the 4 s old reading: median of 9.5, 9.0, 8.5
+    np.testing.assert_allclose(FP.heard_scans(t, seen, FP.FingerprintConfig(wifi_max_age_s=3.0)),
+                               [9.0, 9.0, 9.0, np.nan, np.nan, 9.0, 12.0])
+    # the pre-issue-29 rule: age from the delivery time (the 5.5 s reading 4.5 s old: kept), fix at the delivery time
+    old = FP.FingerprintConfig(wifi_max_age_s=5.0, wifi_age_ref="delivery", wifi_time="delivery")
+    np.testing.assert_allclose(FP.heard_scans(t, seen, old), [10.0, 10.0, 10.0, 10.0, np.nan, 10.0, 12.0])
+    older = FP.FingerprintConfig(wifi_max_age_s=4.0, wifi_age_ref="delivery", wifi_time="delivery")
+    np.testing.assert_allclose(FP.heard_scans(t, seen, older), [10.0, 10.0, 10.0, np.nan, np.nan, 10.0, 12.0])
+    # no threshold: everything kept, at the median of all known t_seen
+    np.testing.assert_allclose(FP.heard_scans(t, seen, FP.FingerprintConfig(wifi_max_age_s=None))[:6], 8.5)
+    with pytest.raises(ValueError, match="wifi_age_ref"):
+        FP.FingerprintConfig(wifi_age_ref="now")
+
+
+def test_readings_use_the_heard_time(tmp_path):
+    """Through the importer (wifi.csv t_seen): each delivery (every second from 0.5 s) holds two access points heard
+    0.3 and 2.0 s before it: one step at their median, 1.15 s before the delivery; a third reading, 6.8 s older than
+    the first scan's newest, is stale and dropped."""
+    d = write_floor(tmp_path / "raw")
+    t = START + 500
+    stale = (t, f"{t}\tTYPE_WIFI\told\tcc:00:00:00:00:09\t-40\t2412\t{t - 7100}")
+    write_walk(d, "w", walk_lines(start=START, extra=[stale]))
+    run_import("ilc20", d, tmp_path / "ds")
+    s = Dataset.open(tmp_path / "ds").session("mall_F1_w")
+    rd = FP.readings(s, FP.FingerprintConfig())
+    assert "wifi:cc:00:00:00:00:09" not in set(rd["feature"]) and len(rd) == 12
+    np.testing.assert_allclose(FP.step_times(rd, FP.FingerprintConfig()), np.arange(6) + 0.5 - 1.15, atol=1e-9)
+    late = FP.readings(s, FP.FingerprintConfig(wifi_max_age_s=None, wifi_time="delivery"))
+    assert len(late) == 13 and np.isclose(late["t"].min(), 0.5)
+
+
+def _walks(n_walks=6, n_steps=20, seed=0):
+    """Windows of walks along x on lines y = 2 * walk, position-coded fingerprints plus noise: (S, xy, t, walk_of,
+    waypoints)."""
+    rng = np.random.default_rng(seed)
+    S, xy, t, wo, wps = [], [], [], [], []
+    centres = np.linspace(0, 40, 12)
+    for w in range(n_walks):
+        x = np.linspace(0, 38, n_steps)
+        y = np.full(n_steps, 2.0 * (w % 3))
+        u = 60.0 * np.exp(-((x[:, None] - centres[None]) ** 2) / 20.0) + rng.normal(0, 2, (n_steps, 12))
+        S.append(np.clip(u, 0, None)[:, :, None])
+        xy.append(np.c_[x, y])
+        t.append(np.arange(n_steps, dtype=float))
+        wo.append(np.full(n_steps, w))
+        wps.append((np.arange(n_steps, dtype=float)[::4], np.c_[x, y][::4]))
+    return np.concatenate(S), np.concatenate(xy), np.concatenate(t), np.concatenate(wo), wps
+
+
+def test_cross_validation_picks_the_better_k_and_scores_only_what_it_is_given():
+    S, xy, t, wo, wps = _walks()
+    grid = KNN.grid(["cosine"], [1, 40], ["uniform"], [1.0])
+    best, table = KNN.cross_validate(S, xy, t, wo, wps, grid, np.zeros(12, bool), -100.0, folds=3)
+    assert best.k == 1 and table[0]["cv_error_m"] < table[1]["cv_error_m"]
+    # the score is a function of the arrays handed over only: relabelling rows outside them changes nothing, and
+    # changing one fitted walk's waypoints changes its score
+    again = KNN.cross_validate(S.copy(), xy.copy(), t, wo, wps, grid, np.zeros(12, bool), -100.0, folds=3)[1]
+    assert again == table
+    moved = [(a, b + 5.0) if i == 0 else (a, b) for i, (a, b) in enumerate(wps)]
+    assert KNN.cross_validate(S, xy, t, wo, moved, grid, np.zeros(12, bool), -100.0, folds=3)[1] != table
+
+
+def test_knn_cv_sees_only_the_train_walks(tmp_path, monkeypatch):
+    """Through the harness with a split: the cross-validation gets the train walks' windows and waypoints only (the
+    test walk lies on its own line, y = 9 m: none of its labels or waypoints reaches the choice); the chosen setting
+    is in the training report."""
+    d = write_floor(tmp_path / "raw")
+    for k, y in enumerate((5.0, 5.0, 7.0, 9.0)):
+        write_walk(d, f"walk{k}", coded_walk(START + k * 100_000, y))
+    run_import("ilc20", d, tmp_path / "ds")
+    seen = []
+    real = KNN.cross_validate
+
+    def spy(S, xy, t, walk_of, waypoints, *a, **kw):
+        seen.append((xy.copy(), [w[1].copy() for w in waypoints]))
+        return real(S, xy, t, walk_of, waypoints, *a, **kw)
+
+    monkeypatch.setattr(KNN, "cross_validate", spy)
+    cfg = compose("eval", "experiment=mapfusion_002", f"data={tmp_path / 'ds'}", "runs=1", f"out={tmp_path / 'out'}",
+                  "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
+                  "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
+                  "methods.pf_ps_map_offset=null", "+split={train: [mall_F1_walk0, mall_F1_walk1, mall_F1_walk2]}",
+                  "+localizer@methods.knn=fingerprint", "methods.knn.label=KNN-WiFi", "scoring.hold_ends=true")
+    res = evaluate(cfg)
+    assert list(res["sessions"]) == ["mall_F1_walk3"]
+    assert len(seen) == 1
+    xy, wps = seen[0]
+    assert len(wps) == 3 and not np.isclose(xy[:, 1], 9.0).any()
+    assert all(not np.isclose(w[:, 1], 9.0).any() for w in wps)
+    cv = res["methods"]["KNN-WiFi"]["training"]["floors"]["mall/F1"]["cv"]
+    assert cv["chosen"]["k"] in (1, 3, 5, 7, 10, 15, 20) and len(cv["table"]) == 2 * 7 * 5
+
+
+def test_knn_fit_cov_is_the_neighbours_spread():
+    S = np.array([[[1.0], [0.0]], [[1.0], [0.0]], [[0.0], [1.0]]])  # (3, F=2, H=1)
+    xy = np.array([[0.0, 0.0], [2.0, 0.0], [50.0, 50.0]])
+    predict = KNN.fit(S, xy, KNN.KnnSetting("cosine", 2, "uniform"), np.zeros(2, bool), -100.0, cov_floor_m=0.5)
+    est, cov = predict(np.array([[[3.0], [0.0]]]))
+    np.testing.assert_allclose(est, [[1.0, 0.0]])
+    np.testing.assert_allclose(cov[0], [[1.0 + 0.25, 0.0], [0.0, 0.25]])
+    with pytest.raises(ValueError, match="weights"):
+        KNN.KnnSetting(weights="nearest")
