@@ -206,7 +206,17 @@ def test_locnet_trains_with_the_project_trainer(coded, tmp_path):
     assert tr["steps"] == 20 and tr["train_windows"] == 5 and tr["val_windows"] == 5 and tr["val_walks"] == 1
     assert (tmp_path / "fingerprint" / "LocNet-WiFi" / "mall_F1" / "training.json").is_file()
     est = loc.run(coded.session("mall_F1_walkC"), 2, seed=0)
-    assert est.cov is None and np.isfinite(est.position).all() and np.array_equal(est.position[0], est.position[1])
+    assert np.isfinite(est.position).all() and np.array_equal(est.position[0], est.position[1])
+    # each fix's std: the network's RMS error per axis on its validation walk (+ cov_floor_m 1 m), the same for all
+    from blenav.learn.fingerprint.train import split_walks
+
+    walks = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")]
+    val = walks[int(np.flatnonzero(split_walks(np.array([0, 1]), 0.5, 3))[0])]
+    ev = loc.run(val, 1, seed=0)
+    inside = ev.t <= val.groundtruth["t"].iloc[-1]  # the windows it was scored on: inside the waypoints' span
+    var = np.mean(np.sum((ev.position[0, inside] - val.positions_at(ev.t[inside])) ** 2, axis=1)) / 2.0
+    np.testing.assert_allclose(est.cov, np.broadcast_to((var + 1.0) * np.eye(2), est.cov.shape), rtol=1e-5)
+    assert rep["floors"]["mall/F1"]["fix_std_m"] == pytest.approx(np.sqrt(var + 1.0), rel=1e-5)
 
 
 def test_named_train_walks_through_the_harness(tmp_path):

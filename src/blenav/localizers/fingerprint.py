@@ -40,7 +40,18 @@ session's ``building`` / ``floor`` (session.yaml); no estimate is invented befor
 last (scoring may hold the ends: :func:`blenav.eval.metrics.waypoint_metrics` ``hold_ends``). ``beacons`` (attribute,
 None: all): the BLE anchor ids the localizer hears at run time (the others' advertisements are dropped), e.g. the
 sparse beacon subset of :mod:`blenav.eval.fixes`. Deterministic: R identical runs.
-``cov`` (KNN): the covariance of the k neighbours' positions plus ``cov_floor_m``^2 I; none for the networks.
+``cov``: KNN: the (weighted) covariance of the k neighbours' positions plus ``cov_floor_m``^2 I; the networks: their
+RMS error per axis on their validation walks (squared) plus ``cov_floor_m``^2, the same for every fix (none when no
+walk was held out for validation). Its std is what the fused filters may use (:mod:`blenav.eval.fixes`).
+
+**Issue 29** (reading scans the way they were heard; KNN done well): WiFi steps are the scans at the times their
+readings were heard, stale cached readings dropped (``wifi_max_age_s``, ``wifi_age_ref``, ``wifi_time``:
+:mod:`blenav.features.fingerprints`); with ``cv`` (the default of ``conf/localizer/fingerprint.yaml``) the KNN's
+metric (cosine / powed / euclidean), k, the neighbours' weighting and the BLE part's weight (``both``) are chosen
+per floor by leave-walks-out cross-validation on the train walks this localizer is fitted on, scored at their own
+waypoints (:mod:`blenav.localizers.knn`; the choice and every setting's score in the training report's ``cv``).
+Measured on site1 (``blenav-eval experiment=realwalks``, mean error at the test waypoints F1 / F2 / B1): KNN-WiFi
+9.00 / 9.63 / 8.66 m before, 8.20 / 8.06 / 8.58 m with both (direct runs of this localizer, 2026-11-27).
 A session without the stream (wifi.csv / rssi.csv) or without a trained floor raises :class:`MissingStream`.
 """
 
@@ -268,7 +279,7 @@ class FingerprintLocalizer(Localizer, Trained):
         return KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m)
 
     def _fit_network(self, key, S, P, xy, walk_of, used, names, inputs, info):
-        from blenav.learn.fingerprint.train import train_network  # torch: only on the learned path
+        from blenav.learn.fingerprint.train import split_walks, train_network  # torch: only on the learned path
 
         given = inputs.out if inputs is not None else None
         root = Path(given) if given is not None else Path(tempfile.mkdtemp(prefix="fp_"))
@@ -278,9 +289,18 @@ class FingerprintLocalizer(Localizer, Trained):
                                          net=self.net, trainer=self.trainer, val_fraction=self.val_fraction,
                                          batch_size=self.batch_size, threads=self.threads, plots=self.plots)
         info["training"] = rep
+        # each fix's std: the network's RMS error per axis on its validation walks (held out of its training), one
+        # isotropic covariance for every fix; none without validation walks
+        val = split_walks(walk_of, self.val_fraction, self.seed)
+        cov = None
+        if val.any():
+            var = float(np.mean(np.sum((net_predict(S[val]) - xy[val]) ** 2, axis=1))) / 2.0
+            cov = (var + self.cov_floor_m ** 2) * np.eye(2)
+            info["fix_std_m"] = float(np.sqrt(var + self.cov_floor_m ** 2))
 
         def predict(Sq):
-            return net_predict(Sq), None
+            xy_q = net_predict(Sq)
+            return xy_q, None if cov is None else np.broadcast_to(cov, (len(xy_q), 2, 2)).copy()
 
         return predict
 

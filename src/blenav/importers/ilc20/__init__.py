@@ -78,6 +78,13 @@ What is written
   - ``wifi.csv`` (format extension): TYPE_WIFI rows: ``t`` = the scan's row time, ``bssid`` (lower case),
     ``rssi_dbm``, ``freq_mhz``; extra ``ssid`` and ``t_seen`` (the AP's ``last_seen`` time on the session
     clock, s; it can precede the scan by tens of seconds, and the session's start: a cached reading).
+    Every row of a delivery is written, stale or not: a delivery (one every ~2 s on the sample walks) holds the
+    access points of the scan just made, heard 0.5-2 s before ``t``, and cached ones heard seconds to minutes
+    before (on site1 F1 40 % of the rows were heard over 5 s before their delivery). Readers decide:
+    fingerprinting drops rows heard over 5 s before the delivery's newest ``t_seen`` and places the scan at the
+    median ``t_seen`` of the rest (:mod:`blenav.features.fingerprints`, issue 29). ``TYPE_BEACON`` rows carry
+    their own reception time (the last field equals the row time on every sample row), so ``rssi.csv`` is
+    already at the times the advertisements were heard.
     Readings not in (-150, 0) dBm are dropped and counted; a frequency outside 2000..8000 MHz is left empty.
   - ``groundtruth.csv``: the surveyed TYPE_WAYPOINT rows only (x, y in floor metres; z = floor z +
     ``PHONE_HEIGHT_M`` 1.2 m, assumed; orientation empty; extra ``raw_line``). Nothing is interpolated:
