@@ -36,9 +36,11 @@ So, per delivery (the rows sharing ``t``):
   at ``t``), where the readings were taken, about 1-1.5 s before the delivery on the ILC walks (a walker covers
   1.5-2 m in that time). Labels and fixes both take that time.
 
-Measured on the train walks of site1 F1 / F2 / B1 (leave-walks-out cross-validation of the CV-tuned KNN, mean
-error at the waypoints, m): thresholds 3 / 5 / 10 s gave 6.74 / 6.47 / 6.39, 8.50 / 8.30 / 8.63, 8.84 / 8.59 /
-8.74: 5 s is the best pooled over the three floors, the default (``conf/localizer/fingerprint.yaml``). A row
+Measured on the train walks of site1 F1 / F2 / B1 only (5-fold leave-walks-out cross-validation of a KNN on
+powed unit-norm scans, its best k and weighting, mean error at the held-out walks' waypoints, m): thresholds
+3 / 5 / 10 s gave 6.72 / 6.38 / 6.37, 8.50 / 8.30 / 8.63, 8.84 / 8.59 / 8.74 (pooled 8.02 / 7.76 / 7.91): 5 s, the
+default (``conf/localizer/fingerprint.yaml``); 1 and 2 s (this scan only) were worse on every floor, and so was
+keeping everything. A row
 without ``t_seen`` (column absent or cell empty) is kept and keeps its delivery time. BLE advertisements
 (rssi.csv) are already at their own times: each row is one advertisement, stamped when it was received.
 
