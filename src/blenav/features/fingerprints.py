@@ -39,7 +39,7 @@ So, per delivery (the rows sharing ``t``):
 Measured on the train walks of site1 F1 / F2 / B1 only (5-fold leave-walks-out cross-validation of a KNN on
 powed unit-norm scans, its best k and weighting, mean error at the held-out walks' waypoints, m): thresholds
 3 / 5 / 10 s gave 6.72 / 6.38 / 6.37, 8.50 / 8.30 / 8.63, 8.84 / 8.59 / 8.74 (pooled 8.02 / 7.76 / 7.91): 5 s, the
-default (``conf/localizer/fingerprint.yaml``); 1 and 2 s (this scan only) were worse on every floor, and so was
+default (``conf/localizer/fingerprint.yaml``); on F1 1 and 2 s (this scan only) were worse, and so was
 keeping everything. A row
 without ``t_seen`` (column absent or cell empty) is kept and keeps its delivery time. BLE advertisements
 (rssi.csv) are already at their own times: each row is one advertisement, stamped when it was received.
