@@ -12,8 +12,44 @@ from blenav.eval.harness import evaluate
 from blenav.features import fingerprints as FP
 from blenav.importers import run_import
 from blenav.localizers import knn as KNN
-from test_fingerprint import START, coded_walk
+from blenav.localizers.fingerprint import CV_GRID, FingerprintLocalizer
+from test_fingerprint import START, coded, coded_walk  # noqa: F401 (coded: the fixture)
 from test_ilc20 import walk_lines, write_floor, write_walk
+
+HEARD = {"wifi_age_ref": "scan", "wifi_time": "heard"}  # issue 29's reading (opt-in)
+
+
+def test_defaults_are_the_pre_issue_29_behaviour():
+    """conf/localizer/fingerprint.yaml as composed: scans read at their delivery (5 s age from it), no
+    cross-validation (k = 5 uniform cosine), no covariance for the networks' fixes; cv: {} is CV_GRID."""
+    m = compose("eval", "experiment=realwalks").methods
+    for name in ("knn_wifi", "knn_ble", "knn_both", "locnet_wifi", "transnet_wifi"):
+        assert m[name].cv is None and m[name].net_cov == "none", name
+        assert (m[name].wifi_max_age_s, m[name].wifi_age_ref, m[name].wifi_time) == (5.0, "delivery", "delivery")
+    loc = FingerprintLocalizer("KNN", cv=None)
+    assert loc.cv is None and (loc.k, loc.weights, loc.metric) == (5, "uniform", "cosine")
+    assert FingerprintLocalizer("KNN", cv={}).cv == CV_GRID
+    assert FingerprintLocalizer("KNN", cv={"k": 3}).cv == {**CV_GRID, "k": [3]}
+    with pytest.raises(ValueError, match="unknown keys"):
+        FingerprintLocalizer("KNN", cv={"kk": [3]})
+
+
+def test_knn_fixes_at_the_heard_times_when_asked(coded):  # noqa: F811
+    """The coded walks' scans are delivered at 0.5 .. 5.5 s and heard at 0.2 .. 5.2 s (median t_seen of their
+    rows): the default KNN's fixes are at the deliveries, issue 29's at the heard times."""
+    train, test = [coded.session("mall_F1_walkA")], coded.session("mall_F1_walkC")
+    old = FingerprintLocalizer("KNN-1", k=1)
+    settings = old.fit(train)["settings"]  # the report of before issue 29: no reading keys
+    assert "wifi_age_ref" not in settings and "wifi_time" not in settings and settings["wifi_max_age_s"] == 5.0
+    np.testing.assert_allclose(old.run(test, 1, seed=0).t, np.arange(6) + 0.5)
+    new = FingerprintLocalizer("KNN-1", k=1, **HEARD)
+    rep = new.fit(train)
+    assert (rep["settings"]["wifi_age_ref"], rep["settings"]["wifi_time"]) == ("scan", "heard")
+    est = new.run(test, 1, seed=0)
+    np.testing.assert_allclose(est.t, np.arange(6) + 0.2)
+    # labels take the heard times too: the train walk's position at 0.2 .. 4.2 s (x = 5 + 4 (t - 0.01) m)
+    assert rep["floors"]["mall/F1"]["windows"] == 5
+    np.testing.assert_allclose(est.position[0, :5, 0], 5.0 + 4.0 * (est.t[:5] - 0.01), atol=1e-9)
 
 
 def test_stale_readings_dropped_and_the_scan_placed_when_heard():
@@ -22,20 +58,23 @@ def test_stale_readings_dropped_and_the_scan_placed_when_heard():
     # a second delivery at 12 s whose rows have no t_seen at all keeps its delivery time
     t = np.array([10.0, 10.0, 10.0, 10.0, 10.0, 10.0, 12.0])
     seen = np.array([9.5, 9.0, 8.5, 5.5, 0.0, np.nan, np.nan])
-    cfg = FP.FingerprintConfig(wifi_max_age_s=5.0)
+    cfg = FP.FingerprintConfig(wifi_max_age_s=5.0, **HEARD)
     out = FP.heard_scans(t, seen, cfg)
     # kept: 9.5, 9.0, 8.5, 5.5 (4.0 s before the newest, 9.5), and the unknown one: at their median t_seen, 8.75 s
     np.testing.assert_allclose(out, [8.75, 8.75, 8.75, 8.75, np.nan, 8.75, 12.0])
     # a 3 s threshold also drops the 4 s old reading: median of 9.5, 9.0, 8.5
-    np.testing.assert_allclose(FP.heard_scans(t, seen, FP.FingerprintConfig(wifi_max_age_s=3.0)),
+    np.testing.assert_allclose(FP.heard_scans(t, seen, FP.FingerprintConfig(wifi_max_age_s=3.0, **HEARD)),
                                [9.0, 9.0, 9.0, np.nan, np.nan, 9.0, 12.0])
     # the pre-issue-29 rule: age from the delivery time (the 5.5 s reading 4.5 s old: kept), fix at the delivery time
-    old = FP.FingerprintConfig(wifi_max_age_s=5.0, wifi_age_ref="delivery", wifi_time="delivery")
+    # the pre-issue-29 rule, still the default: age from the delivery time (the 5.5 s reading 4.5 s old: kept), fix
+    # at the delivery time
+    old = FP.FingerprintConfig()
+    assert (old.wifi_max_age_s, old.wifi_age_ref, old.wifi_time) == (5.0, "delivery", "delivery")
     np.testing.assert_allclose(FP.heard_scans(t, seen, old), [10.0, 10.0, 10.0, 10.0, np.nan, 10.0, 12.0])
     older = FP.FingerprintConfig(wifi_max_age_s=4.0, wifi_age_ref="delivery", wifi_time="delivery")
     np.testing.assert_allclose(FP.heard_scans(t, seen, older), [10.0, 10.0, 10.0, np.nan, np.nan, 10.0, 12.0])
     # no threshold: everything kept, at the median of all known t_seen
-    np.testing.assert_allclose(FP.heard_scans(t, seen, FP.FingerprintConfig(wifi_max_age_s=None))[:6], 8.5)
+    np.testing.assert_allclose(FP.heard_scans(t, seen, FP.FingerprintConfig(wifi_max_age_s=None, **HEARD))[:6], 8.5)
     with pytest.raises(ValueError, match="wifi_age_ref"):
         FP.FingerprintConfig(wifi_age_ref="now")
 
@@ -50,9 +89,14 @@ def test_readings_use_the_heard_time(tmp_path):
     write_walk(d, "w", walk_lines(start=START, extra=[stale]))
     run_import("ilc20", d, tmp_path / "ds")
     s = Dataset.open(tmp_path / "ds").session("mall_F1_w")
+    heard = FP.FingerprintConfig(**HEARD)
+    rd = FP.readings(s, heard)
+    assert "wifi:cc:00:00:00:00:09" not in set(rd["feature"]) and len(rd) == 12
+    np.testing.assert_allclose(FP.step_times(rd, heard), np.arange(6) + 0.5 - 1.15, atol=1e-9)
+    # the default (pre-issue 29): the stale row is 7.1 s older than its delivery (dropped too), steps at delivery
     rd = FP.readings(s, FP.FingerprintConfig())
     assert "wifi:cc:00:00:00:00:09" not in set(rd["feature"]) and len(rd) == 12
-    np.testing.assert_allclose(FP.step_times(rd, FP.FingerprintConfig()), np.arange(6) + 0.5 - 1.15, atol=1e-9)
+    np.testing.assert_allclose(FP.step_times(rd, FP.FingerprintConfig()), np.arange(6) + 0.5, atol=1e-9)
     late = FP.readings(s, FP.FingerprintConfig(wifi_max_age_s=None, wifi_time="delivery"))
     assert len(late) == 13 and np.isclose(late["t"].min(), 0.5)
 
@@ -108,7 +152,8 @@ def test_knn_cv_sees_only_the_train_walks(tmp_path, monkeypatch):
                   "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
                   "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
                   "methods.pf_ps_map_offset=null", "+split={train: [mall_F1_walk0, mall_F1_walk1, mall_F1_walk2]}",
-                  "+localizer@methods.knn=fingerprint", "methods.knn.label=KNN-WiFi", "scoring.hold_ends=true")
+                  "+localizer@methods.knn=fingerprint", "methods.knn.label=KNN-WiFi", "methods.knn.cv={}",
+                  "scoring.hold_ends=true")
     res = evaluate(cfg)
     assert list(res["sessions"]) == ["mall_F1_walk3"]
     assert len(seen) == 1

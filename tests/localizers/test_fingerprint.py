@@ -47,11 +47,10 @@ def test_knn_finds_the_exact_neighbours(coded):
     one = FingerprintLocalizer("KNN-1", k=1)
     rep = one.fit(train[:1])
     fl = rep["floors"]["mall/F1"]
-    # scans delivered at 0.5 .. 5.5 s, heard at 0.2 .. 5.2 s (the median t_seen of their rows, 0.3 / 2.0 / 0.1 s
-    # before delivery); the one at 5.2 s lies after the last waypoint (5.01 s): dropped from training
+    # scans at 0.5 .. 5.5 s; the one at 5.5 s lies after the last waypoint (5.01 s): dropped from training
     assert fl["windows"] == 5 and fl["dropped_outside_waypoints"] == 1 and fl["n_features"] == 7
     est = one.run(test, 3, seed=0)
-    np.testing.assert_allclose(est.t[:5], [0.2, 1.2, 2.2, 3.2, 4.2])
+    np.testing.assert_allclose(est.t[:5], [0.5, 1.5, 2.5, 3.5, 4.5])
     assert est.position.shape == (3, 6, 2) and np.array_equal(est.position[0], est.position[2])
     want = np.stack([5.0 + 4.0 * (est.t[:5] - 0.01), np.full(5, 5.0)], -1)  # the train walk's labels
     np.testing.assert_allclose(est.position[0, :5], want, atol=1e-9)
@@ -59,10 +58,10 @@ def test_knn_finds_the_exact_neighbours(coded):
     two = FingerprintLocalizer("KNN-2", k=2, cov_floor_m=0.5)
     two.fit(train)
     est = two.run(test, 1, seed=0)
-    inner = (est.t > 0.1) & (est.t < 4.3)
+    inner = (est.t > 0.4) & (est.t < 4.6)
     np.testing.assert_allclose(est.position[0, inner, 1], 6.0, atol=1e-9)
     np.testing.assert_allclose(est.cov[0, inner], np.broadcast_to([[0.25, 0.0], [0.0, 1.25]], (5, 2, 2)), atol=1e-9)
-    assert est.t[0] == 0.2 and est.t[-1] == 5.2  # the first and last scans: nothing padded to the session's ends
+    assert est.t[0] == 0.5 and est.t[-1] == 5.5  # the first and last scans: nothing padded to the session's ends
     with pytest.raises(MissingStream, match="no model for floor"):
         two.floors = {"other/F9": two.floors["mall/F1"]}
         two.run(test, 1, seed=0)
@@ -77,18 +76,18 @@ def test_fit_and_run_through_the_harness_with_a_split(tmp_path):
                   "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
                   "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
                   "methods.pf_ps_map_offset=null", "+split.train_fraction=0.6", "+split.seed=0",
-                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1", "methods.knn.cv=null",
-                  "methods.knn.label=KNN-WiFi", "scoring.hold_ends=true")
+                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1", "methods.knn.label=KNN-WiFi",
+                  "scoring.hold_ends=true")
     res = evaluate(cfg)
     m = res["methods"]["KNN-WiFi"]
     assert len(res["split"]["train"]) == 2 and len(res["sessions"]) == 1
     tr = m["training"]
     assert "interpolated linearly between the surveyed waypoints" in tr["labels"]
     assert tr["floors"]["mall/F1"]["train_walks"] == 2
-    # waypoints at 0.01 / 2.51 / 5.01 s (x = 5, 15, 25 m): the first held from the scan heard at 0.2 s (x = 5.76) at
-    # scoring, the second exact, the third between the scans heard at 4.2 and 5.2 s, both found at x = 21.76 m (the
-    # last scan repeats the code of the one before)
-    assert m["error_m"]["mean"] == pytest.approx((0.76 + 0.0 + 3.24) / 3, abs=1e-6)
+    # waypoints at 0.01 / 2.51 / 5.01 s (x = 5, 15, 25 m): the first held from the scan at 0.5 s (x = 6.96) at scoring,
+    # the second exact, the third between the scans at 4.5 and 5.5 s, both found at x = 22.96 m (the last scan
+    # repeats the code of the one before)
+    assert m["error_m"]["mean"] == pytest.approx((1.96 + 0.0 + 2.04) / 3, abs=1e-6)
 
 
 def _two_floors(tmp_path):
@@ -167,7 +166,7 @@ def test_fingerprint_fixes_are_the_scans_only(coded, tmp_path):
     t, xy, sd, src = prov._fixes("wifi", test)
     est = knn.run(test, 1, 0)
     np.testing.assert_array_equal(t, est.t)
-    assert t[0] == 0.2 and t[-1] == 5.2 and src == "fix-wifi"
+    assert t[0] == 0.5 and t[-1] == 5.5 and src == "fix-wifi"
     np.testing.assert_allclose(sd, est.std[0])
     assert prov._fixes("again", test)[0] is t and len(prov.methods) == 1
 
@@ -183,7 +182,7 @@ def test_fingerprint_fixes_through_the_fix_provider(tmp_path):
                   "plots=false", "progress=false", "calibration=none", "methods.pf_pl=null", "methods.pf_pl_map=null",
                   "methods.pf_ps=null", "methods.pf_ps_map=null", "methods.pf_pl_offset=null",
                   "methods.pf_ps_map_offset=null", "split={train_fraction: 0.6, seed: 0}",
-                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1", "methods.knn.cv=null",
+                  "+localizer@methods.knn=fingerprint", "methods.knn.k=1",
                   "+localizer@methods.track=fix_track", "+fixes={dense: null, again: null}",
                   "+fixes.compute={_target_: blenav.localizers.fingerprint.FingerprintLocalizer, k: 1}",
                   "scoring.hold_ends=true")
@@ -206,17 +205,32 @@ def test_locnet_trains_with_the_project_trainer(coded, tmp_path):
     assert tr["steps"] == 20 and tr["train_windows"] == 5 and tr["val_windows"] == 5 and tr["val_walks"] == 1
     assert (tmp_path / "fingerprint" / "LocNet-WiFi" / "mall_F1" / "training.json").is_file()
     est = loc.run(coded.session("mall_F1_walkC"), 2, seed=0)
-    assert np.isfinite(est.position).all() and np.array_equal(est.position[0], est.position[1])
-    # each fix's std: the network's RMS error per axis on its validation walk (+ cov_floor_m 1 m), the same for all
-    from blenav.learn.fingerprint.train import split_walks
+    # net_cov: none (the default, pre-issue 29): no covariance, so a fused filter falls back on its own sigma
+    assert est.cov is None and np.isfinite(est.position).all() and np.array_equal(est.position[0], est.position[1])
+    assert loc.net_cov == "none" and "fix_std_m" not in rep["floors"]["mall/F1"]
 
+
+def test_locnet_fix_std_is_its_validation_rms_error_when_asked(coded, tmp_path):
+    """net_cov: validation (issue 29, opt-in): each fix's std is the network's RMS error per axis on its validation
+    walk (+ cov_floor_m 1 m), the same for all fixes."""
+    from blenav.learn.fingerprint.train import split_walks
+    from blenav.localizers import RunInputs
+
+    loc = FingerprintLocalizer("LocNet-WiFi", model="locnet", val_fraction=0.5, seed=3, training=training_node(),
+                               trainer={"budget": {"max_steps": 20, "val_every_steps": 5, "warmup_steps": 2}},
+                               net_cov="validation")
     walks = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")]
+    rep = loc.fit(walks, RunInputs(out=tmp_path))
+    est = loc.run(coded.session("mall_F1_walkC"), 2, seed=0)
     val = walks[int(np.flatnonzero(split_walks(np.array([0, 1]), 0.5, 3))[0])]
     ev = loc.run(val, 1, seed=0)
     inside = ev.t <= val.groundtruth["t"].iloc[-1]  # the windows it was scored on: inside the waypoints' span
     var = np.mean(np.sum((ev.position[0, inside] - val.positions_at(ev.t[inside])) ** 2, axis=1)) / 2.0
+    assert var > 0.01
     np.testing.assert_allclose(est.cov, np.broadcast_to((var + 1.0) * np.eye(2), est.cov.shape), rtol=1e-5)
     assert rep["floors"]["mall/F1"]["fix_std_m"] == pytest.approx(np.sqrt(var + 1.0), rel=1e-5)
+    with pytest.raises(ValueError, match="net_cov"):
+        FingerprintLocalizer("x", net_cov="rms")
 
 
 def test_named_train_walks_through_the_harness(tmp_path):

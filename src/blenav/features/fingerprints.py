@@ -29,18 +29,19 @@ Android hands over a cached list: in a delivery of the ILC walks (one every ~2 s
 made were heard 0.5-2 s before it, the rest seconds to minutes before (cached from earlier scans, metres away).
 So, per delivery (the rows sharing ``t``):
 
-* its *scan time* is the newest ``t_seen`` of its rows (``wifi_age_ref: scan``; ``delivery``: ``t`` itself, the
-  pre-issue-29 rule);
+* its *scan time* is the newest ``t_seen`` of its rows (``wifi_age_ref: scan``; ``delivery``, the default: ``t``
+  itself, the pre-issue-29 rule);
 * a row whose ``t_seen`` is more than ``wifi_max_age_s`` before the scan time is stale and dropped (None: keep all);
-* the step (the fix) is placed at the *median* ``t_seen`` of the rows kept (``wifi_time: heard``; ``delivery``:
-  at ``t``), where the readings were taken, about 1-1.5 s before the delivery on the ILC walks (a walker covers
-  1.5-2 m in that time). Labels and fixes both take that time.
+* the step (the fix) is placed at the *median* ``t_seen`` of the rows kept (``wifi_time: heard``; ``delivery``,
+  the default: at ``t``), where the readings were taken, about 1-1.5 s before the delivery on the ILC walks (a
+  walker covers 1.5-2 m in that time). Labels and fixes both take that time.
 
 Measured on the train walks of site1 F1 / F2 / B1 only (5-fold leave-walks-out cross-validation of a KNN on
 powed unit-norm scans, its best k and weighting, mean error at the held-out walks' waypoints, m): thresholds
 3 / 5 / 10 s gave 6.72 / 6.38 / 6.37, 8.50 / 8.30 / 8.63, 8.84 / 8.59 / 8.74 (pooled 8.02 / 7.76 / 7.91): 5 s, the
-default (``conf/localizer/fingerprint.yaml``); on F1 1 and 2 s (this scan only) were worse, and so was
-keeping everything. A row
+threshold (``conf/localizer/fingerprint.yaml``); on F1 1 and 2 s (this scan only) were worse, and so was
+keeping everything. The defaults (``delivery`` / ``delivery``, 5 s) are the pre-issue-29 reading, which the
+published tables were made with; ``scan`` / ``heard`` is opt-in until they are rerun (docs/results-ilc20.md). A row
 without ``t_seen`` (column absent or cell empty) is kept and keeps its delivery time. BLE advertisements
 (rssi.csv) are already at their own times: each row is one advertisement, stamped when it was received.
 
@@ -82,8 +83,8 @@ class FingerprintConfig:
     ble_window_s: float = 3.0  # BLE advertisements of [t - ble_window_s, t] form the BLE part of a step
     ble_step_s: float = 1.0  # features=ble: a step every so many seconds
     wifi_max_age_s: float | None = 5.0  # drop WiFi rows heard more than this before their scan time (None: keep all)
-    wifi_age_ref: str = "scan"  # scan time = the delivery's newest t_seen (scan) | the delivery time t (delivery)
-    wifi_time: str = "heard"  # a scan's step time: median t_seen of its rows kept (heard) | delivery time t
+    wifi_age_ref: str = "delivery"  # a row's age from: the delivery time t (delivery) | its newest t_seen (scan)
+    wifi_time: str = "delivery"  # a scan's step time: delivery time t (delivery) | median t_seen of kept rows (heard)
 
     def __post_init__(self):
         if self.features not in FEATURES:

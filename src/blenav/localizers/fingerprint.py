@@ -40,24 +40,27 @@ session's ``building`` / ``floor`` (session.yaml); no estimate is invented befor
 last (scoring may hold the ends: :func:`blenav.eval.metrics.waypoint_metrics` ``hold_ends``). ``beacons`` (attribute,
 None: all): the BLE anchor ids the localizer hears at run time (the others' advertisements are dropped), e.g. the
 sparse beacon subset of :mod:`blenav.eval.fixes`. Deterministic: R identical runs.
-``cov``: KNN: the (weighted) covariance of the k neighbours' positions plus ``cov_floor_m``^2 I; the networks: their
-RMS error per axis on their validation walks (squared) plus ``cov_floor_m``^2, the same for every fix (none when no
-walk was held out for validation). Its std is what the fused filters may use (:mod:`blenav.eval.fixes`).
+``cov``: KNN: the (weighted) covariance of the k neighbours' positions plus ``cov_floor_m``^2 I; the networks: none
+by default, with ``net_cov: validation`` (opt-in) their RMS error per axis on their validation walks (squared) plus
+``cov_floor_m``^2, the same for every fix (none when no walk was held out for validation). Its std is what the fused
+filters may use (:mod:`blenav.eval.fixes`), so it can change a fused row fed by a network's fixes.
 
 **Issue 29** (reading scans the way they were heard; KNN done well): WiFi steps are the scans at the times their
 readings were heard, stale cached readings dropped (``wifi_max_age_s``, ``wifi_age_ref``, ``wifi_time``:
-:mod:`blenav.features.fingerprints`); with ``cv`` (the default of ``conf/localizer/fingerprint.yaml``) the KNN's
+:mod:`blenav.features.fingerprints`); with ``cv`` (``cv: {}``: the grid :data:`CV_GRID`) the KNN's
 metric (cosine / powed / euclidean), k, the neighbours' weighting and the BLE part's weight (``both``) are chosen
 per floor by leave-walks-out cross-validation on the train walks this localizer is fitted on, scored at their own
 waypoints (:mod:`blenav.localizers.knn`; the choice and every setting's score in the training report's ``cv``).
-Measured on site1 (``blenav-eval experiment=realwalks data=FLOOR runs=1``, mean error at the test waypoints,
-F1 / F2 / B1, 2026-11-27): KNN-WiFi 9.00 / 9.63 / 8.66 m before, 8.20 / 8.06 / 8.58 m now; KNN-WiFi+BLE 8.87 / 9.59 /
-8.59 -> 7.98 / 8.10 / 8.63 m; KNN-BLE 12.48 / 15.19 / 14.10 -> 12.92 / 16.01 / 14.46 m (the cross-validated choice
-generalises worse than k = 5 uniform cosine there). Ablation (this localizer on the same splits, WiFi): the scans
-read as heard with the old KNN (cosine, k = 5, uniform) 9.00 / 9.82 / 8.55 m; the cross-validated KNN on the old
-reading (age from the delivery time, fix at the delivery) 7.92 / 7.91 / 8.61 m: the gain is the KNN's, the heard
-times change the test error by under 0.3 m either way (the train-walk CV prefers them on F1 and B1, 6.39 vs 6.45
-and 8.56 vs 8.76 m, not on F2, 8.31 vs 8.24 m).
+Measured on site1 (``blenav-eval experiment=realwalks data=FLOOR runs=1``, mean error at the test waypoints, F1 / F2 /
+B1, 2026-11-27, on 0cd3045): KNN-WiFi 9.00 / 9.63 / 8.66 m before, 8.20 / 8.06 / 8.58 m opted in; KNN-WiFi+BLE 8.87 /
+9.59 / 8.59 -> 7.98 / 8.10 / 8.63 m; KNN-BLE 12.48 / 15.19 / 14.10 -> 12.92 / 16.01 / 14.46 m (the cross-validated
+choice generalises worse than k = 5 uniform cosine there). Ablation (this localizer on the same splits, WiFi): the
+scans read as heard with the old KNN (cosine, k = 5, uniform) 9.00 / 9.82 / 8.55 m; the cross-validated KNN on the old
+reading (age from the delivery time, fix at the delivery) 7.92 / 7.91 / 8.61 m: the gain is the KNN's, the heard times
+change the test error by under 0.3 m either way (the train-walk CV prefers them on F1 and B1, 6.39 vs 6.45 and 8.56 vs
+8.76 m, not on F2, 8.31 vs 8.24 m). All of it is **opt-in** (the defaults, ``wifi_age_ref`` / ``wifi_time: delivery``,
+``cv: null``, ``net_cov: none``, are the pre-issue-29 behaviour the published tables were made with): the overrides
+are in docs/results-ilc20.md.
 A session without the stream (wifi.csv / rssi.csv) or without a trained floor raises :class:`MissingStream`.
 """
 
@@ -78,6 +81,9 @@ from . import knn as KNN
 from .base import Estimate, Localizer, RunInputs, Trained
 
 log = logging.getLogger("blenav.localizers.fingerprint")
+# the KNN settings issue 29 cross-validated (``cv: {}``; each key may be given instead): 2 x 7 x 5 x 3 settings
+CV_GRID = {"folds": 5, "metric": ["cosine", "powed"], "k": [1, 3, 5, 7, 10, 15, 20],
+           "weights": ["uniform", "distance", 0.02, 0.05, 0.1], "ble_weight": [0.25, 0.5, 1.0]}
 
 MODELS = ("knn", "locnet", "transnet_locnet")
 #: features kept by ``max_features: auto`` for TransNet+LocNet (its SSL loss holds b x F x F x H values)
@@ -125,8 +131,9 @@ class FingerprintLocalizer(Localizer, Trained):
     def __init__(self, name: str, shared=None, model: str = "knn", features: str = "wifi", k: int = 5,
                  weights: str = "uniform", metric: str = "cosine", history: int = 1, fill_dbm: float = -100.0,
                  floor_u: float = 0.5, ble_window_s: float = 3.0, ble_step_s: float = 1.0,
-                 wifi_max_age_s: float | None = 5.0, wifi_age_ref: str = "scan", wifi_time: str = "heard",
+                 wifi_max_age_s: float | None = 5.0, wifi_age_ref: str = "delivery", wifi_time: str = "delivery",
                  min_count: int = 1, max_features="auto", cov_floor_m: float = 1.0, cv: dict | None = None,
+                 net_cov: str = "none",
                  net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
                  batch_size: int = 256, seed: int = 0, threads: int | None = 1, plots: bool = False,
                  training: dict | None = None):
@@ -160,6 +167,9 @@ class FingerprintLocalizer(Localizer, Trained):
             raise ValueError(f"method {name!r}: metric must be 'cosine' or 'euclidean', got {metric!r}")
         self.model, self.k, self.weights, self.metric = model, int(k), weights, metric
         self.cv = self._cv_grid(name, cv)
+        if net_cov not in ("none", "validation"):
+            raise ValueError(f"method {name!r}: net_cov must be 'none' or 'validation', got {net_cov!r}")
+        self.net_cov = net_cov
         self.min_count, self.cov_floor_m = int(min_count), float(cov_floor_m)
         self.beacons: tuple | None = None  # BLE anchor ids heard at run time (None: all)
         if max_features == "auto":
@@ -174,7 +184,8 @@ class FingerprintLocalizer(Localizer, Trained):
     @staticmethod
     def _cv_grid(name: str, cv) -> dict | None:
         """The KNN's cross-validation block (:mod:`blenav.localizers.knn`): {folds, metric, k, weights, ble_weight}
-        lists, checked; None: no cross-validation (k, weights, metric as given)."""
+        lists, checked; a key left out takes :data:`CV_GRID`'s (``cv: {}``: that whole grid, the one issue 29
+        measured); None: no cross-validation (k, weights, metric as given)."""
         if cv is None:
             return None
         from omegaconf import DictConfig, OmegaConf
@@ -183,10 +194,11 @@ class FingerprintLocalizer(Localizer, Trained):
             cv = OmegaConf.to_container(cv, resolve=True)
         unknown = set(cv) - {"folds", "metric", "k", "weights", "ble_weight"}
         if unknown:
-            raise ValueError(f"method {name!r}: cv: unknown keys {sorted(unknown)} (folds, metric, k, weights, ble_weight)")
-        out = {"folds": int(cv.get("folds", 5))}
-        for key, default in (("metric", ["cosine"]), ("k", [5]), ("weights", ["uniform"]), ("ble_weight", [1.0])):
-            v = cv.get(key, default)
+            raise ValueError(f"method {name!r}: cv: unknown keys {sorted(unknown)} "
+                             f"(folds, metric, k, weights, ble_weight)")
+        out = {"folds": int(cv.get("folds", CV_GRID["folds"]))}
+        for key in ("metric", "k", "weights", "ble_weight"):
+            v = cv.get(key, CV_GRID[key])
             out[key] = list(v) if isinstance(v, (list, tuple)) else [v]
             if not out[key]:
                 raise ValueError(f"method {name!r}: cv.{key} is empty")
@@ -194,6 +206,16 @@ class FingerprintLocalizer(Localizer, Trained):
             KNN.grid(out["metric"], out["k"], out["weights"], out["ble_weight"])
         except ValueError as exc:
             raise ValueError(f"method {name!r}: cv: {exc}") from None
+        return out
+
+    def _settings(self) -> dict:
+        """The fingerprint settings for the training report: issue 29's reading keys (``wifi_age_ref``,
+        ``wifi_time``) only when not at their pre-issue-29 value ``delivery``, so that the report (and results.json)
+        of the default reading is the one written before they existed."""
+        out = asdict(self.cfg)
+        for key in ("wifi_age_ref", "wifi_time"):
+            if out[key] == "delivery":
+                del out[key]
         return out
 
     # ------------------------------------------------------------------ training
@@ -208,7 +230,7 @@ class FingerprintLocalizer(Localizer, Trained):
         if not groups:
             self._unfitted = "was not fitted: no labelled train walk to build fingerprints from"
             raise MissingStream(f"{self.name}: no labelled train walk to build fingerprints from")
-        report = {"model": self.model, "features": self.cfg.features, "settings": asdict(self.cfg),
+        report = {"model": self.model, "features": self.cfg.features, "settings": self._settings(),
                   "labels": "position at each window's last step time, interpolated linearly between the surveyed "
                             "waypoints (Session.positions_at); windows outside the waypoints' span dropped",
                   "fill": f"a source not heard = {self.cfg.fill_dbm:g} dBm (u = 0)", "floors": {}}
@@ -295,11 +317,11 @@ class FingerprintLocalizer(Localizer, Trained):
                                          net=self.net, trainer=self.trainer, val_fraction=self.val_fraction,
                                          batch_size=self.batch_size, threads=self.threads, plots=self.plots)
         info["training"] = rep
-        # each fix's std: the network's RMS error per axis on its validation walks (held out of its training), one
-        # isotropic covariance for every fix; none without validation walks
-        val = split_walks(walk_of, self.val_fraction, self.seed)
+        # net_cov: validation (opt-in; none by default): each fix's std is the network's RMS error per axis on its
+        # validation walks (held out of its training), one isotropic covariance for every fix; none without them
+        val = split_walks(walk_of, self.val_fraction, self.seed) if self.net_cov == "validation" else None
         cov = None
-        if val.any():
+        if val is not None and val.any():
             var = float(np.mean(np.sum((net_predict(S[val]) - xy[val]) ** 2, axis=1))) / 2.0
             cov = (var + self.cov_floor_m ** 2) * np.eye(2)
             info["fix_std_m"] = float(np.sqrt(var + self.cov_floor_m ** 2))

@@ -81,8 +81,9 @@ What is written
     Every row of a delivery is written, stale or not: a delivery (one every ~2 s on the sample walks) holds the
     access points of the scan just made, heard 0.5-2 s before ``t``, and cached ones heard seconds to minutes
     before (on site1 F1 40 % of the rows were heard over 5 s before their delivery). Readers decide:
-    fingerprinting drops rows heard over 5 s before the delivery's newest ``t_seen`` and places the scan at the
-    median ``t_seen`` of the rest (:mod:`blenav.features.fingerprints`, issue 29). ``TYPE_BEACON`` rows carry
+    fingerprinting drops rows heard over 5 s before ``t`` (default) or, opted in (issue 29), before the
+    delivery's newest ``t_seen`` and places the scan at the median ``t_seen`` of the rest
+    (:mod:`blenav.features.fingerprints`). ``TYPE_BEACON`` rows carry
     their own reception time (the last field equals the row time on every sample row), so ``rssi.csv`` is
     already at the times the advertisements were heard.
     Readings not in (-150, 0) dBm are dropped and counted; a frequency outside 2000..8000 MHz is left empty.
