@@ -13,8 +13,7 @@ from blenav.features import fingerprints as FP
 from blenav.importers import run_import
 from blenav.localizers import knn as KNN
 from blenav.localizers.fingerprint import CV_GRID, FingerprintLocalizer
-from test_fingerprint import START, coded, coded_walk  # noqa: F401 (coded: the fixture)
-from test_ilc20 import walk_lines, write_floor, write_walk
+from ilc20_helpers import START, coded_walk, walk_lines, write_floor, write_walk
 
 HEARD = {"wifi_age_ref": "scan", "wifi_time": "heard"}  # issue 29's reading (opt-in)
 
@@ -34,7 +33,7 @@ def test_defaults_are_the_pre_issue_29_behaviour():
         FingerprintLocalizer("KNN", cv={"kk": [3]})
 
 
-def test_knn_fixes_at_the_heard_times_when_asked(coded):  # noqa: F811
+def test_knn_fixes_at_the_heard_times_when_asked(coded):
     """The coded walks' scans are delivered at 0.5 .. 5.5 s and heard at 0.2 .. 5.2 s (median t_seen of their
     rows): the default KNN's fixes are at the deliveries, issue 29's at the heard times."""
     train, test = [coded.session("mall_F1_walkA")], coded.session("mall_F1_walkC")
