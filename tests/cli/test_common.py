@@ -56,6 +56,17 @@ def test_eval_refuses_unknown_keys_with_the_nearest(tiny, tmp_path, override, wo
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("flag", [["-cp", "CFG"], ["--config-path=CFG"], ["--config-pa", "CFG"]])
+def test_config_path_is_refused_in_one_line(tmp_path, flag):
+    """``--config-path`` would replace blenav's conf/ (Hydra printed 'Cannot find primary config' over several lines,
+    exit 1 only by chance of its message); --config-dir is the way to add configs."""
+    (tmp_path / "cfg").mkdir()
+    args = [a.replace("CFG", str(tmp_path / "cfg")) for a in flag]
+    p = _run(BIN / "blenav-sim", *args, "-cn", "sim", f"out={tmp_path / 'o'}")
+    _one_line_error(p, "blenav-sim", "--config-path replaces blenav's own configs", "--config-dir DIR")
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_failing_run_leaves_no_output_folder_and_the_bar_does_not_hide_the_error(tiny, tmp_path):
     out = tmp_path / "o"
     # a setting only the run can refuse (the obstacle rule is built per session): fails after OUT was made

@@ -148,7 +148,10 @@ def run_hydra(prog: str, config_name: str, task: Callable, args: list[str], conv
         if "--experimental-rerun" in opts:
             raise ValueError("--experimental-rerun is refused: Hydra would unpickle that file, and unpickling runs "
                              "whatever code the file names; run the job again from its overrides instead")
-        if not opts.keys() & _PRINT_ONLY and "--config-path" not in opts:
+        if "--config-path" in opts:  # Hydra would then find neither blenav's configs nor its checks' compositions
+            raise ValueError("--config-path replaces blenav's own configs (conf/), which every command needs; add a "
+                             "folder of your own configs (e.g. experiment/NAME.yaml) with --config-dir DIR instead")
+        if not opts.keys() & _PRINT_ONLY:
             name = opts.get("--config-name") or config_name
             if "--config-dir" in opts:  # the same search path as Hydra's, for the checks' compositions
                 d = str(Path(opts["--config-dir"]).resolve()).replace("\\", "\\\\").replace("'", "\\'")
