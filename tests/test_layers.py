@@ -232,3 +232,30 @@ def test_runtime_map_prior_runs_a_checkpoint_only_with_the_loader_it_is_handed(t
     prior = MapPrior(ck, loader=Backend)
     assert prior._backend.path == ck and prior.n_points == 6 and prior.weights_hash == "fake"
     assert prior.dtv(np.zeros((2, 6, 2))).shape == (2, 3)
+
+
+#: the most lines a module of src/blenav may have without saying at its top why it is one file
+MAX_LINES = 500
+#: the words that give that reason, in the module's first 20 lines
+REASON = "one file because"
+
+
+def long_modules(root: Path = SRC, max_lines: int = MAX_LINES) -> list[str]:
+    """The modules of ``root/blenav`` over ``max_lines`` lines whose first 20 lines do not say why (:data:`REASON`)."""
+    out = []
+    for name, path in modules(root).items():
+        lines = path.read_text(encoding="utf-8").splitlines()
+        if len(lines) > max_lines and not any(REASON in ln for ln in lines[:20]):
+            out.append(f"{name} ({len(lines)} lines)")
+    return out
+
+
+def test_no_module_over_500_lines_without_its_reason(tmp_path):
+    pkg = tmp_path / "blenav"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "big.py").write_text("x = 1\n" * 501)
+    (pkg / "told.py").write_text(f'"""Kept as {REASON} its parts share one state."""\n' + "x = 1\n" * 600)
+    (pkg / "small.py").write_text("x = 1\n" * 500)
+    assert long_modules(tmp_path) == ["blenav.big (501 lines)"]
+    assert long_modules() == [], "split these along their sections, or say at the top why each is one file"
