@@ -284,6 +284,55 @@ def test_sigterm_raises_terminated_and_the_guard_exits_143(capsys):
         signal.signal(signal.SIGTERM, old)
 
 
+def test_a_signal_that_became_a_c_functions_error_still_exits_as_the_signal(capsys):
+    """A signal handler that raises while C code runs a Python callback makes that C code fail with the exception
+    set, reported as a SystemError whose context is the interrupt (seen once from blenav-eval under SIGTERM: Hydra
+    then printed 'Error executing job ... returned a result with an exception set' and exit 1). The guard looks
+    behind the error: one line, 143, and the cleanup's notes kept."""
+    from blenav.cli.common import Terminated, guarded
+
+    def body():
+        try:
+            try:
+                raise Terminated("signal 15")
+            except Terminated:
+                raise SystemError("<built-in function x> returned a result with an exception set")
+        except BaseException as exc:  # what the evaluation's cleanup does: removes its output, says so
+            exc.add_note("removed partial output OUT.tmp")
+            raise
+
+    with pytest.raises(SystemExit) as info:
+        guarded("prog", body, False)
+    assert info.value.code == 143
+    assert capsys.readouterr().err == "prog: interrupted; removed partial output OUT.tmp\n"
+
+    def bug():  # a SystemError with no signal behind it is a bug: its traceback stays
+        raise SystemError("no signal here")
+
+    with pytest.raises(SystemError):
+        guarded("prog", bug, False)
+
+
+def test_an_interrupt_behind_a_c_functions_error_gets_the_cleanup_note(tmp_path):
+    """fresh_output removes its temporary folder and notes it on the interrupt, also when the interrupt reached it as
+    the SystemError of the C code it cut short (the SIGTERM test above lost its note that way, now and then)."""
+    from blenav.cli.common import Terminated
+    from blenav.cli.outdir import fresh_output
+
+    out = tmp_path / "o"
+    with pytest.raises(SystemError) as info:
+        with fresh_output(out) as tmp:
+            tmp.mkdir()
+            try:
+                raise Terminated("signal 15")
+            except Terminated:
+                raise SystemError("<built-in function x> returned a result with an exception set")
+    sig = info.value.__context__
+    assert isinstance(sig, Terminated) and sig.__notes__ == [f"removed partial output {tmp_path / '.o.tmp-'}"
+                                                            f"{os.getpid()}"]
+    assert not out.exists() and not tmp.exists()
+
+
 def test_an_out_inside_the_dataset_is_refused_before_any_work(two_walks, tmp_path):
     """Red-team (issue 28 sec. 3): out=DATA/sessions/xx wrote results.json and the session folders into the
     dataset, which then failed to validate ('sessions/xx/session.yaml: [missing-file]'); now one line, and the

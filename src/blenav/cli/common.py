@@ -111,13 +111,34 @@ def guarded(prog: str, body: Callable[[], int | None], debug: bool) -> int:
     install_signal_handlers()
     try:
         return int(body() or 0)
-    except KNOWN_ERRORS as exc:
-        if debug:
-            raise
-        fail(prog, exc)
     except (KeyboardInterrupt, Terminated) as exc:
         interrupted(prog, exc, debug)
+    except Exception as exc:
+        sig = interrupt_behind(exc)
+        if sig is not None:  # the signal came while C code ran and became its error (a SystemError): still a signal
+            for note in getattr(exc, "__notes__", []):  # what a cleanup did, noted on the exception it saw
+                if note not in getattr(sig, "__notes__", []):
+                    sig.add_note(note)
+            interrupted(prog, sig, debug)
+        if not isinstance(exc, KNOWN_ERRORS) or debug:
+            raise
+        fail(prog, exc)
     return 1
+
+
+def interrupt_behind(exc: BaseException) -> BaseException | None:
+    """The ``KeyboardInterrupt`` or :class:`Terminated` that ``exc`` was raised from or while handling, if any. A
+    signal handler raises between two bytecodes; when those run inside a C function that calls back into Python (a
+    compiled kernel, a sort key), the function may return with the exception set, which Python reports as a
+    ``SystemError`` whose context is the interrupt."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, (KeyboardInterrupt, Terminated)):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
 
 
 def run_hydra(prog: str, config_name: str, task: Callable, args: list[str], convert=None) -> None:

@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-from .common import signals_held
+from .common import interrupt_behind, signals_held
 
 #: sub-folders of an earlier OUT that a rerun reuses (copied into the new output when ``overwrite``)
 REUSABLE = ("runs", "fixes")
@@ -130,8 +130,10 @@ def fresh_output(out, overwrite: bool = False, inputs=()) -> Iterator[Path]:
         _remove(tmp)
         if isinstance(exc, (ValueError, OSError)) and str(tmp) in str(exc):
             raise ValueError(str(exc).replace(str(tmp), shown)) from exc
-        if not isinstance(exc, (Exception, SystemExit)):  # KeyboardInterrupt, Terminated: say what was cleaned up
-            exc.add_note(f"removed partial output {temp_beside(Path(shown))}"
+        # KeyboardInterrupt, Terminated (or one behind the SystemError of C code it interrupted): say what was cleaned up
+        sig = exc if not isinstance(exc, (Exception, SystemExit)) else interrupt_behind(exc)
+        if sig is not None:
+            sig.add_note(f"removed partial output {temp_beside(Path(shown))}"
                          + (f"; {shown} left as it was" if existed else ""))
         raise
 
