@@ -167,8 +167,6 @@ def test_mean_cov(shape):
 
 
 def test_duplicates():
-    from blenav.filters.engine import _duplicates
-
     rng = np.random.default_rng(3)
     for _ in range(20):
         idx = rng.integers(0, 30, (4, 30))
@@ -178,7 +176,7 @@ def test_duplicates():
         dup_sorted[:, 1:] = srt[:, 1:] == srt[:, :-1]
         ref = np.empty_like(dup_sorted)
         np.put_along_axis(ref, order, dup_sorted, axis=1)
-        assert np.array_equal(_duplicates(idx), ref)
+        assert np.array_equal(K.duplicates(idx), ref)
 
 
 @pytest.mark.parametrize("rooms_routes", [True, False])  # given map, and rooms/routes derived from the plan

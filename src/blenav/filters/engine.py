@@ -271,7 +271,9 @@ class ParticleFilter:
         if self.conditioner is not None:
             # Patel et al. eq. 4: the *new* particles (the extra copies that replace the dropped ones) are
             # generated around the strong particle and conditioned on the map; one copy of each survivor stays
-            self.x[runs, :, :2] = self.conditioner.condition(self.x[runs, :, :2], self.rng, mask=_duplicates(idx))
+            # (idx (len(runs), N), runs never empty: the compiled kernel's flags, no argsort)
+            copies = duplicates(np.ascontiguousarray(idx, dtype=np.int64))
+            self.x[runs, :, :2] = self.conditioner.condition(self.x[runs, :, :2], self.rng, mask=copies)
 
     def _recover(self, t: float, loglik: np.ndarray, n_obs: int) -> None:
         """Re-initialise runs whose weights vanished or whose cloud no longer explains the data."""
@@ -299,19 +301,6 @@ class ParticleFilter:
                                      "all weights vanished" if was_dead else "measurements unexplained"))
         self._last_local[redo[~go_global]] = t
         self._bad_since[redo] = np.nan
-
-
-def _duplicates(idx: np.ndarray) -> np.ndarray:
-    """(R, N) bool: True for every copy of an ancestor index after its first, row by row."""
-    if idx.ndim == 2 and len(idx):
-        return duplicates(np.ascontiguousarray(idx, dtype=np.int64))  # compiled: the same flags, no argsort
-    order = np.argsort(idx, axis=1, kind="stable")
-    srt = np.take_along_axis(idx, order, axis=1)
-    dup_sorted = np.zeros_like(srt, dtype=bool)
-    dup_sorted[:, 1:] = srt[:, 1:] == srt[:, :-1]
-    dup = np.empty_like(dup_sorted)
-    np.put_along_axis(dup, order, dup_sorted, axis=1)
-    return dup
 
 
 def _weighted_median(xy: np.ndarray, w: np.ndarray) -> np.ndarray:

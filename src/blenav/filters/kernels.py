@@ -155,7 +155,8 @@ def gather_rows(x, runs, idx):
 
 @njit(cache=True)
 def duplicates(idx):
-    """(R, N) bool: True for every copy of an ancestor index after its first, row by row (engine._duplicates)."""
+    """(R, N) bool: True for every copy of an ancestor index after its first, row by row (the map conditioning
+    of :meth:`blenav.filters.engine.ParticleFilter._resample` moves only those)."""
     R, N = idx.shape
     out = np.zeros((R, N), np.bool_)
     seen = np.zeros(N, np.bool_)
