@@ -137,13 +137,21 @@ def _prior(out: Path) -> dict:
     return dict(read_checkpoint(ck, require_meta=False).get("blenav_training") or {})
 
 
-def _trainer_settings(cfg: DictConfig, b: dict, dm: WindowDataModule, module) -> tuple[dict, int]:
-    """Lightning Trainer keywords of ``cfg.trainer`` with the step budget ``b`` on the data module's training windows
-    (:func:`blenav.learn.common.budget.trainer_settings`), and the module's LR schedule set; returns (keywords,
-    max_steps or -1)."""
-    max_steps = run_budget_steps(b, dm)
-    trainer_kw, module.schedule = trainer_settings(cfg, b, max_steps, len(dm.sets["train"]), dm.batch_size)
-    return trainer_kw, max_steps
+def _validate_last(trainer, module, dm: WindowDataModule, monitor: TrainingMonitor) -> None:
+    """Validate the steps since the monitor's last check (none when the fit ended on one, or without validation
+    windows), so that the report and the best weights see the final step."""
+    if dm.sets.get("val") is not None and (not monitor.history or monitor.history[-1]["step"] != trainer.global_step):
+        trainer.validate(module, datamodule=dm, verbose=False)
+
+
+def _end_stage(module, trainer, out: Path, info: dict, monitor: TrainingMonitor, title: str, plots: bool) -> None:
+    """A stage's end: ``info`` on the module, OUT/last.ckpt of the final step amended on rank 0 with the module's
+    weights and ``info`` (:func:`_finish_checkpoint`), and the training report."""
+    module.training_info = info
+    _final_step_checkpoint(trainer, out)
+    if trainer.is_global_zero:
+        _finish_checkpoint(module, out, info, monitor)
+    write_report(out, info, monitor, title, plots)
 
 
 def _supervised_stage(module, dm, out: Path, trainer_kw: dict, b: dict, max_steps: int, monitor, knn_err,
@@ -160,19 +168,13 @@ def _supervised_stage(module, dm, out: Path, trainer_kw: dict, b: dict, max_step
         callbacks_1.append(es)
     module.training_info = {"stage": "supervised"}
     trainer = fit(module, dm, out, trainer_kw, callbacks_1)
-    if monitor.history and monitor.history[-1]["step"] != trainer.global_step or not monitor.history:
-        if dm.sets.get("val") is not None:  # the last steps since the previous check are validated too
-            trainer.validate(module, datamodule=dm, verbose=False)
+    _validate_last(trainer, module, dm, monitor)
     reason = stop_reason(trainer, es, step_budget)
     if monitor.best_state is not None:  # the weights of the best validation check
         module.load_state_dict(monitor.best_state)
     info = training_report(monitor, reason, trainer.global_step, knn_err)
     info.update(_window_counts(dm), budget_steps=int(max_steps))
-    module.training_info = info
-    _final_step_checkpoint(trainer, out)
-    if trainer.is_global_zero:
-        _finish_checkpoint(module, out, info, monitor)
-    write_report(out, info, monitor, title, plots)
+    _end_stage(module, trainer, out, info, monitor, title, plots)
     return info, trainer
 
 
@@ -191,17 +193,12 @@ def _semi_stage(module, dm, out: Path, trainer_kw: dict, semi, info: dict, knn_e
     module.training_info = {**info, "stage": "semi", "semi_from_step": start, "stop_reason": None}
     monitor2 = TrainingMonitor()
     trainer = fit(module, dm, out, kw2, [monitor2, StepBudget(start + steps), *(callbacks or [])])
-    if dm.sets.get("val") is not None and (not monitor2.history or monitor2.history[-1]["step"] != trainer.global_step):
-        trainer.validate(module, datamodule=dm, verbose=False)
+    _validate_last(trainer, module, dm, monitor2)
     sup = {k: info.get(k) for k in ("steps", "budget_steps", "early_stopped", "stop_reason", "best_val_error_m")}
     info = {**training_report(monitor2, "semi_steps", trainer.global_step, knn_err, stage="semi"),
             **_window_counts(dm), "semi_from_step": start, "supervised": sup, "early_stopped": bool(sup["early_stopped"]),
             "budget_steps": sup["budget_steps"]}
-    module.training_info = info
-    _final_step_checkpoint(trainer, out)
-    if trainer.is_global_zero:
-        _finish_checkpoint(module, out, info, monitor2)
-    write_report(out, info, monitor2, title, plots)
+    _end_stage(module, trainer, out, info, monitor2, title, plots)
     return info, trainer
 
 
@@ -228,7 +225,8 @@ def train_crossphone(cfg: DictConfig, callbacks: list | None = None,
                          f"data.unlabelled_devices=[...] to device models of this dataset (here: {here})")
     b = budget(cfg)
     module = build_module(cfg, dm)
-    trainer_kw, max_steps = _trainer_settings(cfg, b, dm, module)
+    max_steps = run_budget_steps(b, dm)
+    trainer_kw, module.schedule = trainer_settings(cfg, b, max_steps, len(dm.sets["train"]), dm.batch_size)
     title = f"{(cfg.model or {}).get('name', 'model')} ({out})"
     plots = bool(cfg.get("plots", True))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True), encoding="utf-8")
