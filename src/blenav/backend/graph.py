@@ -60,6 +60,7 @@ offset range error) in :mod:`blenav.backend.factors`.
 
 from __future__ import annotations
 
+import re
 import time
 from functools import partial
 
@@ -69,8 +70,7 @@ import pandas as pd
 from .config import BackendConfig, Solver
 from .factors import (load_gtsam, nearest_keyframe, offset_range_error, preintegrate, preintegration_params,
                       robust_noise, select_ranges)
-from .graph_types import (BackendFailure, BackendResult, BeaconPriors, ImuSamples, Keyframes, RangeObs, describe_key,
-                          first_line, symbol_in)
+from .graph_types import BackendFailure, BackendResult, BeaconPriors, ImuSamples, Keyframes, RangeObs, describe_key
 
 __all__ = ["RadioInertialGraph", "smooth"]
 
@@ -334,7 +334,7 @@ class RadioInertialGraph:
             if qr:
                 self._fail("lm", exc, None)
                 return None
-            self.notes.append(f"LM with Cholesky failed ({first_line(exc)}); retried with QR")
+            self.notes.append(f"LM with Cholesky failed ({_first_line(exc)}); retried with QR")
             return self._lm(graph, initial, qr=True)
         self.notes.append(f"LM{' (QR)' if qr else ''}: {opt.iterations()} iterations, error "
                           f"{graph.error(initial):.4g} -> {graph.error(estimate):.4g}")
@@ -365,10 +365,10 @@ class RadioInertialGraph:
         return isam.marginalCovariance
 
     def _fail(self, stage: str, exc: RuntimeError, k: int | None) -> None:
-        sym = symbol_in(str(exc))
+        sym = _symbol_in(str(exc))
         key = describe_key(sym, self.kf.t, self.beacons.ids)
         t = float(self.kf.t[k]) if k is not None else None
-        self.failures.append(BackendFailure(stage, key, t, first_line(exc)))
+        self.failures.append(BackendFailure(stage, key, t, _first_line(exc)))
 
     def _collect(self, estimate, last_good: int, cov) -> BackendResult:
         """Arrays from the estimate for keyframes 0..last_good, the front-end's values after (a failure)."""
@@ -426,6 +426,21 @@ class RadioInertialGraph:
                     except RuntimeError as exc:
                         self._fail("marginals", exc, None)
         return res
+
+
+_KEY_RE = re.compile(r"Symbol:\s*([A-Za-z])(\d+)")
+
+
+def _symbol_in(message: str) -> str | None:
+    """The key GTSAM's exception ``message`` names ('Symbol: l3' -> 'l3', read by :func:`describe_key`), or None."""
+    m = _KEY_RE.search(message)
+    return f"{m.group(1)}{m.group(2)}" if m else None
+
+
+def _first_line(exc: BaseException) -> str:
+    """The first two non-empty lines of a GTSAM exception's message, joined (its type's name when empty)."""
+    lines = [s.strip() for s in str(exc).splitlines() if s.strip()]
+    return " ".join(lines[:2]) if lines else type(exc).__name__
 
 
 def _quat_to_matrix(q: np.ndarray) -> np.ndarray:

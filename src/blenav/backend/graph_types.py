@@ -5,14 +5,12 @@ names in its failure messages read back into words (:func:`describe_key`). Plain
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
-__all__ = ["Keyframes", "ImuSamples", "RangeObs", "BeaconPriors", "BackendFailure", "BackendResult", "describe_key",
-           "symbol_in", "first_line"]
+__all__ = ["Keyframes", "ImuSamples", "RangeObs", "BeaconPriors", "BackendFailure", "BackendResult", "describe_key"]
 
 
 # ------------------------------------------------------------------------------------------------ inputs
@@ -121,9 +119,6 @@ class BackendResult:
 
 
 # ------------------------------------------------------------------------------------------------ failures
-_KEY_RE = re.compile(r"Symbol:\s*([A-Za-z])(\d+)")
-
-
 def describe_key(symbol: str | None, kf_t: np.ndarray | None = None, beacon_ids=None) -> str | None:
     """'l3' -> 'beacon ble-003 (l3)', 'x17' -> 'keyframe 17 at t=1.80 s (x17)' (names when known)."""
     if not symbol:
@@ -135,16 +130,3 @@ def describe_key(symbol: str | None, kf_t: np.ndarray | None = None, beacon_ids=
     if what and kf_t is not None and idx < len(kf_t):
         return f"{what} of keyframe {idx} at t={kf_t[idx]:.2f} s ({symbol})"
     return symbol
-
-
-def symbol_in(message: str) -> str | None:
-    """The key GTSAM's exception ``message`` names ('Symbol: l3' -> 'l3'), or None."""
-    m = _KEY_RE.search(message)
-    return f"{m.group(1)}{m.group(2)}" if m else None
-
-
-def first_line(exc: BaseException) -> str:
-    """The first two non-empty lines of a GTSAM exception's message, joined (its type's name when empty)."""
-    lines = [s.strip() for s in str(exc).splitlines() if s.strip()]
-    return " ".join(lines[:2]) if lines else type(exc).__name__
-
