@@ -36,6 +36,21 @@ def test_splice_without_markers_appends_only_when_asked(tmp_path):
     assert splice(half, "x", "t") is False and half.read_text() == "<!-- t -->\nkeep\n"
 
 
+def test_splice_reads_the_end_marker_after_the_start_marker(tmp_path):
+    """An end marker above the block (a stray one, or another block's quoted) is text: the block ends at the first
+    end marker after its start, and a second splice writes the same file."""
+    start, end = markers("t")
+    page = tmp_path / "page.md"
+    page.write_text(f"see {end} above\n{start}\nold\n{end}\ntail\n")
+    assert splice(page, "new", "t") is True
+    once = page.read_text()
+    assert once == f"see {end} above\n{start}\nnew\n{end}\ntail\n"
+    assert splice(page, "new", "t") and page.read_text() == once
+    orphan = tmp_path / "orphan.md"  # an end marker, then a start marker without its end: no block, left alone
+    orphan.write_text(f"{end}\nkeep\n{start}\nkeep too\n")
+    assert splice(orphan, "x", "t") is False and orphan.read_text() == f"{end}\nkeep\n{start}\nkeep too\n"
+
+
 def _run(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "blenav.cli.tables", *map(str, args)], capture_output=True, text=True,
                           timeout=120, cwd=cwd)

@@ -17,15 +17,17 @@ def markers(tag: str) -> tuple[str, str]:
 
 def splice(path, body: str, tag: str, append: bool = False) -> bool:
     """Put ``body`` between the markers of ``tag`` (:func:`markers`) in the file ``path``, replacing what is there
-    (the text before the first start marker and after the first end marker is kept as read in text mode, line ends
-    as ``\n``); without both markers, append them with ``body`` (``append``: a results page gets its block) or leave
-    the file alone (a README gets a table only where it asks for one). Written atomically (UTF-8). Returns whether
-    the file was written."""
+    (the text before the first start marker and after the first end marker that follows it is kept as read in text
+    mode, line ends as ``\n``); without both markers in that order, append them with ``body`` (``append``: a results
+    page gets its block) or leave the file alone (a README gets a table only where it asks for one). Written
+    atomically (UTF-8). Returns whether the file was written."""
     path = Path(path)
     start, end = markers(tag)
     text = path.read_text() if path.is_file() else ""
-    if start in text and end in text:
-        write_text(path, text.split(start)[0] + start + "\n" + body + "\n" + end + text.split(end, 1)[1])
+    head, found, rest = text.partition(start)
+    _, closed, tail = rest.partition(end)
+    if found and closed:
+        write_text(path, head + start + "\n" + body + "\n" + end + tail)
     elif append:
         write_text(path, text + f"\n{start}\n{body}\n{end}\n")
     else:
