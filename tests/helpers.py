@@ -1,7 +1,9 @@
-"""Small synthetic datasets for tests, built with the project's writer (no simulator needed)."""
+"""Small synthetic datasets for tests, built with the project's writer (no simulator needed), and the import graph
+of src/blenav (:func:`import_graph`)."""
 
 from __future__ import annotations
 
+import ast
 import os
 from pathlib import Path
 
@@ -17,6 +19,8 @@ REPO = next(p for p in Path(__file__).resolve().parents if (p / "pyproject.toml"
 #: ../shared beside the clone; $BLENAV_SHARED names another (a git worktree elsewhere, say).
 SHARED = Path(os.environ.get("BLENAV_SHARED") or REPO.parent / "shared")
 RAW = SHARED / "data" / "raw"
+#: the source tree whose import graph the layer checks read
+SRC = REPO / "src"
 
 
 def simulate_small(out: Path, seed: int, duration_s: float, sessions: int, *overrides: str) -> Path:
@@ -111,3 +115,52 @@ def training_node() -> dict:
 
     cfg = compose("eval", "+localizer@methods.fp=fingerprint")
     return OmegaConf.to_container(cfg.methods.fp.training, resolve=True)
+
+
+def streamed(online, events, t_end: float) -> np.ndarray:
+    """Positions (R, K, 2) an :class:`blenav.filters.online.OnlineLocalizer` gives for ``events`` (pushed in order,
+    e.g. :func:`blenav.filters.online.replay` of a session) and closed at ``t_end`` (s): the batch run's
+    :class:`~blenav.filters.estimate.Estimate` ``position`` when the streaming API reproduces it."""
+    out = []
+    for e in events:
+        out += online.push_event(e)
+    out += online.close(t_end)
+    return np.stack([r.position for r in out], axis=1)
+
+
+def modules(root: Path = SRC) -> dict[str, Path]:
+    """Dotted module name -> file, for every .py below ``root/blenav`` (a package by its ``__init__``)."""
+    out = {}
+    for p in sorted((root / "blenav").rglob("*.py")):
+        parts = p.relative_to(root).with_suffix("").parts
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = p
+    return out
+
+
+def import_graph(root: Path = SRC, skip=()) -> dict[str, set[str]]:
+    """Module -> the blenav modules it imports (module level, inside functions and under ``if TYPE_CHECKING:``;
+    ``from m import name`` counts ``m.name`` when that is a module, else ``m``), less the (importer, imported)
+    edges in ``skip``. tests/test_layers.py checks the layers and cycles on it, tests/learn/test_packages.py learn/'s
+    packages."""
+    mods = modules(root)
+    graph: dict[str, set[str]] = {}
+    for name, path in mods.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        deps: set[str] = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                for a in node.names:
+                    deps.add(a.name)
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    m = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    m = node.module or ""
+                named = [f"{m}.{a.name}" for a in node.names if f"{m}.{a.name}" in mods]
+                deps |= set(named) if named and len(named) == len(node.names) else {m, *named}
+        graph[name] = {d for d in deps if d in mods and d != name and (name, d) not in skip}
+    return graph

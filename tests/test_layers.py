@@ -1,8 +1,9 @@
 """The layers of blenav import in one direction (issue 13, section 2; issue 27, section 4).
 
-1. Nothing below ``learn/`` loads torch, lightning or hydra: importing every module of ``blenav.data``,
-   ``blenav.features``, ``blenav.filters``, ``blenav.runtime``, ``blenav.sim`` and ``blenav.importers`` (and
-   ``blenav.onnx_io``) in a fresh interpreter leaves them out of ``sys.modules``.
+1. The layers a phone or gateway runs load no torch, lightning or hydra: importing every module of ``blenav.data``,
+   ``blenav.features``, ``blenav.filters``, ``blenav.crf``, ``blenav.runtime``, ``blenav.sim`` and
+   ``blenav.importers`` (and ``blenav.onnx_io``) in a fresh interpreter leaves them out of ``sys.modules``; the
+   networks (``blenav.models``) load torch but neither lightning nor hydra.
 2. Every module belongs to one layer of :data:`LAYERS` (bottom-up) and imports only modules of its own layer or of
    lower ones: filters below runtime, learn below the localizers, ``blenav.configs`` (which composes ``conf/``)
    above everything but the command lines, so that only entry points (``blenav.cli``, ``train.py``,
@@ -17,13 +18,13 @@ with the reason.
 
 from __future__ import annotations
 
-import ast
 import json
 import subprocess
 import sys
 from pathlib import Path
 
-SRC = Path(__file__).resolve().parents[1] / "src"
+from helpers import SRC, import_graph, modules
+
 LOWER = ("blenav.data", "blenav.features", "blenav.filters", "blenav.runtime", "blenav.sim", "blenav.importers",
          "blenav.onnx_io", "blenav.crf")
 HEAVY = ("torch", "lightning", "hydra")
@@ -56,63 +57,40 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 )
 
 
-def test_lower_layers_import_without_torch_lightning_hydra():
+def import_all(tops: tuple[str, ...], heavy: tuple[str, ...]) -> dict:
+    """Import every module of the packages ``tops`` in a fresh interpreter: {"modules": their names, "heavy": the
+    names of ``heavy`` then in ``sys.modules``}."""
     code = f"""
 import importlib, json, pkgutil, sys
 names = []
-for top in {LOWER!r}:
+for top in {tops!r}:
     mod = importlib.import_module(top)
     names.append(top)
     if hasattr(mod, "__path__"):
         for info in pkgutil.walk_packages(mod.__path__, top + "."):
             importlib.import_module(info.name)
             names.append(info.name)
-print(json.dumps({{"modules": names, "heavy": sorted(m for m in {HEAVY!r} if m in sys.modules)}}))
+print(json.dumps({{"modules": names, "heavy": sorted(m for m in {heavy!r} if m in sys.modules)}}))
 """
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
-    out = json.loads(res.stdout.strip().splitlines()[-1])
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_lower_layers_import_without_torch_lightning_hydra():
+    out = import_all(LOWER, HEAVY)
     assert "blenav.runtime.map_prior" in out["modules"] and "blenav.features.windows" in out["modules"]
     assert out["heavy"] == [], f"importing {LOWER} loads {out['heavy']}"
 
 
+def test_the_networks_import_without_lightning_hydra():
+    """docs/architecture.md: ``models`` holds plain ``nn.Module``s; Lightning wraps them in ``learn/``."""
+    out = import_all(("blenav.models",), HEAVY)
+    assert "blenav.models.mapprior" in out["modules"]
+    assert out["heavy"] == ["torch"], f"importing blenav.models loads {out['heavy']}"
+
+
 # --- the module graph ------------------------------------------------------------------------------------
-
-def modules(root: Path = SRC) -> dict[str, Path]:
-    """Dotted module name -> file, for every .py below ``root/blenav`` (a package by its ``__init__``)."""
-    out = {}
-    for p in sorted((root / "blenav").rglob("*.py")):
-        parts = p.relative_to(root).with_suffix("").parts
-        if parts[-1] == "__init__":
-            parts = parts[:-1]
-        out[".".join(parts)] = p
-    return out
-
-
-def import_graph(root: Path = SRC) -> dict[str, set[str]]:
-    """Module -> the blenav modules it imports (module level, inside functions and under ``if TYPE_CHECKING:``;
-    ``from m import name`` counts ``m.name`` when that is a module, else ``m``)."""
-    mods = modules(root)
-    graph: dict[str, set[str]] = {}
-    for name, path in mods.items():
-        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
-        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-        deps: set[str] = set()
-        for node in ast.walk(tree):
-            if isinstance(node, ast.Import):
-                for a in node.names:
-                    deps.add(a.name)
-            elif isinstance(node, ast.ImportFrom):
-                if node.level:
-                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
-                    m = ".".join(base + ([node.module] if node.module else []))
-                else:
-                    m = node.module or ""
-                named = [f"{m}.{a.name}" for a in node.names if f"{m}.{a.name}" in mods]
-                deps |= set(named) if named and len(named) == len(node.names) else {m, *named}
-        graph[name] = {d for d in deps if d in mods and d != name and (name, d) not in ALLOWED}
-    return graph
-
 
 def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
     """One cycle [a, b, ..., a] of ``graph``, or None (iterative depth-first search)."""
@@ -155,7 +133,7 @@ def test_cycle_finder_finds_a_lazy_import_cycle(tmp_path):
 
 
 def test_no_import_cycles():
-    graph = import_graph()
+    graph = import_graph(skip=ALLOWED)
     assert "blenav.learn.train" in graph and "blenav.runtime.map_prior" in graph
     cycle = find_cycle(graph)
     assert cycle is None, "import cycle: " + " -> ".join(cycle)
@@ -200,7 +178,7 @@ def test_every_module_has_a_layer():
 
 def test_every_import_points_to_the_same_or_a_lower_layer():
     """Module level, lazy and type-only imports alike: no module imports a layer above its own."""
-    up = upward_imports(import_graph())
+    up = upward_imports(import_graph(skip=ALLOWED))
     assert not up, "imports that point up the layers:\n" + "\n".join(up)
 
 

@@ -19,6 +19,7 @@ from blenav.filters.measurement import AnchorTable
 from blenav.filters.online import OnlineLocalizer, replay
 from blenav.filters.runner import magnetometer_offset, run_session
 from blenav.filters.steps import SessionArrays
+from helpers import streamed
 
 
 def eval_cfg(*overrides):
@@ -54,11 +55,7 @@ def test_streaming_equals_batch(office):
     m2 = methods("frontend_000", office, n_particles=100)["IMU"]
     arrays = SessionArrays.from_session(s, AnchorTable.from_frame(s.building.anchors))
     online = OnlineLocalizer(m2, s, n_runs=3, seed=5, t_start=0.0, mag_offset=magnetometer_offset(arrays, m2))
-    out = []
-    for e in replay(s):
-        out += online.push_event(e)
-    out += online.close(batch.t[-1])
-    pos = np.stack([r.position for r in out], axis=1)
+    pos = streamed(online, replay(s), batch.t[-1])
     assert pos.shape == batch.position.shape
     np.testing.assert_array_equal(pos, batch.position)
 

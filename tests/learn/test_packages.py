@@ -8,7 +8,7 @@ counts them) has these edges between its packages only: ``common`` imports no mo
 
 from __future__ import annotations
 
-from test_layers import import_graph
+from helpers import import_graph
 
 PACKAGES = ("common", "crossphone", "mapprior", "fingerprint")
 #: package (or top-level module of learn) -> the packages / modules of learn it may import

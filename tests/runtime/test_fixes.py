@@ -19,7 +19,7 @@ from blenav.eval.harness import build_methods, evaluate
 from blenav.filters.measurement import FixLikelihood
 from blenav.filters.online import OnlineLocalizer, replay
 from blenav.filters.runner import run_session
-from helpers import simulate_small
+from helpers import simulate_small, streamed
 
 SOURCE = "gt+noise"
 #: a fixes-only method composed like the experiments compose theirs (package defaults)
@@ -159,11 +159,7 @@ def test_streaming_equals_batch_with_fixes(small, tmp_path):
     online = OnlineLocalizer(method(), s, n_runs=3, seed=5, t_start=0.0)
     events = replay(s)
     assert sum(e[0] == "fix" for e in events) == len(s.fixes) > 0
-    out = []
-    for e in events:
-        out += online.push_event(e)
-    out += online.close(batch.t[-1])
-    pos = np.stack([r.position for r in out], axis=1)
+    pos = streamed(online, events, batch.t[-1])
     assert pos.shape == batch.position.shape
     np.testing.assert_array_equal(pos, batch.position)
 
