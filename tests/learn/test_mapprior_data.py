@@ -39,8 +39,9 @@ def _unpack(raw_dir, tmp_path, floor: str = "F1", n: int = 3):
 
 
 @pytest.fixture(scope="module")
-def three_walks(tmp_path_factory):
-    """Three F1 walks imported into a temporary folder (once for the module)."""
+def ilc_walks(tmp_path_factory):
+    """Three ILC 2.0 F1 walks imported into a temporary folder (once for the module; not conftest's simulated
+    ``three_walks``)."""
     from blenav.importers import run_import
 
     if not RAW.is_dir():
@@ -52,17 +53,17 @@ def three_walks(tmp_path_factory):
 
 
 @pytest.mark.realdata
-def test_trains_on_the_train_walks_with_interpolated_waypoints(three_walks, tmp_path):
+def test_trains_on_the_train_walks_with_interpolated_waypoints(ilc_walks, tmp_path):
     from blenav.data import Dataset
     from blenav.cli.realwalks import train_ids_of
     from blenav.learn.train import train
 
-    train_walks = set(train_ids_of(str(three_walks)))  # the realwalks split, as make realwalks-tables passes it
-    cfg = compose("train", "experiment=mapprior_ilc", f"data={three_walks}", f"out={tmp_path / 'run'}", *TINY,
+    train_walks = set(train_ids_of(str(ilc_walks)))  # the realwalks split, as make realwalks-tables passes it
+    cfg = compose("train", "experiment=mapprior_ilc", f"data={ilc_walks}", f"out={tmp_path / 'run'}", *TINY,
                   f"data.sessions=[{','.join(sorted(train_walks))}]")
     metrics, objs = train(cfg)
     dm = objs["datamodule"]
-    ds = Dataset.open(three_walks)
+    ds = Dataset.open(ilc_walks)
     assert 0 < len(train_walks) < len(ds.session_ids)  # the split keeps a test walk out
     used = set().union(*map(set, dm.groups.values()))
     assert used and used <= train_walks  # no test walk is read, not even for validation
@@ -82,16 +83,16 @@ def test_trains_on_the_train_walks_with_interpolated_waypoints(three_walks, tmp_
 
 
 @pytest.mark.realdata
-def test_misspelt_keys_fail_early(three_walks, tmp_path):
+def test_misspelt_keys_fail_early(ilc_walks, tmp_path):
     from blenav.learn.mapprior.data import MapPriorDataModule
     from blenav.learn.mapprior.train import mapprior_data_config
 
     with pytest.raises(ConfigCompositionException, match="extra_path"):
-        compose("train", "experiment=mapprior_ilc", f"data={three_walks}", "data.extra_path=[x]")
-    cfg = compose("train", "experiment=mapprior_ilc", f"data={three_walks}", "data.sessions=[site1_F1_nowhere]")
+        compose("train", "experiment=mapprior_ilc", f"data={ilc_walks}", "data.extra_path=[x]")
+    cfg = compose("train", "experiment=mapprior_ilc", f"data={ilc_walks}", "data.sessions=[site1_F1_nowhere]")
     with pytest.raises(ValueError, match="site1_F1_nowhere"):  # an id of no dataset
         MapPriorDataModule(mapprior_data_config(cfg), 0.25).setup()
-    cfg = compose("train", "experiment=mapprior_ilc", f"data={three_walks}", f"data.extra_paths=[{three_walks}]")
+    cfg = compose("train", "experiment=mapprior_ilc", f"data={ilc_walks}", f"data.extra_paths=[{ilc_walks}]")
     with pytest.raises(ValueError, match="in both"):  # the same walks twice
         MapPriorDataModule(mapprior_data_config(cfg), 0.25).setup()
 
