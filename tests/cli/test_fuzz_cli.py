@@ -55,10 +55,8 @@ from fuzz_helpers import (
 from helpers import REPO
 
 pytestmark = pytest.mark.timeout(900)
-#: the evaluation is the slow part: fewer examples than the readers' tests in the default run
 #: the evaluation is the slow part (about 0.7 s an example): 12 examples per test in the default run
 CI_EVAL = settings(CI, max_examples=max(CI.max_examples * 3 // 5, 1))
-ROOT = REPO
 BIN = Path(sys.executable).parent
 #: keys whose values are timings or the dataset's path, not results
 VOLATILE = {"wall_s", "realtime_factor", "dataset"}
@@ -221,7 +219,7 @@ def test_eval_fix_likelihood_slow(env_fixes, fault):
 
 def _run(*args):
     env = {k: v for k, v in os.environ.items() if k != "BLENAV_DEBUG"}
-    return subprocess.run([str(a) for a in args], capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    return subprocess.run([str(a) for a in args], capture_output=True, text=True, cwd=REPO, env=env, timeout=600)
 
 
 def _error_line(p, prog: str) -> str:
