@@ -212,3 +212,25 @@ def test_a_partial_network_in_the_meta_is_refused(checkpoints, tmp_path):
     torch.save(ck, tmp_path / "partial.ckpt")
     with pytest.raises(ValueError, match=r"blenav.model.locnet._partial_ is set"):
         load_module(tmp_path / "partial.ckpt")
+
+
+@pytest.mark.parametrize("change, words", [
+    (lambda m: m["model"]["net"].update(unet_channels=[4, 60_000]), "blenav.model ask for net.map_encoder"),
+    (lambda m: m["model"]["net"].update(channels=3 * 10**7), "the meta does not describe these weights"),
+    (lambda m: m["model"]["net"].update(channels=-1), "blenav.model build no network"),
+    (lambda m: m["window"].update(n_points=10**9), "blenav.window.n_points = 1000000000 is outside [1, 10,000]"),
+    (lambda m: m["window"].update(step_hz=0.0), "blenav.window.step_hz = 0.0 is outside"),
+    (lambda m: m.__setitem__("resolution_m", 0.0), "blenav.resolution_m = 0.0 is outside"),
+    (lambda m: m.pop("window"), "blenav.window.n_points = None is not a number"),
+])
+def test_map_prior_sizes_in_the_meta_are_bounded_before_building(checkpoints, tmp_path, change, words):
+    """The map prior's meta as the cross-phone one's: unet_channels=[4, 60000] asked torch for 130 GB (Hydra's
+    InstantiationException traceback), window.n_points=10**9 made export.py allocate 16 GB for its sample inputs, a
+    missing window was a KeyError. Now one ValueError naming the checkpoint and the field, before memory is claimed."""
+    ck = torch.load(checkpoints["mp"], map_location="cpu", weights_only=True)
+    change(ck["blenav"])
+    torch.save(ck, tmp_path / "big.ckpt")
+    with pytest.raises(ValueError) as e:
+        load_mapprior(tmp_path / "big.ckpt")
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(f"checkpoint {tmp_path / 'big.ckpt'}: blenav.") and words in msg

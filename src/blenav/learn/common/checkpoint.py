@@ -30,6 +30,7 @@ import pickle
 import pickletools
 import re
 import zipfile
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -163,6 +164,33 @@ def _check_plain(meta, path: Path) -> None:
             stack.extend((v, f"{where}.{k}") for k, v in n.items())
         elif isinstance(n, (list, tuple)):
             stack.extend((v, f"{where}[{i}]") for i, v in enumerate(n))
+
+
+def check_weight_shapes(build: Callable[[], Mapping[str, object]], state_dict: Mapping, where: str,
+                        what: str) -> None:
+    """The networks a checkpoint's meta describes have exactly the checkpoint's weights, checked before they are built
+    for real: ``build()`` (run under ``torch.device("meta")``: nothing is allocated) returns {state-dict prefix:
+    network or None} from the meta's sizes; every parameter and buffer under those prefixes must match the weights
+    by name and shape. A meta that claims other sizes (2,000,000 beacons, hidden = 10**7, a U-Net of 60,000
+    channels) is one ValueError naming ``where`` (the checkpoint) and ``what`` (the meta fields the sizes come
+    from), instead of allocating gigabytes for weights that cannot load; so is a size the classes refuse (negative,
+    not an integer)."""
+    from hydra.errors import InstantiationException
+
+    try:
+        with torch.device("meta"):
+            nets = build()
+    except (InstantiationException, RuntimeError, TypeError, OverflowError) as exc:
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise ValueError(f"{where}: {what} build no network: {why[:300]}") from None
+    shapes = {f"{k}.{n}": tuple(t.shape) for k, net in nets.items() if net is not None
+              for n, t in net.state_dict().items()}
+    prefixes = tuple(f"{k}." for k in nets)
+    have = {k: tuple(v.shape) for k, v in state_dict.items() if k.startswith(prefixes)}
+    for k in sorted(set(shapes) | set(have)):
+        if shapes.get(k) != have.get(k):
+            raise ValueError(f"{where}: {what} ask for {k} of shape {shapes.get(k)}, the weights have {have.get(k)}; "
+                             "the meta does not describe these weights")
 
 
 def _unreadable(path: Path, detail: str) -> ValueError:

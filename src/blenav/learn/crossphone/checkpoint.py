@@ -21,13 +21,12 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import torch
-from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 
 from blenav.limits import check_range
 from blenav.trust import check_targets
 
-from ..common.checkpoint import KEY, read_checkpoint
+from ..common.checkpoint import KEY, check_weight_shapes, read_checkpoint
 from .module import CrossPhoneModule
 
 
@@ -58,36 +57,12 @@ def load_module(path: str | Path) -> tuple[CrossPhoneModule, dict]:
         if key in window:
             check_range(window[key], key, where, field=f"blenav.window.{key}")
     n_beacons = len(meta["beacons"]) if isinstance(meta.get("beacons"), list) else -1
-    with torch.device("meta"):  # sizes from the file, checked against its weights before any memory is claimed
-        shapes = _built_shapes(meta["model"], n_beacons, where)
-    _check_shapes(shapes, ck["state_dict"], where)
+    # sizes from the file, checked against its weights before any memory is claimed
+    check_weight_shapes(lambda: dict(zip(("locnet", "transnet"), build_networks(meta["model"], n_beacons, where))),
+                        ck["state_dict"], where, "blenav.model / blenav.beacons")
     locnet, transnet = build_networks(meta["model"], n_beacons, where=where)
     n_m = ck["state_dict"].get("M", torch.zeros(0, 0))
     module = CrossPhoneModule(locnet, transnet, M=torch.zeros_like(n_m), meta=meta)
     module.load_state_dict(ck["state_dict"])
     return module.eval(), meta
 
-
-def _built_shapes(model_cfg, n_beacons: int, where: str) -> dict[str, tuple[int, ...]]:
-    """Parameter name -> shape of the networks a checkpoint's ``model`` node and beacon list build (call it under
-    ``torch.device("meta")``: nothing is allocated); a size the classes refuse (negative, not an integer) is a
-    ValueError naming ``where``."""
-    try:
-        locnet, transnet = build_networks(model_cfg, n_beacons, where=where)
-    except (InstantiationException, RuntimeError, TypeError, OverflowError) as exc:
-        why = " ".join(str(exc).split()) or type(exc).__name__
-        raise ValueError(f"{where}: blenav.model / blenav.beacons build no network: {why[:300]}") from None
-    nets = {"locnet": locnet, "transnet": transnet}
-    return {f"{k}.{n}": tuple(t.shape) for k, net in nets.items() if net is not None
-            for n, t in net.state_dict().items()}
-
-
-def _check_shapes(shapes: dict, state_dict: Mapping, where: str) -> None:
-    """The networks the meta describes have exactly the checkpoint's weights (names and shapes): a meta that
-    claims other sizes (2,000,000 beacons, hidden = 10**7) is refused in one line before the networks are built,
-    instead of allocating gigabytes for weights that cannot load."""
-    have = {k: tuple(v.shape) for k, v in state_dict.items() if k.startswith(("locnet.", "transnet."))}
-    for k in sorted(set(shapes) | set(have)):
-        if shapes.get(k) != have.get(k):
-            raise ValueError(f"{where}: blenav.model / blenav.beacons ask for {k} of shape {shapes.get(k)}, the "
-                             f"weights have {have.get(k)}; the meta does not describe these weights")

@@ -22,11 +22,12 @@ import numpy as np
 import torch
 from hydra.utils import instantiate
 
+from blenav.limits import check_range
 from blenav.models.mapprior import MapPriorNet
 from blenav.runtime.map_prior import MapPrior
 from blenav.trust import check_targets
 
-from ..common.checkpoint import KEY, read_checkpoint
+from ..common.checkpoint import KEY, check_weight_shapes, read_checkpoint
 
 KIND = "mapprior"
 
@@ -60,8 +61,18 @@ def load_mapprior(path: str | Path) -> tuple[MapPriorNet, dict]:
     meta = ck[KEY]
     if meta.get("kind") != KIND:
         raise ValueError(f"{path}: a {meta.get('kind', 'crossphone')} checkpoint, not a map prior")
-    w = meta["window"]
-    net = build_net(meta["model"], w["n_points"], w["step_hz"], where=f"checkpoint {path}")
+    where = f"checkpoint {path}"
+    # sizes from the file (the export's sample inputs are n_points long, its graph divides by resolution_m), bounded
+    # as the runtime bounds an export's meta.json (blenav.runtime.map_prior.MapPrior), then the network they
+    # describe checked against the weights before any memory is claimed
+    w = meta.get("window") if isinstance(meta.get("window"), dict) else {}
+    n_points = check_range(w.get("n_points"), "history", where, field="blenav.window.n_points")
+    step_hz = check_range(w.get("step_hz"), "step_hz", where, field="blenav.window.step_hz")
+    check_range(w.get("window_s"), "window_s", where, field="blenav.window.window_s")
+    check_range(meta.get("resolution_m"), "cell_m", where, field="blenav.resolution_m")
+    check_weight_shapes(lambda: {"net": build_net(meta["model"], n_points, step_hz, where)}, ck["state_dict"], where,
+                        "blenav.model")
+    net = build_net(meta["model"], n_points, step_hz, where=where)
     state = {k[len("net."):]: v for k, v in ck["state_dict"].items() if k.startswith("net.")}
     net.load_state_dict(state)
     return net.eval(), meta
