@@ -67,12 +67,13 @@ def json_props(values: dict, keys: Sequence[str] | None = None) -> dict[str, str
 
 
 def read_metadata(sess) -> dict:
-    """The decoded ``metadata_props`` of an onnxruntime session (see :func:`json_props`)."""
+    """The decoded ``metadata_props`` of an onnxruntime session (see :func:`json_props`); a value that is not JSON
+    json can read (nor nested thousands deep, nor an integer of more than 4,300 digits) stays the string it is."""
     out = {}
     for k, v in sess.get_modelmeta().custom_metadata_map.items():
         try:
             out[k] = json.loads(v)
-        except json.JSONDecodeError:
+        except (ValueError, RecursionError):  # JSONDecodeError is a ValueError; a RecursionError was a traceback
             out[k] = v
     return out
 
@@ -173,10 +174,14 @@ def check_weights(path: str | Path) -> str | None:
     import onnx
 
     path = Path(path)
-    try:
-        model = onnx.load(str(path))
+    try:  # the graph file only: its size is bounded (session), the files it may name beside it are not
+        model = onnx.load(str(path), load_external_data=False)
     except Exception as exc:
         raise ValueError(f"{path} is not an ONNX model (written by export.py?): {str(exc)[:200]}") from exc
+    external = [n for n, t in _weight_tensors(model) if t.data_location == onnx.TensorProto.EXTERNAL]
+    if external:  # a 134-byte graph naming a 1 GB data file took 2 GB of memory to hash
+        raise ValueError(f"{path}: weights {', '.join(external[:5])} are stored in external data files; blenav's "
+                         "exports hold their weights in the graph file (whose size is bounded): refused")
     props = {p.key: p.value for p in model.metadata_props}
     if WEIGHTS_KEY not in props:
         warnings.warn(f"{path} records no hash of its weights (exported before blenav wrote one): its integrity "
