@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 
 import numpy as np
 import pytest
 
+from blenav import limits
 from blenav.filters.engine import FilterConfig, Initializer, ParticleFilter, memory_bytes
 from blenav.filters.motion import OdometryIncrement, RandomWalk
 from blenav.limits import RANGES, LimitError, MemoryLimitError, check_memory, check_range
@@ -235,3 +237,33 @@ def test_read_json_names_the_file_for_a_huge_integer(tmp_path):
     with pytest.raises(ValueError) as e:
         read_json(p, "manifest")
     assert _one_line(e).startswith(f"{p}: not readable JSON (Exceeds the limit (4300 digits)")
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/zero"), reason="no /dev/zero on this system")
+def test_read_json_stops_reading_past_its_limit(monkeypatch):
+    """The size is that of the file opened and the read itself stops past the limit: a file whose stated size says
+    nothing (/dev/zero states 0 bytes; a file still growing after the check) was read on without end."""
+    from blenav.limits import read_json
+
+    monkeypatch.setenv("BLENAV_MAX_JSON_MB", "0.001")  # 1 kB
+    with pytest.raises(LimitError) as e:
+        read_json("/dev/zero", "settings")
+    assert _one_line(e) == ("/dev/zero: settings file of 1,049 bytes, above the limit of 1,048 bytes "
+                            "(set BLENAV_MAX_JSON_MB, in MiB, to allow more)")
+
+
+@pytest.mark.realdata
+def test_the_archive_numbers_the_docs_state(raw_dir):
+    """docs/security.md and blenav.limits state the ILC 2.0 sample's archives expand 5.1-5.6 times and its largest
+    member is 4.1 MB, far inside the defaults (200 x + 64 MiB, 256 MiB a member): measured here from the headers."""
+    import tarfile
+
+    ratios, largest = [], 0
+    for tgz in sorted((raw_dir / "ilc20").glob("*.tar.gz")):
+        with tarfile.open(tgz, "r|gz") as tf:
+            sizes = [m.size for m in tf if m.isfile()]
+        ratios.append(sum(sizes) / tgz.stat().st_size)
+        largest = max(largest, *sizes)
+    assert len(ratios) == 3 and 5.05 <= min(ratios) and max(ratios) < 5.65, ratios
+    assert round(largest / 1e6, 1) == 4.1 and largest < limits.DEFAULT_MAX_MEMBER_MB * limits.MIB
+    assert max(ratios) < limits.DEFAULT_MAX_ARCHIVE_RATIO
