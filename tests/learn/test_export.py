@@ -262,3 +262,22 @@ def test_export_refuses_an_out_that_replaces_its_checkpoint_or_lands_in_a_datase
         export(SimpleNamespace(ckpt=str(ckpt), out=str(out), opset=None))
     assert ckpt.read_bytes() == b"not read"
     assert (data / "sessions" / "s0" / "rssi.csv").read_text() == "t,anchor_id,rssi\n"
+
+
+def test_the_run_folders_config_yaml_is_read_as_data(tmp_path):
+    """A bundle export without data= finds the dataset in RUN/config.yaml beside the checkpoint, a file that may be a
+    stranger's: read with the dataset YAML reader (alias bombs refused in one line naming the file; a 444-byte file of
+    aliases of aliases kept OmegaConf.load busy for more than a minute), data.path as written."""
+    from omegaconf import OmegaConf
+
+    from blenav.learn.bundle import _data_path
+
+    cfg = OmegaConf.create({"ckpt": str(tmp_path / "last.ckpt"), "data": {"path": None}})
+    (tmp_path / "config.yaml").write_text("data:\n  path: /some/dataset\n  history: 5\nmodel: {name: locnet}\n")
+    assert _data_path(cfg, {}) == "/some/dataset"
+    assert _data_path(cfg, {"data_path": "/recorded"}) == "/recorded"
+    lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x]"]
+    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, 8)]
+    (tmp_path / "config.yaml").write_text("\n".join(lines) + "\ndata: {path: null, bomb: *a7}\n")
+    with pytest.raises(ValueError, match=r"config.yaml: \[yaml-size\] the document expands to more than"):
+        _data_path(cfg, {})

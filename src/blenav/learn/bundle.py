@@ -13,6 +13,7 @@ from types import SimpleNamespace
 from omegaconf import DictConfig, OmegaConf
 
 from blenav.data import Dataset
+from blenav.data.yaml_file import load_yaml
 from blenav.runtime.bundle import LOCALIZER, MANIFEST, MAP_DIR, variant_name
 from blenav.runtime.bundle.write import finish_bundle
 from blenav.runtime.map_prior import MapPrior
@@ -32,8 +33,13 @@ def _data_path(cfg: DictConfig, meta: dict) -> str | None:
         return str(meta["data_path"])
     run_cfg = Path(cfg.ckpt).parent / "config.yaml"
     if run_cfg.is_file():
-        node = OmegaConf.load(run_cfg)
-        path = OmegaConf.select(node, "data.path", default=None)
+        # the run folder may be a stranger's: read as data (alias bombs refused, nothing resolved; train.py writes
+        # resolved values) -- a 444-byte config.yaml of aliases of aliases kept OmegaConf.load busy past a minute
+        doc, issues = load_yaml(run_cfg)
+        if doc is None:
+            raise ValueError(str(issues[0]))
+        data = doc.get("data")
+        path = data.get("path") if isinstance(data, dict) else None
         return str(path) if path else None
     return None
 
