@@ -99,14 +99,14 @@ def _check_numbers(settings: dict, where: str) -> None:
     is a number, not NaN, not negative and finite (but :data:`_SIGNED` / :data:`_INFINITE`); ``null`` keeps the
     default. Else :class:`LimitError` naming ``where`` and the field: a string or a NaN there would otherwise end
     as numpy's own message deep in the filter, or as a NaN track."""
+    skip = _TEXT_FIELDS | _not_numbers() | {"filter.n_particles"}  # n_particles: check_range's, in check_settings
     for node in ("filter", "fix", "map", "motion"):
         values = settings.get(node)
         if not isinstance(values, dict):
             continue
         for key, v in values.items():
             field = f"{node}.{key}"
-            if field in _TEXT_FIELDS or field in _not_numbers() or v is None or field == "filter.n_particles" \
-                    or isinstance(v, (dict, list)):
+            if field in skip or v is None or isinstance(v, (dict, list)):
                 continue  # nested nodes: check_targets_of names a class in them; the constructor refuses the rest
             if not isinstance(v, numbers.Real) or isinstance(v, bool) or math.isnan(v):
                 raise LimitError(f"{where}: {field} = {v!r} is not a number")
