@@ -177,9 +177,16 @@ def run_hydra(prog: str, config_name: str, task: Callable, args: list[str], conv
             if "--config-dir" in opts:  # the same search path as Hydra's, for the checks' compositions
                 d = str(Path(opts["--config-dir"]).resolve()).replace("\\", "\\\\").replace("'", "\\'")
                 overrides = overrides + [f"hydra.searchpath=['file://{d}']"]
-            if "--multirun" not in opts:
+            sweep = "--multirun" in opts
+            if sweep:
+                _check_composed(name, overrides, sweep=True)
+            elif any(o.startswith(("+", "~")) for o in overrides):  # keys added or deleted: checked on the base
                 check_overrides(name, overrides)
-            _check_composed(name, overrides, sweep="--multirun" in opts)
+                _check_composed(name, overrides, sweep=False)
+            elif not _check_composed(name, overrides, sweep=False):
+                # no key added or deleted: check_overrides (two compositions) can only fail where this composition
+                # failed, so it runs only then, for its one-line message naming the nearest key
+                check_overrides(name, overrides)
     except ValueError as exc:  # ConfigError, UntrustedTargetError
         if debug:
             raise
@@ -240,11 +247,12 @@ def _hydra_args(args: list[str]) -> tuple[list[str], dict[str, str | None]]:
     return overrides, opts
 
 
-def _check_composed(config_name: str, overrides: list[str], sweep: bool) -> None:
+def _check_composed(config_name: str, overrides: list[str], sweep: bool) -> bool:
     """Compose the config as Hydra will (with its ``hydra`` node; for a sweep without the swept overrides) and
     check what it names (:func:`blenav.trust.check_targets`, as written, and :func:`blenav.trust.check_hydra_node`)
-    before Hydra builds its launcher, sweeper, callbacks and logging from it. A composition that fails is left to
-    Hydra, which fails on it before it builds anything."""
+    before Hydra builds its launcher, sweeper, callbacks and logging from it. Returns whether it composed: a
+    composition that fails is left to :func:`blenav.configs.check_overrides` and Hydra, which fail on it before
+    anything is built."""
     from hydra import compose, initialize_config_dir
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from omegaconf import OmegaConf
@@ -259,8 +267,9 @@ def _check_composed(config_name: str, overrides: list[str], sweep: bool) -> None
         with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
             cfg = compose(config_name=config_name, overrides=overrides, return_hydra_config=True)
     except Exception:  # noqa: BLE001 -- Hydra's and omegaconf's many error types: Hydra reports them itself
-        return
+        return False
     where = "the config (command line and config files)"
     job = OmegaConf.masked_copy(cfg, [k for k in cfg.keys() if k != "hydra"])
     check_targets(job, where, resolve=False)
     check_hydra_node(cfg.get("hydra"), where)
+    return True
