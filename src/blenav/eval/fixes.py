@@ -31,9 +31,9 @@ deviation (``std``: the root of the mean of the covariance's diagonal, which a f
 in memory (a trained model is not a cache key).
 
 Computed fixes are cached in the evaluation's output folder (``OUT/fixes/<session>/<source>.csv`` with
-a key of the session's rssi.csv, the beacons, the localizer's settings and the seed), never written into
-the dataset unless ``fixes.write: true`` (then with :func:`blenav.data.writer.write_fixes`, which replaces
-only the rows of that source).
+a key of the session's rssi.csv, the building's anchors and plan (:func:`building_key`), the beacons, the localizer's
+settings and the seed), never written into the dataset unless ``fixes.write: true`` (then with
+:func:`blenav.data.writer.write_fixes`, which replaces only the rows of that source).
 """
 
 from __future__ import annotations
@@ -69,6 +69,18 @@ def ble_fixes(method: Method, session, seed: int, rate_hz: float = 1.0) -> tuple
     stride = max(1, int(round(method.filter.rate_hz / rate_hz)))
     keep = slice(stride - 1, None, stride)
     return res.t[keep].copy(), res.position[0, keep].copy()
+
+
+def building_key(session) -> str:
+    """A digest of what a BLE filter reads of ``session``'s building: the anchors as the run sees them (anchors.csv,
+    or the map ``beacon_map`` gave) and the floor's occupancy grid, resolution and origin (a wrong plan of
+    ``plan_error``). Part of the key of cached fixes, so that a rerun into the same OUT (``overwrite=true`` reuses
+    ``fixes/``) after anchors.csv or the plan changed computes them again."""
+    fl = session.floor
+    h = hashlib.sha256(session.building.anchors.to_csv(index=False).encode())
+    h.update(np.ascontiguousarray(fl.occupancy).tobytes())
+    h.update(repr((fl.occupancy.shape, float(fl.resolution), tuple(map(float, fl.origin)))).encode())
+    return h.hexdigest()[:16]
 
 
 class FixProvider:
@@ -192,6 +204,7 @@ class FixProvider:
             "session": str(Path(session.root).resolve()), "rssi": [st.st_size, st.st_mtime_ns] if st else None,
             "beacons": m.beacons, "filter": repr(m.filter), "motion": repr(m.motion), "map": repr(m.map),
             "measurements": [repr(x) for x in m.measurements], "seed": seed, "rate_hz": self.rate_hz,
+            "building": building_key(session),
         }, sort_keys=True).encode()).hexdigest()[:16]
         path = self.out / "fixes" / output_name(session.id) / f"{src}.csv"
         meta = path.with_suffix(".json")
