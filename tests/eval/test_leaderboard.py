@@ -95,7 +95,7 @@ def test_leaderboard_on_a_tiny_sim(tiny, tmp_path):
 
 def test_peak_memory_counts_reused_heap():
     """Memory a method takes from the heap freed by an earlier one is counted as its own (malloc_trim)."""
-    from blenav.eval.leaderboard import PeakMemory, rss_probe_available
+    from blenav.eval.memory import PeakMemory, rss_probe_available
 
     if not rss_probe_available():
         pytest.skip("no writable /proc/self/clear_refs (not Linux)")

@@ -135,7 +135,7 @@ def test_odometry_argument_equals_an_odometry_csv(tiny_dataset):
 
     from blenav.data import Dataset
     from blenav.localizers.realwalk import RealWalkPF
-    from blenav.localizers import RunContext
+    from blenav.localizers import RunInputs
     from blenav.filters.runner import run_session
 
     odo = pd.DataFrame({"t": [0.0, 10.0, 19.0], "x": [0.0, 5.0, 9.0], "y": [0.0, 0.0, 1.0]})
@@ -154,7 +154,7 @@ def test_odometry_argument_equals_an_odometry_csv(tiny_dataset):
     pdr = RealWalkPF("PDR-AHRS", None, motion={"_target_": "blenav.filters.motion.OdometryIncrement", "theta0": 0.0},
                      map={"init": "groundtruth"}, filter={"n_particles": 50, "rate_hz": 1.0},
                      odometry={"heading": "ahrs", "step_length": 0.7})
-    est = pdr.run(s, 2, 0, RunContext(cache={}))
+    est = pdr.run(s, 2, 0, RunInputs(cache={}))
     t0 = min(float(s.imu["t"].min()), float(s.rssi["t"].min()) if len(s.rssi) else np.inf)
     assert est.t[0] == pytest.approx(t0 + 1.0)  # the first filter step, not the session's first sample
     assert np.isfinite(est.position).all() and any("PDR odometry" in n for n in est.notes)

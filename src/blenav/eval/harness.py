@@ -59,7 +59,7 @@ from blenav.localizers.confine import confine
 from blenav.localizers.inputs import RunInputs
 from blenav.eval import beacon_map as BM
 
-from .common import json_default, output_name
+from .common import output_name
 from .config import EvalConfig, parse_eval_config
 from .evaluators import evaluate
 from .fixes import FixProvider
@@ -70,8 +70,6 @@ from .sessions import select_sessions
 log = logging.getLogger("blenav.eval")
 
 __all__ = ["build_methods", "evaluate", "calibrate", "run_method", "aggregate"]
-
-_json_default = json_default  # the name other modules used before blenav.eval.common
 
 
 # ------------------------------------------------------------------------------------------ build

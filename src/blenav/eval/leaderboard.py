@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .memory import PeakMemory, rss_probe_available  # noqa: F401  (re-exported: where they were before)
 from .pcrlb import BoundSettings, bound_entries
 from .result import BoundStats, MethodResult, TrajectoryResult
 from .trajectory import TrajectoryEvaluator

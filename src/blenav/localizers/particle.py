@@ -123,7 +123,6 @@ class ParticleFilterLocalizer(Localizer, PathLossCalibrated, FixConsumer, ModelC
         return list(dict.fromkeys(m.role for m in self.method.measurements
                                   if isinstance(m, FixLikelihood) and m.role is not None))
 
-
     def attach_model(self, path: str | None, load: Callable[[str, Callable], Any]) -> str | None:
         # this module's loader looked up at call time (tests and other runtimes replace it)
         return map_prior.attach_prior(self.method.measurements, path, loader=lambda p: load(p, load_prior))
