@@ -319,7 +319,8 @@ def iter_tar(src: Path, want: Callable[[str], bool], skipped: list[str]) -> Iter
 
 def iter_zip(src: Path, want: Callable[[str], bool], skipped: list[str]) -> Iterator[tuple[str, bytes]]:
     """:func:`iter_tar` for a zip archive: members whose name ``want`` accepts, symlinks (Unix mode in the
-    external attributes) listed in ``skipped``; only the members read count towards the ratio."""
+    external attributes) listed in ``skipped``; only the members read count towards the ratio. An encrypted
+    member wanted raises :class:`ImportError_` naming it."""
     budget = ArchiveBudget(src)
     with zipfile.ZipFile(src) as zf:
         for info in zf.infolist():
@@ -330,6 +331,9 @@ def iter_zip(src: Path, want: Callable[[str], bool], skipped: list[str]) -> Iter
                 skipped.append(info.filename)
                 continue
             if want(info.filename):
+                if info.flag_bits & 0x1:  # zipfile would ask for a password (RuntimeError)
+                    raise ImportError_(f"{src}:{info.filename}", None, "archive member is encrypted (a "
+                                       "password-protected zip); not read")
                 budget.take(info.filename, info.file_size)
                 with zf.open(info) as f:
                     yield info.filename, _read_member(f, info.filename, info.file_size, budget)

@@ -15,7 +15,7 @@ Input (``src``)
   without unpacking to disk. Each member's declared size is checked before it is read (at most
   ``BLENAV_MAX_ARCHIVE_MEMBER_MB``, default 256 MiB; the largest path file of the sample is 4.1 MB), and so is
   the archive's expansion (at most ``BLENAV_MAX_ARCHIVE_RATIO``, default 200, times its size plus 64 MiB; the
-  sample's archives expand about 5.5 times): a member over either is refused naming it. Links and special
+  sample's archives expand 5.1-5.6 times): a member over either is refused naming it. Links and special
   members are not read; the report counts them. Nothing is written under a member's name.
 
 ``floors`` (``--floors SITE/FLOOR,...``) keeps only those floors; a name that matches no floor is an error

@@ -3,10 +3,12 @@ repository and challenge layouts and bounded before they are read."""
 
 from __future__ import annotations
 
+import lzma
 import os
 import re
 import tarfile
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -73,7 +75,9 @@ def iter_source(src: Path, want, report: ImportReport | None = None) -> Iterator
     if name.endswith((".tar.gz", ".tgz", ".tar")):
         members, errors, what = iter_tar, (tarfile.TarError, EOFError, OSError), "tar"
     elif name.endswith(".zip"):
-        members, errors, what = iter_zip, (zipfile.BadZipFile, EOFError, OSError), "zip"
+        # zipfile lets a decompressor's own error through: a corrupt deflate or LZMA stream, an unknown method
+        members, errors, what = iter_zip, (zipfile.BadZipFile, EOFError, OSError, zlib.error, lzma.LZMAError,
+                                           NotImplementedError), "zip"
     else:
         raise ImportError_(src, None, "expected a folder, a .tar.gz/.tgz/.tar or a .zip archive")
     try:
