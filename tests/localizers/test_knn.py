@@ -131,6 +131,27 @@ def test_cross_validation_picks_the_better_k_and_scores_only_what_it_is_given():
     assert KNN.cross_validate(S, xy, t, wo, moved, grid, np.zeros(12, bool), -100.0, folds=3)[1] != table
 
 
+def test_cross_validation_scores_are_the_per_walk_definition():
+    """The scores are those of the module doc computed the plain way (per held-out walk: a KNN of the other folds'
+    windows, fixes interpolated at the walk's waypoints), bit for bit, for every metric, k and weighting."""
+    S, xy, t, wo, wps = _walks()
+    is_ble = np.arange(12) >= 8
+    grid = KNN.grid(["cosine", "powed", "euclidean"], [1, 3, 40], ["uniform", "distance", 0.05], [0.5, 1.0])
+    _, table = KNN.cross_validate(S, xy, t, wo, wps, grid, is_ble, -100.0, folds=3, seed=4)
+    fold = np.random.default_rng(4).permutation(np.arange(len(wps)) % 3)
+    for s, row in zip(grid, table):
+        X = KNN.represent(S, s.metric, is_ble, s.ble_weight, -100.0)
+        err = []
+        for f in range(3):
+            tr = fold[wo] != f
+            for w in np.flatnonzero(fold == f):
+                o = np.flatnonzero(wo == w)
+                o = o[np.argsort(t[o], kind="stable")]
+                idx, d2 = KNN.neighbours(X[o], X[tr], 40)
+                err.append(KNN.waypoint_errors(t[o], KNN.combine(idx, d2, xy[tr], s.k, s.weights)[0], *wps[w]))
+        assert row["cv_error_m"] == np.concatenate(err).mean(), s
+
+
 def test_knn_cv_sees_only_the_train_walks(tmp_path, monkeypatch):
     """Through the harness with a split: the cross-validation gets the train walks' windows and waypoints only (the
     test walk lies on its own line, y = 9 m: none of its labels or waypoints reaches the choice); the chosen setting

@@ -81,15 +81,22 @@ def represent(S: np.ndarray, metric: str, is_ble: np.ndarray, ble_weight: float,
     return np.concatenate(parts, axis=1)
 
 
-def _sqdist(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    return np.maximum(np.einsum("nf,nf->n", A, A)[:, None] + np.einsum("nf,nf->n", B, B)[None] - 2.0 * A @ B.T, 0.0)
+def _sqdist(A: np.ndarray, B: np.ndarray, bb: np.ndarray | None = None) -> np.ndarray:
+    """(K, N) squared Euclidean distances of the rows of A (K, D) and B (N, D); ``bb`` (N,): B's squared norms when
+    already computed (the same numbers)."""
+    bb = np.einsum("nf,nf->n", B, B) if bb is None else bb
+    return np.maximum(np.einsum("nf,nf->n", A, A)[:, None] + bb[None] - 2.0 * A @ B.T, 0.0)
 
 
 def neighbours(Q: np.ndarray, X: np.ndarray, kmax: int) -> tuple[np.ndarray, np.ndarray]:
     """(idx (K, k), d2 (K, k)): the k = min(kmax, N) nearest rows of X (N, D) to each row of Q (K, D), nearest first,
     squared Euclidean distances (ties by row order)."""
-    k = min(int(kmax), len(X))
-    D = _sqdist(Q, X)
+    return _nearest(_sqdist(Q, X), kmax)
+
+
+def _nearest(D: np.ndarray, kmax: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`neighbours` of a squared-distance matrix D (K, N) already computed."""
+    k = min(int(kmax), D.shape[1])
     idx = np.argsort(D, axis=1, kind="stable")[:, :k]
     return idx, np.take_along_axis(D, idx, 1)
 
@@ -143,20 +150,24 @@ def cross_validate(S: np.ndarray, xy: np.ndarray, t: np.ndarray, walk_of: np.nda
     err: dict[KnnSetting, list] = {s: [] for s in settings}
     for rep_key in sorted({(s.metric, s.ble_weight) for s in settings}, key=str):
         X = represent(S, rep_key[0], is_ble, rep_key[1], fill_dbm)
+        same_rep = [s for s in settings if (s.metric, s.ble_weight) == rep_key]
         for f in range(folds):
             tr = fold[walk_of] != f
             if not tr.any():
                 continue
+            # the other folds' windows, labels and squared norms once per fold; the distances per held-out walk (a
+            # product per walk: the same numbers as one per fold would give only up to rounding) and, from its kmax
+            # nearest, every k and weighting of this representation
+            X_tr, xy_tr = X[tr], xy[tr]
+            bb = np.einsum("nf,nf->n", X_tr, X_tr)
             for w in np.flatnonzero(fold == f):
                 q = np.flatnonzero(walk_of == w)
                 if not len(q):
                     continue
                 o = q[np.argsort(t[q], kind="stable")]
-                idx, d2 = neighbours(X[o], X[tr], kmax)
-                for s in settings:
-                    if (s.metric, s.ble_weight) != rep_key:
-                        continue
-                    est, _ = combine(idx, d2, xy[tr], s.k, s.weights)
+                idx, d2 = _nearest(_sqdist(X[o], X_tr, bb), kmax)
+                for s in same_rep:
+                    est, _ = combine(idx, d2, xy_tr, s.k, s.weights)
                     err[s].append(waypoint_errors(t[o], est, *waypoints[w]))
     table = [{"metric": s.metric, "k": s.k, "weights": s.weights, "ble_weight": s.ble_weight,
               "cv_error_m": float(np.concatenate(err[s]).mean()) if err[s] else float("inf")} for s in settings]
@@ -168,12 +179,13 @@ def fit(S: np.ndarray, xy: np.ndarray, setting: KnnSetting, is_ble: np.ndarray, 
         cov_floor_m: float):
     """predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)) of a KNN on windows S (N, F, H) with labels xy (N, 2)."""
     X = represent(S, setting.metric, is_ble, setting.ble_weight, fill_dbm)
+    bb = np.einsum("nf,nf->n", X, X)  # X's squared norms, once for every query
 
     def predict(Sq):
         Q = represent(Sq, setting.metric, is_ble, setting.ble_weight, fill_dbm)
         out_xy, out_cov = np.zeros((len(Q), 2)), np.zeros((len(Q), 2, 2))
         for i in range(0, len(Q), 512):  # bounded memory: 512 x N distances at a time
-            idx, d2 = neighbours(Q[i:i + 512], X, setting.k)
+            idx, d2 = _nearest(_sqdist(Q[i:i + 512], X, bb), setting.k)
             out_xy[i:i + 512], out_cov[i:i + 512] = combine(idx, d2, xy, setting.k, setting.weights, cov_floor_m)
         return out_xy, out_cov
 
