@@ -52,7 +52,8 @@ metric (cosine / powed / euclidean), k, the neighbours' weighting and the BLE pa
 per floor by leave-walks-out cross-validation on the train walks this localizer is fitted on, scored at their own
 waypoints (:mod:`blenav.localizers.knn`; the choice and every setting's score in the training report's ``cv``).
 Measured on site1 (``blenav-eval experiment=realwalks data=FLOOR runs=1``, mean error at the test waypoints, F1 / F2 /
-B1, 2026-11-27, on 0cd3045): KNN-WiFi 9.00 / 9.63 / 8.66 m before, 8.20 / 8.06 / 8.58 m opted in; KNN-WiFi+BLE 8.87 /
+B1, 2026-11-27, on 0cd3045; the opted-in KNN rows, the ablation and the defaults on F1 rerun on 9d79a80: the same,
+docs/results-ilc20.md): KNN-WiFi 9.00 / 9.63 / 8.66 m before, 8.20 / 8.06 / 8.58 m opted in; KNN-WiFi+BLE 8.87 /
 9.59 / 8.59 -> 7.98 / 8.10 / 8.63 m; KNN-BLE 12.48 / 15.19 / 14.10 -> 12.92 / 16.01 / 14.46 m (the cross-validated
 choice generalises worse than k = 5 uniform cosine there). Ablation (this localizer on the same splits, WiFi): the
 scans read as heard with the old KNN (cosine, k = 5, uniform) 9.00 / 9.82 / 8.55 m; the cross-validated KNN on the old
