@@ -1,4 +1,5 @@
-"""Where the project's Hydra configs live (``conf/`` at the repository root)."""
+"""Where the project's Hydra configs live (``conf/`` at the repository root), and :func:`inside`, the one test of
+whether a path lies in a folder (the commands refuse an output inside what they read)."""
 
 from __future__ import annotations
 
@@ -17,3 +18,12 @@ def conf_dir() -> Path:
     raise FileNotFoundError(
         "cannot find blenav's conf/ folder; install the package editable from a clone (`make install`) "
         "or set BLENAV_CONF to the path of conf/")
+
+
+def inside(path, folder) -> bool:
+    """Whether ``path`` is ``folder`` or lies below it, both resolved (symbolic links followed); False when either
+    cannot be resolved."""
+    try:
+        return Path(path).resolve().is_relative_to(Path(folder).resolve())
+    except (OSError, RuntimeError):
+        return False

@@ -117,6 +117,29 @@ def test_overwrite_keeps_reusable_runs_and_names_out_not_the_temporary_folder(tm
     assert _leftovers(tmp_path) == []
 
 
+def test_log_lines_written_during_the_run_name_out_not_the_temporary_folder(tmp_path):
+    """A training report logged 'RUN: worse than KNN' with RUN = .OUT.tmp-<pid>/runs/KEY, a folder gone at the end."""
+    import io
+    import logging
+
+    from blenav.cli.outdir import fresh_output
+
+    stream = io.StringIO()
+    handler = logging.StreamHandler(stream)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    try:
+        out = tmp_path / "o"
+        with fresh_output(str(out)) as tmp:
+            tmp.mkdir()
+            logging.getLogger("blenav.train").warning("%s: worse than KNN", tmp / "runs" / "locnet")
+        logging.getLogger("blenav.train").warning("%s: after the run", tmp)
+    finally:
+        root.removeHandler(handler)
+    assert stream.getvalue().splitlines() == [f"{out / 'runs' / 'locnet'}: worse than KNN", f"{tmp}: after the run"]
+    assert not handler.filters
+
+
 @pytest.mark.parametrize("exc", [KeyboardInterrupt, ValueError])
 def test_a_run_cut_short_leaves_the_old_output_as_it_was(tmp_path, exc):
     from blenav.cli.outdir import fresh_output

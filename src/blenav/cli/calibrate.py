@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from blenav.paths import inside
+
 from .common import guarded, pop_debug
 
 
@@ -23,7 +25,7 @@ def _main(argv: list[str] | None) -> int:
         from pathlib import Path
 
         out, data = Path(args.out).resolve(), Path(args.dataset).resolve()
-        if out.is_dir() or (out.exists() and data in out.parents):  # --out SESSION/rssi.csv replaced the readings
+        if out.is_dir() or (out.exists() and inside(out, data)):  # --out SESSION/rssi.csv replaced the readings
             raise ValueError(f"--out {args.out} is a folder or a file of the dataset {args.dataset}; write the fit "
                              "to a new file")
 

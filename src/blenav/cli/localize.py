@@ -14,6 +14,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from blenav.paths import inside
+
 from .common import guarded, pop_debug
 
 
@@ -49,9 +51,8 @@ def _check_out(out: Path, bundle: Path, session: Path) -> None:
     if out.is_dir():
         raise ValueError(f"--out {out} is a folder; give the CSV file to write")
     dataset = session.resolve().parent.parent if session.resolve().parent.name == "sessions" else session.resolve()
-    target = out.resolve()
     for what, root in (("the bundle", bundle.resolve()), ("the dataset of the session", dataset)):
-        if target == root or root in target.parents:
+        if inside(out, root):
             raise ValueError(f"--out {out} lies inside {what} ({root}): it would overwrite what it reads; write the "
                              "CSV elsewhere")
 

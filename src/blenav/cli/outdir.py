@@ -17,11 +17,14 @@ messages, name OUT, not the temporary folder.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
+
+from blenav.paths import inside
 
 from .common import interrupt_behind, signals_held
 
@@ -36,13 +39,6 @@ def temp_beside(out: Path, tag: str = "tmp") -> Path:
     return out.parent / f".{out.name}.{tag}-{os.getpid()}"
 
 
-def _inside(path, folder: Path) -> bool:
-    try:
-        return Path(path).resolve().is_relative_to(folder.resolve())
-    except (OSError, RuntimeError):
-        return False
-
-
 def check_replaceable(out: Path, overwrite: bool, inputs=(), shown: str | None = None) -> bool:
     """Whether ``out`` exists (as a folder that may be replaced); raises ``ValueError`` saying why not: it is a
     file, a non-empty folder without ``overwrite``, a folder that is not an evaluation's output, or one that holds
@@ -50,7 +46,7 @@ def check_replaceable(out: Path, overwrite: bool, inputs=(), shown: str | None =
     shown = shown or str(out)
     if not out.name or out.name in (".", ".."):
         raise ValueError(f"out={shown}: name a folder of its own for the output")
-    within = [str(p) for p in inputs if p and Path(p).is_dir() and _inside(out, Path(p))]
+    within = [str(p) for p in inputs if p and Path(p).is_dir() and inside(out, p)]
     if within:  # out=DATA/sessions/x would become a session of the dataset, out=BUNDLE/x an unlisted file of it
         raise ValueError(f"out={shown} lies inside {', '.join(within)}, an input of this run: the output would "
                          "change it; choose another out=")
@@ -65,7 +61,7 @@ def check_replaceable(out: Path, overwrite: bool, inputs=(), shown: str | None =
     if not any((out / m).exists() for m in MARKERS):
         raise ValueError(f"output folder {shown} holds no results.json: not an evaluation's output, so overwrite=true "
                          "does not replace it; choose another out=")
-    held = [str(p) for p in inputs if p and _inside(p, out)]
+    held = [str(p) for p in inputs if p and inside(p, out)]
     if held:
         raise ValueError(f"output folder {shown} holds {', '.join(held)}, an input of this run: overwrite=true would "
                          "delete it; choose another out=")
@@ -103,13 +99,41 @@ def _swap(tmp: Path, out: Path, existed: bool) -> None:
     shutil.rmtree(old, ignore_errors=True)
 
 
+class _NameOut(logging.Filter):
+    """Log lines name ``out``, not the temporary folder that becomes it (a training report's 'RUN: worse than KNN'
+    named ``.OUT.tmp-<pid>/runs/KEY``, a folder gone once the run ends)."""
+
+    def __init__(self, tmp: Path, shown: str):
+        super().__init__()
+        self.tmp, self.shown = str(tmp), shown
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        msg = record.getMessage()
+        if self.tmp in msg:
+            record.msg, record.args = msg.replace(self.tmp, self.shown), ()
+        return True
+
+
+@contextmanager
+def _log_names_out(tmp: Path, shown: str) -> Iterator[None]:
+    handlers = logging.getLogger().handlers  # where every blenav logger's records end (propagation)
+    f = _NameOut(tmp, shown)
+    for h in handlers:
+        h.addFilter(f)
+    try:
+        yield
+    finally:
+        for h in handlers:
+            h.removeFilter(f)
+
+
 @contextmanager
 def fresh_output(out, overwrite: bool = False, inputs=()) -> Iterator[Path]:
     """Yield the temporary folder to write into (not created: the command creates it); swap it in as ``out`` when
     the block ends normally (:func:`check_replaceable` first, before any work). On an error or an interruption the
     temporary folder is removed, ``out`` is left as it was, and an interruption carries the note ``removed partial
     output TMP`` (printed by :func:`blenav.cli.common.interrupted`); an error whose message names the temporary
-    folder names ``out`` instead."""
+    folder names ``out`` instead, and so do the log lines written meanwhile."""
     shown = str(out)
     out = Path(os.path.abspath(out))
     existed = check_replaceable(out, overwrite, inputs, shown)
@@ -120,7 +144,8 @@ def fresh_output(out, overwrite: bool = False, inputs=()) -> Iterator[Path]:
             for name in REUSABLE:
                 if (out / name).is_dir():
                     shutil.copytree(out / name, tmp / name, symlinks=True)
-        yield tmp
+        with _log_names_out(tmp, shown):
+            yield tmp
         if not tmp.is_dir():
             raise ValueError(f"the run wrote nothing to {shown}")
         relocate(tmp, str(tmp), shown)
