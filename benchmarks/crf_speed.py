@@ -30,7 +30,7 @@ from blenav.configs import compose
 from blenav.crf.grid import grid_from_occupancy
 from blenav.crf.viterbi import maxprod_step
 from blenav.data import FREE, Dataset
-from blenav.localizers.base import RunContext
+from blenav.localizers.base import RunInputs
 from blenav.localizers.crf import CrfLocalizer
 
 TARGET_RTF = 200.0
@@ -54,22 +54,22 @@ def main() -> None:
     g0 = grid_from_occupancy(np.full((4, 4), FREE, np.int8), 0.5, (0.0, 0.0), 0.5, 1.0)
     maxprod_step(g0, np.zeros(g0.n_cells), imu=(0.5, 0.0, True))
     loc = CrfLocalizer("CRF", modalities="RTT+BLE+IMU", calibration="online")
-    ctx = RunContext()
+    inputs = RunInputs()
     t0, c0 = time.perf_counter(), time.process_time()
-    est = loc.run(s, 1, 0, ctx)
+    est = loc.run(s, 1, 0, inputs)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     rss_run = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     tracemalloc.start()  # a second, untimed run for the memory (tracemalloc slows allocations down)
-    loc.run(s, 1, 0, RunContext())
+    loc.run(s, 1, 0, RunInputs())
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    grid = next(v for k, v in ctx.cache.items() if k[0] == "crf-grid")
+    grid = next(v for k, v in inputs.cache.items() if k[0] == "crf-grid")
     # the parts: grid alone, IMU alone (fresh caches), the rest is pre-processing + Viterbi
     t1 = time.perf_counter()
-    loc._grid(s, RunContext())
+    loc._grid(s, RunInputs())
     t_grid = time.perf_counter() - t1
     t1 = time.perf_counter()
-    loc._imu(s, RunContext())
+    loc._imu(s, RunInputs())
     t_imu = time.perf_counter() - t1
     rtf = dur / wall
     K = len(est.t)

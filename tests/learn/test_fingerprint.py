@@ -78,14 +78,14 @@ def test_locnet_checkpoint_records_the_walks_dataset(coded, tmp_path):
     import yaml
 
     from blenav.learn.common.checkpoint import read_meta
-    from blenav.localizers import RunContext
+    from blenav.localizers import RunInputs
     from blenav.localizers.fingerprint import FingerprintLocalizer
 
     loc = FingerprintLocalizer("LocNet-WiFi", model="locnet", val_fraction=0.5, seed=3, training=training_node(),
                                trainer={"budget": {"max_steps": 4, "val_every_steps": 2, "warmup_steps": 1}})
     with pytest.raises(ValueError, match="needs the networks' training config"):
         FingerprintLocalizer("LocNet-WiFi", model="locnet")
-    rep = loc.fit([coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], RunContext(out=tmp_path))
+    rep = loc.fit([coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], RunInputs(out=tmp_path))
     tr = rep["floors"]["mall/F1"]["training"]
     assert tr["steps"] == 4 and tr["train_windows"] == 5 and tr["val_windows"] == 5
     run = tmp_path / "fingerprint" / "LocNet-WiFi" / "mall_F1"

@@ -196,11 +196,11 @@ def test_fingerprint_fixes_through_the_fix_provider(tmp_path):
 
 def test_locnet_trains_with_the_project_trainer(coded, tmp_path):
     """LocNet on WiFi windows through blenav.learn.train (step budget, report); a short budget, numbers finite."""
-    from blenav.localizers import RunContext
+    from blenav.localizers import RunInputs
 
     loc = FingerprintLocalizer("LocNet-WiFi", model="locnet", val_fraction=0.5, seed=3, training=training_node(),
                                trainer={"budget": {"max_steps": 20, "val_every_steps": 5, "warmup_steps": 2}})
-    rep = loc.fit([coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], RunContext(out=tmp_path))
+    rep = loc.fit([coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], RunInputs(out=tmp_path))
     tr = rep["floors"]["mall/F1"]["training"]
     assert tr["steps"] == 20 and tr["train_windows"] == 5 and tr["val_windows"] == 5 and tr["val_walks"] == 1
     assert (tmp_path / "fingerprint" / "LocNet-WiFi" / "mall_F1" / "training.json").is_file()

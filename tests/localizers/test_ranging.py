@@ -14,7 +14,7 @@ from blenav.data import Dataset
 from blenav.data.floor import FREE, OCCUPIED
 from blenav.data.validate import validate
 from blenav.data.writer import write_building, write_dataset_meta, write_session
-from blenav.localizers.base import RunContext
+from blenav.localizers.base import RunInputs
 from blenav.localizers.ranging import GridL1Localizer, GridL2Localizer, SrlsLocalizer
 from blenav.localizers.ranging_solvers import grid_costs, srls
 from blenav.localizers.ranging_windows import online_corrections, rtt_offsets, wifi_rssi
@@ -166,14 +166,14 @@ def test_baselines_recover_a_noise_free_position(hall, cls):
     s = ds.session("walk-7")
     # offline calibration removes the APs' offsets exactly enough for the grid (noise 5 cm on the survey)
     loc = cls("m", sources=["rtt"], calibration="offline", visual=False, stamp="last")
-    est = loc.run(s, 2, 0, RunContext())
+    est = loc.run(s, 2, 0, RunInputs())
     assert est.position.shape == (2, 20, 2) and np.array_equal(est.position[0], est.position[1])
     np.testing.assert_allclose(est.t, np.arange(20.0) + 0.24)  # each window's last reading
     err = np.linalg.norm(est.position[0] - _truth(ds), axis=1)
     assert err.max() < (0.05 if cls is not SrlsLocalizer else 0.15), err
     assert any("offline calibration on survey-2" in n for n in est.notes)
     # uncalibrated, offsets of up to 1.5 m move the estimates
-    raw = cls("m", sources=["rtt"], calibration="none", visual=False).run(s, 1, 0, RunContext())
+    raw = cls("m", sources=["rtt"], calibration="none", visual=False).run(s, 1, 0, RunInputs())
     assert np.linalg.norm(raw.position[0] - _truth(ds), axis=1).mean() > 0.3
     np.testing.assert_allclose(raw.t, np.arange(20.0) + 1.2)  # stamp: end (the default): windows from 0.2 s
 
@@ -228,10 +228,10 @@ def test_visual_fix_is_the_estimate_of_its_window(hall):
     ds = Dataset.open(hall)
     s = ds.session("walk-7")
     for cls in (GridL2Localizer, GridL1Localizer, SrlsLocalizer):
-        est = cls("m", sources=["rtt"], calibration="online").run(s, 1, 0, RunContext())
+        est = cls("m", sources=["rtt"], calibration="online").run(s, 1, 0, RunInputs())
         np.testing.assert_allclose(est.position[0, 5], [9.0, 8.0])  # the fix at 5.5 s (window [5, 6))
         np.testing.assert_allclose(est.position[0, 12], [2.0, 3.0])
-        off = cls("m", sources=["rtt"], calibration="online", visual=False).run(s, 1, 0, RunContext())
+        off = cls("m", sources=["rtt"], calibration="online", visual=False).run(s, 1, 0, RunInputs())
         assert np.linalg.norm(off.position[0, 5] - [9.0, 8.0]) > 3.0
         assert any("online calibration at 2 visual fix(es)" in n for n in est.notes)
 
@@ -241,16 +241,16 @@ def test_missing_streams_and_bad_settings(hall):
     from blenav.errors import MissingStream
 
     with pytest.raises(MissingStream, match="no BLE reading"):
-        GridL2Localizer("m", sources=["ble"]).run(s, 1, 0, RunContext())
+        GridL2Localizer("m", sources=["ble"]).run(s, 1, 0, RunInputs())
     # both sources asked, only RTT present: runs on RTT and says so
-    est = GridL2Localizer("m", calibration="none").run(s, 1, 0, RunContext())
+    est = GridL2Localizer("m", calibration="none").run(s, 1, 0, RunInputs())
     assert any("ranges from the other modality only" in n for n in est.notes)
     with pytest.raises(MissingStream, match="static sessions"):
         GridL2Localizer("m", sources=["rtt"], calibration="offline", calibration_sessions=[]).run(
-            Dataset.open(hall).session("survey-2"), 1, 0, RunContext())
+            Dataset.open(hall).session("survey-2"), 1, 0, RunInputs())
     # calibration_modalities: [] switches the correction off (online == none)
-    a = GridL2Localizer("m", sources=["rtt"], calibration="online", calibration_modalities=[]).run(s, 1, 0, RunContext())
-    b = GridL2Localizer("m", sources=["rtt"], calibration="none").run(s, 1, 0, RunContext())
+    a = GridL2Localizer("m", sources=["rtt"], calibration="online", calibration_modalities=[]).run(s, 1, 0, RunInputs())
+    b = GridL2Localizer("m", sources=["rtt"], calibration="none").run(s, 1, 0, RunInputs())
     np.testing.assert_array_equal(a.position, b.position)
     for bad in ({"calibration": "sometimes"}, {"sources": ["uwb"]}, {"stamp": "mid"}, {"min_ranges": 0},
                 {"calibration_modalities": ["wifi"]}):
@@ -275,7 +275,7 @@ def test_rssi_column_written_by_sim_read_validated_and_optional(small, tmp_path)
     assert np.isfinite(v).all() and (v < 0).all() and (v > -150).all() and np.all(v == np.round(v))
     assert (v < -65).any() and (v >= -65).any()  # the -65 dBm rule has something to do
     # the -65 dBm rule: weak ranges are dropped and counted
-    est = GridL2Localizer("m", calibration="none").run(s, 1, 0, RunContext())
+    est = GridL2Localizer("m", calibration="none").run(s, 1, 0, RunInputs())
     assert any(f"{int((v < -65).sum())} RTT ranges below -65 dBm dropped" in n for n in est.notes)
     # a sentinel in the column: an error naming file, line and rule; an empty cell is fine
     bad = tmp_path / "bad"
@@ -332,7 +332,7 @@ def test_feng_rtt_points_with_and_without_calibration(raw_dir, tmp_path):
     for cal in ("none", "offline"):
         loc = GridL2Localizer("m", sources=["rtt"], calibration=cal, visual=False, stamp="last", hold=False,
                               min_wifi_rssi_dbm=None)
-        est = loc.run(s, 1, 0, RunContext())
+        est = loc.run(s, 1, 0, RunInputs())
         ref = np.c_[np.interp(est.t, gt["t"], gt["x"]), np.interp(est.t, gt["t"], gt["y"])]
         errs[cal] = float(np.linalg.norm(est.position[0] - ref, axis=1).mean())
     assert errs["offline"] < errs["none"] < 1.2, errs

@@ -1,14 +1,14 @@
 """Localization methods behind one interface (:class:`Localizer`, :class:`Estimate`), built from config.
 
-A new method is one class deriving from :class:`Localizer` plus one YAML file in ``conf/localizer/``
-naming it as ``_target_``; the evaluation harness needs no change.
+A new method is one class deriving from :class:`Localizer`, one YAML file in ``conf/localizer/`` naming it as
+``_target_``, and that name in :data:`blenav.trust.TARGETS`; the evaluation harness needs no change.
 """
 
-from .base import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, RunContext, Trained,
+from .base import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, Trained,
                    build_localizer)
 from .fixtrack import FixTrackLocalizer
 from .inputs import Fixes, RoleFixes, RunInputs
 from .particle import ParticleFilterLocalizer
 
 __all__ = ["Estimate", "FixConsumer", "FixTrackLocalizer", "Fixes", "Localizer", "ModelConsumer", "Trained",
-           "ParticleFilterLocalizer", "PathLossCalibrated", "RoleFixes", "RunContext", "RunInputs", "build_localizer"]
+           "ParticleFilterLocalizer", "PathLossCalibrated", "RoleFixes", "RunInputs", "build_localizer"]

@@ -31,12 +31,8 @@ from blenav.filters.estimate import Estimate
 
 from .inputs import Fixes, RoleFixes, RunInputs
 
-__all__ = ["Estimate", "RunInputs", "Fixes", "RoleFixes", "RunContext", "Localizer", "PathLossCalibrated",
+__all__ = ["Estimate", "RunInputs", "Fixes", "RoleFixes", "Localizer", "PathLossCalibrated",
            "FixConsumer", "ModelConsumer", "Trained", "build_localizer"]
-
-#: the name :class:`RunInputs` had when it carried the fix provider itself (localizers' signatures, scripts)
-RunContext = RunInputs
-
 
 class Localizer:
     """Base of every localization method: a name, and ``run``.
