@@ -24,7 +24,7 @@ beacon was heard (a window with no beacon heard gives no fix; how many there wer
                  "warnings" (worse than KNN on validation, stopped before converging), "learning_curves" (png)}}
 
 Every learned method's run also leaves ``OUT/runs/KEY/training.json`` and ``learning_curves.png`` (the training
-report of :mod:`blenav.learn.train`); its warnings are logged.
+report of :mod:`blenav.learn.common.report`); its warnings are logged.
 
 A method is named by its label (``LocNet``, ``TransNet+LocNet``, ``TransNet+LocNet+semi``, ``DL-RNN``,
 ``KNN``, ``Bayesian``, ``KRR+KF``). ``model_path=FILE.onnx`` replaces the training of ``TransNet+LocNet`` by an
@@ -109,7 +109,7 @@ def _train_run(cfg: EvalConfig, key: str, spec: dict, run_dir: Path, dm) -> tupl
     return ck, before == objs["global_step"], training  # (checkpoint, reused without a training step, report)
 
 
-#: ``methods.NAME.training`` of a learned method (blenav.learn.train.training_report)
+#: ``methods.NAME.training`` of a learned method (blenav.learn.common.report.training_report)
 TRAINING_KEYS = ("steps", "budget_steps", "early_stopped", "stop_reason", "best_val_error_m", "knn_val_error_m",
                  "converged", "best_step", "train_windows", "val_windows", "batch_size", "warnings")
 
