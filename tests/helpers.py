@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import yaml
 from shapely.geometry import LineString, box
 
 from blenav.data import FREE, OCCUPIED
@@ -31,6 +32,21 @@ def simulate_small(out: Path, seed: int, duration_s: float, sessions: int, *over
     sim_run(compose("sim", "sim=small", f"seed={seed}", f"out={out}", f"duration_s={duration_s}", f"sessions={sessions}",
                     "progress=false", "sim.carriers=[pedestrian]", *overrides))
     return Path(out)
+
+
+def as_waypoint_walks(root: Path) -> Path:
+    """Turn a simulated dataset into ILC-like walks: ground truth every 5 s only (groundtruth_kind: waypoints), the
+    ground-truth orientation as the phone's orientation.csv, no odometry.csv."""
+    for d in sorted((root / "sessions").iterdir()):
+        gt = pd.read_csv(d / "groundtruth.csv")
+        gt[["t", "qw", "qx", "qy", "qz"]].to_csv(d / "orientation.csv", index=False)
+        keep = np.r_[np.flatnonzero(np.diff(np.floor(gt["t"].to_numpy() / 5.0), prepend=-1) > 0)]
+        gt.iloc[keep].assign(qw=np.nan, qx=np.nan, qy=np.nan, qz=np.nan).to_csv(d / "groundtruth.csv", index=False)
+        (d / "odometry.csv").unlink(missing_ok=True)
+        meta = yaml.safe_load((d / "session.yaml").read_text())
+        meta.update(groundtruth_kind="waypoints", orientation_frame="enu-magnetic")
+        (d / "session.yaml").write_text(yaml.safe_dump(meta))
+    return root
 
 
 def tiny_grid(w_m: float = 10.0, h_m: float = 8.0, res: float = 0.1) -> np.ndarray:

@@ -45,6 +45,7 @@ TARGETS: frozenset[str] = frozenset({
     "blenav.localizers.ranging.SrlsLocalizer",
     "blenav.backend.localizer.BackendLocalizer",
     "blenav.localizers.realwalk.RealWalkPF",
+    "blenav.localizers.fusedwalk.FusedWalk",
     # evaluators (conf/experiment: experiment.evaluator; blenav.eval.evaluators)
     "blenav.eval.trajectory.TrajectoryEvaluator", "blenav.eval.leaderboard.LeaderboardEvaluator",
     "blenav.eval.crossphone.CrossPhoneEvaluator",

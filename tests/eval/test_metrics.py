@@ -51,3 +51,19 @@ def test_split_by_walk_is_seeded_per_floor_and_leaves_a_test_walk():
     assert [s.id for s in other] != [s.id for s in train]
     with pytest.raises(EvalError, match="train_fraction"):
         split_sessions(walks, SplitConfig(train_fraction=1.0))
+
+
+def test_fix_coverage_counts_the_waypoints_inside_the_stated_regions():
+    """Fixes at 0, 10 s with std 2 m, at (0, 0) and (10, 0); waypoints at 0, 5, 10 s: the fix interpolated there is
+    (0, 0), (5, 0), (10, 0); errors 1, 3, 5 m against std 2 m: 1 inside 1 sigma, 2 inside 2 sigma; pooled per role."""
+    from blenav.eval.metrics import fix_coverage_counts, pool_fix_coverage
+
+    t = np.array([0.0, 10.0])
+    xy = np.array([[0.0, 0.0], [10.0, 0.0]])
+    gt_t = np.array([0.0, 5.0, 10.0])
+    gt = np.array([[0.0, 1.0], [5.0, 3.0], [10.0, 5.0]])
+    assert fix_coverage_counts(t, xy, np.array([2.0, 2.0]), gt_t, gt) == (1, 2, 3)
+    assert fix_coverage_counts(t, xy, np.array([np.nan, np.nan]), gt_t, gt) is None
+    pooled = pool_fix_coverage([{"wifi": (1, 2, 3)}, {"wifi": (3, 3, 3), "ble": (0, 1, 2)}])
+    assert pooled == {"ble": {"1sigma": 0.0, "2sigma": 0.5, "waypoints": 2},
+                      "wifi": {"1sigma": 4 / 6, "2sigma": 5 / 6, "waypoints": 6}}

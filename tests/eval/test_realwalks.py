@@ -8,9 +8,8 @@ import tarfile
 import numpy as np
 import pandas as pd
 import pytest
-import yaml
 
-from helpers import simulate_small
+from helpers import as_waypoint_walks, simulate_small
 
 from blenav.configs import compose
 from blenav.eval.harness import evaluate
@@ -18,7 +17,7 @@ from blenav.filters.motion_pdr import pdr_track
 from blenav.filters.steps import StepDetectorConfig
 
 CONTRACT = ("KNN-WiFi", "LocNet-WiFi", "PDR", "PDR+map", "PDR+learned-map", "WiFi+PDR+map", "WiFi+PDR+learned-map",
-            "BLE+PDR+learned-map")
+            "BLE+PDR+learned-map", "fused-online", "fused-offline")
 
 
 def _cfg(*overrides):
@@ -47,25 +46,10 @@ def test_pdr_track_walks_steps_along_the_heading():
         pdr_track(t, acc, t, q, flags=flags[1:])
 
 
-def _as_waypoint_walks(root):
-    """Turn a simulated dataset into ILC-like walks: ground truth every 5 s only (groundtruth_kind: waypoints), the
-    ground-truth orientation as the phone's orientation.csv, no odometry.csv."""
-    for d in sorted((root / "sessions").iterdir()):
-        gt = pd.read_csv(d / "groundtruth.csv")
-        gt[["t", "qw", "qx", "qy", "qz"]].to_csv(d / "orientation.csv", index=False)
-        keep = np.r_[np.flatnonzero(np.diff(np.floor(gt["t"].to_numpy() / 5.0), prepend=-1) > 0)]
-        gt.iloc[keep].assign(qw=np.nan, qx=np.nan, qy=np.nan, qz=np.nan).to_csv(d / "groundtruth.csv", index=False)
-        (d / "odometry.csv").unlink(missing_ok=True)
-        meta = yaml.safe_load((d / "session.yaml").read_text())
-        meta.update(groundtruth_kind="waypoints", orientation_frame="enu-magnetic")
-        (d / "session.yaml").write_text(yaml.safe_dump(meta))
-    return root
-
-
 def test_realwalks_on_simulated_waypoint_walks(tmp_path):
     """The experiment on 4 simulated walks turned into waypoint walks: the inertial, BLE-fingerprint and fused rows
     run and give finite errors at the waypoints; WiFi rows are skipped with the reason (no wifi.csv)."""
-    data = _as_waypoint_walks(simulate_small(tmp_path / "d", 3, 40, 4))
+    data = as_waypoint_walks(simulate_small(tmp_path / "d", 3, 40, 4))
     res = evaluate(_cfg("experiment=realwalks", f"data={data}", "runs=1", f"out={tmp_path / 'o'}",
                         "methods.locnet_wifi=null", "methods.transnet_wifi=null", "methods.crf=null",
                         "methods.imu=null", "methods.pf_pl=null", "methods.pf_ps=null", "filter.n_particles=200"))
@@ -78,6 +62,10 @@ def test_realwalks_on_simulated_waypoint_walks(tmp_path):
     assert 0.3 < m["PDR (rotation vector)"]["training"]["step_length"]["step_length_m"] < 1.5
     assert "wifi" in str(m["KNN-WiFi"]["skipped"]).lower() and "error_m" not in m["WiFi+PDR"]
     assert "model_path" in str(m["PDR+learned-map"]["skipped"])  # no map prior given: skipped with the reason
+    for row in ("fused-online", "fused-offline"):  # issue 30: no known start, the fixes' coverage reported
+        assert all(np.isfinite(m[row]["error_m"][k]) for k in ("mean", "median", "p90")), row
+        cov = m[row]["fix_coverage"]["ble"]  # no WiFi in the simulator: the BLE role
+        assert 0 <= cov["1sigma"] <= cov["2sigma"] <= 1 and cov["waypoints"] > 0
 
 
 def _unpack_walks(raw_dir, tmp_path, floor="F1", n=6):
@@ -282,7 +270,7 @@ def test_train_ids_and_table_rows_come_from_the_experiment(tmp_path):
     from blenav.eval.realwalks import train_ids
     from blenav.reporting.realwalks import OUTCOMES
 
-    data = _as_waypoint_walks(simulate_small(tmp_path / "d", 3, 20, 4))
+    data = as_waypoint_walks(simulate_small(tmp_path / "d", 3, 20, 4))
     cfg = _cfg("experiment=realwalks", f"data={data}")
     ecfg = parse_eval_config(cfg)
     ds = open_dataset(ecfg)
@@ -294,6 +282,7 @@ def test_train_ids_and_table_rows_come_from_the_experiment(tmp_path):
     assert set(CONTRACT) <= set(rows["all"]) and {r for _, a, b in OUTCOMES for r in (a, b)} <= set(rows["all"])
     assert rows["fingerprint"] == ("KNN-WiFi", "KNN-BLE", "KNN-WiFi+BLE", "LocNet-WiFi", "TransNet+LocNet-WiFi")
     assert "WiFi+PDR+learned-map" in rows["fused"] and "PDR+map" not in rows["fused"]
+    assert {"fused-online", "fused-offline"} <= set(rows["fused"])
 
 
 def test_sparse_role_hears_only_its_beacons(tmp_path):
@@ -304,7 +293,7 @@ def test_sparse_role_hears_only_its_beacons(tmp_path):
     from blenav.eval.fixes import FixProvider
     from blenav.localizers.fingerprint import FingerprintLocalizer
 
-    data = _as_waypoint_walks(simulate_small(tmp_path / "d", 3, 30, 3))
+    data = as_waypoint_walks(simulate_small(tmp_path / "d", 3, 30, 3))
     ss = list(Dataset.open(data).sessions(labelled=True))
     knn = FingerprintLocalizer("KNN-BLE", features="ble", k=3)
     knn.fit(ss[:2])

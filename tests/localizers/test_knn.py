@@ -18,13 +18,22 @@ from ilc20_helpers import START, coded_walk, walk_lines, write_floor, write_walk
 HEARD = {"wifi_age_ref": "scan", "wifi_time": "heard"}  # issue 29's reading (opt-in)
 
 
-def test_defaults_are_the_pre_issue_29_behaviour():
-    """conf/localizer/fingerprint.yaml as composed: scans read at their delivery (5 s age from it), no
-    cross-validation (k = 5 uniform cosine), no covariance for the networks' fixes; cv: {} is CV_GRID."""
+def test_defaults_fingerprint_yaml_and_realwalks():
+    """conf/localizer/fingerprint.yaml: scans read at their delivery (5 s age from it), no cross-validation (k = 5
+    uniform cosine), the neighbours' std, no covariance for the networks' fixes; experiment=realwalks turns issue 29's
+    reading and cross-validation on for its WiFi KNN rows and the calibrated std on for every KNN row; cv: {} is
+    CV_GRID."""
     m = compose("eval", "experiment=realwalks").methods
-    for name in ("knn_wifi", "knn_ble", "knn_both", "locnet_wifi", "transnet_wifi"):
+    for name in ("locnet_wifi", "transnet_wifi"):
         assert m[name].cv is None and m[name].net_cov == "none", name
         assert (m[name].wifi_max_age_s, m[name].wifi_age_ref, m[name].wifi_time) == (5.0, "delivery", "delivery")
+    for name in ("knn_wifi", "knn_both"):
+        assert m[name].cv == {} and (m[name].wifi_age_ref, m[name].wifi_time, m[name].fix_std) == \
+            ("scan", "heard", "calibrated"), name
+    assert m.knn_ble.cv is None and m.knn_ble.fix_std == "calibrated"
+    plain = compose("eval", "experiment=mapfusion_002", "+localizer@methods.knn=fingerprint").methods.knn
+    assert plain.cv is None and (plain.wifi_age_ref, plain.wifi_time, plain.fix_std) == ("delivery", "delivery",
+                                                                                          "neighbours")
     loc = FingerprintLocalizer("KNN", cv=None)
     assert loc.cv is None and (loc.k, loc.weights, loc.metric) == (5, "uniform", "cosine")
     assert FingerprintLocalizer("KNN", cv={}).cv == CV_GRID
@@ -193,3 +202,49 @@ def test_knn_fit_cov_is_the_neighbours_spread():
     np.testing.assert_allclose(cov[0], [[1.0 + 0.25, 0.0], [0.0, 0.25]])
     with pytest.raises(ValueError, match="weights"):
         KNN.KnnSetting(weights="nearest")
+
+
+def test_std_model_recovers_the_noise_law_and_covers_as_stated():
+    """Errors drawn with std = exp(0.5 + 0.8 d1) (2-D isotropic): the fitted model finds those coefficients, and its
+    1-sigma / 2-sigma regions hold 39.3 % / 86.5 % of fresh errors of the same law."""
+    rng = np.random.default_rng(0)
+    n = 20_000
+    spread, d1 = rng.uniform(0, 5, n), rng.uniform(0, 2, n)
+    sd = np.exp(0.5 + 0.8 * d1)
+    err = np.hypot(*(rng.normal(0, 1, (2, n)) * sd))
+    model = KNN.fit_std_model(err, spread, d1)
+    np.testing.assert_allclose(model.c, [0.5, 0.0, 0.8], atol=0.05)
+    fresh = np.hypot(*(rng.normal(0, 1, (2, n)) * sd))
+    r = fresh / model.std(spread, d1)
+    assert abs(np.mean(r <= 1) - (1 - np.exp(-0.5))) < 0.015 and abs(np.mean(r <= 2) - (1 - np.exp(-2))) < 0.015
+
+
+def test_out_of_fold_errors_use_the_other_folds_only():
+    """Each walk's windows are predicted by a model of the other folds: with k = 1 on walks that repeat one line, the
+    out-of-fold error of a window is its distance to the nearest label of another walk, never 0 (its own)."""
+    S, xy, t, wo, _ = _walks(n_walks=6)
+    err, spread, d1 = KNN.out_of_fold(S, xy, wo, KNN.KnnSetting("cosine", 1, "uniform"), np.zeros(12, bool), -100.0,
+                                      cov_floor_m=0.5, folds=3)
+    assert len(err) == len(S) and (spread == 0).all() and (d1 > 0).all()
+    fold = np.random.default_rng(0).permutation(np.arange(6) % 3)
+    X = KNN.represent(S, "cosine", np.zeros(12, bool), 1.0, -100.0)
+    for i in (0, 25, 77):
+        other = fold[wo] != fold[wo[i]]
+        j = np.flatnonzero(other)[np.argmin(((X[other] - X[i]) ** 2).sum(1))]
+        assert np.isclose(err[i], np.hypot(*(xy[j] - xy[i])))
+
+
+def test_calibrated_fix_std_is_reported_and_is_the_cov(coded):
+    """fix_std: calibrated: the training report has the model and its out-of-fold coverage; each fix's covariance is
+    std^2 I of that model."""
+    train, test = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], coded.session("mall_F1_walkC")
+    loc = FingerprintLocalizer("KNN", k=1, fix_std="calibrated")
+    rep = loc.fit(train)
+    fs = next(iter(rep["floors"].values()))["fix_std"]
+    assert isinstance(fs, dict) and len(fs["c"]) == 3 and 0 <= fs["coverage_1sigma"] <= fs["coverage_2sigma"] <= 1
+    est = loc.run(test, 1, 0)
+    c = est.cov[0]
+    np.testing.assert_allclose(c[:, 0, 1], 0.0)
+    np.testing.assert_allclose(c[:, 0, 0], c[:, 1, 1])
+    with pytest.raises(ValueError, match="fix_std"):
+        FingerprintLocalizer("KNN", fix_std="wild")

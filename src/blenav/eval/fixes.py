@@ -282,6 +282,17 @@ class FixProvider:
             got[role] = RoleFixes(t, xy, sd, src, computed=key in self._computed, wall_s=self.compute_s.get(key))
         return Fixes(got, missing)
 
+    def resolve_first(self, roles, session) -> Fixes:
+        """The fixes of the first of ``roles`` that ``session`` has (alternatives, e.g. WiFi + BLE fixes, else BLE
+        ones): the roles before it carry their reasons; none found: every role its own reason."""
+        missing = {}
+        for role in roles:
+            fx = self.resolve([role], session)
+            if role in fx.roles:
+                return Fixes({role: fx.roles[role]}, missing)
+            missing.update(fx.missing)
+        return Fixes({}, missing)
+
     def describe(self) -> dict:
         """For results.json: role -> {session: what was used}, plus the sparse beacons chosen per building."""
         sb = self.sparse_beacons

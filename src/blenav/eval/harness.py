@@ -63,7 +63,7 @@ from .common import output_name
 from .config import EvalConfig, parse_eval_config
 from .evaluators import evaluate
 from .fixes import FixProvider
-from .metrics import cdf_band, pool, session_metrics, waypoint_metrics
+from .metrics import cdf_band, fix_coverage_counts, pool, pool_fix_coverage, session_metrics, waypoint_metrics
 from .result import MethodResult, TrajectoryResult, write_results
 from .sessions import select_sessions
 
@@ -241,6 +241,8 @@ def method_inputs(method: Localizer, session, inputs: RunInputs, fixes: FixProvi
     fixes of its roles (:meth:`FixProvider.resolve`; None without a ``fixes`` block)."""
     if fixes is None or not isinstance(method, FixConsumer):
         return inputs
+    if method.fix_roles_are_alternatives:
+        return inputs.with_fixes(fixes.resolve_first(method.fix_roles(), session))
     return inputs.with_fixes(fixes.resolve(method.fix_roles(), session))
 
 
@@ -263,10 +265,11 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
     inputs_for = lambda session: method_inputs(method, session, inputs, fixes)  # noqa: E731
     for si, s in enumerate(sessions):
         try:
+            inp = inputs_for(s)
             if beacon_map is not None and beacon_map.perturbed:
                 est = BM.run_per_run_maps(method, s, si, runs, session_seed(seed, si), inputs_for, beacon_map)
             else:
-                est = method.run(s, runs, session_seed(seed, si), inputs_for(s))
+                est = method.run(s, runs, session_seed(seed, si), inp)
         except MissingStream as exc:  # e.g. no IMU in a fixed-receiver recording: skip, and say so
             oc.skipped[s.id] = str(exc)
             log.warning("skipping %s on %s: %s", name, s.id, exc)
@@ -293,6 +296,11 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
         err = beacon_errors(est, s)
         if err is not None:
             m["beacon_error_m"] = err
+        if s.groundtruth_sparse and inp.fixes is not None:  # the fixes' stated std against the waypoints
+            cov = {r: fix_coverage_counts(f.t, f.xy, f.std, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy())
+                   for r, f in inp.fixes.roles.items()}
+            if any(c is not None for c in cov.values()):
+                m["fix_coverage"] = {r: c for r, c in cov.items() if c is not None}
         oc.metrics[s.id], oc.results[s.id] = m, est
         progress(f"{name} / {s.id}")
     return oc
@@ -330,6 +338,7 @@ def aggregate(oc: MethodOutcome, runs: int) -> MethodResult:
     if errs:
         res.beacon_error_m = {k: float(np.mean([e[k] for e in errs if e[k] is not None]))
                               if any(e[k] is not None for e in errs) else None for k in ("prior", "optimized")}
+    res.fix_coverage = pool_fix_coverage([m["fix_coverage"] for m in oc.metrics.values() if "fix_coverage" in m])
     orient = [m["orientation_rmse_deg"] for m in oc.metrics.values() if "orientation_rmse_deg" in m]
     if orient:
         res.orientation_rmse_deg = float(np.mean(orient))

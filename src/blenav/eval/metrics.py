@@ -101,6 +101,32 @@ def waypoint_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np
     return {**_scored(err, tw, np.ones(len(tw), bool)), "waypoints": int(err.shape[1])}
 
 
+def fix_coverage_counts(t: np.ndarray, xy: np.ndarray, std: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray
+                        ) -> tuple[int, int, int] | None:
+    """(inside 1 sigma, inside 2 sigma, waypoints) of fixes (t (F,) s sorted, xy (F, 2) m, std (F,) m: isotropic 2-D)
+    at the waypoints (gt_t (W,), gt_xy (W, 2)): the fix and its std interpolated at each waypoint time (ends held, as
+    ``hold_ends`` scores); a waypoint is inside k sigma when its error <= k std (a 2-D Gaussian holds 39.3 % / 86.5 %
+    there). None when no fix has a finite std."""
+    ok = np.isfinite(std) & np.isfinite(xy).all(axis=1)
+    if not ok.any() or not len(gt_t):
+        return None
+    err, _ = errors_at_waypoints(t[ok], xy[ok][None], gt_t, gt_xy, hold_ends=True)
+    sd = np.interp(gt_t, t[ok], std[ok])
+    e = err[0]
+    return int((e <= sd).sum()), int((e <= 2.0 * sd).sum()), int(len(e))
+
+
+def pool_fix_coverage(per_session: list[dict]) -> dict | None:
+    """Per role, the shares of waypoints inside the fixes' 1-sigma / 2-sigma regions pooled over sessions
+    (``{role: (n1, n2, n)}`` each, from :func:`fix_coverage_counts`): ``{role: {"1sigma", "2sigma", "waypoints"}}``."""
+    tot: dict[str, np.ndarray] = {}
+    for d in per_session:
+        for role, c in d.items():
+            tot[role] = tot.get(role, np.zeros(3, np.int64)) + np.asarray(c, np.int64)
+    return {r: {"1sigma": float(c[0] / c[2]), "2sigma": float(c[1] / c[2]), "waypoints": int(c[2])}
+            for r, c in sorted(tot.items()) if c[2] > 0} or None
+
+
 #: thresholds (m) of the share of walks whose mean error is within them (``walks_within_m`` in results)
 WALK_THRESHOLDS_M = (2.0, 5.0)
 

@@ -67,6 +67,7 @@ class MethodResult:
     confined: dict | None = None
     beacon_error_m: dict | None = None
     orientation_rmse_deg: float | None = None
+    fix_coverage: dict | None = None  # role -> {1sigma, 2sigma, waypoints}: the fixes a fused method weighed
     per_session: dict = field(default_factory=dict)
     windows: WindowStats | None = None
     bound: BoundStats | None = None
@@ -112,6 +113,8 @@ class MethodResult:
                 out["beacon_error_m"] = self.beacon_error_m
             if self.orientation_rmse_deg is not None:
                 out["orientation_rmse_deg"] = self.orientation_rmse_deg
+            if self.fix_coverage is not None:
+                out["fix_coverage"] = self.fix_coverage
             out["per_session"] = self.per_session
             if self.peak_memory is not None:
                 out["peak_memory"] = self.peak_memory

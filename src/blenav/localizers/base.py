@@ -70,7 +70,10 @@ class PathLossCalibrated:
 
 class FixConsumer:
     """A method that weighs position fixes of named roles of the experiment's ``fixes`` block; its run finds them in
-    ``inputs.fixes[role]`` (:class:`~blenav.localizers.inputs.RoleFixes`)."""
+    ``inputs.fixes[role]`` (:class:`~blenav.localizers.inputs.RoleFixes`). ``fix_roles_are_alternatives``: the
+    roles are alternatives (the run gets the first one the session has), not all needed."""
+
+    fix_roles_are_alternatives: bool = False
 
     def fix_roles(self) -> list[str]:
         """The roles, in the order the method reads them (the first that a session lacks is the reason it is

@@ -134,7 +134,7 @@ class FingerprintLocalizer(Localizer, Trained):
                  floor_u: float = 0.5, ble_window_s: float = 3.0, ble_step_s: float = 1.0,
                  wifi_max_age_s: float | None = 5.0, wifi_age_ref: str = "delivery", wifi_time: str = "delivery",
                  min_count: int = 1, max_features="auto", cov_floor_m: float = 1.0, cv: dict | None = None,
-                 net_cov: str = "none",
+                 net_cov: str = "none", fix_std: str = "neighbours",
                  net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
                  batch_size: int = 256, seed: int = 0, threads: int | None = 1, plots: bool = False,
                  training: dict | None = None):
@@ -171,6 +171,11 @@ class FingerprintLocalizer(Localizer, Trained):
         if net_cov not in ("none", "validation"):
             raise ValueError(f"method {name!r}: net_cov must be 'none' or 'validation', got {net_cov!r}")
         self.net_cov = net_cov
+        if fix_std not in ("neighbours", "calibrated"):
+            raise ValueError(f"method {name!r}: fix_std must be 'neighbours' or 'calibrated', got {fix_std!r}")
+        if fix_std == "calibrated" and model != "knn":
+            raise ValueError(f"method {name!r}: fix_std: calibrated is the KNN's (the networks' std: net_cov)")
+        self.fix_std = fix_std
         self.min_count, self.cov_floor_m = int(min_count), float(cov_floor_m)
         self.beacons: tuple | None = None  # BLE anchor ids heard at run time (None: all)
         if max_features == "auto":
@@ -278,7 +283,7 @@ class FingerprintLocalizer(Localizer, Trained):
                      "n_features_kind": {k: sum(n.startswith(k + ":") for n in names) for k in ("wifi", "ble")}})
         if len(S) < 2:
             return {**info, "unavailable": f"{len(S)} labelled windows (need 2)"}
-        if self.model == "knn" and self.cv is not None:
+        if self.model == "knn" and (self.cv is not None or self.fix_std == "calibrated"):
             predict = self._fit_knn_cv(S, xy, T, walk_of, used, names, info)
         elif self.model == "knn":
             predict = knn_model(S, xy, self.k, self.weights, self.cov_floor_m, self.metric)
@@ -293,8 +298,14 @@ class FingerprintLocalizer(Localizer, Trained):
     def _fit_knn_cv(self, S, xy, T, walk_of, used, names, info):
         """KNN with metric / k / weights / BLE weight chosen by leave-walks-out cross-validation on ``used`` (the
         train walks of this floor, whose windows S, labels xy, times T, walk index walk_of these are): their own
-        waypoints score the folds (:func:`blenav.localizers.knn.cross_validate`); no other walk is read."""
+        waypoints score the folds (:func:`blenav.localizers.knn.cross_validate`); no other walk is read. Without
+        ``cv`` the setting is the given k / weights / metric. ``fix_std: calibrated``: each fix's std from
+        :class:`blenav.localizers.knn.StdModel` fitted on the same walks' out-of-fold errors."""
         is_ble = np.array([n.startswith("ble:") for n in names])
+        if self.cv is None:
+            best = KNN.KnnSetting(self.metric, self.k, self.weights, 1.0)
+            return KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m,
+                           self._std_model(S, xy, walk_of, best, is_ble, info, 5))
         ble_w = self.cv["ble_weight"] if self.cfg.features == "both" else [1.0]
         settings = KNN.grid(self.cv["metric"], self.cv["k"], self.cv["weights"], ble_w)
         waypoints = [(s.groundtruth["t"].to_numpy(float), s.groundtruth[["x", "y"]].to_numpy(float)) for s in used]
@@ -305,7 +316,26 @@ class FingerprintLocalizer(Localizer, Trained):
                                 "the other folds' walks", "table": table}
         log.info("%s: cross-validated KNN setting %s (%.2f m)", self.name, best,
                  min(r["cv_error_m"] for r in table))
-        return KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m)
+        return KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m,
+                       self._std_model(S, xy, walk_of, best, is_ble, info, self.cv["folds"]))
+
+    def _std_model(self, S, xy, walk_of, setting, is_ble, info, folds):
+        """The calibrated std model (``fix_std: calibrated``) of ``setting`` on these train windows, or None."""
+        if self.fix_std != "calibrated":
+            return None
+        err, spread, d1 = KNN.out_of_fold(S, xy, walk_of, setting, is_ble, self.cfg.fill_dbm, self.cov_floor_m,
+                                          folds=folds, seed=self.seed)
+        if len(err) < 10:
+            info["fix_std"] = f"neighbours: {len(err)} out-of-fold fixes (need 10) to calibrate"
+            return None
+        model = KNN.fit_std_model(err, spread, d1)
+        sd = model.std(spread, d1)
+        r = err / sd
+        info["fix_std"] = {"model": "log std = c0 + c1 log(1 + spread) + c2 d1 (blenav.localizers.knn.StdModel)",
+                           "c": list(model.c), "out_of_fold_fixes": int(len(err)),
+                           "coverage_1sigma": float(np.mean(r <= 1.0)), "coverage_2sigma": float(np.mean(r <= 2.0)),
+                           "median_std_m": float(np.median(sd))}
+        return model
 
     def _fit_network(self, key, S, P, xy, walk_of, used, names, inputs, info):
         from blenav.learn.fingerprint.train import split_walks, train_network  # torch: only on the learned path

@@ -30,6 +30,7 @@ numpy only.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -175,9 +176,76 @@ def cross_validate(S: np.ndarray, xy: np.ndarray, t: np.ndarray, walk_of: np.nda
     return settings[best], table
 
 
+@dataclass(frozen=True)
+class StdModel:
+    """A fix's std (m, isotropic 2-D) from what the KNN saw (issue 30, "fix uncertainty that means what it says"):
+
+        log std = c0 + c1 log(1 + spread) + c2 d1
+
+    spread (m): the RMS distance per axis of the k neighbours' positions from the estimate (their disagreement);
+    d1: the distance of the query to its nearest fingerprint on the setting's representation (how far the scan is
+    from anything surveyed: large where the train walks never went). Fitted by :func:`fit_std_model` on
+    out-of-fold errors of the train walks."""
+
+    c: tuple = (math.log(3.0), 0.0, 0.0)
+
+    def std(self, spread: np.ndarray, d1: np.ndarray) -> np.ndarray:
+        c0, c1, c2 = self.c
+        return np.exp(np.clip(c0 + c1 * np.log1p(spread) + c2 * d1, -3.0, 6.0))
+
+
+def std_features(idx: np.ndarray, d2: np.ndarray, cov: np.ndarray, cov_floor_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(spread (K,) m, d1 (K,)) of the queries whose neighbours are ``idx`` / ``d2`` (K, >= 1) and whose
+    :func:`combine` covariance (floor ``cov_floor_m`` included) is ``cov`` (K, 2, 2) (:class:`StdModel`)."""
+    var = (np.trace(cov, axis1=1, axis2=2) / 2.0 - float(cov_floor_m) ** 2).clip(0.0)
+    return np.sqrt(var), np.sqrt(d2[:, 0])
+
+
+def fit_std_model(err: np.ndarray, spread: np.ndarray, d1: np.ndarray) -> StdModel:
+    """The :class:`StdModel` maximising the isotropic 2-D Gaussian likelihood of the errors ``err`` (K,) m (norm of
+    the estimate minus the label) given their features: per fix, 2 log std + err^2 / (2 std^2), summed; a
+    convex problem in c (Newton's method on the three coefficients, numpy)."""
+    err, spread, d1 = (np.asarray(a, float) for a in (err, spread, d1))
+    A = np.column_stack([np.ones(len(err)), np.log1p(spread), d1])
+    e2 = err**2 + 1e-6
+    c = np.array([0.5 * math.log(max(float(np.mean(e2)) / 2.0, 1e-6)), 0.0, 0.0])  # 2-D: E|e|^2 = 2 std^2
+    for _ in range(50):  # f(c) = sum 2 a.c + e2 exp(-2 a.c) / 2
+        z = np.exp(-2.0 * (A @ c))
+        g = A.T @ (2.0 - e2 * z)
+        H = (A * (2.0 * e2 * z)[:, None]).T @ A + 1e-9 * np.eye(3)
+        step = np.linalg.solve(H, g)
+        c = c - step
+        if np.abs(step).max() < 1e-10:
+            break
+    return StdModel(tuple(float(v) for v in c))
+
+
+def out_of_fold(S: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, setting: KnnSetting, is_ble: np.ndarray,
+                fill_dbm: float, cov_floor_m: float, folds: int = 5, seed: int = 0
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(errors (N,) m, spread (N,), d1 (N,)): every window of the fitted walks predicted by ``setting`` fitted on the
+    other folds' walks (the same seeded deal of the walks as :func:`cross_validate`), against its own label."""
+    n_walks = int(walk_of.max()) + 1 if len(walk_of) else 0
+    folds = max(2, min(int(folds), n_walks))
+    fold = np.random.default_rng(seed).permutation(np.arange(n_walks) % folds)
+    X = represent(S, setting.metric, is_ble, setting.ble_weight, fill_dbm)
+    err, spread, d1 = np.full(len(S), np.nan), np.zeros(len(S)), np.zeros(len(S))
+    for f in range(folds):
+        te = fold[walk_of] == f
+        if not te.any() or te.all():
+            continue
+        idx, d2 = _nearest(_sqdist(X[te], X[~te]), setting.k)
+        est, cov = combine(idx, d2, xy[~te], setting.k, setting.weights, cov_floor_m)
+        err[te] = np.hypot(*(est - xy[te]).T)
+        spread[te], d1[te] = std_features(idx, d2, cov, cov_floor_m)
+    ok = np.isfinite(err)
+    return err[ok], spread[ok], d1[ok]
+
+
 def fit(S: np.ndarray, xy: np.ndarray, setting: KnnSetting, is_ble: np.ndarray, fill_dbm: float,
-        cov_floor_m: float):
-    """predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)) of a KNN on windows S (N, F, H) with labels xy (N, 2)."""
+        cov_floor_m: float, std_model: StdModel | None = None):
+    """predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)) of a KNN on windows S (N, F, H) with labels xy (N, 2); the
+    covariance is the neighbours' (:func:`combine`) or, with ``std_model``, its std^2 I."""
     X = represent(S, setting.metric, is_ble, setting.ble_weight, fill_dbm)
     bb = np.einsum("nf,nf->n", X, X)  # X's squared norms, once for every query
 
@@ -186,7 +254,11 @@ def fit(S: np.ndarray, xy: np.ndarray, setting: KnnSetting, is_ble: np.ndarray, 
         out_xy, out_cov = np.zeros((len(Q), 2)), np.zeros((len(Q), 2, 2))
         for i in range(0, len(Q), 512):  # bounded memory: 512 x N distances at a time
             idx, d2 = _nearest(_sqdist(Q[i:i + 512], X, bb), setting.k)
-            out_xy[i:i + 512], out_cov[i:i + 512] = combine(idx, d2, xy, setting.k, setting.weights, cov_floor_m)
+            est, cov = combine(idx, d2, xy, setting.k, setting.weights, cov_floor_m)
+            if std_model is not None:
+                sd = std_model.std(*std_features(idx, d2, cov, cov_floor_m))
+                cov = (sd**2)[:, None, None] * np.eye(2)
+            out_xy[i:i + 512], out_cov[i:i + 512] = est, cov
         return out_xy, out_cov
 
     return predict

@@ -28,7 +28,7 @@ def table_rows(methods: dict) -> dict[str, tuple[str, ...]]:
     """The labels of an experiment's rows, in its order, from its composed ``methods`` node (a dict:
     ``OmegaConf.to_container(cfg.methods, resolve=False)``; the entry point composes it, so a renamed label is
     renamed in the tables too): ``all``; ``fingerprint`` (fingerprint localizers); ``fused`` (rows with a fix
-    likelihood of a ``fixes`` role)."""
+    likelihood of a ``fixes`` role, or a ``fix_roles`` list: the global fusion rows)."""
     rows = {"all": [], "fingerprint": [], "fused": []}
     for key, node in methods.items():
         if node is None:
@@ -38,7 +38,8 @@ def table_rows(methods: dict) -> dict[str, tuple[str, ...]]:
         if str(node.get("_target_", "")).endswith("FingerprintLocalizer"):
             rows["fingerprint"].append(label)
         meas = node.get("measurements") or {}
-        if any(isinstance(m, dict) and m.get("role") for m in (meas.values() if isinstance(meas, dict) else meas)):
+        if node.get("fix_roles") or any(isinstance(m, dict) and m.get("role")
+                                        for m in (meas.values() if isinstance(meas, dict) else meas)):
             rows["fused"].append(label)
     return {k: tuple(v) for k, v in rows.items()}
 

@@ -1,0 +1,366 @@
+"""Forward-backward (sum-product) and Viterbi (max-product) on the grid of :mod:`blenav.crf.grid` with odometry
+displacement kernels: the walk smoother of issue 30 (a phone, no known start, fixes + inertial odometry + plan).
+
+A hidden Markov model over the K nodes of a walk (one every ``dt`` seconds) whose state is a cell of the walkable
+grid (N cells) and a *layer* l of L (a heading offset theta_l and a step scale s_l of the odometry, constant over a
+walk: the walk's unknown heading error and step-length error, estimated instead of trusted; Duembgen et al.'s
+IMU features, 004 eqs. 13-14, with the odometry's heading and length error as states):
+
+* transition k -> k+1 along a grid edge e = (i -> j) of vector v_e (length ``dist``, direction ``angle``), for the
+  odometry displacement d_k (world frame, m) of that interval and layer l:
+
+      log psi_l(i -> j) = -|v_e - s_l R(theta_l) d_k|^2 / (2 sigma_k^2) + log_prior[j] - log Z_l(i)
+
+  (Z_l(i): the sum over the edges leaving i, so each row is a transition kernel; ``log_prior`` a log position prior
+  on the targets, e.g. where train walks went; edges stop at walls, :func:`blenav.crf.grid.build_grid`);
+* unary: ``unary[k]`` (N,) log-likelihood of the node's observations (fixes) per cell, 0 where the node has none;
+* start: ``log_init`` (N,) over the cells (uniform over the walkable area when nothing is known), uniform over layers.
+
+:func:`forward_backward` returns the filtered (causal, eq. of the forward recursion) and smoothed marginals' per-node
+statistics; :func:`viterbi` the most probable joint state sequence. Pruning (as 004 sec. IV-B): a cell-layer whose
+normalised forward probability is below ``prune`` is no source at the next node (and gets no backward message), so
+the cost follows the active states, not the floor; ``prune = 0`` is exact.
+
+numba; :func:`brute_force` enumerates every state sequence of a tiny model (the tests' reference).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from blenav.limits import check_memory
+
+from .grid import CrfGrid
+
+__all__ = ["Layers", "SmootherResult", "forward_backward", "viterbi", "brute_force", "edge_log_kernel"]
+
+_NEG = -np.inf
+
+
+@dataclass(frozen=True)
+class Layers:
+    """The L = len(heading_offsets_rad) x len(scales) odometry hypotheses of a walk (heading offset, step scale)."""
+
+    heading_offsets_rad: tuple = (0.0,)
+    scales: tuple = (1.0,)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(cos (L,), sin (L,)) of s_l R(theta_l): the rotation-scale applied to each displacement per layer."""
+        th, sc = np.meshgrid(np.asarray(self.heading_offsets_rad, float), np.asarray(self.scales, float),
+                             indexing="ij")
+        th, sc = th.ravel(), sc.ravel()
+        return sc * np.cos(th), sc * np.sin(th)
+
+    @property
+    def n(self) -> int:
+        return len(self.heading_offsets_rad) * len(self.scales)
+
+
+@dataclass
+class SmootherResult:
+    """Per node k of K: ``filtered_mean`` / ``smoothed_mean`` (K, 2) m, the marginals' mean position;
+    ``filtered_cov`` / ``smoothed_cov`` (K, 2, 2) m^2; ``filtered_mode`` / ``smoothed_mode`` (K,) cell of the
+    marginal's maximum; ``layer_post`` (L,) the posterior of the layers (last node, smoothed); ``log_evidence``:
+    log p(observations) of the (pruned) model."""
+
+    filtered_mean: np.ndarray
+    filtered_cov: np.ndarray
+    filtered_mode: np.ndarray
+    smoothed_mean: np.ndarray
+    smoothed_cov: np.ndarray
+    smoothed_mode: np.ndarray
+    layer_post: np.ndarray
+    log_evidence: float
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lae(a, b):
+    if a == -np.inf:
+        return b
+    if b == -np.inf:
+        return a
+    if a > b:
+        return a + math.log1p(math.exp(b - a))
+    return b + math.log1p(math.exp(a - b))
+
+
+@njit(cache=True, nogil=True)
+def _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, out):
+    """Normalised log kernel of the edges leaving cell i into out[:deg]; returns deg."""
+    a, b = src_ptr[i], src_ptr[i + 1]
+    m = -np.inf
+    for e in range(a, b):
+        dx = vx[e] - px
+        dy = vy[e] - py
+        w = -(dx * dx + dy * dy) * inv2s2 + log_prior[dst[e]]
+        out[e - a] = w
+        if w > m:
+            m = w
+    s = 0.0
+    for e in range(b - a):
+        s += math.exp(out[e] - m)
+    z = m + math.log(s)
+    for e in range(b - a):
+        out[e] -= z
+    return b - a
+
+
+@njit(cache=True, nogil=True)
+def _forward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, log_init, prune_log, max_mode,
+             alpha, back):
+    """alpha (K, L, N) float32 normalised log forward messages (max-product when max_mode; back (K, L, N) int32
+    the argmax source then); returns log evidence (sum-product)."""
+    K, L, N = alpha.shape
+    deg_max = 0
+    for i in range(N):
+        d = src_ptr[i + 1] - src_ptr[i]
+        if d > deg_max:
+            deg_max = d
+    w = np.empty(deg_max)
+    cur = np.empty((L, N))
+    logev = 0.0
+    # node 0: init + unary, normalised
+    tot = -np.inf
+    for l in range(L):
+        for j in range(N):
+            v = log_init[j] - math.log(L)
+            if has_unary[0]:
+                v += unary[0, j]
+            cur[l, j] = v
+            tot = _lae(tot, v)
+    logev += tot
+    for l in range(L):
+        for j in range(N):
+            cur[l, j] -= tot
+            alpha[0, l, j] = cur[l, j]
+    nxt = np.empty((L, N))
+    for k in range(K - 1):
+        nxt[:] = -np.inf
+        inv2s2 = 0.5 / (sigma[k] * sigma[k])
+        for l in range(L):
+            px = ca[l] * disp[k, 0] - sa[l] * disp[k, 1]
+            py = sa[l] * disp[k, 0] + ca[l] * disp[k, 1]
+            for i in range(N):
+                a = cur[l, i]
+                if a < prune_log:
+                    continue
+                deg = _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, w)
+                base = src_ptr[i]
+                for e in range(deg):
+                    j = dst[base + e]
+                    v = a + w[e]
+                    if max_mode:
+                        if v > nxt[l, j]:
+                            nxt[l, j] = v
+                            back[k + 1, l, j] = i
+                    else:
+                        nxt[l, j] = _lae(nxt[l, j], v)
+        tot = -np.inf
+        for l in range(L):
+            for j in range(N):
+                if nxt[l, j] > -np.inf and has_unary[k + 1]:
+                    nxt[l, j] += unary[k + 1, j]
+                tot = _lae(tot, nxt[l, j])
+        if tot == -np.inf:  # every active state was ruled out (cannot happen with finite unaries); restart flat
+            for l in range(L):
+                for j in range(N):
+                    nxt[l, j] = log_init[j] - math.log(L) + (unary[k + 1, j] if has_unary[k + 1] else 0.0)
+                    tot = _lae(tot, nxt[l, j])
+        logev += tot
+        for l in range(L):
+            for j in range(N):
+                nxt[l, j] -= tot
+                alpha[k + 1, l, j] = nxt[l, j]
+        cur, nxt = nxt, cur
+    return logev
+
+
+@njit(cache=True, nogil=True)
+def _backward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha, prune_log, post):
+    """post (K, L, N) float32 <- normalised log smoothed marginals log p(x_k, l | all observations)."""
+    K, L, N = alpha.shape
+    deg_max = 0
+    for i in range(N):
+        d = src_ptr[i + 1] - src_ptr[i]
+        if d > deg_max:
+            deg_max = d
+    w = np.empty(deg_max)
+    beta = np.zeros((L, N))  # node K-1
+    for l in range(L):
+        for j in range(N):
+            post[K - 1, l, j] = alpha[K - 1, l, j]
+    prev = np.empty((L, N))
+    for k in range(K - 2, -1, -1):
+        prev[:] = -np.inf
+        inv2s2 = 0.5 / (sigma[k] * sigma[k])
+        for l in range(L):
+            px = ca[l] * disp[k, 0] - sa[l] * disp[k, 1]
+            py = sa[l] * disp[k, 0] + ca[l] * disp[k, 1]
+            for i in range(N):
+                if alpha[k, l, i] < prune_log:
+                    continue
+                deg = _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, w)
+                base = src_ptr[i]
+                acc = -np.inf
+                for e in range(deg):
+                    j = dst[base + e]
+                    b = beta[l, j]
+                    if b == -np.inf:
+                        continue
+                    acc = _lae(acc, w[e] + b + (unary[k + 1, j] if has_unary[k + 1] else 0.0))
+                prev[l, i] = acc
+        # normalise the smoothed marginal alpha + beta of node k; keep beta scaled to avoid underflow
+        tot = -np.inf
+        m = -np.inf
+        for l in range(L):
+            for i in range(N):
+                if prev[l, i] > m:
+                    m = prev[l, i]
+                tot = _lae(tot, alpha[k, l, i] + prev[l, i])
+        for l in range(L):
+            for i in range(N):
+                post[k, l, i] = alpha[k, l, i] + prev[l, i] - tot
+                beta[l, i] = prev[l, i] - m
+    return 0
+
+
+def edge_log_kernel(grid: CrfGrid, disp: np.ndarray, sigma: float, log_prior: np.ndarray | None = None) -> np.ndarray:
+    """(E,) normalised log transition weights of every edge for one displacement ``disp`` (2,) m (layer 0, no
+    offset); numpy, the readable form of the kernel the numba passes use (tests)."""
+    vx, vy = _edge_vectors(grid)
+    lp = np.zeros(grid.n_cells) if log_prior is None else np.asarray(log_prior, float)
+    w = -((vx - disp[0]) ** 2 + (vy - disp[1]) ** 2) / (2 * sigma**2) + lp[grid.dst]
+    src = np.repeat(np.arange(grid.n_cells), np.diff(grid.src_ptr))
+    m = np.full(grid.n_cells, -np.inf)
+    np.maximum.at(m, src, w)
+    z = np.zeros(grid.n_cells)
+    np.add.at(z, src, np.exp(w - m[src]))
+    return w - (m + np.log(z))[src]
+
+
+def _edge_vectors(grid: CrfGrid) -> tuple[np.ndarray, np.ndarray]:
+    d = grid.xy[grid.dst] - grid.xy[np.repeat(np.arange(grid.n_cells), np.diff(grid.src_ptr))]
+    return np.ascontiguousarray(d[:, 0]), np.ascontiguousarray(d[:, 1])
+
+
+def _prepare(grid, disp, sigma, unary, log_init, log_prior, layers):
+    K = len(unary)
+    N = grid.n_cells
+    disp = np.asarray(disp, float).reshape(-1, 2)
+    if len(disp) != K - 1:
+        raise ValueError(f"smoother: disp must be (K-1, 2) = ({K - 1}, 2), got {disp.shape}")
+    sigma = np.broadcast_to(np.asarray(sigma, float), (max(K - 1, 0),)).copy()
+    if (sigma <= 0).any():
+        raise ValueError("smoother: sigma must be > 0")
+    has = np.array([u is not None for u in unary])
+    U = np.zeros((K, N))
+    for k, u in enumerate(unary):
+        if u is not None:
+            U[k] = u
+    li = np.full(N, -math.log(N)) if log_init is None else np.asarray(log_init, float)
+    lp = np.zeros(N) if log_prior is None else np.asarray(log_prior, float)
+    layers = layers or Layers()
+    ca, sa = layers.arrays()
+    check_memory(2.0 * K * layers.n * N * 4 + K * N * 8, f"a walk smoother of {K:,} nodes x {layers.n} layers x "
+                 f"{N:,} cells", "smoother (dt_s, layers, cell_m)")
+    vx, vy = _edge_vectors(grid)
+    return K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy
+
+
+def _stats(P: np.ndarray, xy: np.ndarray):
+    """(mean (K, 2), cov (K, 2, 2), mode (K,)) of cell marginals P (K, N) (summing to 1 per row)."""
+    mean = P @ xy
+    d = xy[None, :, :] - mean[:, None, :]
+    cov = np.einsum("kn,kni,knj->kij", P, d, d)
+    return mean, cov, P.argmax(axis=1)
+
+
+def forward_backward(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_init: np.ndarray | None = None,
+                     log_prior: np.ndarray | None = None, layers: Layers | None = None,
+                     prune: float = 1e-9) -> SmootherResult:
+    """Filtered and smoothed marginals of the walk model (module doc).
+
+    grid: the walkable cells (N) and their edges; disp (K-1, 2) m: the odometry displacement between consecutive
+    nodes (world frame); sigma: scalar or (K-1,) m, the displacement noise per interval; unary: K entries, each (N,)
+    log-likelihood of the node's observations per cell or None (no observation); log_init (N,): log start
+    distribution (None: uniform over the cells); log_prior (N,): log weight of a target cell in every transition
+    (None: flat); layers: the heading-offset / step-scale hypotheses; prune: the forward pruning threshold."""
+    K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy = _prepare(grid, disp, sigma, unary, log_init, log_prior,
+                                                                 layers)
+    L = len(ca)
+    pl = math.log(prune) if prune > 0 else -np.inf
+    alpha = np.empty((K, L, N), np.float64)
+    logev = _forward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, li, pl, False, alpha,
+                     np.empty((1, 1, 1), np.int32))
+    post = np.empty((K, L, N), np.float64)
+    _backward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, alpha, pl, post)
+    Pf = np.exp(alpha).sum(axis=1)
+    Ps = np.exp(post).sum(axis=1)
+    fm, fc, fo = _stats(Pf / Pf.sum(1, keepdims=True), grid.xy)
+    sm, sc, so = _stats(Ps / Ps.sum(1, keepdims=True), grid.xy)
+    lay = np.exp(post[0]).sum(axis=1)
+    return SmootherResult(fm, fc, fo, sm, sc, so, lay / lay.sum(), float(logev))
+
+
+def viterbi(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_init: np.ndarray | None = None,
+            log_prior: np.ndarray | None = None, layers: Layers | None = None, prune: float = 1e-9
+            ) -> tuple[np.ndarray, int]:
+    """The most probable (cell (K,), layer) sequence of the walk model (same arguments as
+    :func:`forward_backward`); pruning on the max-product messages normalised to sum to one."""
+    K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy = _prepare(grid, disp, sigma, unary, log_init, log_prior,
+                                                                 layers)
+    L = len(ca)
+    pl = math.log(prune) if prune > 0 else -np.inf
+    delta = np.empty((K, L, N), np.float64)
+    back = np.full((K, L, N), -1, np.int32)
+    _forward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, li, pl, True, delta, back)
+    l, j = np.unravel_index(int(np.argmax(delta[K - 1])), (L, N))
+    path = np.empty(K, np.int64)
+    path[K - 1] = j
+    for k in range(K - 1, 0, -1):
+        j = int(back[k, l, j])
+        path[k - 1] = j
+    return path, int(l)
+
+
+def brute_force(grid: CrfGrid, disp, sigma, unary: list, log_init=None, log_prior=None, layers: Layers | None = None):
+    """Exact (marginals (K, N), best path (K,), best layer) of a tiny model by enumerating all L x N^K sequences
+    over the grid's edges (the reference of the tests; exponential)."""
+    K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy = _prepare(grid, disp, sigma, unary, log_init, log_prior,
+                                                                 layers)
+    L = len(ca)
+    logw = {}
+    for k in range(K - 1):
+        for l in range(L):
+            p = np.array([ca[l] * disp[k, 0] - sa[l] * disp[k, 1], sa[l] * disp[k, 0] + ca[l] * disp[k, 1]])
+            e_lw = -((vx - p[0]) ** 2 + (vy - p[1]) ** 2) / (2 * sigma[k] ** 2) + lp[grid.dst]
+            for i in range(N):
+                a, b = grid.src_ptr[i], grid.src_ptr[i + 1]
+                z = np.logaddexp.reduce(e_lw[a:b])
+                for e in range(a, b):
+                    logw[(k, l, i, int(grid.dst[e]))] = e_lw[e] - z
+    M = np.zeros((K, N))
+    best, best_path, best_l = -np.inf, None, 0
+    tot = -np.inf
+    for l in range(L):
+        for seq in itertools.product(range(N), repeat=K):
+            v = li[seq[0]] - math.log(L) + U[0, seq[0]]
+            for k in range(K - 1):
+                key = (k, l, seq[k], seq[k + 1])
+                if key not in logw:
+                    v = -np.inf
+                    break
+                v += logw[key] + U[k + 1, seq[k + 1]]
+            if v == -np.inf:
+                continue
+            tot = np.logaddexp(tot, v)
+            for k in range(K):
+                M[k, seq[k]] += math.exp(v)
+            if v > best:
+                best, best_path, best_l = v, np.array(seq), l
+    return M / math.exp(tot), best_path, best_l

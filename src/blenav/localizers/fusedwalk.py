@@ -1,0 +1,226 @@
+"""A phone walk with no known start (issue 30): position fixes + inertial odometry + the floor plan + where the train
+walks went, fused on the walkable grid by :mod:`blenav.crf.smoother`.
+
+``fused-offline`` (``mode: offline``) is the forward-backward smoothed marginal mean of every node (the whole walk
+informs every estimate: survey analysis, heat maps, the evaluation itself); ``fused-online`` (``mode: online``) the
+forward (filtered) marginal mean, i.e. what a phone running the same model would show at that instant (0 s behind
+the present), from the first node with a fix on (before it the model knows only the floor). Both rows share one
+forward-backward pass per walk (``inputs.cache``).
+
+The model of a walk (nodes every ``dt_s`` seconds, cells of ``grid.cell_m`` over the floor plan's free space, edges up
+to ``grid.max_step_m`` that do not cross a wall, :func:`blenav.crf.grid.build_grid`):
+
+* start: uniform over the walkable cells (no ground truth, no first fix assumed right);
+* motion: the PDR odometry of :func:`blenav.filters.pdr_odometry.pdr_odometry` (detected steps along the phone's
+  rotation vector or AHRS heading, the step length fitted on the train walks), its displacement over each interval
+  with std ``motion.sigma0_m + motion.sigma_per_m`` x its length, under ``layers``: hypotheses of the walk's heading
+  offset and step scale (constant per walk; the posterior weighs them), not trusted as given;
+* position prior (``path_prior``, from the train walks only): each transition's target cell weighted by
+  (density of the train walks' positions, interpolated between their waypoints every 0.5 s, blurred by
+  ``blur_m``, + ``floor`` / N) ^ ``weight``: walkers go where walkers went (the challenge's corridor prior);
+* fixes: the first role of ``fix_roles`` the session has (the experiment's ``fixes`` block; each fix its own std,
+  e.g. the KNN's calibrated ``fix_std``), each a heavy-tailed likelihood
+  (1 - ``fix_outlier``) N(cell; fix, std^2 I) + ``fix_outlier`` / N at its nearest node: a fix 20 m off costs a
+  bounded amount, so it cannot drag the track.
+
+Estimates: (R identical runs) the marginal mean and covariance per node. numba via the smoother; the grid per floor
+and the walk's odometry are cached.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from blenav.crf.grid import build_grid
+from blenav.crf.smoother import Layers, forward_backward
+from blenav.errors import MissingStream
+from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fit_step_length, pdr_odometry
+
+from .base import Estimate, FixConsumer, Localizer, Trained
+from .inputs import RunInputs
+
+__all__ = ["FusedWalk", "MODES", "path_prior"]
+
+MODES = ("online", "offline")
+
+
+def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5) -> np.ndarray:
+    """(N,) density (sums to 1) over ``grid``'s cells of the labelled ``walks``' positions (interpolated linearly
+    between their waypoints every ``step_s`` s), blurred by a Gaussian of ``blur_m`` m over the cell raster."""
+    from scipy.ndimage import gaussian_filter
+
+    cnt = np.zeros(grid.n_cells)
+    for s in walks:
+        gt = s.groundtruth
+        if len(gt) < 2:
+            continue
+        t = np.arange(float(gt["t"].iloc[0]), float(gt["t"].iloc[-1]) + 1e-9, step_s)
+        xy = s.positions_at(t)[:, :2]
+        xy = xy[np.isfinite(xy).all(axis=1)]
+        if len(xy):
+            np.add.at(cnt, grid.cell_of(xy), 1.0)
+    img = np.zeros(grid.shape)
+    img[grid.cy, grid.cx] = cnt
+    img = gaussian_filter(img, blur_m / grid.cell_m)[grid.cy, grid.cx]
+    tot = img.sum()
+    return img / tot if tot > 0 else np.full(grid.n_cells, 1.0 / grid.n_cells)
+
+
+class FusedWalk(Localizer, FixConsumer, Trained):
+    """Fixes + PDR odometry + plan + train-walk prior on the walkable grid, no known start (module doc)."""
+
+    uses_floor_plan = True
+    fix_roles_are_alternatives = True  # the first role of fix_roles the session has
+
+    def __init__(self, name: str, shared=None, mode: str = "offline", fix_roles=("both", "ble"),
+                 odometry: dict | None = None, grid: dict | None = None, dt_s: float = 1.0,
+                 motion: dict | None = None, layers: dict | None = None, fix_outlier: float = 0.01,
+                 fix_std_scale: float = 1.0, path_prior: dict | None = None, prune: float = 1e-9):
+        super().__init__(name, shared)
+        if mode not in MODES:
+            raise ValueError(f"method {name!r}: mode must be one of {MODES}, got {mode!r}")
+        self.mode = mode
+        self.roles = [str(r) for r in (fix_roles or [])]
+        if not self.roles:
+            raise ValueError(f"method {name!r}: fix_roles names no role of the experiment's fixes block")
+        odo = dict(odometry or {})
+        self.heading = str(odo.get("heading", "orientation"))
+        if self.heading not in HEADINGS:
+            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS}, got {self.heading!r}")
+        self.step_length = odo.get("step_length")
+        g = {"cell_m": 1.0, "max_step_m": 3.0, **(grid or {})}
+        self.cell_m, self.max_step_m = float(g["cell_m"]), float(g["max_step_m"])
+        self.dt_s = float(dt_s)
+        mo = {"sigma0_m": 0.3, "sigma_per_m": 0.15, **(motion or {})}
+        self.sigma0, self.sigma_per = float(mo["sigma0_m"]), float(mo["sigma_per_m"])
+        la = {"heading_offsets_deg": [-5.7, 0.0, 5.7], "scales": [1.0], **(layers or {})}
+        self.layers = Layers(tuple(math.radians(float(a)) for a in la["heading_offsets_deg"]),
+                             tuple(float(s) for s in la["scales"]))
+        self.fix_outlier, self.fix_std_scale = float(fix_outlier), float(fix_std_scale)
+        pp = {"weight": 1.0, "floor": 0.05, "blur_m": 1.5, **(path_prior or {})}
+        self.prior_weight, self.prior_floor, self.prior_blur = float(pp["weight"]), float(pp["floor"]), float(pp["blur_m"])
+        self.prune = float(prune)
+        for what, v, lo in (("dt_s", self.dt_s, 1e-3), ("grid.cell_m", self.cell_m, 0.05),
+                            ("motion.sigma0_m", self.sigma0, 1e-3), ("fix_std_scale", self.fix_std_scale, 1e-3)):
+            if not v >= lo:
+                raise ValueError(f"method {name!r}: {what} must be >= {lo}, got {v}")
+        if not 0.0 < self.fix_outlier < 1.0:
+            raise ValueError(f"method {name!r}: fix_outlier must be in (0, 1), got {self.fix_outlier}")
+        if self.max_step_m < self.cell_m:
+            raise ValueError(f"method {name!r}: grid.max_step_m ({self.max_step_m}) < grid.cell_m ({self.cell_m}): no "
+                             f"cell could reach another")
+        self.fitted_step: float | None = None
+        self.train: list = []
+
+    def fix_roles(self) -> list[str]:
+        return list(self.roles)
+
+    # ------------------------------------------------------------------ training
+    def fit(self, sessions: list, inputs: RunInputs) -> dict | None:
+        """The step length (unless given) and the train walks the path prior is built from (per floor, at run
+        time)."""
+        self.train = [s for s in sessions if s.labelled]
+        rep = {"path_prior_walks": len(self.train)}
+        if self.step_length is None:
+            key = ("rw-step-length", tuple(s.id for s in sessions), "default")
+            if key not in inputs.cache:
+                inputs.cache[key] = fit_step_length(sessions, None, inputs.cache)
+            self.fitted_step = float(inputs.cache[key]["step_length_m"])
+            rep["step_length"] = inputs.cache[key]
+        return rep
+
+    def _step(self) -> float:
+        if self.step_length is not None:
+            return float(self.step_length)
+        return self.fitted_step if self.fitted_step is not None else DEFAULT_STEP_M
+
+    def _floor_model(self, session, cache: dict):
+        """(grid, log target weights (N,)) of the session's floor (cached per floor and settings)."""
+        key = ("fused-walk-grid", session.building.id, str(session.meta.get("floor")), self.cell_m, self.max_step_m,
+               tuple(s.id for s in self.train), self.prior_weight, self.prior_floor, self.prior_blur)
+        if key not in cache:
+            grid = build_grid(session.floor, cell_m=self.cell_m, max_step_m=self.max_step_m)
+            same = [s for s in self.train if s.building.id == session.building.id
+                    and str(s.meta.get("floor")) == str(session.meta.get("floor"))]
+            if same and self.prior_weight > 0:
+                dens = path_prior(grid, same, self.prior_blur)
+                lp = self.prior_weight * np.log(dens + self.prior_floor / grid.n_cells)
+            else:
+                lp = np.zeros(grid.n_cells)
+            cache[key] = (grid, lp, len(same))
+        return cache[key]
+
+    def _fixes(self, inputs: RunInputs):
+        """The first role of ``fix_roles`` the session has: (role, RoleFixes)."""
+        why = []
+        for role in self.roles:
+            try:
+                return role, inputs.fixes[role]
+            except MissingStream as exc:
+                why.append(str(exc))
+        raise MissingStream(f"{self.name}: no fixes of roles {self.roles}: " + "; ".join(why))
+
+    # ------------------------------------------------------------------ running
+    def smooth(self, session, inputs: RunInputs) -> dict:
+        """The walk's forward-backward result and its nodes (cached per session and settings for both modes)."""
+        if inputs.fixes is None:
+            raise MissingStream(f"{self.name}: the experiment has no fixes block (roles {self.roles})")
+        role, fx = self._fixes(inputs)
+        key = ("fused-walk", session.id, role, id(fx), self._step(), self.heading, self.cell_m, self.max_step_m,
+               self.dt_s, self.sigma0, self.sigma_per, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
+               self.prior_floor, self.prior_blur, self.prune, tuple(s.id for s in self.train))
+        if key in inputs.cache:
+            return inputs.cache[key]
+        t0 = time.perf_counter()
+        ok = np.isfinite(fx.xy).all(axis=1)
+        if not ok.any():
+            raise MissingStream(f"session {session.id}: no finite {role} fix")
+        ft, fxy = fx.t[ok], fx.xy[ok]
+        fsd = self.fix_std_scale * np.where(np.isfinite(fx.std[ok]) & (fx.std[ok] > 0), fx.std[ok], 3.0)
+        odo = pdr_odometry(session, self.heading, self._step(), cache=inputs.cache)
+        grid, log_prior, n_prior = self._floor_model(session, inputs.cache)
+        t_lo, t_hi = float(min(odo["t"].iloc[0], ft[0])), float(max(odo["t"].iloc[-1], ft[-1]))
+        T = np.arange(t_lo, t_hi + 0.5 * self.dt_s, self.dt_s)
+        ox = np.interp(T, odo["t"].to_numpy(float), odo["x"].to_numpy(float))
+        oy = np.interp(T, odo["t"].to_numpy(float), odo["y"].to_numpy(float))
+        disp = np.diff(np.column_stack([ox, oy]), axis=0)
+        sigma = self.sigma0 + self.sigma_per * np.hypot(disp[:, 0], disp[:, 1])
+        node = np.clip(np.round((ft - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
+        unary: list = [None] * len(T)
+        lo_out = math.log(self.fix_outlier / grid.n_cells)
+        for k, xy, sd in zip(node, fxy, fsd):  # fixes: F per walk (a few dozen), each (N,): one numpy pass each
+            d2 = ((grid.xy - xy) ** 2).sum(axis=1)
+            ll = np.logaddexp(math.log1p(-self.fix_outlier) - d2 / (2.0 * sd * sd) - math.log(2.0 * math.pi * sd * sd),
+                              lo_out)
+            unary[k] = ll if unary[k] is None else unary[k] + ll
+        res = forward_backward(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers, prune=self.prune)
+        out = {"t": T, "res": res, "first_fix": int(node.min()), "role": role, "n_fixes": int(len(ft)),
+               "prior_walks": n_prior, "wall_s": time.perf_counter() - t0}
+        inputs.cache[key] = out
+        return out
+
+    def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
+        t0 = time.perf_counter()
+        inputs = inputs or RunInputs()
+        sm = self.smooth(session, inputs)
+        r, T = sm["res"], sm["t"]
+        if self.mode == "online":
+            k0 = sm["first_fix"]
+            t, pos, cov = T[k0:], r.filtered_mean[k0:], r.filtered_cov[k0:]
+        else:
+            t, pos, cov = T, r.smoothed_mean, r.smoothed_cov
+        if not np.isfinite(pos).all():
+            raise ValueError(f"{self.name}: non-finite position on session {session.id}")
+        R = int(n_runs)
+        best = int(np.argmax(r.layer_post))
+        th = self.layers.heading_offsets_rad[best // len(self.layers.scales)]
+        sc = self.layers.scales[best % len(self.layers.scales)]
+        return Estimate(self.name, session.id, t, np.broadcast_to(pos, (R,) + pos.shape).copy(),
+                        np.broadcast_to(cov, (R,) + cov.shape).copy(), wall_s=time.perf_counter() - t0 + sm["wall_s"],
+                        notes=[f"{self.mode}: fixes of role {sm['role']} + PDR odometry (heading {self.heading}, step "
+                               f"{self._step():.3f} m) + plan + train-walk prior ({sm['prior_walks']} walks), "
+                               f"uniform start; grid {self.cell_m:g} m, {self.layers.n} heading/scale layers"],
+                        outputs={"layer": {"heading_offset_deg": math.degrees(th), "step_scale": sc}})

@@ -1,0 +1,90 @@
+"""FusedWalk (issue 30): fixes + PDR odometry + plan + train-walk prior on the walkable grid, no known start."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from helpers import as_waypoint_walks, simulate_small
+
+from blenav.crf.grid import build_grid
+from blenav.data import Dataset
+from blenav.data.session import Session
+from blenav.localizers.fingerprint import FingerprintLocalizer
+from blenav.localizers.fusedwalk import FusedWalk, path_prior
+from blenav.localizers.inputs import Fixes, RoleFixes, RunInputs
+
+
+@pytest.fixture(scope="module")
+def walks(tmp_path_factory):
+    root = as_waypoint_walks(simulate_small(tmp_path_factory.mktemp("fw") / "d", 5, 40, 3))
+    ds = Dataset.open(root)
+    return [ds.session(i) for i in ds.session_ids]
+
+
+def _fixes(loc, session):
+    est = loc.run(session, 1, 0)
+    return Fixes(roles={"both": RoleFixes(est.t, est.position[0], np.sqrt(np.trace(est.cov[0], axis1=1, axis2=2) / 2),
+                                           "fix-both", computed=True)})
+
+
+def test_no_ground_truth_of_the_walk_is_read_and_both_modes_share_one_pass(walks, monkeypatch):
+    """The walk's estimates come from its sensors, the plan and the train walks only: reading the scored walk's
+    ground truth fails the run; the online row starts at the first fix, the offline row covers the whole walk, and
+    the second mode reuses the first's pass."""
+    train, test = walks[:2], walks[2]
+    knn = FingerprintLocalizer("KNN", features="ble", fix_std="calibrated")
+    knn.fit(train)
+    inputs = RunInputs(cache={})
+    online, offline = FusedWalk("on", mode="online"), FusedWalk("off", mode="offline")
+    for m in (online, offline):
+        m.fit(train, inputs)
+    fx = _fixes(knn, test)
+    real = Session.groundtruth
+
+    def guarded(self):
+        if self.id == test.id:
+            raise AssertionError("the scored walk's ground truth was read")
+        return real.fget(self)
+
+    monkeypatch.setattr(Session, "groundtruth", property(guarded))
+    e_on = online.run(test, 2, 0, inputs.with_fixes(fx))
+    n_cached = len(inputs.cache)
+    e_off = offline.run(test, 2, 0, inputs.with_fixes(fx))
+    assert len(inputs.cache) == n_cached  # the offline row: the same forward-backward pass
+    monkeypatch.setattr(Session, "groundtruth", real)
+    assert e_on.t[0] >= fx["both"].t[0] - 0.5 and e_off.t[0] <= e_on.t[0]
+    assert np.isfinite(e_on.position).all() and np.isfinite(e_off.position).all()
+    assert e_off.position.shape[0] == 2 and np.array_equal(e_off.position[0], e_off.position[1])
+    gt = test.positions_at(e_off.t)[:, :2]
+    ok = np.isfinite(gt).all(axis=1)
+    err_off = np.linalg.norm(e_off.position[0][ok] - gt[ok], axis=1).mean()
+    fix_gt = test.positions_at(fx["both"].t)[:, :2]
+    err_fix = np.nanmean(np.linalg.norm(fx["both"].xy - fix_gt, axis=1))
+    assert err_off < err_fix, (err_off, err_fix)
+
+
+def test_a_session_without_the_role_is_skipped_with_the_reason(walks):
+    from blenav.errors import MissingStream
+
+    m = FusedWalk("off", fix_roles=["wifi", "both"])
+    with pytest.raises(MissingStream, match="no fixes of roles"):
+        m.run(walks[0], 1, 0, RunInputs(fixes=Fixes(missing={"wifi": "no wifi.csv", "both": "no scans"})))
+    with pytest.raises(MissingStream, match="no fixes block"):
+        m.run(walks[0], 1, 0, RunInputs())
+
+
+def test_path_prior_is_a_density_where_the_walks_went(walks):
+    g = build_grid(walks[0].floor, cell_m=1.0, max_step_m=3.0)
+    p = path_prior(g, walks[:2], blur_m=1.0)
+    assert np.isclose(p.sum(), 1.0) and (p >= 0).all()
+    on = g.cell_of(walks[0].positions_at(walks[0].groundtruth["t"].to_numpy(float))[:, :2])
+    assert p[on].mean() > 5 * p.mean()
+
+
+@pytest.mark.parametrize("bad, match", [({"mode": "both"}, "mode"), ({"fix_roles": []}, "fix_roles"),
+                                        ({"fix_outlier": 0.0}, "fix_outlier"), ({"grid": {"max_step_m": 0.5}}, "max_step_m"),
+                                        ({"odometry": {"heading": "compass"}}, "heading")])
+def test_settings_are_checked(bad, match):
+    with pytest.raises(ValueError, match=match):
+        FusedWalk("x", **bad)
