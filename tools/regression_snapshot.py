@@ -106,10 +106,12 @@ EXPERIMENTS = {
                                             "+split={train_fraction: 0.5, seed: 0}",
                                             "methods.locnet_ble." + SMALL_NET]),
     "realwalks": (["ilc", "mapprior"], ["data={ilc}", "runs=1", "model_path={mapprior}",
-                                        "methods.locnet_wifi." + SMALL_NET, "methods.transnet_wifi." + SMALL_NET]),
+                                        "methods.locnet_wifi." + SMALL_NET, "methods.transnet_wifi." + SMALL_NET,
+                                        "methods.net_both." + SMALL_NET]),
     "realwalks_mapped": (["ilc_mapped", "mapprior"], ["experiment=realwalks", "data={ilc_mapped}", "runs=1",
                                                       "model_path={mapprior}", "methods.locnet_wifi." + SMALL_NET,
-                                                      "methods.transnet_wifi." + SMALL_NET]),
+                                                      "methods.transnet_wifi." + SMALL_NET,
+                                                      "methods.net_both." + SMALL_NET]),
 }
 
 

@@ -108,3 +108,16 @@ def test_a_uniform_start_converges_and_the_layers_find_the_heading_offset():
     r = forward_backward(g, disp, 0.4, unary, layers=layers)
     assert int(np.argmax(r.layer_post)) == 2
     assert np.linalg.norm(r.smoothed_mean - truth, axis=1)[5:].mean() < 1.0
+
+
+def test_pruning_that_cuts_every_path_still_gives_a_finite_track():
+    """With a pruning threshold no cell reaches (0.9 on a spread-out posterior), the backward pass finds no path to the
+    future: those nodes keep their filtered marginal, and every estimate stays finite."""
+    g = _corridor(20.0)
+    rng = np.random.default_rng(2)
+    K = 12
+    disp = np.tile([1.0, 0.0], (K - 1, 1))
+    unary = [_fix_unary(g, np.array([3.0 + k, 2.0]) + rng.normal(0, 3, 2), 6.0) for k in range(K)]
+    r = forward_backward(g, disp, 0.5, unary, prune=0.9)
+    assert np.isfinite(r.smoothed_mean).all() and np.isfinite(r.filtered_mean).all()
+    assert np.isfinite(r.smoothed_cov).all()

@@ -67,3 +67,16 @@ def test_fix_coverage_counts_the_waypoints_inside_the_stated_regions():
     pooled = pool_fix_coverage([{"wifi": (1, 2, 3)}, {"wifi": (3, 3, 3), "ble": (0, 1, 2)}])
     assert pooled == {"ble": {"1sigma": 0.0, "2sigma": 0.5, "waypoints": 2},
                       "wifi": {"1sigma": 4 / 6, "2sigma": 5 / 6, "waypoints": 6}}
+
+
+def test_convergence_is_the_time_from_which_the_track_stays_within_5_m():
+    from blenav.eval.metrics import convergence_times, pool_convergence
+
+    tw = np.array([0.0, 5.0, 10.0, 15.0, 20.0])
+    err = np.array([[20.0, 4.0, 9.0, 3.0, 2.0],    # settles at the 4th waypoint: 15 s
+                    [1.0, 2.0, 3.0, 4.0, 4.9],     # from the start: 0 s
+                    [1.0, 1.0, 1.0, 1.0, 6.0]])    # never settles (ends above 5 m)
+    got = convergence_times(err, tw)
+    np.testing.assert_array_equal(got[:2], [15.0, 0.0])
+    assert np.isnan(got[2])
+    assert pool_convergence([got]) == {"within_m": 5.0, "settled": 2 / 3, "median_s": 7.5, "p90_s": 13.5}

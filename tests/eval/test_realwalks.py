@@ -17,7 +17,7 @@ from blenav.filters.motion_pdr import pdr_track
 from blenav.filters.steps import StepDetectorConfig
 
 CONTRACT = ("KNN-WiFi", "LocNet-WiFi", "PDR", "PDR+map", "PDR+learned-map", "WiFi+PDR+map", "WiFi+PDR+learned-map",
-            "BLE+PDR+learned-map", "fused-online", "fused-offline")
+            "BLE+PDR+learned-map", "fused-online", "fused-offline", "Net-WiFi+BLE")
 
 
 def _cfg(*overrides):
@@ -51,7 +51,7 @@ def test_realwalks_on_simulated_waypoint_walks(tmp_path):
     run and give finite errors at the waypoints; WiFi rows are skipped with the reason (no wifi.csv)."""
     data = as_waypoint_walks(simulate_small(tmp_path / "d", 3, 40, 4))
     res = evaluate(_cfg("experiment=realwalks", f"data={data}", "runs=1", f"out={tmp_path / 'o'}",
-                        "methods.locnet_wifi=null", "methods.transnet_wifi=null", "methods.crf=null",
+                        "methods.locnet_wifi=null", "methods.transnet_wifi=null", "methods.net_both=null", "methods.crf=null",
                         "methods.imu=null", "methods.pf_pl=null", "methods.pf_ps=null", "filter.n_particles=200"))
     assert res["split"]["train_fraction"] == 0.5 and len(res["split"]["train"]) == 2 and len(res["sessions"]) == 2
     m = res["methods"]
@@ -66,6 +66,7 @@ def test_realwalks_on_simulated_waypoint_walks(tmp_path):
         assert all(np.isfinite(m[row]["error_m"][k]) for k in ("mean", "median", "p90")), row
         cov = m[row]["fix_coverage"]["ble"]  # no WiFi in the simulator: the BLE role
         assert 0 <= cov["1sigma"] <= cov["2sigma"] <= 1 and cov["waypoints"] > 0
+        assert 0 <= m[row]["convergence"]["settled"] <= 1
 
 
 def _unpack_walks(raw_dir, tmp_path, floor="F1", n=6):
@@ -103,7 +104,8 @@ def test_realwalks_contract_on_real_walks(raw_dir, tmp_path):
     try:
         res = evaluate(_cfg("experiment=realwalks", f"data={data}", "runs=1", f"out={tmp_path / 'o'}",
                             "model_path=feasibility", "methods.transnet_wifi.trainer={budget: {max_steps: 20}}",
-                            "methods.locnet_wifi.trainer={budget: {max_steps: 20}}", "filter.n_particles=200"))
+                            "methods.locnet_wifi.trainer={budget: {max_steps: 20}}",
+                            "methods.net_both.trainer={budget: {max_steps: 20}}", "filter.n_particles=200"))
     finally:
         particle.load_prior = orig
     assert len(res["sessions"]) == 3
@@ -280,7 +282,8 @@ def test_train_ids_and_table_rows_come_from_the_experiment(tmp_path):
     assert len(train_ids_of(str(data), train_fraction=0.75)) == 3
     rows = table_rows_of()
     assert set(CONTRACT) <= set(rows["all"]) and {r for _, a, b in OUTCOMES for r in (a, b)} <= set(rows["all"])
-    assert rows["fingerprint"] == ("KNN-WiFi", "KNN-BLE", "KNN-WiFi+BLE", "LocNet-WiFi", "TransNet+LocNet-WiFi")
+    assert rows["fingerprint"] == ("KNN-WiFi", "KNN-BLE", "KNN-WiFi+BLE", "LocNet-WiFi", "TransNet+LocNet-WiFi",
+                                   "Net-WiFi+BLE")
     assert "WiFi+PDR+learned-map" in rows["fused"] and "PDR+map" not in rows["fused"]
     assert {"fused-online", "fused-offline"} <= set(rows["fused"])
 

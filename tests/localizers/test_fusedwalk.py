@@ -88,3 +88,23 @@ def test_path_prior_is_a_density_where_the_walks_went(walks):
 def test_settings_are_checked(bad, match):
     with pytest.raises(ValueError, match=match):
         FusedWalk("x", **bad)
+
+
+def test_offline_estimates_mode_and_viterbi_are_cells_of_the_grid(walks):
+    train, test = walks[:2], walks[2]
+    knn = FingerprintLocalizer("KNN", features="ble", fix_std="calibrated")
+    knn.fit(train)
+    fx = _fixes(knn, test)
+    inputs = RunInputs(cache={})
+    out = {}
+    for est in ("mean", "mode", "viterbi"):
+        m = FusedWalk(est, estimate=est)
+        m.fit(train, inputs)
+        out[est] = m.run(test, 1, 0, inputs.with_fixes(fx))
+        assert np.isfinite(out[est].position).all() and np.isfinite(out[est].cov).all()
+    g = build_grid(test.floor, cell_m=1.0, max_step_m=3.0)
+    for est in ("mode", "viterbi"):
+        d = np.linalg.norm(out[est].position[0][:, None] - g.xy[None], axis=2).min(axis=1)
+        assert d.max() < 1e-9, est
+    with pytest.raises(ValueError, match="estimate"):
+        FusedWalk("x", mode="online", estimate="viterbi")

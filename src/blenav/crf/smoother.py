@@ -222,6 +222,12 @@ def _backward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_u
                 if prev[l, i] > m:
                     m = prev[l, i]
                 tot = _lae(tot, alpha[k, l, i] + prev[l, i])
+        if tot == -np.inf:  # pruning cut every path to the future: this node keeps its filtered marginal (restart)
+            for l in range(L):
+                for i in range(N):
+                    post[k, l, i] = alpha[k, l, i]
+                    beta[l, i] = 0.0
+            continue
         for l in range(L):
             for i in range(N):
                 post[k, l, i] = alpha[k, l, i] + prev[l, i] - tot

@@ -63,7 +63,8 @@ from .common import output_name
 from .config import EvalConfig, parse_eval_config
 from .evaluators import evaluate
 from .fixes import FixProvider
-from .metrics import cdf_band, fix_coverage_counts, pool, pool_fix_coverage, session_metrics, waypoint_metrics
+from .metrics import (cdf_band, convergence_times, fix_coverage_counts, pool, pool_convergence, pool_fix_coverage,
+                      session_metrics, waypoint_metrics)
 from .result import MethodResult, TrajectoryResult, write_results
 from .sessions import select_sessions
 
@@ -301,6 +302,8 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
                    for r, f in inp.fixes.roles.items()}
             if any(c is not None for c in cov.values()):
                 m["fix_coverage"] = {r: c for r, c in cov.items() if c is not None}
+            # no known start: how long until the track settles within CONVERGED_M
+            m["_convergence_s"] = convergence_times(m["_runs"]["err"], m["_runs"]["t"])
         oc.metrics[s.id], oc.results[s.id] = m, est
         progress(f"{name} / {s.id}")
     return oc
@@ -339,10 +342,11 @@ def aggregate(oc: MethodOutcome, runs: int) -> MethodResult:
         res.beacon_error_m = {k: float(np.mean([e[k] for e in errs if e[k] is not None]))
                               if any(e[k] is not None for e in errs) else None for k in ("prior", "optimized")}
     res.fix_coverage = pool_fix_coverage([m["fix_coverage"] for m in oc.metrics.values() if "fix_coverage" in m])
+    res.convergence = pool_convergence([m["_convergence_s"] for m in oc.metrics.values() if "_convergence_s" in m])
     orient = [m["orientation_rmse_deg"] for m in oc.metrics.values() if "orientation_rmse_deg" in m]
     if orient:
         res.orientation_rmse_deg = float(np.mean(orient))
-    res.per_session = {k: {kk: vv for kk, vv in v.items() if kk != "_runs"} for k, v in oc.metrics.items()}
+    res.per_session = {k: {kk: vv for kk, vv in v.items() if not kk.startswith("_")} for k, v in oc.metrics.items()}
     return res
 
 

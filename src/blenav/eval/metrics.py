@@ -116,6 +116,33 @@ def fix_coverage_counts(t: np.ndarray, xy: np.ndarray, std: np.ndarray, gt_t: np
     return int((e <= sd).sum()), int((e <= 2.0 * sd).sum()), int(len(e))
 
 
+#: error (m) below which a track counts as converged (:func:`convergence_times`)
+CONVERGED_M = 5.0
+
+
+def convergence_times(err: np.ndarray, tw: np.ndarray, within_m: float = CONVERGED_M) -> np.ndarray:
+    """(R,) s per run: the time from the first scored waypoint to the first waypoint from which every later error is
+    within ``within_m``; NaN for a run that never settles (its last error above it). err (R, W) m at times tw (W,)."""
+    ok = err <= within_m
+    # index of the first waypoint of the final run of True values: after the last False
+    last_bad = np.where(~ok, np.arange(err.shape[1])[None, :], -1).max(axis=1)
+    out = np.full(err.shape[0], np.nan)
+    settled = last_bad < err.shape[1] - 1
+    out[settled] = tw[last_bad[settled] + 1] - tw[0]
+    return out
+
+
+def pool_convergence(per_session: list[np.ndarray], within_m: float = CONVERGED_M) -> dict | None:
+    """Over (session x run) values of :func:`convergence_times`: median / p90 seconds of those that settle and the share
+    that settle."""
+    v = np.concatenate(per_session) if per_session else np.zeros(0)
+    if not v.size:
+        return None
+    s = v[np.isfinite(v)]
+    return {"within_m": within_m, "settled": float(s.size / v.size),
+            "median_s": float(np.median(s)) if s.size else None, "p90_s": float(np.percentile(s, 90)) if s.size else None}
+
+
 def pool_fix_coverage(per_session: list[dict]) -> dict | None:
     """Per role, the shares of waypoints inside the fixes' 1-sigma / 2-sigma regions pooled over sessions
     (``{role: (n1, n2, n)}`` each, from :func:`fix_coverage_counts`): ``{role: {"1sigma", "2sigma", "waypoints"}}``."""

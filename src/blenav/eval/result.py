@@ -68,6 +68,7 @@ class MethodResult:
     beacon_error_m: dict | None = None
     orientation_rmse_deg: float | None = None
     fix_coverage: dict | None = None  # role -> {1sigma, 2sigma, waypoints}: the fixes a fused method weighed
+    convergence: dict | None = None  # a fused method on sparse ground truth: time until it settles (metrics.pool_convergence)
     per_session: dict = field(default_factory=dict)
     windows: WindowStats | None = None
     bound: BoundStats | None = None
@@ -115,6 +116,8 @@ class MethodResult:
                 out["orientation_rmse_deg"] = self.orientation_rmse_deg
             if self.fix_coverage is not None:
                 out["fix_coverage"] = self.fix_coverage
+            if self.convergence is not None:
+                out["convergence"] = self.convergence
             out["per_session"] = self.per_session
             if self.peak_memory is not None:
                 out["peak_memory"] = self.peak_memory

@@ -35,7 +35,7 @@ import time
 import numpy as np
 
 from blenav.crf.grid import build_grid
-from blenav.crf.smoother import Layers, forward_backward
+from blenav.crf.smoother import Layers, forward_backward, viterbi
 from blenav.errors import MissingStream
 from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fit_step_length, pdr_odometry
 
@@ -45,6 +45,9 @@ from .inputs import RunInputs
 __all__ = ["FusedWalk", "MODES", "path_prior"]
 
 MODES = ("online", "offline")
+#: what an offline row reports per node: the smoothed marginal's mean (default) or its most probable cell, or the most
+#: probable joint path (Viterbi); measured on the train walks (docs/results-ilc20.md)
+ESTIMATES = ("mean", "mode", "viterbi")
 
 
 def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5) -> np.ndarray:
@@ -75,14 +78,17 @@ class FusedWalk(Localizer, FixConsumer, Trained):
     uses_floor_plan = True
     fix_roles_are_alternatives = True  # the first role of fix_roles the session has
 
-    def __init__(self, name: str, shared=None, mode: str = "offline", fix_roles=("both", "ble"),
+    def __init__(self, name: str, shared=None, mode: str = "offline", estimate: str = "mean", fix_roles=("both", "ble"),
                  odometry: dict | None = None, grid: dict | None = None, dt_s: float = 1.0,
                  motion: dict | None = None, layers: dict | None = None, fix_outlier: float = 0.01,
-                 fix_std_scale: float = 1.0, path_prior: dict | None = None, prune: float = 1e-9):
+                 fix_std_scale: float = 1.0, path_prior: dict | None = None, prune: float = 1e-6):
         super().__init__(name, shared)
         if mode not in MODES:
             raise ValueError(f"method {name!r}: mode must be one of {MODES}, got {mode!r}")
         self.mode = mode
+        if estimate not in ESTIMATES or (mode == "online" and estimate != "mean"):
+            raise ValueError(f"method {name!r}: estimate must be one of {ESTIMATES} (online: mean), got {estimate!r}")
+        self.estimate = estimate
         self.roles = [str(r) for r in (fix_roles or [])]
         if not self.roles:
             raise ValueError(f"method {name!r}: fix_roles names no role of the experiment's fixes block")
@@ -171,7 +177,7 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         role, fx = self._fixes(inputs)
         key = ("fused-walk", session.id, role, id(fx), self._step(), self.heading, self.cell_m, self.max_step_m,
                self.dt_s, self.sigma0, self.sigma_per, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
-               self.prior_floor, self.prior_blur, self.prune, tuple(s.id for s in self.train))
+               self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", tuple(s.id for s in self.train))
         if key in inputs.cache:
             return inputs.cache[key]
         t0 = time.perf_counter()
@@ -197,8 +203,12 @@ class FusedWalk(Localizer, FixConsumer, Trained):
                               lo_out)
             unary[k] = ll if unary[k] is None else unary[k] + ll
         res = forward_backward(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers, prune=self.prune)
+        path = None
+        if self.estimate == "viterbi":
+            path = grid.xy[viterbi(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers,
+                                   prune=self.prune)[0]]
         out = {"t": T, "res": res, "first_fix": int(node.min()), "role": role, "n_fixes": int(len(ft)),
-               "prior_walks": n_prior, "wall_s": time.perf_counter() - t0}
+               "prior_walks": n_prior, "wall_s": time.perf_counter() - t0, "viterbi": path, "grid_xy": grid.xy}
         inputs.cache[key] = out
         return out
 
@@ -210,8 +220,12 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         if self.mode == "online":
             k0 = sm["first_fix"]
             t, pos, cov = T[k0:], r.filtered_mean[k0:], r.filtered_cov[k0:]
-        else:
+        elif self.estimate == "mean":
             t, pos, cov = T, r.smoothed_mean, r.smoothed_cov
+        else:  # the smoothed marginal's mode, or the Viterbi path; the marginal's covariance about it
+            pos = sm["grid_xy"][r.smoothed_mode] if self.estimate == "mode" else sm["viterbi"]
+            d = pos - r.smoothed_mean
+            t, cov = T, r.smoothed_cov + np.einsum("ki,kj->kij", d, d)
         if not np.isfinite(pos).all():
             raise ValueError(f"{self.name}: non-finite position on session {session.id}")
         R = int(n_runs)

@@ -1,0 +1,78 @@
+"""Walk smoother speed (issue 30): the fused rows' forward-backward pass on real mall walks, per 90 s of walk.
+
+Target: smoothing a 90 s walk in under 1 s on this machine (``blenav.localizers.fusedwalk.FusedWalk.smooth``: the
+fixes' likelihoods, the PDR odometry read from the cache, the numba forward and backward passes and the marginals'
+statistics; the floor's grid and path prior are built once per floor, before the timing, as the evaluation does).
+Data: an imported ILC 2.0 floor (``blenav-import ilc20``), split as experiment=realwalks splits it; the fixes are
+KNN-WiFi+BLE's as experiment=realwalks configures it (fitted on the train walks, untimed). Printed per walk set: the
+walks, their seconds, the wall time, seconds per 90 s of walk (mean and the worst walk) with the ratio to the target
+(<= 1: met), the grid's cells and the layers. The numba kernels are compiled (or loaded from their cache) first. The
+machine is shared: the load average is printed too.
+
+    .venv/bin/python benchmarks/walk_smoother.py DATA [--walks 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from blenav.configs import compose
+from blenav.data import Dataset
+from blenav.eval.config import parse_eval_config
+from blenav.eval.sessions import scored_sessions, train_test
+from blenav.filters.pdr_odometry import pdr_odometry
+from blenav.localizers import build_localizer
+from blenav.localizers.inputs import Fixes, RoleFixes, RunInputs
+
+TARGET_S_PER_90S = 1.0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data", help="an imported ILC 2.0 floor (blenav-import ilc20)")
+    ap.add_argument("--walks", type=int, default=20, help="test walks timed (the first ones)")
+    args = ap.parse_args()
+    cfg = compose("eval", "experiment=realwalks", f"data={args.data}")
+    ecfg = parse_eval_config(cfg)
+    ds = Dataset.open(args.data)
+    train, test = train_test(ecfg, ds, scored_sessions(ecfg, ds))
+    knn = build_localizer("KNN-WiFi+BLE", cfg.methods.knn_both)
+    fused = build_localizer("fused-offline", cfg.methods.fused_offline)
+    inputs = RunInputs(cache={})
+    knn.fit(train)
+    fused.fit(train, inputs)
+    walks, fixes = test[: args.walks], {}
+    for s in walks:
+        e = knn.run(s, 1, 0)
+        sd = np.sqrt(np.trace(e.cov[0], axis1=1, axis2=2) / 2)
+        fixes[s.id] = Fixes({"both": RoleFixes(e.t, e.position[0], sd, "fix-both", computed=True)})
+    # untimed: the numba kernels, the floor's grid and prior, every walk's PDR odometry (read from the cache below)
+    fused.smooth(walks[0], inputs.with_fixes(fixes[walks[0].id]))
+    for s in walks:
+        pdr_odometry(s, fused.heading, fused._step(), cache=inputs.cache)
+    per, secs = [], 0.0
+    t0 = time.perf_counter()
+    for s in walks:
+        inputs.cache.pop(next((k for k in inputs.cache if k[:2] == ("fused-walk", s.id)), None), None)
+        a = time.perf_counter()
+        sm = fused.smooth(s, inputs.with_fixes(fixes[s.id]))
+        dt = time.perf_counter() - a
+        dur = float(sm["t"][-1] - sm["t"][0])
+        secs += dur
+        per.append(dt / max(dur, 1.0) * 90.0)
+    wall = time.perf_counter() - t0
+    grid = fused._floor_model(walks[0], inputs.cache)[0]
+    per = np.asarray(per)
+    print(f"{len(walks)} walks, {secs:.0f} s of walk, {wall:.2f} s wall; grid {grid.n_cells:,} cells of {fused.cell_m:g} m, "
+          f"{fused.layers.n} layers, dt {fused.dt_s:g} s")
+    print(f"per 90 s of walk: mean {per.mean():.3f} s, worst {per.max():.3f} s; target {TARGET_S_PER_90S:g} s -> "
+          f"ratio {per.max() / TARGET_S_PER_90S:.2f} (<= 1: met)")
+    print(f"load average {os.getloadavg()[0]:.2f} (2 cores)")
+
+
+if __name__ == "__main__":
+    main()
