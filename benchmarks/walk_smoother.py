@@ -53,7 +53,7 @@ def main() -> None:
     # untimed: the numba kernels, the floor's grid and prior, every walk's PDR odometry (read from the cache below)
     fused.smooth(walks[0], inputs.with_fixes(fixes[walks[0].id]))
     for s in walks:
-        pdr_odometry(s, fused.heading, fused._step(), cache=inputs.cache)
+        pdr_odometry(s, fused.heading_of(s), fused._step(), cache=inputs.cache)
     per, secs = [], 0.0
     t0 = time.perf_counter()
     for s in walks:

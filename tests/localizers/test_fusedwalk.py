@@ -82,7 +82,27 @@ def test_path_prior_is_a_density_where_the_walks_went(walks):
     assert p[on].mean() > 5 * p.mean()
 
 
+def test_a_walk_without_imu_is_smoothed_under_a_random_walk(walks, tmp_path):
+    """No imu.csv: the walk is not skipped; its fixes are smoothed under the random walk, and the notes say so."""
+    import shutil
+
+    from blenav.data import Dataset as DS
+
+    root = tmp_path / "noimu"
+    shutil.copytree(walks[2].root.parent.parent, root)
+    (root / "sessions" / walks[2].id / "imu.csv").unlink()
+    test = DS.open(root).session(walks[2].id)
+    knn = FingerprintLocalizer("KNN", features="ble", fix_std="calibrated")
+    knn.fit(walks[:2])
+    m = FusedWalk("off")
+    m.fit(walks[:2], RunInputs(cache={}))
+    est = m.run(test, 1, 0, RunInputs(cache={}).with_fixes(_fixes(knn, test)))
+    assert np.isfinite(est.position).all() and "random walk" in est.notes[0]
+
+
 @pytest.mark.parametrize("bad, match", [({"mode": "both"}, "mode"), ({"fix_roles": []}, "fix_roles"),
+                                        ({"motion": {"sigma": 1.0}}, "motion: unknown key"),
+                                        ({"layers": {"scale": [1.0]}}, "layers: unknown key"),
                                         ({"fix_outlier": 0.0}, "fix_outlier"), ({"grid": {"max_step_m": 0.5}}, "max_step_m"),
                                         ({"odometry": {"heading": "compass"}}, "heading")])
 def test_settings_are_checked(bad, match):

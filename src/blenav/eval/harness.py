@@ -297,13 +297,13 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
         err = beacon_errors(est, s)
         if err is not None:
             m["beacon_error_m"] = err
-        if s.groundtruth_sparse and inp.fixes is not None:  # the fixes' stated std against the waypoints
+        if inp.fixes is not None and inp.fixes.roles:  # the fixes' stated std against the ground truth
             cov = {r: fix_coverage_counts(f.t, f.xy, f.std, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy())
                    for r, f in inp.fixes.roles.items()}
             if any(c is not None for c in cov.values()):
                 m["fix_coverage"] = {r: c for r, c in cov.items() if c is not None}
             # no known start: how long until the track settles within CONVERGED_M
-            m["_convergence_s"] = convergence_times(m["_runs"]["err"], m["_runs"]["t"])
+            m["_convergence_s"] = convergence_times(m["_runs"]["err_all"], m["_runs"]["t"])
         oc.metrics[s.id], oc.results[s.id] = m, est
         progress(f"{name} / {s.id}")
     return oc

@@ -104,8 +104,8 @@ def waypoint_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np
 def fix_coverage_counts(t: np.ndarray, xy: np.ndarray, std: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray
                         ) -> tuple[int, int, int] | None:
     """(inside 1 sigma, inside 2 sigma, waypoints) of fixes (t (F,) s sorted, xy (F, 2) m, std (F,) m: isotropic 2-D)
-    at the waypoints (gt_t (W,), gt_xy (W, 2)): the fix and its std interpolated at each waypoint time (ends held, as
-    ``hold_ends`` scores); a waypoint is inside k sigma when its error <= k std (a 2-D Gaussian holds 39.3 % / 86.5 %
+    at the ground truth's times (gt_t (W,), gt_xy (W, 2): surveyed waypoints, or every row of a dense ground truth): the
+    fix and its std interpolated at each time (ends held, as ``hold_ends`` scores); a waypoint is inside k sigma when its error <= k std (a 2-D Gaussian holds 39.3 % / 86.5 %
     there). None when no fix has a finite std."""
     ok = np.isfinite(std) & np.isfinite(xy).all(axis=1)
     if not ok.any() or not len(gt_t):

@@ -68,7 +68,7 @@ class MethodResult:
     beacon_error_m: dict | None = None
     orientation_rmse_deg: float | None = None
     fix_coverage: dict | None = None  # role -> {1sigma, 2sigma, waypoints}: the fixes a fused method weighed
-    convergence: dict | None = None  # a fused method on sparse ground truth: time until it settles (metrics.pool_convergence)
+    convergence: dict | None = None  # a fused method: time until it settles within 5 m (metrics.pool_convergence)
     per_session: dict = field(default_factory=dict)
     windows: WindowStats | None = None
     bound: BoundStats | None = None

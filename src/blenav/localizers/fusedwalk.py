@@ -12,7 +12,8 @@ to ``grid.max_step_m`` that do not cross a wall, :func:`blenav.crf.grid.build_gr
 
 * start: uniform over the walkable cells (no ground truth, no first fix assumed right);
 * motion: the PDR odometry of :func:`blenav.filters.pdr_odometry.pdr_odometry` (detected steps along the phone's
-  rotation vector or AHRS heading, the step length fitted on the train walks), its displacement over each interval
+  rotation vector, or blenav's AHRS heading where a walk has none (``heading: auto``), the step length fitted on the
+  train walks), its displacement over each interval
   with std ``motion.sigma0_m + motion.sigma_per_m`` x its length, under ``layers``: hypotheses of the walk's heading
   offset and step scale (constant per walk; the posterior weighs them), not trusted as given;
 * position prior (``path_prior``, from the train walks only): each transition's target cell weighted by
@@ -23,12 +24,16 @@ to ``grid.max_step_m`` that do not cross a wall, :func:`blenav.crf.grid.build_gr
   (1 - ``fix_outlier``) N(cell; fix, std^2 I) + ``fix_outlier`` / N at its nearest node: a fix 20 m off costs a
   bounded amount, so it cannot drag the track.
 
+A walk without IMU data (or without the heading source asked for) is not skipped: its fixes are smoothed under a
+random walk of ``motion.no_odometry_sigma_m`` per node (the notes say so).
+
 Estimates: (R identical runs) the marginal mean and covariance per node. numba via the smoother; the grid per floor
 and the walk's odometry are cached.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 
@@ -48,6 +53,16 @@ MODES = ("online", "offline")
 #: what an offline row reports per node: the smoothed marginal's mean (default) or its most probable cell, or the most
 #: probable joint path (Viterbi); measured on the train walks (docs/results-ilc20.md)
 ESTIMATES = ("mean", "mode", "viterbi")
+
+
+def _block(name: str, what: str, given, defaults: dict) -> dict:
+    """``defaults`` updated with the config block ``given`` (a dict or DictConfig); a key not in ``defaults`` (a
+    misspelling) is refused, naming the method and the block."""
+    given = dict(given or {})
+    unknown = set(given) - set(defaults)
+    if unknown:
+        raise ValueError(f"method {name!r}, {what}: unknown key(s) {sorted(unknown)}; known: {', '.join(defaults)}")
+    return {**defaults, **given}
 
 
 def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5) -> np.ndarray:
@@ -92,25 +107,28 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         self.roles = [str(r) for r in (fix_roles or [])]
         if not self.roles:
             raise ValueError(f"method {name!r}: fix_roles names no role of the experiment's fixes block")
-        odo = dict(odometry or {})
-        self.heading = str(odo.get("heading", "orientation"))
-        if self.heading not in HEADINGS:
-            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS}, got {self.heading!r}")
+        odo = _block(name, "odometry", odometry, {"heading": "auto", "step_length": None})
+        self.heading = str(odo.get("heading", "auto"))
+        if self.heading not in HEADINGS + ("auto",):
+            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS + ('auto',)}, got "
+                             f"{self.heading!r}")
         self.step_length = odo.get("step_length")
-        g = {"cell_m": 1.0, "max_step_m": 3.0, **(grid or {})}
+        g = _block(name, "grid", grid, {"cell_m": 1.0, "max_step_m": 3.0})
         self.cell_m, self.max_step_m = float(g["cell_m"]), float(g["max_step_m"])
         self.dt_s = float(dt_s)
-        mo = {"sigma0_m": 0.3, "sigma_per_m": 0.15, **(motion or {})}
+        mo = _block(name, "motion", motion, {"sigma0_m": 0.3, "sigma_per_m": 0.15, "no_odometry_sigma_m": 1.0})
         self.sigma0, self.sigma_per = float(mo["sigma0_m"]), float(mo["sigma_per_m"])
-        la = {"heading_offsets_deg": [-5.7, 0.0, 5.7], "scales": [1.0], **(layers or {})}
+        self.no_odometry_sigma = float(mo["no_odometry_sigma_m"])
+        la = _block(name, "layers", layers, {"heading_offsets_deg": [-5.7, 0.0, 5.7], "scales": [1.0]})
         self.layers = Layers(tuple(math.radians(float(a)) for a in la["heading_offsets_deg"]),
                              tuple(float(s) for s in la["scales"]))
         self.fix_outlier, self.fix_std_scale = float(fix_outlier), float(fix_std_scale)
-        pp = {"weight": 1.0, "floor": 0.05, "blur_m": 1.5, **(path_prior or {})}
+        pp = _block(name, "path_prior", path_prior, {"weight": 1.0, "floor": 0.05, "blur_m": 1.5})
         self.prior_weight, self.prior_floor, self.prior_blur = float(pp["weight"]), float(pp["floor"]), float(pp["blur_m"])
         self.prune = float(prune)
         for what, v, lo in (("dt_s", self.dt_s, 1e-3), ("grid.cell_m", self.cell_m, 0.05),
-                            ("motion.sigma0_m", self.sigma0, 1e-3), ("fix_std_scale", self.fix_std_scale, 1e-3)):
+                            ("motion.sigma0_m", self.sigma0, 1e-3), ("fix_std_scale", self.fix_std_scale, 1e-3),
+                            ("motion.no_odometry_sigma_m", self.no_odometry_sigma, 1e-3)):
             if not v >= lo:
                 raise ValueError(f"method {name!r}: {what} must be >= {lo}, got {v}")
         if not 0.0 < self.fix_outlier < 1.0:
@@ -159,6 +177,13 @@ class FusedWalk(Localizer, FixConsumer, Trained):
             cache[key] = (grid, lp, len(same))
         return cache[key]
 
+    def heading_of(self, session) -> str:
+        """The PDR heading source: ``auto`` takes the phone's rotation vector where the walk has one (orientation.csv),
+        else blenav's AHRS."""
+        if self.heading != "auto":
+            return self.heading
+        return "orientation" if (session.root / "orientation.csv").is_file() else "ahrs"
+
     def _fixes(self, inputs: RunInputs):
         """The first role of ``fix_roles`` the session has: (role, RoleFixes)."""
         why = []
@@ -175,8 +200,9 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         if inputs.fixes is None:
             raise MissingStream(f"{self.name}: the experiment has no fixes block (roles {self.roles})")
         role, fx = self._fixes(inputs)
-        key = ("fused-walk", session.id, role, id(fx), self._step(), self.heading, self.cell_m, self.max_step_m,
-               self.dt_s, self.sigma0, self.sigma_per, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
+        digest = hashlib.sha1(b"".join(np.ascontiguousarray(a, float).tobytes() for a in (fx.t, fx.xy, fx.std)))
+        key = ("fused-walk", session.id, role, digest.hexdigest(), self._step(), self.heading, self.cell_m, self.max_step_m,
+               self.dt_s, self.sigma0, self.sigma_per, self.no_odometry_sigma, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
                self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", tuple(s.id for s in self.train))
         if key in inputs.cache:
             return inputs.cache[key]
@@ -186,14 +212,23 @@ class FusedWalk(Localizer, FixConsumer, Trained):
             raise MissingStream(f"session {session.id}: no finite {role} fix")
         ft, fxy = fx.t[ok], fx.xy[ok]
         fsd = self.fix_std_scale * np.where(np.isfinite(fx.std[ok]) & (fx.std[ok] > 0), fx.std[ok], 3.0)
-        odo = pdr_odometry(session, self.heading, self._step(), cache=inputs.cache)
+        heading = self.heading_of(session)
+        try:
+            odo = pdr_odometry(session, heading, self._step(), cache=inputs.cache)
+        except MissingStream as exc:  # no IMU (or no heading): the fixes alone, under a random walk at walking pace
+            odo, heading = None, f"none ({exc}; random walk of {self.no_odometry_sigma:g} m per node)"
         grid, log_prior, n_prior = self._floor_model(session, inputs.cache)
-        t_lo, t_hi = float(min(odo["t"].iloc[0], ft[0])), float(max(odo["t"].iloc[-1], ft[-1]))
-        T = np.arange(t_lo, t_hi + 0.5 * self.dt_s, self.dt_s)
-        ox = np.interp(T, odo["t"].to_numpy(float), odo["x"].to_numpy(float))
-        oy = np.interp(T, odo["t"].to_numpy(float), odo["y"].to_numpy(float))
-        disp = np.diff(np.column_stack([ox, oy]), axis=0)
-        sigma = self.sigma0 + self.sigma_per * np.hypot(disp[:, 0], disp[:, 1])
+        if odo is not None:
+            t_lo, t_hi = float(min(odo["t"].iloc[0], ft[0])), float(max(odo["t"].iloc[-1], ft[-1]))
+            T = np.arange(t_lo, t_hi + 0.5 * self.dt_s, self.dt_s)
+            ox = np.interp(T, odo["t"].to_numpy(float), odo["x"].to_numpy(float))
+            oy = np.interp(T, odo["t"].to_numpy(float), odo["y"].to_numpy(float))
+            disp = np.diff(np.column_stack([ox, oy]), axis=0)
+            sigma = self.sigma0 + self.sigma_per * np.hypot(disp[:, 0], disp[:, 1])
+        else:
+            T = np.arange(float(ft[0]), float(ft[-1]) + 0.5 * self.dt_s, self.dt_s)
+            disp = np.zeros((len(T) - 1, 2))
+            sigma = np.full(len(T) - 1, self.no_odometry_sigma)
         node = np.clip(np.round((ft - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
         unary: list = [None] * len(T)
         lo_out = math.log(self.fix_outlier / grid.n_cells)
@@ -207,7 +242,7 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         if self.estimate == "viterbi":
             path = grid.xy[viterbi(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers,
                                    prune=self.prune)[0]]
-        out = {"t": T, "res": res, "first_fix": int(node.min()), "role": role, "n_fixes": int(len(ft)),
+        out = {"t": T, "res": res, "first_fix": int(node.min()), "role": role, "n_fixes": int(len(ft)), "heading": heading,
                "prior_walks": n_prior, "wall_s": time.perf_counter() - t0, "viterbi": path, "grid_xy": grid.xy}
         inputs.cache[key] = out
         return out
@@ -234,7 +269,7 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         sc = self.layers.scales[best % len(self.layers.scales)]
         return Estimate(self.name, session.id, t, np.broadcast_to(pos, (R,) + pos.shape).copy(),
                         np.broadcast_to(cov, (R,) + cov.shape).copy(), wall_s=time.perf_counter() - t0 + sm["wall_s"],
-                        notes=[f"{self.mode}: fixes of role {sm['role']} + PDR odometry (heading {self.heading}, step "
+                        notes=[f"{self.mode}: fixes of role {sm['role']} + PDR odometry (heading {sm['heading']}, step "
                                f"{self._step():.3f} m) + plan + train-walk prior ({sm['prior_walks']} walks), "
                                f"uniform start; grid {self.cell_m:g} m, {self.layers.n} heading/scale layers"],
                         outputs={"layer": {"heading_offset_deg": math.degrees(th), "step_scale": sc}})
