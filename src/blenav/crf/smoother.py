@@ -89,6 +89,12 @@ def _lae(a, b):
     return b + math.log1p(math.exp(a - b))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _predicted(d, c, s):
+    """The displacement d (2,) under a layer's rotation-scale (c, s) = s_l (cos, sin) theta_l."""
+    return c * d[0] - s * d[1], s * d[0] + c * d[1]
+
+
 @njit(cache=True, nogil=True)
 def _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, out):
     """Normalised log kernel of the edges leaving cell i into out[:deg]; returns deg."""
@@ -112,16 +118,10 @@ def _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, out):
 
 @njit(cache=True, nogil=True)
 def _forward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, log_init, prune_log, max_mode,
-             alpha, back):
-    """alpha (K, L, N) float32 normalised log forward messages (max-product when max_mode; back (K, L, N) int32
-    the argmax source then); returns log evidence (sum-product)."""
+             alpha, back, w):
+    """alpha (K, L, N) normalised log forward messages (max-product when max_mode; back (K, L, N) int32 the argmax
+    source then); w: scratch of the largest out-degree; returns log evidence (sum-product)."""
     K, L, N = alpha.shape
-    deg_max = 0
-    for i in range(N):
-        d = src_ptr[i + 1] - src_ptr[i]
-        if d > deg_max:
-            deg_max = d
-    w = np.empty(deg_max)
     cur = np.empty((L, N))
     logev = 0.0
     # node 0: init + unary, normalised
@@ -143,8 +143,7 @@ def _forward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_un
         nxt[:] = -np.inf
         inv2s2 = 0.5 / (sigma[k] * sigma[k])
         for l in range(L):
-            px = ca[l] * disp[k, 0] - sa[l] * disp[k, 1]
-            py = sa[l] * disp[k, 0] + ca[l] * disp[k, 1]
+            px, py = _predicted(disp[k], ca[l], sa[l])
             for i in range(N):
                 a = cur[l, i]
                 if a < prune_log:
@@ -181,15 +180,9 @@ def _forward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_un
 
 
 @njit(cache=True, nogil=True)
-def _backward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha, prune_log, post):
-    """post (K, L, N) float32 <- normalised log smoothed marginals log p(x_k, l | all observations)."""
+def _backward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha, prune_log, post, w):
+    """post (K, L, N) <- normalised log smoothed marginals log p(x_k, l | all observations); w: scratch."""
     K, L, N = alpha.shape
-    deg_max = 0
-    for i in range(N):
-        d = src_ptr[i + 1] - src_ptr[i]
-        if d > deg_max:
-            deg_max = d
-    w = np.empty(deg_max)
     beta = np.zeros((L, N))  # node K-1
     for l in range(L):
         for j in range(N):
@@ -199,8 +192,7 @@ def _backward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_u
         prev[:] = -np.inf
         inv2s2 = 0.5 / (sigma[k] * sigma[k])
         for l in range(L):
-            px = ca[l] * disp[k, 0] - sa[l] * disp[k, 1]
-            py = sa[l] * disp[k, 0] + ca[l] * disp[k, 1]
+            px, py = _predicted(disp[k], ca[l], sa[l])
             for i in range(N):
                 if alpha[k, l, i] < prune_log:
                     continue
@@ -272,7 +264,7 @@ def _prepare(grid, disp, sigma, unary, log_init, log_prior, layers):
     lp = np.zeros(N) if log_prior is None else np.asarray(log_prior, float)
     layers = layers or Layers()
     ca, sa = layers.arrays()
-    check_memory(2.0 * K * layers.n * N * 4 + K * N * 8, f"a walk smoother of {K:,} nodes x {layers.n} layers x "
+    check_memory(2.0 * K * layers.n * N * 8 + K * N * 8, f"a walk smoother of {K:,} nodes x {layers.n} layers x "
                  f"{N:,} cells", "smoother (dt_s, layers, cell_m)")
     vx, vy = _edge_vectors(grid)
     return K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy
@@ -301,10 +293,11 @@ def forward_backward(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_in
     L = len(ca)
     pl = math.log(prune) if prune > 0 else -np.inf
     alpha = np.empty((K, L, N), np.float64)
+    w = np.empty(int(np.diff(grid.src_ptr).max()))
     logev = _forward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, li, pl, False, alpha,
-                     np.empty((1, 1, 1), np.int32))
+                     np.empty((1, 1, 1), np.int32), w)
     post = np.empty((K, L, N), np.float64)
-    _backward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, alpha, pl, post)
+    _backward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, alpha, pl, post, w)
     Pf = np.exp(alpha).sum(axis=1)
     Ps = np.exp(post).sum(axis=1)
     fm, fc, fo = _stats(Pf / Pf.sum(1, keepdims=True), grid.xy)
@@ -324,7 +317,8 @@ def viterbi(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_init: np.nd
     pl = math.log(prune) if prune > 0 else -np.inf
     delta = np.empty((K, L, N), np.float64)
     back = np.full((K, L, N), -1, np.int32)
-    _forward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, li, pl, True, delta, back)
+    _forward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, li, pl, True, delta, back,
+             np.empty(int(np.diff(grid.src_ptr).max())))
     l, j = np.unravel_index(int(np.argmax(delta[K - 1])), (L, N))
     path = np.empty(K, np.int64)
     path[K - 1] = j

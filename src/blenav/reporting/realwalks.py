@@ -18,7 +18,7 @@ from blenav.eval.common import write_text
 
 from .splice import splice
 
-__all__ = ["OUTCOMES", "TAG", "table_rows", "floor_table", "verdicts", "summary_table", "floor_markdown",
+__all__ = ["OUTCOMES", "TAG", "table_rows", "floor_table", "fused_table", "verdicts", "summary_table", "floor_markdown",
            "write_tables"]
 
 TAG = "realwalks-table"  # the markers <!-- TAG --> / <!-- /TAG --> of the summary page and the README
@@ -126,6 +126,25 @@ def summary_table(results_by_floor: dict, rows: dict) -> str:
     return "\n".join(lines)
 
 
+def fused_table(results_by_floor: dict, rows: dict) -> str | None:
+    """Markdown: per floor and fused row with fixes, the share of the test waypoints inside its fixes' stated 1-sigma /
+    2-sigma regions (per role; a 2-D Gaussian holds 39 % / 86 %) and the time until the track stays within 5 m
+    (median over the walks that settle, and their share); None when no row reports them."""
+    lines = ["| floor | method | fixes | inside 1 sigma | inside 2 sigma | settles within 5 m | after (median) |",
+             "|---|---|---|---|---|---|---|"]
+    n = 0
+    for floor, r in results_by_floor.items():
+        for row in rows["fused"]:
+            m = r["methods"].get(row) or {}
+            for role, c in (m.get("fix_coverage") or {}).items():
+                conv = m.get("convergence") or {}
+                med = conv.get("median_s")
+                lines.append(f"| {floor} | {row} | {role} | {_fmt(c['1sigma'], True)} | {_fmt(c['2sigma'], True)} | "
+                             f"{_fmt(conv.get('settled'), True)} | {'--' if med is None else f'{med:.0f} s'} |")
+                n += 1
+    return "\n".join(lines) if n else None
+
+
 def floor_markdown(results: dict, floor: str, command: str, rows: dict) -> str:
     """docs/results/ilc20_<floor>.md: the floor's table, the verdicts (``rows``: :func:`table_rows`), the split and
     what was trained."""
@@ -144,7 +163,15 @@ def floor_markdown(results: dict, floor: str, command: str, rows: dict) -> str:
     if results.get("model"):
         lines += [f"Map prior: `{results['model'].get('path')}`; unavailable for: "
                   f"{', '.join(results['model'].get('unavailable', {})) or 'none'}.", ""]
-    lines += [floor_table(results, rows), "", "## Verdicts (mean error)", ""] + [f"- {v}" for v in verdicts(results, rows)]
+    lines += [floor_table(results, rows), ""]
+    fused = fused_table({floor: results}, rows)
+    if fused:
+        lines += ["## Fused rows: the fixes' stated uncertainty and the time to converge", "",
+                  "No fused row is told where a walk starts. 'inside 1 / 2 sigma': share of the test waypoints whose "
+                  "error of the fix (interpolated at the waypoint time) is within 1 / 2 of its stated std (a 2-D "
+                  "Gaussian: 39 % / 86 %); 'settles': share of the walks whose error stays within 5 m from some "
+                  "waypoint on, and the median time from the walk's first waypoint to that one.", "", fused, ""]
+    lines += ["## Verdicts (mean error)", ""] + [f"- {v}" for v in verdicts(results, rows)]
     return "\n".join(lines) + "\n"
 
 
@@ -165,6 +192,11 @@ def write_tables(out_root: str, summary_md: str, rows: dict, command: str = "mak
     if floors_dir and (Path(floors_dir) / "results.json").is_file():
         fa = json.loads((Path(floors_dir) / "results.json").read_text()).get("floor_accuracy")
     parts = [f"Mean / p90 error (m) at the test walks' waypoints, per floor (`{command}`):", "", table, ""]
+    fused = fused_table(by_floor, rows)
+    if fused:
+        parts += ["The fused rows' fixes: share of the test waypoints inside their stated 1 / 2 sigma (39 % / 86 % for "
+                  "a calibrated 2-D Gaussian), and how long the rows take to stay within 5 m (no start given):", "",
+                  fused, ""]
     if fa is not None:
         parts += [f"Floor classifier (which floor a test walk is on, from its scans; all three floors in one dataset): "
                   f"`floor_accuracy` = {json.dumps(fa)}", ""]
