@@ -326,3 +326,17 @@ def test_step_flags_are_detected_once_per_walk(tiny_dataset, monkeypatch):
     cache: dict = {}
     a = odo._step_flags(s, None, cache)
     assert np.array_equal(odo._step_flags(s, StepDetectorConfig(), cache), a) and len(calls) == 1
+
+
+def test_coverage_bins_the_fix_errors_by_distance_to_the_train_walks(tmp_path):
+    """python -m blenav.cli.realwalks coverage: a fingerprint row fitted on the train walks, its test fixes binned by
+    how far their true position lies from the train walks; the shares sum to one, the bins are ordered."""
+    from blenav.cli.realwalks import experiment_config
+    from blenav.eval.realwalks import COVERAGE_BINS_M, coverage
+
+    data = as_waypoint_walks(simulate_small(tmp_path / "d", 3, 30, 4))
+    rep = coverage(experiment_config(f"data={data}"), "knn_ble")
+    assert rep["row"] == "KNN-BLE" and rep["fixes"] > 0 and rep["train_walks"] == 2
+    assert len(rep["bins"]) == len(COVERAGE_BINS_M) - 1 and np.isclose(sum(b["share"] for b in rep["bins"]), 1.0)
+    with pytest.raises(ValueError, match="no method"):
+        coverage(experiment_config(f"data={data}"), "knn_nothing")

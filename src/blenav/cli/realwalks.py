@@ -1,5 +1,7 @@
-"""``python -m blenav.cli.realwalks train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README] | priors MAIN
-OTHER PRIOR_PATTERN PAGE.md [README]``: the steps of ``make realwalks-tables`` (docs/results-ilc20.md).
+"""``python -m blenav.cli.realwalks train-ids DATA | coverage DATA [ROW] | tables OUT_ROOT SUMMARY.md [FLOORS_DIR]
+[README] | priors MAIN OTHER PRIOR_PATTERN PAGE.md [README]``: the steps of ``make realwalks-tables``
+(docs/results-ilc20.md), and ``coverage``: a fingerprint row's fix errors (default ``knn_both``, KNN-WiFi+BLE) by how
+far each true position lies from the train walks (:func:`~blenav.eval.realwalks.coverage`).
 
 An entry point composes ``conf/`` (:func:`blenav.configs.compose`, ``experiment=realwalks``) and hands the nodes
 down to :mod:`blenav.eval.realwalks` and :mod:`blenav.reporting.realwalks`, which compose nothing: ``train-ids``
@@ -18,8 +20,8 @@ import sys
 from .common import guarded, pop_debug
 
 PROG = "python -m blenav.cli.realwalks"
-USAGE = (f"usage: {PROG} train-ids DATA | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README] | priors MAIN OTHER "
-         f"PRIOR_PATTERN PAGE.md [README]")
+USAGE = (f"usage: {PROG} train-ids DATA | coverage DATA [ROW] | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README] | "
+         f"priors MAIN OTHER PRIOR_PATTERN PAGE.md [README]")
 
 
 def experiment_config(*overrides: str, experiment: str = "realwalks"):
@@ -53,6 +55,16 @@ def _main(argv: list[str]) -> int:
     cmd, args = (argv[0], argv[1:]) if argv else ("", [])
     if cmd == "train-ids" and len(args) == 1:
         print(",".join(train_ids_of(args[0])))
+    elif cmd == "coverage" and len(args) in (1, 2):
+        from blenav.eval.realwalks import coverage
+
+        rep = coverage(experiment_config(f"data={args[0]}"), *args[1:])
+        print(f"{rep['row']}: {rep['fixes']} fixes of {rep['test_walks']} test walks, mean error "
+              f"{rep['error_mean_m']:.2f} m; by the distance of the true position to the {rep['train_walks']} train walks:")
+        for b in rep["bins"]:
+            to = "" if b["to_m"] is None else f"{b['to_m']:g}"
+            err = "--" if b["error_mean_m"] is None else f"{b['error_mean_m']:.2f} / {b['error_median_m']:.2f} m"
+            print(f"  {b['from_m']:g}-{to} m: {100 * b['share']:.0f} % of the fixes, error mean / median {err}")
     elif cmd == "tables" and 2 <= len(args) <= 4:
         from blenav.reporting.realwalks import write_tables
 

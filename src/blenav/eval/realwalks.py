@@ -6,7 +6,12 @@ The experiment's PDR rows run :class:`blenav.localizers.realwalk.RealWalkPF` (it
 
 from __future__ import annotations
 
-__all__ = ["train_ids"]
+import numpy as np
+
+__all__ = ["train_ids", "coverage", "COVERAGE_BINS_M"]
+
+#: distance bins (m) from a fix's true position to the nearest train-walk position (:func:`coverage`)
+COVERAGE_BINS_M = (0.0, 1.0, 2.0, 5.0, 10.0, np.inf)
 
 
 def train_ids(cfg) -> list[str]:
@@ -21,3 +26,54 @@ def train_ids(cfg) -> list[str]:
     ds = open_dataset(cfg)
     train, _ = train_test(cfg, ds, scored_sessions(cfg, ds))
     return [s.id for s in train]
+
+
+def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
+    """Why fingerprint fixes are off where they are: the experiment's fingerprint row ``row`` (a ``methods`` key) fitted
+    on the train walks, and each fix of the test walks (at its own time, against the ground truth interpolated there)
+    binned by the distance of its true position to the nearest train-walk position (waypoints and the straight lines
+    between them, every ``step_s`` s): per bin (:data:`COVERAGE_BINS_M`) the share of the fixes and their mean / median
+    error (m). A KNN answers with positions the train walks visited: fixes far from them cannot be close. The entry
+    point composes ``cfg`` (``python -m blenav.cli.realwalks coverage DATA``)."""
+    from blenav.localizers import build_localizer
+
+    from .config import parse_eval_config
+    from .sessions import open_dataset, scored_sessions, train_test
+
+    ecfg = parse_eval_config(cfg)
+    ds = open_dataset(ecfg)
+    train, test = train_test(ecfg, ds, scored_sessions(ecfg, ds))
+    if not train:
+        raise ValueError("coverage: the experiment has no train walks (split)")
+    node = (ecfg.methods or {}).get(row)
+    if node is None:
+        raise ValueError(f"coverage: the experiment has no method {row!r} (methods: {sorted(ecfg.methods or {})})")
+    loc = build_localizer(str(node.get("label", row)), node, ecfg.shared())
+    loc.fit(train)
+    seen = {}
+    for s in train:
+        gt = s.groundtruth
+        t = np.arange(float(gt["t"].iloc[0]), float(gt["t"].iloc[-1]) + 1e-9, step_s)
+        seen.setdefault(s.floor.id, []).append(s.positions_at(t)[:, :2])
+    err, dist = [], []
+    for s in test:
+        est = loc.run(s, 1, 0)
+        truth = s.positions_at(est.t)[:, :2]
+        ok = np.isfinite(truth).all(axis=1)
+        ref = np.concatenate(seen.get(s.floor.id, [np.zeros((0, 2))]))
+        if not ok.any() or not len(ref):
+            continue
+        err.append(np.linalg.norm(est.position[0][ok] - truth[ok], axis=1))
+        d = np.full(int(ok.sum()), np.inf)
+        for i in range(0, len(ref), 4096):  # bounded memory
+            d = np.minimum(d, np.linalg.norm(truth[ok][:, None] - ref[None, i:i + 4096], axis=2).min(axis=1))
+        dist.append(d)
+    err, dist = np.concatenate(err), np.concatenate(dist)
+    bins = []
+    for lo, hi in zip(COVERAGE_BINS_M[:-1], COVERAGE_BINS_M[1:]):
+        m = (dist >= lo) & (dist < hi)
+        bins.append({"from_m": lo, "to_m": None if np.isinf(hi) else hi, "share": float(m.mean()),
+                     "error_mean_m": float(err[m].mean()) if m.any() else None,
+                     "error_median_m": float(np.median(err[m])) if m.any() else None})
+    return {"row": str(node.get("label", row)), "fixes": int(len(err)), "error_mean_m": float(err.mean()),
+            "train_walks": len(train), "test_walks": len(test), "bins": bins}
