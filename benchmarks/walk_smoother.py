@@ -5,8 +5,8 @@ fixes' likelihoods, the PDR odometry read from the cache, the numba forward and 
 statistics; the floor's grid and path prior are built once per floor, before the timing, as the evaluation does).
 Data: an imported ILC 2.0 floor (``blenav-import ilc20``), split as experiment=realwalks splits it; the fixes are
 KNN-WiFi+BLE's as experiment=realwalks configures it (fitted on the train walks, untimed). Printed per walk set: the
-walks, their seconds, the wall time, seconds per 90 s of walk (mean and the worst walk) with the ratio to the target
-(<= 1: met), the grid's cells and the layers. The numba kernels are compiled (or loaded from their cache) first. The
+walks, their seconds, the wall time, seconds per 90 s of walk (mean and the worst walk, and the same over the walks of
+60 s or more: a short walk's fixed costs, scaled to 90 s, make the worst) with the ratio to the target (<= 1: met), the grid's cells and the layers. The numba kernels are compiled (or loaded from their cache) first. The
 machine is shared: the load average is printed too.
 
     .venv/bin/python benchmarks/walk_smoother.py DATA [--walks 20]
@@ -54,7 +54,7 @@ def main() -> None:
     fused.smooth(walks[0], inputs.with_fixes(fixes[walks[0].id]))
     for s in walks:
         pdr_odometry(s, fused.heading_of(s), fused._step(), cache=inputs.cache)
-    per, secs = [], 0.0
+    per, durs, secs = [], [], 0.0
     t0 = time.perf_counter()
     for s in walks:
         inputs.cache.pop(next((k for k in inputs.cache if k[:2] == ("fused-walk", s.id)), None), None)
@@ -63,14 +63,19 @@ def main() -> None:
         dt = time.perf_counter() - a
         dur = float(sm["t"][-1] - sm["t"][0])
         secs += dur
+        durs.append(dur)
         per.append(dt / max(dur, 1.0) * 90.0)
     wall = time.perf_counter() - t0
     grid = fused._floor_model(walks[0], inputs.cache)[0]
-    per = np.asarray(per)
+    per, durs = np.asarray(per), np.asarray(durs)
+    long = per[durs >= 60.0]
     print(f"{len(walks)} walks, {secs:.0f} s of walk, {wall:.2f} s wall; grid {grid.n_cells:,} cells of {fused.cell_m:g} m, "
           f"{fused.layers.n} layers, dt {fused.dt_s:g} s")
-    print(f"per 90 s of walk: mean {per.mean():.3f} s, worst {per.max():.3f} s; target {TARGET_S_PER_90S:g} s -> "
-          f"ratio {per.max() / TARGET_S_PER_90S:.2f} (<= 1: met)")
+    print(f"per 90 s of walk: mean {per.mean():.3f} s, worst {per.max():.3f} s (a short walk's fixed costs scaled up); "
+          f"target {TARGET_S_PER_90S:g} s -> ratio of the worst {per.max() / TARGET_S_PER_90S:.2f} (<= 1: met)")
+    if len(long):
+        print(f"walks of 60 s or more ({len(long)}): per 90 s mean {long.mean():.3f} s, worst {long.max():.3f} s -> ratio "
+              f"{long.max() / TARGET_S_PER_90S:.2f}")
     print(f"load average {os.getloadavg()[0]:.2f} (2 cores)")
 
 

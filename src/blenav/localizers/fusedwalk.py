@@ -21,8 +21,12 @@ to ``grid.max_step_m`` that do not cross a wall, :func:`blenav.crf.grid.build_gr
   ``blur_m``, + ``floor`` / N) ^ ``weight``: walkers go where walkers went (the challenge's corridor prior);
 * fixes: the first role of ``fix_roles`` the session has (the experiment's ``fixes`` block; each fix its own std,
   e.g. the KNN's calibrated ``fix_std``), each a heavy-tailed likelihood
-  (1 - ``fix_outlier``) N(cell; fix, std^2 I) + ``fix_outlier`` / N at its nearest node: a fix 20 m off costs a
-  bounded amount, so it cannot drag the track.
+  (1 - ``fix_outlier``) N(cell; fix, std^2 I) + ``fix_outlier`` / N at its nearest node, raised to ``fix_weight``: a
+  fix 20 m off costs a bounded amount, so it cannot drag the track;
+* scans (``radio_map``, optional): each WiFi (+ BLE) scan of the walk scored at every cell against the floor's radio
+  map (:mod:`blenav.localizers.radiomap`, built from the train walks), with the same heavy tail, raised to
+  ``radio_map.weight``: a scan that resembles two places keeps both, and an unsurveyed place is uninformative
+  rather than confidently wrong (the point fix of a KNN is neither).
 
 A walk without IMU data (or without the heading source asked for) is not skipped: its fixes are smoothed under a
 random walk of ``motion.no_odometry_sigma_m`` per node (the notes say so).
@@ -36,6 +40,7 @@ from __future__ import annotations
 import hashlib
 import math
 import time
+from dataclasses import asdict
 
 import numpy as np
 
@@ -46,6 +51,7 @@ from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fit_step_lengt
 
 from .base import Estimate, FixConsumer, Localizer, Trained
 from .inputs import RunInputs
+from .radiomap import RadioMapConfig, build_radio_map
 
 __all__ = ["FusedWalk", "MODES", "path_prior"]
 
@@ -96,7 +102,8 @@ class FusedWalk(Localizer, FixConsumer, Trained):
     def __init__(self, name: str, shared=None, mode: str = "offline", estimate: str = "mean", fix_roles=("both", "ble"),
                  odometry: dict | None = None, grid: dict | None = None, dt_s: float = 1.0,
                  motion: dict | None = None, layers: dict | None = None, fix_outlier: float = 0.01,
-                 fix_std_scale: float = 1.0, path_prior: dict | None = None, prune: float = 1e-6):
+                 fix_std_scale: float = 1.0, fix_weight: float = 0.5, radio_map: dict | None = None,
+                 path_prior: dict | None = None, prune: float = 1e-6):
         super().__init__(name, shared)
         if mode not in MODES:
             raise ValueError(f"method {name!r}: mode must be one of {MODES}, got {mode!r}")
@@ -123,6 +130,18 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         self.layers = Layers(tuple(math.radians(float(a)) for a in la["heading_offsets_deg"]),
                              tuple(float(s) for s in la["scales"]))
         self.fix_outlier, self.fix_std_scale = float(fix_outlier), float(fix_std_scale)
+        self.fix_weight = float(fix_weight)
+        if not self.fix_weight >= 0:
+            raise ValueError(f"method {name!r}: fix_weight must be >= 0, got {self.fix_weight}")
+        if radio_map is None:
+            self.radio_map, self.radio_weight = None, 0.0
+        else:
+            rm = _block(name, "radio_map", radio_map, {**asdict(RadioMapConfig()), "weight": 1.0})
+            self.radio_weight = float(rm.pop("weight"))
+            try:
+                self.radio_map = RadioMapConfig(**rm)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"method {name!r}: {exc}") from None
         pp = _block(name, "path_prior", path_prior, {"weight": 1.0, "floor": 0.05, "blur_m": 1.5})
         self.prior_weight, self.prior_floor, self.prior_blur = float(pp["weight"]), float(pp["floor"]), float(pp["blur_m"])
         self.prune = float(prune)
@@ -164,7 +183,7 @@ class FusedWalk(Localizer, FixConsumer, Trained):
     def _floor_model(self, session, cache: dict):
         """(grid, log target weights (N,)) of the session's floor (cached per floor and settings)."""
         key = ("fused-walk-grid", session.building.id, str(session.meta.get("floor")), self.cell_m, self.max_step_m,
-               tuple(s.id for s in self.train), self.prior_weight, self.prior_floor, self.prior_blur)
+               tuple(s.id for s in self.train), self.prior_weight, self.prior_floor, self.prior_blur, self.radio_map)
         if key not in cache:
             grid = build_grid(session.floor, cell_m=self.cell_m, max_step_m=self.max_step_m)
             same = [s for s in self.train if s.building.id == session.building.id
@@ -174,7 +193,8 @@ class FusedWalk(Localizer, FixConsumer, Trained):
                 lp = self.prior_weight * np.log(dens + self.prior_floor / grid.n_cells)
             else:
                 lp = np.zeros(grid.n_cells)
-            cache[key] = (grid, lp, len(same))
+            rmap = build_radio_map(grid, same, self.radio_map) if same and self.radio_map is not None else None
+            cache[key] = (grid, lp, len(same), rmap)
         return cache[key]
 
     def heading_of(self, session) -> str:
@@ -203,7 +223,8 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         digest = hashlib.sha1(b"".join(np.ascontiguousarray(a, float).tobytes() for a in (fx.t, fx.xy, fx.std)))
         key = ("fused-walk", session.id, role, digest.hexdigest(), self._step(), self.heading, self.cell_m, self.max_step_m,
                self.dt_s, self.sigma0, self.sigma_per, self.no_odometry_sigma, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
-               self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", tuple(s.id for s in self.train))
+               self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", self.fix_weight,
+               self.radio_map, self.radio_weight, tuple(s.id for s in self.train))
         if key in inputs.cache:
             return inputs.cache[key]
         t0 = time.perf_counter()
@@ -217,9 +238,17 @@ class FusedWalk(Localizer, FixConsumer, Trained):
             odo = pdr_odometry(session, heading, self._step(), cache=inputs.cache)
         except MissingStream as exc:  # no IMU (or no heading): the fixes alone, under a random walk at walking pace
             odo, heading = None, f"none ({exc}; random walk of {self.no_odometry_sigma:g} m per node)"
-        grid, log_prior, n_prior = self._floor_model(session, inputs.cache)
+        grid, log_prior, n_prior, rmap = self._floor_model(session, inputs.cache)
+        if rmap is not None:  # the session's scans against the floor's radio map
+            try:
+                st, Q = rmap.scans(session)
+            except MissingStream:
+                st, Q = np.zeros(0), None
+        else:
+            st, Q = np.zeros(0), None
         if odo is not None:
-            t_lo, t_hi = float(min(odo["t"].iloc[0], ft[0])), float(max(odo["t"].iloc[-1], ft[-1]))
+            t_lo = float(min(odo["t"].iloc[0], ft[0], *st[:1]))
+            t_hi = float(max(odo["t"].iloc[-1], ft[-1], *st[-1:]))
             T = np.arange(t_lo, t_hi + 0.5 * self.dt_s, self.dt_s)
             ox = np.interp(T, odo["t"].to_numpy(float), odo["x"].to_numpy(float))
             oy = np.interp(T, odo["t"].to_numpy(float), odo["y"].to_numpy(float))
@@ -231,18 +260,28 @@ class FusedWalk(Localizer, FixConsumer, Trained):
             sigma = np.full(len(T) - 1, self.no_odometry_sigma)
         node = np.clip(np.round((ft - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
         unary: list = [None] * len(T)
-        lo_out = math.log(self.fix_outlier / grid.n_cells)
-        for k, xy, sd in zip(node, fxy, fsd):  # fixes: F per walk (a few dozen), each (N,): one numpy pass each
-            d2 = ((grid.xy - xy) ** 2).sum(axis=1)
-            ll = np.logaddexp(math.log1p(-self.fix_outlier) - d2 / (2.0 * sd * sd) - math.log(2.0 * math.pi * sd * sd),
-                              lo_out)
+        lo_out, lo_in = math.log(self.fix_outlier / grid.n_cells), math.log1p(-self.fix_outlier)
+
+        def observe(k, ll, weight):  # heavy tail, then the observation's weight
+            ll = weight * np.logaddexp(lo_in + ll, lo_out)
             unary[k] = ll if unary[k] is None else unary[k] + ll
+
+        if self.fix_weight > 0:
+            for k, xy, sd in zip(node, fxy, fsd):  # fixes: F per walk (a few dozen), each (N,): one numpy pass each
+                d2 = ((grid.xy - xy) ** 2).sum(axis=1)
+                observe(k, -d2 / (2.0 * sd * sd) - math.log(2.0 * math.pi * sd * sd), self.fix_weight)
+        if Q is not None and len(st):
+            snode = np.clip(np.round((st - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
+            for k, ll in zip(snode, rmap.log_likelihood(Q)):
+                observe(k, ll, self.radio_weight)
+            node = np.concatenate([node, snode])
         res = forward_backward(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers, prune=self.prune)
         path = None
         if self.estimate == "viterbi":
             path = grid.xy[viterbi(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers,
                                    prune=self.prune)[0]]
         out = {"t": T, "res": res, "first_fix": int(node.min()), "role": role, "n_fixes": int(len(ft)), "heading": heading,
+               "radio_scans": int(len(st)),
                "prior_walks": n_prior, "wall_s": time.perf_counter() - t0, "viterbi": path, "grid_xy": grid.xy}
         inputs.cache[key] = out
         return out
@@ -269,7 +308,8 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         sc = self.layers.scales[best % len(self.layers.scales)]
         return Estimate(self.name, session.id, t, np.broadcast_to(pos, (R,) + pos.shape).copy(),
                         np.broadcast_to(cov, (R,) + cov.shape).copy(), wall_s=time.perf_counter() - t0 + sm["wall_s"],
-                        notes=[f"{self.mode}: fixes of role {sm['role']} + PDR odometry (heading {sm['heading']}, step "
+                        notes=[f"{self.mode}: fixes of role {sm['role']} (weight {self.fix_weight:g}) + "
+                               f"{sm['radio_scans']} scans on the radio map + PDR odometry (heading {sm['heading']}, step "
                                f"{self._step():.3f} m) + plan + train-walk prior ({sm['prior_walks']} walks), "
                                f"uniform start; grid {self.cell_m:g} m, {self.layers.n} heading/scale layers"],
                         outputs={"layer": {"heading_offset_deg": math.degrees(th), "step_scale": sc}})
