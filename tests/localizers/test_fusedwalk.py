@@ -128,3 +128,20 @@ def test_offline_estimates_mode_and_viterbi_are_cells_of_the_grid(walks):
         assert d.max() < 1e-9, est
     with pytest.raises(ValueError, match="estimate"):
         FusedWalk("x", mode="online", estimate="viterbi")
+
+
+def test_the_radio_map_option_scores_the_scans_too(walks):
+    """radio_map on (a BLE-only floor: the map of BLE fingerprints): the walk's scans join the fixes as observations,
+    the track stays finite and the notes say how many scans were scored."""
+    train, test = walks[:2], walks[2]
+    knn = FingerprintLocalizer("KNN", features="ble", fix_std="calibrated")
+    knn.fit(train)
+    m = FusedWalk("off", fix_weight=0.5, radio_map={"bandwidth_m": 3.0, "min_count": 1})
+    inputs = RunInputs(cache={})
+    m.fit(train, inputs)
+    est = m.run(test, 1, 0, inputs.with_fixes(_fixes(knn, test)))
+    assert np.isfinite(est.position).all()
+    n = int(est.notes[0].split(" scans on the radio map")[0].rsplit(" ", 1)[1])
+    assert n > 10
+    with pytest.raises(ValueError, match="radio_map: unknown key"):
+        FusedWalk("x", radio_map={"bandwith_m": 3.0})

@@ -102,7 +102,7 @@ class FusedWalk(Localizer, FixConsumer, Trained):
     def __init__(self, name: str, shared=None, mode: str = "offline", estimate: str = "mean", fix_roles=("both", "ble"),
                  odometry: dict | None = None, grid: dict | None = None, dt_s: float = 1.0,
                  motion: dict | None = None, layers: dict | None = None, fix_outlier: float = 0.01,
-                 fix_std_scale: float = 1.0, fix_weight: float = 0.5, radio_map: dict | None = None,
+                 fix_std_scale: float = 1.0, fix_weight: float = 1.0, radio_map: dict | None = None,
                  path_prior: dict | None = None, prune: float = 1e-6):
         super().__init__(name, shared)
         if mode not in MODES:
@@ -262,18 +262,19 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         unary: list = [None] * len(T)
         lo_out, lo_in = math.log(self.fix_outlier / grid.n_cells), math.log1p(-self.fix_outlier)
 
-        def observe(k, ll, weight):  # heavy tail, then the observation's weight
-            ll = weight * np.logaddexp(lo_in + ll, lo_out)
+        def observe(k, ll, weight):  # ll: with its heavy tail; times the observation's weight
+            ll = ll if weight == 1.0 else weight * ll
             unary[k] = ll if unary[k] is None else unary[k] + ll
 
         if self.fix_weight > 0:
             for k, xy, sd in zip(node, fxy, fsd):  # fixes: F per walk (a few dozen), each (N,): one numpy pass each
                 d2 = ((grid.xy - xy) ** 2).sum(axis=1)
-                observe(k, -d2 / (2.0 * sd * sd) - math.log(2.0 * math.pi * sd * sd), self.fix_weight)
+                observe(k, np.logaddexp(lo_in - d2 / (2.0 * sd * sd) - math.log(2.0 * math.pi * sd * sd), lo_out),
+                        self.fix_weight)
         if Q is not None and len(st):
             snode = np.clip(np.round((st - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
             for k, ll in zip(snode, rmap.log_likelihood(Q)):
-                observe(k, ll, self.radio_weight)
+                observe(k, np.logaddexp(lo_in + ll, lo_out), self.radio_weight)
             node = np.concatenate([node, snode])
         res = forward_backward(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers, prune=self.prune)
         path = None
@@ -308,8 +309,10 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         sc = self.layers.scales[best % len(self.layers.scales)]
         return Estimate(self.name, session.id, t, np.broadcast_to(pos, (R,) + pos.shape).copy(),
                         np.broadcast_to(cov, (R,) + cov.shape).copy(), wall_s=time.perf_counter() - t0 + sm["wall_s"],
-                        notes=[f"{self.mode}: fixes of role {sm['role']} (weight {self.fix_weight:g}) + "
-                               f"{sm['radio_scans']} scans on the radio map + PDR odometry (heading {sm['heading']}, step "
+                        notes=[f"{self.mode}: fixes of role {sm['role']}"
+                               + (f" (weight {self.fix_weight:g})" if self.fix_weight != 1.0 else "")
+                               + (f" + {sm['radio_scans']} scans on the radio map" if self.radio_map is not None else "")
+                               + f" + PDR odometry (heading {sm['heading']}, step "
                                f"{self._step():.3f} m) + plan + train-walk prior ({sm['prior_walks']} walks), "
                                f"uniform start; grid {self.cell_m:g} m, {self.layers.n} heading/scale layers"],
                         outputs={"layer": {"heading_offset_deg": math.degrees(th), "step_scale": sc}})
