@@ -53,13 +53,7 @@ def classify_floors(train: list, test: list, features: str = "wifi", k: int = 5,
     floors = sorted({FP.floor_of(s) for s in train})
     if len(floors) < 2:
         raise ValueError(f"floor_classifier: the train walks are on {len(floors)} floor(s) {floors}; need two or more")
-    tables, used = [], []
-    for s in train:
-        try:
-            tables.append(FP.readings(s, cfg))
-            used.append(s)
-        except MissingStream:
-            continue
+    tables, used = FP.readable(train, cfg)
     if not used:
         raise ValueError(f"floor_classifier: no train walk has {features} readings")
     columns = {n: i for i, n in enumerate(FP.vocabulary(tables))}

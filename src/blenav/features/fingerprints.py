@@ -164,6 +164,18 @@ def heard_scans(t: np.ndarray, t_seen: np.ndarray | None, cfg: FingerprintConfig
     return out
 
 
+def readable(walks: list, cfg: FingerprintConfig) -> tuple[list[pd.DataFrame], list]:
+    """(:func:`readings` of each walk that has the streams ``cfg`` needs, those walks): the others are skipped."""
+    tables, used = [], []
+    for s in walks:
+        try:
+            tables.append(readings(s, cfg))
+            used.append(s)
+        except MissingStream:
+            continue
+    return tables, used
+
+
 def vocabulary(tables: list[pd.DataFrame], min_count: int = 1, max_features: int | None = None) -> list[str]:
     """The features of the training readings ``tables``: heard in at least ``min_count`` readings, the
     ``max_features`` most often heard (ties by name) when given; sorted by name (the columns' order)."""

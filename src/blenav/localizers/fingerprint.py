@@ -250,13 +250,7 @@ class FingerprintLocalizer(Localizer, Trained):
 
     def _fit_floor(self, key: str, walks: list, inputs) -> dict:
         t0 = time.perf_counter()
-        tables, used = [], []
-        for s in walks:
-            try:
-                tables.append(FP.readings(s, self.cfg))
-                used.append(s)
-            except MissingStream:
-                continue
+        tables, used = FP.readable(walks, self.cfg)
         info = {"train_walks": len(walks), "walks_with_readings": len(used)}
         if not used:
             return {**info, "unavailable": f"no train walk has {self.cfg.features} readings"}

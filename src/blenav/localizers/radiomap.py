@@ -23,7 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blenav.errors import MissingStream
 from blenav.features import fingerprints as FP
 from blenav.limits import check_memory
 
@@ -80,13 +79,7 @@ class RadioMap:
 
 
 def _fingerprints(walks: list, fp: FP.FingerprintConfig, min_count: int):
-    tables, used = [], []
-    for s in walks:
-        try:
-            tables.append(FP.readings(s, fp))
-            used.append(s)
-        except MissingStream:
-            continue
+    tables, used = FP.readable(walks, fp)
     if not used:
         return None
     names = FP.vocabulary(tables, min_count)
