@@ -121,3 +121,23 @@ def test_pruning_that_cuts_every_path_still_gives_a_finite_track():
     r = forward_backward(g, disp, 0.5, unary, prune=0.9)
     assert np.isfinite(r.smoothed_mean).all() and np.isfinite(r.filtered_mean).all()
     assert np.isfinite(r.smoothed_cov).all()
+
+
+def test_fixed_lag_equals_enumeration_of_the_truncated_walk():
+    """The lag-1 marginal of node k is the smoothed marginal of the walk cut after node k + 1 (enumerated exactly);
+    lag 0 is the filter, a lag of the whole walk the smoother."""
+    g = _toy()
+    rng = np.random.default_rng(7)
+    K = 4
+    disp = rng.normal(0, 0.8, (K - 1, 2))
+    unary = _unaries(g, rng, K)
+    r1 = forward_backward(g, disp, 0.7, unary, prune=0.0, lag=1)
+    for k in range(K):
+        end = min(k + 1, K - 1)
+        M, _, _ = brute_force(g, disp[:end], 0.7, unary[:end + 1])
+        np.testing.assert_allclose(r1.filtered_mean[k], M[k] @ g.xy, atol=1e-9)
+    r0 = forward_backward(g, disp, 0.7, unary, prune=0.0)
+    rK = forward_backward(g, disp, 0.7, unary, prune=0.0, lag=K)
+    np.testing.assert_allclose(rK.filtered_mean, r0.smoothed_mean, atol=1e-9)
+    with pytest.raises(ValueError, match="lag"):
+        forward_backward(g, disp, 0.7, unary, lag=-1)

@@ -63,7 +63,8 @@ class Layers:
 
 @dataclass
 class SmootherResult:
-    """Per node k of K: ``filtered_mean`` / ``smoothed_mean`` (K, 2) m, the marginals' mean position;
+    """Per node k of K: ``filtered_mean`` / ``smoothed_mean`` (K, 2) m, the marginals' mean position (filtered: given
+    the observations up to node k, or k + lag with a lag);
     ``filtered_cov`` / ``smoothed_cov`` (K, 2, 2) m^2; ``filtered_mode`` / ``smoothed_mode`` (K,) cell of the
     marginal's maximum; ``layer_post`` (L,) the posterior of the layers (last node, smoothed); ``log_evidence``:
     log p(observations) of the (pruned) model."""
@@ -180,6 +181,31 @@ def _forward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_un
 
 
 @njit(cache=True, nogil=True)
+def _back_step(k, beta, prev, src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha,
+               prune_log, w):
+    """prev (L, N) <- the backward message of node k from beta (L, N) of node k + 1: for every cell-layer active in
+    the forward pass at k, logsumexp over its edges of kernel + node k + 1's unary + beta; -inf elsewhere."""
+    L, N = beta.shape
+    prev[:] = -np.inf
+    inv2s2 = 0.5 / (sigma[k] * sigma[k])
+    for l in range(L):
+        px, py = _predicted(disp[k], ca[l], sa[l])
+        for i in range(N):
+            if alpha[k, l, i] < prune_log:
+                continue
+            deg = _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, w)
+            base = src_ptr[i]
+            acc = -np.inf
+            for e in range(deg):
+                j = dst[base + e]
+                b = beta[l, j]
+                if b == -np.inf:
+                    continue
+                acc = _lae(acc, w[e] + b + (unary[k + 1, j] if has_unary[k + 1] else 0.0))
+            prev[l, i] = acc
+
+
+@njit(cache=True, nogil=True)
 def _backward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha, prune_log, post, w):
     """post (K, L, N) <- normalised log smoothed marginals log p(x_k, l | all observations); w: scratch."""
     K, L, N = alpha.shape
@@ -189,23 +215,8 @@ def _backward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_u
             post[K - 1, l, j] = alpha[K - 1, l, j]
     prev = np.empty((L, N))
     for k in range(K - 2, -1, -1):
-        prev[:] = -np.inf
-        inv2s2 = 0.5 / (sigma[k] * sigma[k])
-        for l in range(L):
-            px, py = _predicted(disp[k], ca[l], sa[l])
-            for i in range(N):
-                if alpha[k, l, i] < prune_log:
-                    continue
-                deg = _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, w)
-                base = src_ptr[i]
-                acc = -np.inf
-                for e in range(deg):
-                    j = dst[base + e]
-                    b = beta[l, j]
-                    if b == -np.inf:
-                        continue
-                    acc = _lae(acc, w[e] + b + (unary[k + 1, j] if has_unary[k + 1] else 0.0))
-                prev[l, i] = acc
+        _back_step(k, beta, prev, src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha,
+                   prune_log, w)
         # normalise the smoothed marginal alpha + beta of node k; keep beta scaled to avoid underflow
         tot = -np.inf
         m = -np.inf
@@ -224,6 +235,42 @@ def _backward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_u
             for i in range(N):
                 post[k, l, i] = alpha[k, l, i] + prev[l, i] - tot
                 beta[l, i] = prev[l, i] - m
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _lagged(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha, prune_log, lag, out, w):
+    """out (K, L, N) <- normalised log p(x_k, l | observations of nodes 0 .. min(k + lag, K - 1)): the fixed-lag
+    smoother, a backward recursion of ``lag`` steps from each node (the filtered marginal where it cuts every path)."""
+    K, L, N = alpha.shape
+    beta = np.empty((L, N))
+    prev = np.empty((L, N))
+    for k in range(K):
+        end = min(k + lag, K - 1)
+        beta[:] = 0.0
+        ok = True
+        for j in range(end - 1, k - 1, -1):
+            _back_step(j, beta, prev, src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha,
+                       prune_log, w)
+            m = -np.inf
+            for l in range(L):
+                for i in range(N):
+                    if prev[l, i] > m:
+                        m = prev[l, i]
+            if m == -np.inf:
+                ok = False
+                break
+            for l in range(L):
+                for i in range(N):
+                    beta[l, i] = prev[l, i] - m
+        tot = -np.inf
+        if ok:
+            for l in range(L):
+                for i in range(N):
+                    tot = _lae(tot, alpha[k, l, i] + beta[l, i])
+        for l in range(L):
+            for i in range(N):
+                out[k, l, i] = alpha[k, l, i] + beta[l, i] - tot if tot > -np.inf else alpha[k, l, i]
     return 0
 
 
@@ -264,7 +311,7 @@ def _prepare(grid, disp, sigma, unary, log_init, log_prior, layers):
     lp = np.zeros(N) if log_prior is None else np.asarray(log_prior, float)
     layers = layers or Layers()
     ca, sa = layers.arrays()
-    check_memory(2.0 * K * layers.n * N * 8 + K * N * 8, f"a walk smoother of {K:,} nodes x {layers.n} layers x "
+    check_memory(3.0 * K * layers.n * N * 8 + K * N * 8, f"a walk smoother of {K:,} nodes x {layers.n} layers x "
                  f"{N:,} cells", "smoother (dt_s, layers, cell_m)")
     vx, vy = _edge_vectors(grid)
     return K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy
@@ -280,25 +327,33 @@ def _stats(P: np.ndarray, xy: np.ndarray):
 
 def forward_backward(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_init: np.ndarray | None = None,
                      log_prior: np.ndarray | None = None, layers: Layers | None = None,
-                     prune: float = 1e-9) -> SmootherResult:
+                     prune: float = 1e-9, lag: int = 0) -> SmootherResult:
     """Filtered and smoothed marginals of the walk model (module doc).
 
     grid: the walkable cells (N) and their edges; disp (K-1, 2) m: the odometry displacement between consecutive
     nodes (world frame); sigma: scalar or (K-1,) m, the displacement noise per interval; unary: K entries, each (N,)
     log-likelihood of the node's observations per cell or None (no observation); log_init (N,): log start
     distribution (None: uniform over the cells); log_prior (N,): log weight of a target cell in every transition
-    (None: flat); layers: the heading-offset / step-scale hypotheses; prune: the forward pruning threshold."""
+    (None: flat); layers: the heading-offset / step-scale hypotheses; prune: the forward pruning threshold; lag > 0:
+    the ``filtered_*`` statistics are those of the fixed-lag smoother, p(x_k | observations up to node k + lag)."""
     K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy = _prepare(grid, disp, sigma, unary, log_init, log_prior,
                                                                  layers)
     L = len(ca)
     pl = math.log(prune) if prune > 0 else -np.inf
+    if int(lag) < 0:
+        raise ValueError(f"smoother: lag must be >= 0 nodes, got {lag}")
     alpha = np.empty((K, L, N), np.float64)
     w = np.empty(int(np.diff(grid.src_ptr).max()))
     logev = _forward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, li, pl, False, alpha,
                      np.empty((1, 1, 1), np.int32), w)
     post = np.empty((K, L, N), np.float64)
     _backward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, alpha, pl, post, w)
-    Pf = np.exp(alpha).sum(axis=1)
+    if int(lag) > 0:
+        lagged = np.empty((K, L, N), np.float64)
+        _lagged(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, alpha, pl, int(lag), lagged, w)
+        Pf = np.exp(lagged).sum(axis=1)
+    else:
+        Pf = np.exp(alpha).sum(axis=1)
     Ps = np.exp(post).sum(axis=1)
     fm, fc, fo = _stats(Pf / Pf.sum(1, keepdims=True), grid.xy)
     sm, sc, so = _stats(Ps / Ps.sum(1, keepdims=True), grid.xy)

@@ -3,8 +3,9 @@ walks went, fused on the walkable grid by :mod:`blenav.crf.smoother`.
 
 ``fused-offline`` (``mode: offline``) is the forward-backward smoothed marginal mean of every node (the whole walk
 informs every estimate: survey analysis, heat maps, the evaluation itself); ``fused-online`` (``mode: online``) the
-forward (filtered) marginal mean, i.e. what a phone running the same model would show at that instant (0 s behind
-the present), from the first node with a fix on (before it the model knows only the floor). Both rows share one
+forward (filtered) marginal mean, i.e. what a phone running the same model would show, from the first node with a
+fix on (before it the model knows only the floor); with ``lag_s`` > 0 the fixed-lag marginal, what the phone shows
+``lag_s`` behind the present (the observations up to then). The offline row and a lag-0 online row share one
 forward-backward pass per walk (``inputs.cache``).
 
 The model of a walk (nodes every ``dt_s`` seconds, cells of ``grid.cell_m`` over the floor plan's free space, edges up
@@ -99,7 +100,8 @@ class FusedWalk(Localizer, FixConsumer, Trained):
     uses_floor_plan = True
     fix_roles_are_alternatives = True  # the first role of fix_roles the session has
 
-    def __init__(self, name: str, shared=None, mode: str = "offline", estimate: str = "mean", fix_roles=("both", "ble"),
+    def __init__(self, name: str, shared=None, mode: str = "offline", estimate: str = "mean", lag_s: float = 0.0,
+                 fix_roles=("both", "ble"),
                  odometry: dict | None = None, grid: dict | None = None, dt_s: float = 1.0,
                  motion: dict | None = None, layers: dict | None = None, fix_outlier: float = 0.01,
                  fix_std_scale: float = 1.0, fix_weight: float = 1.0, radio_map: dict | None = None,
@@ -111,6 +113,9 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         if estimate not in ESTIMATES or (mode == "online" and estimate != "mean"):
             raise ValueError(f"method {name!r}: estimate must be one of {ESTIMATES} (online: mean), got {estimate!r}")
         self.estimate = estimate
+        self.lag_s = float(lag_s)
+        if not 0.0 <= self.lag_s <= 60.0:
+            raise ValueError(f"method {name!r}: lag_s must be in [0, 60] s, got {lag_s}")
         self.roles = [str(r) for r in (fix_roles or [])]
         if not self.roles:
             raise ValueError(f"method {name!r}: fix_roles names no role of the experiment's fixes block")
@@ -197,6 +202,10 @@ class FusedWalk(Localizer, FixConsumer, Trained):
             cache[key] = (grid, lp, len(same), rmap)
         return cache[key]
 
+    def _lag_nodes(self) -> int:
+        """The online row's fixed lag in nodes (``lag_s`` / ``dt_s``, rounded); the offline row needs none."""
+        return int(round(self.lag_s / self.dt_s)) if self.mode == "online" else 0
+
     def heading_of(self, session) -> str:
         """The PDR heading source: ``auto`` takes the phone's rotation vector where the walk has one (orientation.csv),
         else blenav's AHRS."""
@@ -224,7 +233,7 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         key = ("fused-walk", session.id, role, digest.hexdigest(), self._step(), self.heading, self.cell_m, self.max_step_m,
                self.dt_s, self.sigma0, self.sigma_per, self.no_odometry_sigma, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
                self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", self.fix_weight,
-               self.radio_map, self.radio_weight, tuple(s.id for s in self.train))
+               self.radio_map, self.radio_weight, self._lag_nodes(), tuple(s.id for s in self.train))
         if key in inputs.cache:
             return inputs.cache[key]
         t0 = time.perf_counter()
@@ -276,7 +285,8 @@ class FusedWalk(Localizer, FixConsumer, Trained):
             for k, ll in zip(snode, rmap.log_likelihood(Q)):
                 observe(k, np.logaddexp(lo_in + ll, lo_out), self.radio_weight)
             node = np.concatenate([node, snode])
-        res = forward_backward(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers, prune=self.prune)
+        res = forward_backward(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers, prune=self.prune,
+                               lag=self._lag_nodes())
         path = None
         if self.estimate == "viterbi":
             path = grid.xy[viterbi(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers,
