@@ -141,3 +141,32 @@ def test_fixed_lag_equals_enumeration_of_the_truncated_walk():
     np.testing.assert_allclose(rK.filtered_mean, r0.smoothed_mean, atol=1e-9)
     with pytest.raises(ValueError, match="lag"):
         forward_backward(g, disp, 0.7, unary, lag=-1)
+
+
+def test_bad_shapes_and_a_prior_that_rules_out_every_target_are_refused_or_survived():
+    g = _toy()
+    rng = np.random.default_rng(4)
+    K = 3
+    disp = rng.normal(0, 0.8, (K - 1, 2))
+    unary = _unaries(g, rng, K)
+    with pytest.raises(ValueError, match="log_init"):
+        forward_backward(g, disp, 0.7, unary, log_init=np.zeros(3))
+    with pytest.raises(ValueError, match=r"unary\[0\]"):
+        forward_backward(g, disp, 0.7, [np.zeros(2)] + unary[1:])
+    with pytest.raises(ValueError, match="prune"):
+        forward_backward(g, disp, 0.7, unary, prune=1.5)
+    lp = np.zeros(g.n_cells)
+    lp[[0, 1]] = -np.inf  # cells no walker goes to: no source may normalise over nothing
+    r = forward_backward(g, disp, 0.7, unary, log_prior=lp, prune=0.0)
+    assert np.isfinite(r.smoothed_mean).all() and np.isfinite(r.log_evidence)
+
+
+def test_viterbi_after_a_restart_returns_cells_only():
+    """A unary that rules out every cell reachable from the previous node forces a restart: the path has no -1."""
+    occ = np.full((1, 12), FREE, np.uint8)
+    g = grid_from_occupancy(occ, 1.0, (0.0, 0.0), 1.0, 1.0)
+    K = 4
+    U = [np.where(np.arange(g.n_cells) == 0, 0.0, -np.inf), None,
+         np.where(np.arange(g.n_cells) == 11, 0.0, -np.inf), None]
+    path, _ = viterbi(g, np.zeros((K - 1, 2)), 0.5, U, prune=0.0)
+    assert (path >= 0).all() and path[0] == 0 and path[2] == 11

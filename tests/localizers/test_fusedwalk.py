@@ -145,3 +145,13 @@ def test_the_radio_map_option_scores_the_scans_too(walks):
     assert n > 10
     with pytest.raises(ValueError, match="radio_map: unknown key"):
         FusedWalk("x", radio_map={"bandwith_m": 3.0})
+
+
+@pytest.mark.parametrize("bad, match", [({"prune": 1.5}, "prune"), ({"path_prior": {"floor": 0.0}}, "path_prior"),
+                                        ({"motion": {"sigma_per_m": -0.1}}, "sigma_per_m"),
+                                        ({"layers": {"heading_offsets_deg": []}}, "layers"),
+                                        ({"layers": {"scales": [0.0]}}, "layers"),
+                                        ({"fix_weight": 0.0}, "nothing to observe")])
+def test_more_settings_are_checked(bad, match):
+    with pytest.raises(ValueError, match=match):
+        FusedWalk("x", **bad)

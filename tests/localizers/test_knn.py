@@ -248,3 +248,19 @@ def test_calibrated_fix_std_is_reported_and_is_the_cov(coded):
     np.testing.assert_allclose(c[:, 0, 0], c[:, 1, 1])
     with pytest.raises(ValueError, match="fix_std"):
         FingerprintLocalizer("KNN", fix_std="wild")
+
+
+def test_std_model_fit_survives_outliers_and_degenerate_inputs():
+    """One signal distance 100x the others, errors that grow fast with it, constant features, all-zero errors, too
+    few fixes: a finite model every time (no singular Hessian, no overflow)."""
+    rng = np.random.default_rng(1)
+    n = 500
+    d1 = rng.uniform(0, 1, n)
+    d1[0] = 100.0
+    err = np.abs(rng.normal(0, 1, n)) * np.exp(3.0 * np.minimum(d1, 5.0))
+    for e, sp, d in ((err, rng.uniform(0, 3, n), d1), (np.abs(rng.normal(0, 2, n)), np.zeros(n), np.ones(n)),
+                     (np.zeros(n), rng.uniform(0, 3, n), d1), (np.array([3.0, 4.0]), np.zeros(2), np.zeros(2))):
+        m = KNN.fit_std_model(e, sp, d)
+        assert np.isfinite(m.c).all() and np.isfinite(m.std(sp, d)).all(), m.c
+    m = KNN.fit_std_model(np.array([3.0, 4.0]), np.zeros(2), np.zeros(2))
+    assert np.isclose(m.std(np.zeros(1), np.zeros(1))[0], np.sqrt((9 + 16) / 2 / 2), rtol=1e-3)

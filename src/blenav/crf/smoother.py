@@ -108,6 +108,8 @@ def _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, out):
         out[e - a] = w
         if w > m:
             m = w
+    if m == -np.inf:  # every target ruled out by the prior: the cell is no source
+        return b - a
     s = 0.0
     for e in range(b - a):
         s += math.exp(out[e] - m)
@@ -302,19 +304,34 @@ def _prepare(grid, disp, sigma, unary, log_init, log_prior, layers):
     sigma = np.broadcast_to(np.asarray(sigma, float), (max(K - 1, 0),)).copy()
     if (sigma <= 0).any():
         raise ValueError("smoother: sigma must be > 0")
+    layers = layers or Layers()
+    if layers.n < 1 or not all(float(x) > 0 for x in layers.scales):
+        raise ValueError(f"smoother: layers need at least one heading offset and positive scales, got {layers}")
+    # alpha, post, a lagged copy and the exp temporary (K, L, N); the unaries and the marginals' statistics (K, N)
+    check_memory(4.0 * K * layers.n * N * 8 + 3.0 * K * N * 8, f"a walk smoother of {K:,} nodes x {layers.n} layers "
+                 f"x {N:,} cells", "smoother (dt_s, layers, cell_m)")
     has = np.array([u is not None for u in unary])
     U = np.zeros((K, N))
     for k, u in enumerate(unary):
         if u is not None:
+            u = np.asarray(u, float)
+            if u.shape != (N,):
+                raise ValueError(f"smoother: unary[{k}] must be ({N},) per cell, got {u.shape}")
             U[k] = u
+    for what, v in (("log_init", log_init), ("log_prior", log_prior)):
+        if v is not None and np.shape(v) != (N,):
+            raise ValueError(f"smoother: {what} must be ({N},) per cell, got {np.shape(v)}")
     li = np.full(N, -math.log(N)) if log_init is None else np.asarray(log_init, float)
     lp = np.zeros(N) if log_prior is None else np.asarray(log_prior, float)
-    layers = layers or Layers()
     ca, sa = layers.arrays()
-    check_memory(3.0 * K * layers.n * N * 8 + K * N * 8, f"a walk smoother of {K:,} nodes x {layers.n} layers x "
-                 f"{N:,} cells", "smoother (dt_s, layers, cell_m)")
     vx, vy = _edge_vectors(grid)
     return K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy
+
+
+def _prune_log(prune: float) -> float:
+    if not 0.0 <= float(prune) < 1.0:
+        raise ValueError(f"smoother: prune must be in [0, 1), got {prune}")
+    return math.log(prune) if prune > 0 else -np.inf
 
 
 def _stats(P: np.ndarray, xy: np.ndarray):
@@ -339,7 +356,7 @@ def forward_backward(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_in
     K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy = _prepare(grid, disp, sigma, unary, log_init, log_prior,
                                                                  layers)
     L = len(ca)
-    pl = math.log(prune) if prune > 0 else -np.inf
+    pl = _prune_log(prune)
     if int(lag) < 0:
         raise ValueError(f"smoother: lag must be >= 0 nodes, got {lag}")
     alpha = np.empty((K, L, N), np.float64)
@@ -357,7 +374,7 @@ def forward_backward(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_in
     Ps = np.exp(post).sum(axis=1)
     fm, fc, fo = _stats(Pf / Pf.sum(1, keepdims=True), grid.xy)
     sm, sc, so = _stats(Ps / Ps.sum(1, keepdims=True), grid.xy)
-    lay = np.exp(post[0]).sum(axis=1)
+    lay = np.exp(post[K - 1]).sum(axis=1)
     return SmootherResult(fm, fc, fo, sm, sc, so, lay / lay.sum(), float(logev))
 
 
@@ -369,7 +386,7 @@ def viterbi(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_init: np.nd
     K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy = _prepare(grid, disp, sigma, unary, log_init, log_prior,
                                                                  layers)
     L = len(ca)
-    pl = math.log(prune) if prune > 0 else -np.inf
+    pl = _prune_log(prune)
     delta = np.empty((K, L, N), np.float64)
     back = np.full((K, L, N), -1, np.int32)
     _forward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, li, pl, True, delta, back,
@@ -379,6 +396,8 @@ def viterbi(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_init: np.nd
     path[K - 1] = j
     for k in range(K - 1, 0, -1):
         j = int(back[k, l, j])
+        if j < 0:  # node k restarted (every path ruled out): the path before it ends at node k-1's best cell
+            j = int(np.argmax(delta[k - 1, l]))
         path[k - 1] = j
     return path, int(l)
 

@@ -266,10 +266,11 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
     inputs_for = lambda session: method_inputs(method, session, inputs, fixes)  # noqa: E731
     for si, s in enumerate(sessions):
         try:
-            inp = inputs_for(s)
+            inp = None  # the run's inputs (one map); per-run perturbed maps resolve their own
             if beacon_map is not None and beacon_map.perturbed:
                 est = BM.run_per_run_maps(method, s, si, runs, session_seed(seed, si), inputs_for, beacon_map)
             else:
+                inp = inputs_for(s)
                 est = method.run(s, runs, session_seed(seed, si), inp)
         except MissingStream as exc:  # e.g. no IMU in a fixed-receiver recording: skip, and say so
             oc.skipped[s.id] = str(exc)
@@ -297,7 +298,7 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
         err = beacon_errors(est, s)
         if err is not None:
             m["beacon_error_m"] = err
-        if inp.fixes is not None and inp.fixes.roles:  # the fixes' stated std against the ground truth
+        if inp is not None and inp.fixes is not None and inp.fixes.roles:  # the fixes' stated std vs the ground truth
             cov = {r: fix_coverage_counts(f.t, f.xy, f.std, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy())
                    for r, f in inp.fixes.roles.items()}
             if any(c is not None for c in cov.values()):

@@ -35,6 +35,7 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
     between them, every ``step_s`` s): per bin (:data:`COVERAGE_BINS_M`) the share of the fixes and their mean / median
     error (m). A KNN answers with positions the train walks visited: fixes far from them cannot be close. The entry
     point composes ``cfg`` (``python -m blenav.cli.realwalks coverage DATA``)."""
+    from blenav.errors import MissingStream
     from blenav.localizers import build_localizer
 
     from .config import parse_eval_config
@@ -48,6 +49,8 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
     node = (ecfg.methods or {}).get(row)
     if node is None:
         raise ValueError(f"coverage: the experiment has no method {row!r} (methods: {sorted(ecfg.methods or {})})")
+    if not str(node.get("_target_", "")).endswith("FingerprintLocalizer"):
+        raise ValueError(f"coverage: method {row!r} is not a fingerprint localizer ({node.get('_target_')})")
     loc = build_localizer(str(node.get("label", row)), node, ecfg.shared())
     loc.fit(train)
     seen = {}
@@ -56,10 +59,16 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
         t = np.arange(float(gt["t"].iloc[0]), float(gt["t"].iloc[-1]) + 1e-9, step_s)
         seen.setdefault(s.floor.id, []).append(s.positions_at(t)[:, :2])
     err, dist = [], []
+    skipped = {}
     for s in test:
-        est = loc.run(s, 1, 0)
+        try:
+            est = loc.run(s, 1, 0)
+        except MissingStream as exc:  # a walk without the row's scans: skipped, and said
+            skipped[s.id] = str(exc)
+            continue
+        gt_t = s.groundtruth["t"].to_numpy(float)
         truth = s.positions_at(est.t)[:, :2]
-        ok = np.isfinite(truth).all(axis=1)
+        ok = np.isfinite(truth).all(axis=1) & (est.t >= gt_t[0]) & (est.t <= gt_t[-1])  # inside the survey
         ref = np.concatenate(seen.get(s.floor.id, [np.zeros((0, 2))]))
         if not ok.any() or not len(ref):
             continue
@@ -68,6 +77,9 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
         for i in range(0, len(ref), 4096):  # bounded memory
             d = np.minimum(d, np.linalg.norm(truth[ok][:, None] - ref[None, i:i + 4096], axis=2).min(axis=1))
         dist.append(d)
+    if not err:
+        raise ValueError(f"coverage: {node.get('label', row)} gave no fix inside the waypoints of the "
+                         f"{len(test)} test walks ({len(skipped)} skipped)")
     err, dist = np.concatenate(err), np.concatenate(dist)
     bins = []
     for lo, hi in zip(COVERAGE_BINS_M[:-1], COVERAGE_BINS_M[1:]):
@@ -76,4 +88,4 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
                      "error_mean_m": float(err[m].mean()) if m.any() else None,
                      "error_median_m": float(np.median(err[m])) if m.any() else None})
     return {"row": str(node.get("label", row)), "fixes": int(len(err)), "error_mean_m": float(err.mean()),
-            "train_walks": len(train), "test_walks": len(test), "bins": bins}
+            "train_walks": len(train), "test_walks": len(test), "skipped": skipped, "bins": bins}

@@ -67,7 +67,7 @@ class MethodResult:
     confined: dict | None = None
     beacon_error_m: dict | None = None
     orientation_rmse_deg: float | None = None
-    fix_coverage: dict | None = None  # role -> {1sigma, 2sigma, waypoints}: the fixes a fused method weighed
+    fix_coverage: dict | None = None  # role -> {1sigma, 2sigma, waypoints}: the fixes a fused method was given, their own std
     convergence: dict | None = None  # a fused method: time until it settles within 5 m (metrics.pool_convergence)
     per_session: dict = field(default_factory=dict)
     windows: WindowStats | None = None

@@ -150,6 +150,18 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         pp = _block(name, "path_prior", path_prior, {"weight": 1.0, "floor": 0.05, "blur_m": 1.5})
         self.prior_weight, self.prior_floor, self.prior_blur = float(pp["weight"]), float(pp["floor"]), float(pp["blur_m"])
         self.prune = float(prune)
+        if not 0.0 <= self.prune < 1.0:
+            raise ValueError(f"method {name!r}: prune must be in [0, 1), got {prune}")
+        if not (self.prior_floor > 0 and self.prior_weight >= 0 and self.prior_blur > 0):
+            raise ValueError(f"method {name!r}: path_prior needs floor > 0, weight >= 0 and blur_m > 0 (got "
+                             f"{self.prior_floor}, {self.prior_weight}, {self.prior_blur})")
+        if not self.sigma_per >= 0:
+            raise ValueError(f"method {name!r}: motion.sigma_per_m must be >= 0, got {self.sigma_per}")
+        if self.layers.n < 1 or not all(x > 0 for x in self.layers.scales):
+            raise ValueError(f"method {name!r}: layers need at least one heading offset and scales > 0, got "
+                             f"{la['heading_offsets_deg']} / {la['scales']}")
+        if self.fix_weight == 0 and self.radio_map is None:
+            raise ValueError(f"method {name!r}: fix_weight 0 without a radio_map leaves nothing to observe")
         for what, v, lo in (("dt_s", self.dt_s, 1e-3), ("grid.cell_m", self.cell_m, 0.05),
                             ("motion.sigma0_m", self.sigma0, 1e-3), ("fix_std_scale", self.fix_std_scale, 1e-3),
                             ("motion.no_odometry_sigma_m", self.no_odometry_sigma, 1e-3)):
@@ -263,6 +275,9 @@ class FusedWalk(Localizer, FixConsumer, Trained):
             oy = np.interp(T, odo["t"].to_numpy(float), odo["y"].to_numpy(float))
             disp = np.diff(np.column_stack([ox, oy]), axis=0)
             sigma = self.sigma0 + self.sigma_per * np.hypot(disp[:, 0], disp[:, 1])
+            # intervals outside the IMU's span (fixes heard before it starts or after it ends): no odometry there
+            o0, o1 = float(odo["t"].iloc[0]), float(odo["t"].iloc[-1])
+            sigma = np.where((T[1:] <= o0) | (T[:-1] >= o1), self.no_odometry_sigma, sigma)
         else:
             T = np.arange(float(ft[0]), float(ft[-1]) + 0.5 * self.dt_s, self.dt_s)
             disp = np.zeros((len(T) - 1, 2))

@@ -203,21 +203,48 @@ def std_features(idx: np.ndarray, d2: np.ndarray, cov: np.ndarray, cov_floor_m: 
 
 def fit_std_model(err: np.ndarray, spread: np.ndarray, d1: np.ndarray) -> StdModel:
     """The :class:`StdModel` maximising the isotropic 2-D Gaussian likelihood of the errors ``err`` (K,) m (norm of
-    the estimate minus the label) given their features: per fix, 2 log std + err^2 / (2 std^2), summed; a
-    convex problem in c (Newton's method on the three coefficients, numpy)."""
+    the estimate minus the label) given their features: per fix, 2 log std + err^2 / (2 std^2), summed; a convex
+    problem in c, solved by damped Newton steps on standardised features (each step halved until the cost drops).
+    Fewer than 3 finite fixes, or no finite optimum: the constant model of their RMS error (std^2 = mean err^2 / 2),
+    else :class:`StdModel`'s default."""
     err, spread, d1 = (np.asarray(a, float) for a in (err, spread, d1))
-    A = np.column_stack([np.ones(len(err)), np.log1p(spread), d1])
+    ok = np.isfinite(err) & np.isfinite(spread) & np.isfinite(d1)
+    err, spread, d1 = err[ok], spread[ok], d1[ok]
     e2 = err**2 + 1e-6
-    c = np.array([0.5 * math.log(max(float(np.mean(e2)) / 2.0, 1e-6)), 0.0, 0.0])  # 2-D: E|e|^2 = 2 std^2
-    for _ in range(50):  # f(c) = sum 2 a.c + e2 exp(-2 a.c) / 2
-        z = np.exp(-2.0 * (A @ c))
+    if len(err) < 3:
+        return StdModel((0.5 * math.log(float(np.mean(e2)) / 2.0), 0.0, 0.0)) if len(err) else StdModel()
+    F = np.column_stack([np.log1p(spread), d1])
+    mu, sd = F.mean(axis=0), F.std(axis=0)
+    sd = np.where(sd > 1e-9, sd, 1.0)  # a constant feature keeps its (zero) coefficient
+    A = np.column_stack([np.ones(len(err)), (F - mu) / sd])
+
+    def cost(c):
+        z = A @ c
+        return float(np.sum(2.0 * z + 0.5 * e2 * np.exp(-2.0 * np.clip(z, -30.0, 30.0))))
+
+    c = np.array([0.5 * math.log(float(np.mean(e2)) / 2.0), 0.0, 0.0])  # 2-D: E|e|^2 = 2 std^2
+    f = cost(c)
+    for _ in range(100):  # f(c) = sum 2 a.c + e2 exp(-2 a.c) / 2
+        z = np.exp(-2.0 * np.clip(A @ c, -30.0, 30.0))
         g = A.T @ (2.0 - e2 * z)
         H = (A * (2.0 * e2 * z)[:, None]).T @ A + 1e-9 * np.eye(3)
-        step = np.linalg.solve(H, g)
-        c = c - step
-        if np.abs(step).max() < 1e-10:
+        try:
+            step = np.linalg.solve(H, g)
+        except np.linalg.LinAlgError:
             break
-    return StdModel(tuple(float(v) for v in c))
+        t = 1.0
+        while t > 1e-6 and not cost(c - t * step) <= f:
+            t *= 0.5
+        if t <= 1e-6:
+            break
+        c, f = c - t * step, cost(c - t * step)
+        if np.abs(t * step).max() < 1e-10:
+            break
+    # back to the raw features: c0 + c1 (x1 - mu1) / sd1 + c2 (x2 - mu2) / sd2
+    raw = np.array([c[0] - c[1] * mu[0] / sd[0] - c[2] * mu[1] / sd[1], c[1] / sd[0], c[2] / sd[1]])
+    if not np.isfinite(raw).all():
+        return StdModel((0.5 * math.log(float(np.mean(e2)) / 2.0), 0.0, 0.0))
+    return StdModel(tuple(float(v) for v in raw))
 
 
 def out_of_fold(S: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, setting: KnnSetting, is_ble: np.ndarray,
