@@ -23,6 +23,13 @@ def _unaries(g, rng, K):
     return [None if k == 1 else rng.normal(0, 1.5, g.n_cells) for k in range(K)]
 
 
+def _toy_walk(seed: int, K: int):
+    """(grid, disp (K-1, 2), unaries) of a random walk model on the toy floor."""
+    g = _toy()
+    rng = np.random.default_rng(seed)
+    return g, rng.normal(0, 0.8, (K - 1, 2)), _unaries(g, rng, K)
+
+
 @pytest.mark.parametrize("layers", [None, Layers((0.0, 0.5), (1.0, 1.3))])
 def test_forward_backward_and_viterbi_equal_enumeration(layers):
     g = _toy()
@@ -43,11 +50,7 @@ def test_forward_backward_and_viterbi_equal_enumeration(layers):
 
 
 def test_filtered_marginal_of_the_last_node_is_the_smoothed_one_and_the_first_uses_only_its_own_fix():
-    g = _toy()
-    rng = np.random.default_rng(5)
-    K = 3
-    disp = rng.normal(0, 0.8, (K - 1, 2))
-    unary = _unaries(g, rng, K)
+    g, disp, unary = _toy_walk(5, 3)
     r = forward_backward(g, disp, 0.6, unary, prune=0.0)
     np.testing.assert_allclose(r.filtered_mean[-1], r.smoothed_mean[-1], atol=1e-12)
     p0 = np.exp(unary[0] - unary[0].max())
@@ -126,11 +129,8 @@ def test_pruning_that_cuts_every_path_still_gives_a_finite_track():
 def test_fixed_lag_equals_enumeration_of_the_truncated_walk():
     """The lag-1 marginal of node k is the smoothed marginal of the walk cut after node k + 1 (enumerated exactly);
     lag 0 is the filter, a lag of the whole walk the smoother."""
-    g = _toy()
-    rng = np.random.default_rng(7)
     K = 4
-    disp = rng.normal(0, 0.8, (K - 1, 2))
-    unary = _unaries(g, rng, K)
+    g, disp, unary = _toy_walk(7, K)
     r1 = forward_backward(g, disp, 0.7, unary, prune=0.0, lag=1)
     for k in range(K):
         end = min(k + 1, K - 1)
@@ -144,11 +144,7 @@ def test_fixed_lag_equals_enumeration_of_the_truncated_walk():
 
 
 def test_bad_shapes_and_a_prior_that_rules_out_every_target_are_refused_or_survived():
-    g = _toy()
-    rng = np.random.default_rng(4)
-    K = 3
-    disp = rng.normal(0, 0.8, (K - 1, 2))
-    unary = _unaries(g, rng, K)
+    g, disp, unary = _toy_walk(4, 3)
     with pytest.raises(ValueError, match="log_init"):
         forward_backward(g, disp, 0.7, unary, log_init=np.zeros(3))
     with pytest.raises(ValueError, match=r"unary\[0\]"):
