@@ -4,7 +4,7 @@ shown to leave every number bit-identical (issue 27).
 
     python tools/regression_snapshot.py run   --work DIR --out SNAP.json [--only NAME,...] [--ilc-raw DIR]
     python tools/regression_snapshot.py check --work DIR --ref SNAP.json [--only NAME,...] [--ilc-raw DIR]
-    make regression-check     # check against tests/regression/snapshot_6279865.json in data/regression
+    make regression-check     # check against tests/regression/snapshot_302d488.json in data/regression
 
 What it covers (5 min on a shared 2-core machine). Inputs, built in DIR with fixed seeds and non-default
 building names: simulated datasets (``blenav-sim``: an office, a one-walk office, a CRF hall, a small
@@ -29,7 +29,7 @@ holds the canonical form of the last run; diff two of them for every field.
 
 Determinism: subprocesses run with one BLAS / OpenMP thread (OMP_NUM_THREADS etc.; the configs already
 set torch threads=1 and Lightning deterministic); two runs of b6170be in different DIRs gave the same
-digests (and of 7760b61 / 6279865, the reference since issue 30). Bit-identity holds on one machine and library
+digests (and of 302d488 / 733921b, the reference since issue 30). Bit-identity holds on one machine and library
 stack: a reference made elsewhere (another CPU,
 numpy / torch / onnxruntime build) may differ in the last bits without any code change.
 
