@@ -340,3 +340,10 @@ def test_coverage_bins_the_fix_errors_by_distance_to_the_train_walks(tmp_path):
     assert len(rep["bins"]) == len(COVERAGE_BINS_M) - 1 and np.isclose(sum(b["share"] for b in rep["bins"]), 1.0)
     with pytest.raises(ValueError, match="no method"):
         coverage(experiment_config(f"data={data}"), "knn_nothing")
+    with pytest.raises(ValueError, match="not a fingerprint localizer"):
+        coverage(experiment_config(f"data={data}"), "pdr_map")
+    from blenav.cli.realwalks import main
+
+    png = tmp_path / "cover.png"  # the command's figure: the floor, the train walks, the test fixes by error
+    assert main(["coverage", str(data), "knn_ble", "--plot", str(png)]) == 0
+    assert png.is_file() and png.stat().st_size > 10_000

@@ -334,3 +334,21 @@ def test_rssi_vs_distance_figure_draws_every_panel(tmp_path):
             assert abs(n - 2.2) < 0.15
     path = save_figure(fig, tmp_path / "r.png")
     assert Image.open(path).size[0] > 800
+
+
+def test_plot_floor_room_labels_off_when_asked_and_unplaced_anchors_not_counted(tiny_dataset, tmp_path):
+    """room_labels=False writes no room id; an anchor without a position is neither drawn nor counted."""
+    import pandas as pd
+
+    from blenav.plotting import new_figure, plot_floor
+
+    p = tiny_dataset / "buildings" / "house" / "anchors.csv"
+    a = pd.read_csv(p)
+    a.loc[a["anchor_id"] == "b1", ["x", "y", "z"]] = float("nan")  # an unplaced beacon (the format: all three empty)
+    a.to_csv(p, index=False)
+    b = Dataset.open(tiny_dataset).building("house")
+    ax = new_figure(6, 5).subplots()
+    plot_floor(ax, b, 0, room_labels=False)
+    texts = {t.get_text() for t in ax.texts}
+    assert not texts & {"west", "east"} and "b1" not in texts
+    assert "BLE beacon (3)" in ax.get_legend_handles_labels()[1]

@@ -1,5 +1,5 @@
-"""``python -m blenav.cli.realwalks train-ids DATA | coverage DATA [ROW] | tables OUT_ROOT SUMMARY.md [FLOORS_DIR]
-[README] | priors MAIN OTHER PRIOR_PATTERN PAGE.md [README]``: the steps of ``make realwalks-tables``
+"""``python -m blenav.cli.realwalks train-ids DATA | coverage DATA [ROW] [--plot FILE] | tables OUT_ROOT SUMMARY.md
+[FLOORS_DIR] [README] | priors MAIN OTHER PRIOR_PATTERN PAGE.md [README]``: the steps of ``make realwalks-tables``
 (docs/results-ilc20.md), and ``coverage``: a fingerprint row's fix errors (default ``knn_both``, KNN-WiFi+BLE) by how
 far each true position lies from the train walks (:func:`~blenav.eval.realwalks.coverage`).
 
@@ -20,7 +20,7 @@ import sys
 from .common import guarded, pop_debug
 
 PROG = "python -m blenav.cli.realwalks"
-USAGE = (f"usage: {PROG} train-ids DATA | coverage DATA [ROW] | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README] | "
+USAGE = (f"usage: {PROG} train-ids DATA | coverage DATA [ROW] [--plot FILE.png] | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README] | "
          f"priors MAIN OTHER PRIOR_PATTERN PAGE.md [README]")
 
 
@@ -55,9 +55,17 @@ def _main(argv: list[str]) -> int:
     cmd, args = (argv[0], argv[1:]) if argv else ("", [])
     if cmd == "train-ids" and len(args) == 1:
         print(",".join(train_ids_of(args[0])))
-    elif cmd == "coverage" and len(args) in (1, 2):
+    elif cmd == "coverage" and 1 <= len(args) <= 4:
         from blenav.eval.realwalks import coverage
 
+        plot = None
+        if "--plot" in args:
+            i = args.index("--plot")
+            if i + 1 >= len(args):
+                sys.exit(USAGE)
+            plot, args = args[i + 1], args[:i] + args[i + 2:]
+        if len(args) not in (1, 2):
+            sys.exit(USAGE)
         rep = coverage(experiment_config(f"data={args[0]}"), *args[1:])
         print(f"{rep['row']}: {rep['fixes']} fixes of {rep['test_walks']} test walks, mean error "
               f"{rep['error_mean_m']:.2f} m; by the distance of the true position to the {rep['train_walks']} train walks:")
@@ -65,6 +73,14 @@ def _main(argv: list[str]) -> int:
             to = "" if b["to_m"] is None else f"{b['to_m']:g}"
             err = "--" if b["error_mean_m"] is None else f"{b['error_mean_m']:.2f} / {b['error_median_m']:.2f} m"
             print(f"  {b['from_m']:g}-{to} m: {100 * b['share']:.0f} % of the fixes, error mean / median {err}")
+        if plot:
+            from blenav.plotting.common import save_figure
+            from blenav.plotting.evaluation import figure_coverage
+
+            pts = rep["_points"]
+            path = save_figure(figure_coverage(pts["session"], pts["train"], pts["truth"], pts["error"],
+                                               f"{rep['row']}: test fixes by error, train walks in grey"), plot)
+            print(f"wrote {path}")
     elif cmd == "tables" and 2 <= len(args) <= 4:
         from blenav.reporting.realwalks import write_tables
 

@@ -58,7 +58,7 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
         gt = s.groundtruth
         t = np.arange(float(gt["t"].iloc[0]), float(gt["t"].iloc[-1]) + 1e-9, step_s)
         seen.setdefault(s.floor.id, []).append(s.positions_at(t)[:, :2])
-    err, dist = [], []
+    err, dist, where, first = [], [], [], None
     skipped = {}
     for s in test:
         try:
@@ -73,6 +73,8 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
         if not ok.any() or not len(ref):
             continue
         err.append(np.linalg.norm(est.position[0][ok] - truth[ok], axis=1))
+        where.append(truth[ok])
+        first = first or s
         d = np.full(int(ok.sum()), np.inf)
         for i in range(0, len(ref), 4096):  # bounded memory
             d = np.minimum(d, np.linalg.norm(truth[ok][:, None] - ref[None, i:i + 4096], axis=2).min(axis=1))
@@ -88,4 +90,7 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
                      "error_mean_m": float(err[m].mean()) if m.any() else None,
                      "error_median_m": float(np.median(err[m])) if m.any() else None})
     return {"row": str(node.get("label", row)), "fixes": int(len(err)), "error_mean_m": float(err.mean()),
-            "train_walks": len(train), "test_walks": len(test), "skipped": skipped, "bins": bins}
+            "train_walks": len(train), "test_walks": len(test), "skipped": skipped, "bins": bins,
+            # for the figure (python -m blenav.cli.realwalks coverage DATA --plot FILE): not written to JSON
+            "_points": {"session": first, "train": np.concatenate([v for f in seen.values() for v in f]),
+                        "truth": np.concatenate(where), "error": err}}

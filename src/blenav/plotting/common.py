@@ -25,6 +25,8 @@ MAX_LEGEND_SESSIONS = 12
 
 #: Anchors are labelled with their id when a floor has at most this many.
 MAX_LABELLED_ANCHORS = 40
+#: at most this many rooms get their id written inside (plot_floor's room_labels default)
+MAX_LABELLED_ROOMS = 40
 
 #: Points drawn per receiver in the RSSI scatter (the fit always uses all of them).
 MAX_SCATTER_POINTS = 20000

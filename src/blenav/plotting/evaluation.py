@@ -1,5 +1,6 @@
 """Figures of an evaluation: error CDFs, per-device means, RMSE boxes, error over time, trajectories on the floor
-plan and learning curves; and the leaderboard's CDF by method family and the PCRLB over time.
+plan and learning curves; the leaderboard's CDF by method family and the PCRLB over time; and where a survey's
+fingerprints fail (:func:`figure_coverage`).
 """
 
 from __future__ import annotations
@@ -199,4 +200,25 @@ def figure_bound_over_time(curves: dict[str, dict], curves_ble: dict[str, dict] 
     ax.grid(True, alpha=0.3, which="both")
     legend_in_figure(fig, ax, len(curves) + sum(sid in (curves_ble or {}) for sid in curves), inside="upper right")
     ax.set_title("posterior Cramer-Rao lower bound along the true trajectories", fontsize=9)
+    return fig
+
+
+def figure_coverage(session: Session, train_xy: np.ndarray, truth_xy: np.ndarray, err_m: np.ndarray, title: str = "",
+                    vmax_m: float = 20.0) -> Figure:
+    """Where a fingerprint survey needs more walks: the floor of ``session``, the train walks' positions (grey) and
+    each test fix at its true position (``truth_xy`` (M, 2) m) coloured by its error (``err_m`` (M,) m, clipped at
+    ``vmax_m``)."""
+    fl = session.floor
+    x0, x1, y0, y1 = fl.extent
+    w = 9.0
+    fig = new_figure(w, max(3.5, w * (y1 - y0) / max(x1 - x0, 1e-9) * 0.85))
+    ax = fig.subplots()
+    plot_floor(ax, session.building, session.meta.get("floor"), anchor_labels=False)
+    if len(train_xy):
+        ax.scatter(train_xy[:, 0], train_xy[:, 1], s=2, color="0.6", alpha=0.5, label="train walks", zorder=4)
+    sc = ax.scatter(truth_xy[:, 0], truth_xy[:, 1], c=np.minimum(err_m, vmax_m), s=10, cmap="viridis", vmin=0.0,
+                    vmax=vmax_m, label="test fixes (true position)", zorder=5)
+    fig.colorbar(sc, ax=ax, shrink=0.8, label=f"fix error (m, clipped at {vmax_m:g})")
+    ax.legend(loc="upper right", fontsize=7)
+    ax.set_title(title or "fingerprint fix error by where it was taken", fontsize=9)
     return fig

@@ -23,6 +23,7 @@ from .common import (
     ANCHOR_STYLE,
     FREE_GREY,
     MAX_LABELLED_ANCHORS,
+    MAX_LABELLED_ROOMS,
     MAX_LEGEND_SESSIONS,
     OCCUPIED_GREY,
     ROOM_COLOR,
@@ -49,13 +50,16 @@ def _lines(g) -> list[LineString]:
     return []
 
 
-def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | None = None) -> Axes:
+def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | None = None,
+               room_labels: bool | None = None) -> Axes:
     """Draw one floor in world metres: occupancy grid, rooms, navigation graph and radio anchors.
 
     Anchors: BLE beacons as triangles, WiFi RTT access points as squares, at their prior (map) positions;
     where the anchors carry ``x_true, y_true`` a thin line joins the prior to the true position (small x).
     ``anchor_labels``: write anchor ids next to them (default: when the floor has at most
-    :data:`MAX_LABELLED_ANCHORS`).
+    :data:`MAX_LABELLED_ANCHORS`); ``room_labels``: write room ids inside them (default: at most
+    :data:`MAX_LABELLED_ROOMS` rooms: a mall's hundreds of shop ids would cover the plan). Anchors without a position
+    are neither drawn nor counted in the legend.
     """
     fl = building.floor(floor_id)
     occ = fl.occupancy
@@ -66,13 +70,17 @@ def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | 
     ax.imshow(grey, cmap="gray", vmin=0.0, vmax=1.0, extent=fl.extent, origin="upper",
               interpolation="nearest", zorder=0)
 
-    for k, room in enumerate(building.rooms_on(fl.id)):
+    rooms = list(building.rooms_on(fl.id))
+    if room_labels is None:
+        room_labels = len(rooms) <= MAX_LABELLED_ROOMS
+    for k, room in enumerate(rooms):
         rings = [ring for poly in _polygons(room.geometry) for ring in (poly.exterior, *poly.interiors)]
         for j, ring in enumerate(rings):
             x, y = ring.xy
             ax.plot(x, y, color=ROOM_COLOR, lw=0.8, alpha=0.6, zorder=1, label="room" if k == j == 0 else None)
-        p = room.geometry.representative_point()
-        ax.text(p.x, p.y, room.id, fontsize=7, color=ROOM_COLOR, alpha=0.55, ha="center", va="center", zorder=1)
+        if room_labels:
+            p = room.geometry.representative_point()
+            ax.text(p.x, p.y, room.id, fontsize=7, color=ROOM_COLOR, alpha=0.55, ha="center", va="center", zorder=1)
 
     segments = [np.asarray(line.coords)[:, :2] for r in building.routes_on(fl.id) for line in _lines(r.geometry)]
     if segments:
@@ -80,6 +88,7 @@ def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | 
                                          alpha=0.8, zorder=2, label="navigation graph"))
 
     anchors = building.anchors_of(floor=fl.id)
+    anchors = anchors[np.isfinite(anchors["x"].astype(float)) & np.isfinite(anchors["y"].astype(float))]  # placed
     has_true = all(c in anchors.columns for c in ANCHOR_TRUE_COLUMNS[:2])
     if has_true and len(anchors):
         xt = pd.to_numeric(anchors["x_true"], errors="coerce").to_numpy(dtype=float)
