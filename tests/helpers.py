@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +48,41 @@ def as_waypoint_walks(root: Path) -> Path:
         meta.update(groundtruth_kind="waypoints", orientation_frame="enu-magnetic")
         (d / "session.yaml").write_text(yaml.safe_dump(meta))
     return root
+
+
+def copy_raw(src: Path, dst: Path) -> Path:
+    """A writable copy of a (read-only) raw folder."""
+    shutil.copytree(src, dst, copy_function=shutil.copyfile)
+    for p in [dst, *dst.rglob("*")]:
+        os.chmod(p, 0o755 if p.is_dir() else 0o644)
+    return dst
+
+
+def edit_line(path: Path, line: int, fn) -> None:
+    """Replace 1-based ``line`` of ``path`` by ``fn(old_line)`` (keeps the file's line endings)."""
+    raw = path.read_bytes().decode("utf-8")
+    lines = raw.splitlines(keepends=True)
+    old = lines[line - 1]
+    body = old.rstrip("\r\n")
+    lines[line - 1] = fn(body) + old[len(body):]
+    path.write_text("".join(lines), encoding="utf-8", newline="")
+
+
+def refused_import(kind: str, src: Path, out: Path, rel: str, line: int):
+    """Import ``src`` as ``kind`` into ``out`` expecting the refusal of line ``line`` of file ``rel``: the error names
+    the file and the line (``name:line`` in its message) and nothing was written; returns the error."""
+    import pytest
+
+    from blenav.errors import ImportError_
+    from blenav.importers import run_import
+
+    with pytest.raises(ImportError_) as ei:
+        run_import(kind, src, out)
+    e = ei.value
+    assert Path(e.path).name == Path(rel).name and e.line == line, str(e)
+    assert f"{Path(rel).name}:{line}" in str(e)
+    assert not (out / "sessions").exists()  # nothing written
+    return e
 
 
 def tiny_grid(w_m: float = 10.0, h_m: float = 8.0, res: float = 0.1) -> np.ndarray:

@@ -5,17 +5,16 @@ Expected row counts are computed here straight from the raw files, independently
 
 from __future__ import annotations
 
-import os
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from helpers import copy_raw, edit_line, refused_import
+
 from blenav.cli.importer import main as import_main
 from blenav.data import Dataset, validate
-from blenav.errors import ImportError_
 from blenav.importers import run_import
 
 pytestmark = pytest.mark.realdata
@@ -31,21 +30,6 @@ def _errors(root: Path) -> list[str]:
 
 def _rows(path: Path) -> int:
     return len(pd.read_csv(path)) if path.is_file() else 0
-
-
-def _copy_raw(src: Path, dst: Path) -> Path:
-    """A writable copy of a raw folder (the shared copy is read-only)."""
-    shutil.copytree(src, dst, copy_function=shutil.copyfile)
-    for d, _, _ in os.walk(dst):
-        os.chmod(d, 0o755)
-    return dst
-
-
-def _corrupt(path: Path, line: int, edit) -> None:
-    """Replace 1-based ``line`` of ``path`` by ``edit(old_line)``."""
-    lines = path.read_text(encoding="utf-8").split("\n")
-    lines[line - 1] = edit(lines[line - 1])
-    path.write_text("\n".join(lines), encoding="utf-8")
 
 
 def _set_field(sep: str, k: int, value: str):
@@ -139,13 +123,9 @@ def test_danis_invalid_rssi_is_dropped_and_counted(raw_dir, tmp_path):
     ("occ/tetam_0.1.occ", 50, "::", 1, "7"),                          # occupancy not 0/1
 ])
 def test_danis_bad_line_names_file_and_line(raw_dir, tmp_path, rel, line, sep, field, value):
-    src = _copy_raw(raw_dir / DANIS, tmp_path / "raw")
-    _corrupt(src / rel, line, _set_field(sep, field, value))
-    with pytest.raises(ImportError_) as exc:
-        run_import(DANIS, src, tmp_path / "out")
-    assert f"{Path(rel).name}:{line}" in str(exc.value)
-    assert exc.value.line == line and exc.value.path.endswith(rel)
-    assert not (tmp_path / "out" / "sessions").exists()
+    src = copy_raw(raw_dir / DANIS, tmp_path / "raw")
+    edit_line(src / rel, line, _set_field(sep, field, value))
+    assert refused_import(DANIS, src, tmp_path / "out", rel, line).path.endswith(rel)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -242,13 +222,9 @@ def test_kolakowski_real_import(raw_dir, tmp_path):
     ("calibration/calib_df.csv", 5, ",", 1, ""),              # empty ts
 ])
 def test_kolakowski_bad_line_names_file_and_line(raw_dir, tmp_path, rel, line, sep, field, value):
-    src = _copy_raw(raw_dir / KOLA, tmp_path / "raw")
-    _corrupt(src / rel, line, _set_field(sep, field, value))
-    with pytest.raises(ImportError_) as exc:
-        run_import(KOLA, src, tmp_path / "out")
-    assert f"{Path(rel).name}:{line}" in str(exc.value)
-    assert exc.value.line == line
-    assert not (tmp_path / "out" / "sessions").exists()
+    src = copy_raw(raw_dir / KOLA, tmp_path / "raw")
+    edit_line(src / rel, line, _set_field(sep, field, value))
+    refused_import(KOLA, src, tmp_path / "out", rel, line)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -264,8 +240,8 @@ def test_cli_import(raw_dir, tmp_path, capsys, kind, rel, sep, field):
     assert "wrote 1 building(s)" in capsys.readouterr().out
     assert _errors(tmp_path / "ok") == []
 
-    src = _copy_raw(raw_dir / kind, tmp_path / "raw")
-    _corrupt(src / rel, 3, _set_field(sep, field, "nan"))
+    src = copy_raw(raw_dir / kind, tmp_path / "raw")
+    edit_line(src / rel, 3, _set_field(sep, field, "nan"))
     assert import_main([kind, str(src), str(tmp_path / "bad")]) == 1
     err = capsys.readouterr().err
     assert f"{Path(rel).name}:3" in err

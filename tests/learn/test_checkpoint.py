@@ -158,6 +158,18 @@ def test_a_file_that_is_no_checkpoint_is_one_clear_error(tmp_path):
         read_checkpoint(plain)
 
 
+def _refused_with_changed_meta(ckpt, tmp_path, change, words, load):
+    """``ckpt`` with its blenav meta edited by ``change``: ``load`` refuses it in one line naming the checkpoint and
+    the field (``words``)."""
+    ck = torch.load(ckpt, map_location="cpu", weights_only=True)
+    change(ck["blenav"])
+    torch.save(ck, tmp_path / "big.ckpt")
+    with pytest.raises(ValueError) as e:
+        load(tmp_path / "big.ckpt")
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(f"checkpoint {tmp_path / 'big.ckpt'}: blenav.") and words in msg
+
+
 @pytest.mark.parametrize("change, words", [
     (lambda m: m.__setitem__("beacons", [f"b{i}" for i in range(200_000)]), "locnet.lstm.weight_ih_l0 of shape"),
     (lambda m: m["model"]["locnet"].update(hidden=10**6), "the meta does not describe these weights"),
@@ -172,13 +184,7 @@ def test_sizes_in_the_meta_are_checked_against_the_weights_before_building(check
     RuntimeError traceback), hidden=10**6 asked for terabytes, hidden=-1 was Hydra's InstantiationException. Now
     each is one ValueError naming the checkpoint, before memory is claimed (the shapes come from the meta device).
     window.history=10**9 made export.py allocate 64 GB for its sample inputs, step_hz=0 a ZeroDivisionError."""
-    ck = torch.load(checkpoints["s3"], map_location="cpu", weights_only=True)
-    change(ck["blenav"])
-    torch.save(ck, tmp_path / "big.ckpt")
-    with pytest.raises(ValueError) as e:
-        load_module(tmp_path / "big.ckpt")
-    msg = str(e.value)
-    assert "\n" not in msg and msg.startswith(f"checkpoint {tmp_path / 'big.ckpt'}: blenav.") and words in msg
+    _refused_with_changed_meta(checkpoints["s3"], tmp_path, change, words, load_module)
 
 
 def test_a_meta_that_is_not_a_table_is_one_clear_error(checkpoints, tmp_path):
@@ -227,10 +233,4 @@ def test_map_prior_sizes_in_the_meta_are_bounded_before_building(checkpoints, tm
     """The map prior's meta as the cross-phone one's: unet_channels=[4, 60000] asked torch for 130 GB (Hydra's
     InstantiationException traceback), window.n_points=10**9 made export.py allocate 16 GB for its sample inputs, a
     missing window was a KeyError. Now one ValueError naming the checkpoint and the field, before memory is claimed."""
-    ck = torch.load(checkpoints["mp"], map_location="cpu", weights_only=True)
-    change(ck["blenav"])
-    torch.save(ck, tmp_path / "big.ckpt")
-    with pytest.raises(ValueError) as e:
-        load_mapprior(tmp_path / "big.ckpt")
-    msg = str(e.value)
-    assert "\n" not in msg and msg.startswith(f"checkpoint {tmp_path / 'big.ckpt'}: blenav.") and words in msg
+    _refused_with_changed_meta(checkpoints["mp"], tmp_path, change, words, load_mapprior)
