@@ -48,8 +48,7 @@ def main() -> None:
     walks, fixes = test[: args.walks], {}
     for s in walks:
         e = knn.run(s, 1, 0)
-        sd = np.sqrt(np.trace(e.cov[0], axis1=1, axis2=2) / 2)
-        fixes[s.id] = Fixes({"both": RoleFixes(e.t, e.position[0], sd, "fix-both", computed=True)})
+        fixes[s.id] = Fixes({"both": RoleFixes(e.t, e.position[0], e.std[0], "fix-both", computed=True)})
     # untimed: the numba kernels, the floor's grid and prior, every walk's PDR odometry (read from the cache below)
     fused.smooth(walks[0], inputs.with_fixes(fixes[walks[0].id]))
     for s in walks:

@@ -49,6 +49,15 @@ class Layers:
     heading_offsets_rad: tuple = (0.0,)
     scales: tuple = (1.0,)
 
+    def __post_init__(self):
+        if not len(self.heading_offsets_rad) or not len(self.scales) or not all(float(x) > 0 for x in self.scales):
+            raise ValueError(f"layers need at least one heading offset and positive scales, got "
+                             f"{tuple(self.heading_offsets_rad)} / {tuple(self.scales)}")
+
+    def at(self, i: int) -> tuple[float, float]:
+        """(heading offset rad, scale) of layer ``i`` (the order of :meth:`arrays`)."""
+        return float(self.heading_offsets_rad[i // len(self.scales)]), float(self.scales[i % len(self.scales)])
+
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """(cos (L,), sin (L,)) of s_l R(theta_l): the rotation-scale applied to each displacement per layer."""
         th, sc = np.meshgrid(np.asarray(self.heading_offsets_rad, float), np.asarray(self.scales, float),
@@ -305,8 +314,6 @@ def _prepare(grid, disp, sigma, unary, log_init, log_prior, layers):
     if (sigma <= 0).any():
         raise ValueError("smoother: sigma must be > 0")
     layers = layers or Layers()
-    if layers.n < 1 or not all(float(x) > 0 for x in layers.scales):
-        raise ValueError(f"smoother: layers need at least one heading offset and positive scales, got {layers}")
     # alpha, post, a lagged copy and the exp temporary (K, L, N); the unaries and the marginals' statistics (K, N)
     check_memory(4.0 * K * layers.n * N * 8 + 3.0 * K * N * 8, f"a walk smoother of {K:,} nodes x {layers.n} layers "
                  f"x {N:,} cells", "smoother (dt_s, layers, cell_m)")
@@ -337,8 +344,13 @@ def _prune_log(prune: float) -> float:
 def _stats(P: np.ndarray, xy: np.ndarray):
     """(mean (K, 2), cov (K, 2, 2), mode (K,)) of cell marginals P (K, N) (summing to 1 per row)."""
     mean = P @ xy
-    d = xy[None, :, :] - mean[:, None, :]
-    cov = np.einsum("kn,kni,knj->kij", P, d, d)
+    # second moments about a floor-centred origin (no cancellation on large coordinates), minus the mean's outer product
+    c = xy.mean(axis=0)
+    x, y = xy[:, 0] - c[0], xy[:, 1] - c[1]
+    m2 = P @ np.column_stack([x * x, x * y, y * y])
+    mx, my = mean[:, 0] - c[0], mean[:, 1] - c[1]
+    cxx, cxy, cyy = m2[:, 0] - mx * mx, m2[:, 1] - mx * my, m2[:, 2] - my * my
+    cov = np.stack([np.stack([cxx, cxy], -1), np.stack([cxy, cyy], -1)], -2)
     return mean, cov, P.argmax(axis=1)
 
 

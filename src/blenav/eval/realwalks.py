@@ -36,6 +36,7 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
     error (m). A KNN answers with positions the train walks visited: fixes far from them cannot be close. The entry
     point composes ``cfg`` (``python -m blenav.cli.realwalks coverage DATA``)."""
     from blenav.errors import MissingStream
+    from blenav.features import fingerprints as FP
     from blenav.localizers import build_localizer
 
     from .config import parse_eval_config
@@ -57,7 +58,8 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
     for s in train:
         gt = s.groundtruth
         t = np.arange(float(gt["t"].iloc[0]), float(gt["t"].iloc[-1]) + 1e-9, step_s)
-        seen.setdefault(s.floor.id, []).append(s.positions_at(t)[:, :2])
+        seen.setdefault(FP.floor_of(s), []).append(s.positions_at(t)[:, :2])
+    seen = {k: np.concatenate(v) for k, v in seen.items()}  # per building/floor: the train walks' positions, once
     err, dist, where, first = [], [], [], None
     skipped = {}
     for s in test:
@@ -69,7 +71,7 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
         gt_t = s.groundtruth["t"].to_numpy(float)
         truth = s.positions_at(est.t)[:, :2]
         ok = np.isfinite(truth).all(axis=1) & (est.t >= gt_t[0]) & (est.t <= gt_t[-1])  # inside the survey
-        ref = np.concatenate(seen.get(s.floor.id, [np.zeros((0, 2))]))
+        ref = seen.get(FP.floor_of(s), np.zeros((0, 2)))
         if not ok.any() or not len(ref):
             continue
         err.append(np.linalg.norm(est.position[0][ok] - truth[ok], axis=1))
@@ -92,5 +94,5 @@ def coverage(cfg, row: str = "knn_both", step_s: float = 0.5) -> dict:
     return {"row": str(node.get("label", row)), "fixes": int(len(err)), "error_mean_m": float(err.mean()),
             "train_walks": len(train), "test_walks": len(test), "skipped": skipped, "bins": bins,
             # for the figure (python -m blenav.cli.realwalks coverage DATA --plot FILE): not written to JSON
-            "_points": {"session": first, "train": np.concatenate([v for f in seen.values() for v in f]),
+            "_points": {"session": first, "train": seen.get(FP.floor_of(first), np.zeros((0, 2))),
                         "truth": np.concatenate(where), "error": err}}

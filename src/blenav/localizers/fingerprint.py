@@ -299,7 +299,7 @@ class FingerprintLocalizer(Localizer, Trained):
         if self.cv is None:
             best = KNN.KnnSetting(self.metric, self.k, self.weights, 1.0)
             return KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m,
-                           self._std_model(S, xy, walk_of, best, is_ble, info, 5))
+                           self._std_model(S, xy, walk_of, best, is_ble, info, CV_GRID["folds"]))
         ble_w = self.cv["ble_weight"] if self.cfg.features == "both" else [1.0]
         settings = KNN.grid(self.cv["metric"], self.cv["k"], self.cv["weights"], ble_w)
         waypoints = [(s.groundtruth["t"].to_numpy(float), s.groundtruth[["x", "y"]].to_numpy(float)) for s in used]

@@ -132,8 +132,11 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         self.sigma0, self.sigma_per = float(mo["sigma0_m"]), float(mo["sigma_per_m"])
         self.no_odometry_sigma = float(mo["no_odometry_sigma_m"])
         la = _block(name, "layers", layers, {"heading_offsets_deg": [-5.7, 0.0, 5.7], "scales": [1.0]})
-        self.layers = Layers(tuple(math.radians(float(a)) for a in la["heading_offsets_deg"]),
-                             tuple(float(s) for s in la["scales"]))
+        try:
+            self.layers = Layers(tuple(math.radians(float(a)) for a in la["heading_offsets_deg"]),
+                                 tuple(float(s) for s in la["scales"]))
+        except ValueError as exc:
+            raise ValueError(f"method {name!r}: {exc}") from None
         self.fix_outlier, self.fix_std_scale = float(fix_outlier), float(fix_std_scale)
         self.fix_weight = float(fix_weight)
         if not self.fix_weight >= 0:
@@ -157,9 +160,6 @@ class FusedWalk(Localizer, FixConsumer, Trained):
                              f"{self.prior_floor}, {self.prior_weight}, {self.prior_blur})")
         if not self.sigma_per >= 0:
             raise ValueError(f"method {name!r}: motion.sigma_per_m must be >= 0, got {self.sigma_per}")
-        if self.layers.n < 1 or not all(x > 0 for x in self.layers.scales):
-            raise ValueError(f"method {name!r}: layers need at least one heading offset and scales > 0, got "
-                             f"{la['heading_offsets_deg']} / {la['scales']}")
         if self.fix_weight == 0 and self.radio_map is None:
             raise ValueError(f"method {name!r}: fix_weight 0 without a radio_map leaves nothing to observe")
         for what, v, lo in (("dt_s", self.dt_s, 1e-3), ("grid.cell_m", self.cell_m, 0.05),
@@ -199,10 +199,14 @@ class FusedWalk(Localizer, FixConsumer, Trained):
 
     def _floor_model(self, session, cache: dict):
         """(grid, log target weights (N,)) of the session's floor (cached per floor and settings)."""
-        key = ("fused-walk-grid", session.building.id, str(session.meta.get("floor")), self.cell_m, self.max_step_m,
-               tuple(s.id for s in self.train), self.prior_weight, self.prior_floor, self.prior_blur, self.radio_map)
+        floor = (session.building.id, str(session.meta.get("floor")))
+        gkey = ("fused-walk-grid", *floor, self.cell_m, self.max_step_m)  # the grid: shared by every row's settings
+        if gkey not in cache:
+            cache[gkey] = build_grid(session.floor, cell_m=self.cell_m, max_step_m=self.max_step_m)
+        key = ("fused-walk-floor", *floor, self.cell_m, self.max_step_m, tuple(s.id for s in self.train),
+               self.prior_weight, self.prior_floor, self.prior_blur, self.radio_map)
         if key not in cache:
-            grid = build_grid(session.floor, cell_m=self.cell_m, max_step_m=self.max_step_m)
+            grid = cache[gkey]
             same = [s for s in self.train if s.building.id == session.building.id
                     and str(s.meta.get("floor")) == str(session.meta.get("floor"))]
             if same and self.prior_weight > 0:
@@ -329,9 +333,7 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         if not np.isfinite(pos).all():
             raise ValueError(f"{self.name}: non-finite position on session {session.id}")
         R = int(n_runs)
-        best = int(np.argmax(r.layer_post))
-        th = self.layers.heading_offsets_rad[best // len(self.layers.scales)]
-        sc = self.layers.scales[best % len(self.layers.scales)]
+        th, sc = self.layers.at(int(np.argmax(r.layer_post)))
         return Estimate(self.name, session.id, t, np.broadcast_to(pos, (R,) + pos.shape).copy(),
                         np.broadcast_to(cov, (R,) + cov.shape).copy(), wall_s=time.perf_counter() - t0 + sm["wall_s"],
                         notes=[f"{self.mode}: fixes of role {sm['role']}"

@@ -136,6 +136,13 @@ def grid(metrics, ks, weights, ble_weights) -> list[KnnSetting]:
     return [KnnSetting(m, int(k), w, float(b)) for m, k, w, b in itertools.product(metrics, ks, weights, ble_weights)]
 
 
+def deal_folds(n_walks: int, folds: int, seed: int) -> tuple[int, np.ndarray]:
+    """(folds, fold (n_walks,)): the walks dealt into max(2, min(folds, n_walks)) groups by a seeded permutation (the
+    same deal for :func:`cross_validate` and :func:`out_of_fold`)."""
+    folds = max(2, min(int(folds), n_walks))
+    return folds, np.random.default_rng(seed).permutation(np.arange(n_walks) % folds)
+
+
 def cross_validate(S: np.ndarray, xy: np.ndarray, t: np.ndarray, walk_of: np.ndarray, waypoints: list,
                    settings: list[KnnSetting], is_ble: np.ndarray, fill_dbm: float, folds: int = 5, seed: int = 0
                    ) -> tuple[KnnSetting, list[dict]]:
@@ -144,9 +151,7 @@ def cross_validate(S: np.ndarray, xy: np.ndarray, t: np.ndarray, walk_of: np.nda
     S (N, F, H) u scale, xy (N, 2) m labels, t (N,) s the windows' times, walk_of (N,) int the walk of each window
     (index into ``waypoints``: per walk (gt_t (W,), gt_xy (W, 2)), the walk's own waypoints). Every array is of the
     fitted (train) walks only: nothing else is read. Scores: mean error (m) over all waypoints of the walks."""
-    n_walks = len(waypoints)
-    folds = max(2, min(int(folds), n_walks))
-    fold = np.random.default_rng(seed).permutation(np.arange(n_walks) % folds)
+    folds, fold = deal_folds(len(waypoints), folds, seed)
     kmax = max(s.k for s in settings)
     err: dict[KnnSetting, list] = {s: [] for s in settings}
     for rep_key in sorted({(s.metric, s.ble_weight) for s in settings}, key=str):
@@ -252,9 +257,7 @@ def out_of_fold(S: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, setting: Knn
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(errors (N,) m, spread (N,), d1 (N,)): every window of the fitted walks predicted by ``setting`` fitted on the
     other folds' walks (the same seeded deal of the walks as :func:`cross_validate`), against its own label."""
-    n_walks = int(walk_of.max()) + 1 if len(walk_of) else 0
-    folds = max(2, min(int(folds), n_walks))
-    fold = np.random.default_rng(seed).permutation(np.arange(n_walks) % folds)
+    folds, fold = deal_folds(int(walk_of.max()) + 1 if len(walk_of) else 0, folds, seed)
     X = represent(S, setting.metric, is_ble, setting.ble_weight, fill_dbm)
     err, spread, d1 = np.full(len(S), np.nan), np.zeros(len(S)), np.zeros(len(S))
     for f in range(folds):

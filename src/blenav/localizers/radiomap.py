@@ -62,6 +62,7 @@ class RadioMap:
     m: np.ndarray
     support: np.ndarray
     n_train: int
+    mm: np.ndarray | None = None  # (N,) the squared norms of m (computed on first use)
 
     def scans(self, session) -> tuple[np.ndarray, np.ndarray]:
         """(t (F,) s, Q (F, D)): the session's scans heard in the map's features, in its representation."""
@@ -72,9 +73,9 @@ class RadioMap:
 
     def log_likelihood(self, Q: np.ndarray) -> np.ndarray:
         """(F, N) log p(scan | cell) of scans Q (F, D), normalised over the cells (each row's logsumexp is 0)."""
-        mm = np.einsum("nd,nd->n", self.m, self.m)
-        D = np.einsum("fd,fd->f", Q, Q)[:, None] - 2.0 * (Q @ self.m.T) + mm[None]
-        L = -np.maximum(D, 0.0).astype(np.float64) / self.cfg.tau
+        if self.mm is None:  # the map's squared norms, once
+            self.mm = np.einsum("nd,nd->n", self.m, self.m)
+        L = -KNN._sqdist(Q, self.m, self.mm).astype(np.float64) / self.cfg.tau
         return L - np.logaddexp.reduce(L, axis=1)[:, None]
 
 
