@@ -351,3 +351,22 @@ def test_a_foreign_target_at_any_depth_is_refused_and_never_called(steps, kwargs
     with pytest.raises(UntrustedTargetError):
         build_method(settings_, where="generated/settings.json")
     assert CALLS == []
+
+
+def test_a_plain_dict_whose_interpolation_creates_a_target_is_refused_before_hydra_builds_it(monkeypatch):
+    """A plain dict (e.g. a checkpoint's meta) holding ``${oc.create:{_target_: ...}}``: Hydra's instantiate turns it
+    into an omegaconf node and resolves it, so the check resolves it too and refuses the created target; the target
+    is never called. A plain dict without interpolations needs no omegaconf."""
+    import os
+
+    from blenav.trust import UntrustedTargetError, check_targets, safe_instantiate
+
+    called = []
+    monkeypatch.setattr(os, "getcwd", lambda: called.append(1) or "/")
+    node = {"_target_": "blenav.models.LocNet", "n_beacons": 3, "hidden": "${oc.create:{_target_: os.getcwd}}"}
+    with pytest.raises(UntrustedTargetError, match=r"hidden\._target_ = 'os\.getcwd'"):
+        check_targets(node, "meta")
+    with pytest.raises(UntrustedTargetError):
+        safe_instantiate(node, "meta")
+    assert not called
+    check_targets({"a": 1, "b": ["x", {"c": "plain"}]}, "meta")

@@ -143,20 +143,41 @@ def check_targets(node, where: str, extra: frozenset[str] = frozenset(), prefix:
     ``model.locnet.init._target_``) for any ``_target_`` below ``node``, at any depth, that is not a string in
     :data:`TARGETS`, in ``extra`` or :func:`register`-ed. Checked by membership of the string: nothing is imported.
 
-    An omegaconf node is walked as written (an interpolation in ``_target_`` is refused: it is not a name) and,
-    when it resolves, as resolved, so a node that an interpolation pulls in (``${oc.decode:...}``) is walked too;
+    An omegaconf node, or a plain container holding an interpolation (Hydra makes it one), is walked as written (an
+    interpolation in ``_target_`` is refused: it is not a name) and, when it resolves, as resolved, so a node that an interpolation pulls in (``${oc.decode:...}``) is walked too;
     one that does not resolve is not instantiated either (Hydra resolves the whole node before it builds anything).
     ``resolve=False``: as written only (no resolver runs; a check before the one at the place that builds).
     """
     _walk(node, where, extra, prefix)
-    if resolve and _omegaconf_container(node):
+    if not resolve or not (_omegaconf_container(node) or _has_interpolation(node)):
+        return
+    try:  # a plain container with "${...}" is resolved too: Hydra's instantiate makes it an omegaconf node first
         from omegaconf import OmegaConf
+    except ImportError:  # nothing here can resolve it: nothing builds from it either
+        return
+    try:
+        resolved = OmegaConf.to_container(node if _omegaconf_container(node) else OmegaConf.create(node), resolve=True)
+    except Exception:  # noqa: BLE001 -- unresolvable: Hydra fails on it before it imports anything
+        return
+    _walk(resolved, where, extra, prefix)
 
-        try:
-            resolved = OmegaConf.to_container(node, resolve=True)
-        except Exception:  # noqa: BLE001 -- unresolvable: Hydra fails on it before it imports anything
-            return
-        _walk(resolved, where, extra, prefix)
+
+def _has_interpolation(node) -> bool:
+    """Whether a plain container holds a string with an interpolation (``${``) at any depth (iterative walk)."""
+    stack, seen = [node], set()
+    while stack:
+        n = stack.pop()
+        if isinstance(n, str):
+            if "${" in n:
+                return True
+        elif isinstance(n, Mapping) and id(n) not in seen:
+            seen.add(id(n))
+            stack.extend(n.keys())
+            stack.extend(n.values())
+        elif isinstance(n, (list, tuple)) and id(n) not in seen:
+            seen.add(id(n))
+            stack.extend(n)
+    return False
 
 
 def check_hydra_node(hydra_node, where: str) -> None:
