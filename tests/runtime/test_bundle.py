@@ -177,6 +177,21 @@ def test_push_api_matches_replay(made):
     assert len(b.last_fixes) > 5 and list(loc.fixes) == b.last_fixes[-5:]  # bounded live log, full replay log
 
 
+def test_a_clock_jump_in_the_stream_is_one_error_not_a_network_run_per_step(made):
+    """A packet 10^9 s after the first: one ValueError naming the jump and saying what to do, at once (it would have
+    closed 10^10 empty window steps, each a network run)."""
+    from blenav.runtime.bundle.windows import MAX_GAP_STEPS
+
+    b = Bundle.open(made["bundle"])
+    s = Dataset.open(made["data"]).session(sorted(Dataset.open(made["data"]).session_ids)[1])
+    loc = b.localizer(s.building, seed=3)
+    beacon = str(s.building.anchors["anchor_id"].iloc[0])
+    loc.push_rssi(0.0, beacon, -70.0)
+    with pytest.raises(ValueError, match=r"time jumps from .* to 1000000000\.000 s: .*split the recording"):
+        loc.push_rssi(1e9, beacon, -70.0)
+    assert MAX_GAP_STEPS >= 10_000
+
+
 def _copy_building(made, tmp_path, change):
     data = Path(shutil.copytree(made["data"], tmp_path / "d2"))
     bdir = next((data / "buildings").iterdir())

@@ -17,13 +17,17 @@ from blenav.limits import check_range
 from .graphs import LocalizerGraph
 
 
+#: the most window steps one sample may close (100,000: 2.8 h at 10 Hz); a larger jump is an error, not 10^9 runs
+MAX_GAP_STEPS = 100_000
+
+
 class WindowFixer:
     """RSSI packets -> the localizer's fixes, live, with the windowing of
     :func:`blenav.features.windows.session_windows` (``steps: time``): step k = floor((t - t0) step_hz) from the
     first packet t0; per step and beacon the mean of u; the window of the last H steps ends at t0 + (k + 1) / step_hz.
 
-    :meth:`advance` (t) closes the steps that end at or before ``t`` and returns their fixes (t, x, y) (windows with
-    nothing heard give none); :meth:`add` a packet; :meth:`flush` closes the open step at the end of the data."""
+    :meth:`advance` (t) closes the steps that end at or before ``t`` and returns their fixes (t, x, y) (windows whose
+    prediction is not finite give none; a jump of more than :data:`MAX_GAP_STEPS` steps is a ValueError); :meth:`add` a packet; :meth:`flush` closes the open step at the end of the data."""
 
     def __init__(self, graph: LocalizerGraph):
         w = graph.meta["window"]
@@ -64,6 +68,10 @@ class WindowFixer:
         if self.t0 is None:
             return []
         kk = int(math.floor((t - self.t0) * self.hz))
+        if kk - self.k > MAX_GAP_STEPS:  # a clock jump in the data must not buy one network run per step
+            raise ValueError(f"the stream's time jumps from {self.t0 + self.k / self.hz:.3f} s to {t:.3f} s: "
+                             f"{kk - self.k:,} window steps of {1 / self.hz:g} s with nothing heard (at most "
+                             f"{MAX_GAP_STEPS:,}); split the recording at the gap")
         out = []
         while self.k < kk:
             fix = self._close()
