@@ -72,8 +72,11 @@ def export_bundle(cfg: DictConfig) -> Path:
         trained = set(meta.get("train_sessions") or [])
         mine = [s for s in ds.sessions(labelled=True) if s.meta.get("building") == building.id
                 and len(s.rssi) and len(s.groundtruth)]
-        if "odometry" in str(cfg.runtime.motion.get("_target_", "")).lower():
+        needs = _motion_needs(cfg.runtime.motion)  # the streams the bundle's motion model reads
+        if "odo" in needs:
             mine = [s for s in mine if len(s.odometry)]
+        if any(n in needs for n in ("acc_w", "heading", "steps")):
+            mine = [s for s in mine if len(s.imu)]
         unseen = [s for s in mine if s.id not in trained]
         sessions = (unseen or mine)[: int(cfg.eval_sessions)]
     sig = meta.get("building_signature")
@@ -90,7 +93,7 @@ def export_bundle(cfg: DictConfig) -> Path:
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
-        opset = int(cfg.get("opset") or 17)
+        opset = cfg.get("opset")  # None: export() takes the default (learn.common.onnx_export.DEFAULT_OPSET)
         export(SimpleNamespace(ckpt=str(cfg.ckpt), out=str(tmp / variant_name(LOCALIZER, "float")), opset=opset))
         models = {"localizer": {"checkpoint": str(Path(cfg.ckpt).resolve()), "building": meta.get("building"),
                                 "data_hash": meta.get("data_hash")}}
@@ -116,3 +119,15 @@ def export_bundle(cfg: DictConfig) -> Path:
         shutil.rmtree(tmp, ignore_errors=True)  # never leave half a bundle
         raise
     return out
+
+
+def _motion_needs(motion) -> tuple[str, ...]:
+    """The ``needs`` of the motion model class the runtime settings name (checked against blenav.trust first: the
+    class is imported, not built)."""
+    target = str((motion or {}).get("_target_", ""))
+    if not target:
+        return ()
+    check_targets({"_target_": target}, "export config", prefix="runtime.motion")
+    from hydra.utils import get_class
+
+    return tuple(getattr(get_class(target), "needs", ()))
