@@ -24,7 +24,7 @@ from .motion_pdr import pdr_track
 from .runner import session_imu
 from .steps import SessionArrays, StepDetectorConfig, detect_steps
 
-__all__ = ["HEADINGS", "DEFAULT_STEP_M", "pdr_odometry", "fit_step_length"]
+__all__ = ["HEADINGS", "DEFAULT_STEP_M", "pdr_odometry", "fit_step_length", "fitted_step_length"]
 
 HEADINGS = ("orientation", "ahrs")
 DEFAULT_STEP_M = 0.7
@@ -104,3 +104,13 @@ def fit_step_length(sessions: list, steps: StepDetectorConfig | None = None, cac
         raise MissingStream(f"fewer than 10 steps detected between the waypoints of {used} train walk(s): no step "
                             f"length to fit")
     return {"step_length_m": path / n, "walks": used, "steps": int(n), "path_m": path}
+
+
+def fitted_step_length(sessions: list, steps: StepDetectorConfig | None, cache: dict) -> dict:
+    """:func:`fit_step_length` of ``sessions`` with the detector ``steps`` (None: the default), once per (walks,
+    detector) in ``cache``: every method fitting on the same train walks shares it."""
+    steps = steps or StepDetectorConfig()
+    key = ("rw-step-length", tuple(s.id for s in sessions), repr(steps))
+    if key not in cache:
+        cache[key] = fit_step_length(sessions, steps, cache)
+    return cache[key]

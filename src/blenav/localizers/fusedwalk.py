@@ -48,7 +48,7 @@ import numpy as np
 from blenav.crf.grid import build_grid
 from blenav.crf.smoother import Layers, forward_backward, viterbi
 from blenav.errors import MissingStream
-from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fit_step_length, pdr_odometry
+from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fitted_step_length, pdr_odometry
 
 from .base import Estimate, FixConsumer, Localizer, Trained
 from .inputs import RunInputs
@@ -185,11 +185,8 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         self.train = [s for s in sessions if s.labelled]
         rep = {"path_prior_walks": len(self.train)}
         if self.step_length is None:
-            key = ("rw-step-length", tuple(s.id for s in sessions), "default")
-            if key not in inputs.cache:
-                inputs.cache[key] = fit_step_length(sessions, None, inputs.cache)
-            self.fitted_step = float(inputs.cache[key]["step_length_m"])
-            rep["step_length"] = inputs.cache[key]
+            rep["step_length"] = fitted_step_length(sessions, None, inputs.cache)
+            self.fitted_step = float(rep["step_length"]["step_length_m"])
         return rep
 
     def _step(self) -> float:

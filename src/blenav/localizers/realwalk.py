@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fit_step_length, pdr_odometry
+from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fitted_step_length, pdr_odometry
 from blenav.localizers.base import Estimate, Trained
 from blenav.localizers.inputs import RunInputs
 from blenav.localizers.particle import ParticleFilterLocalizer
@@ -60,11 +60,9 @@ class RealWalkPF(ParticleFilterLocalizer, Trained):
     def fit(self, sessions: list, inputs: RunInputs) -> dict | None:
         if self.odometry is None or self.step_length is not None:
             return None
-        key = ("rw-step-length", tuple(s.id for s in sessions), repr(self.method.steps))  # per detector
-        if key not in inputs.cache:
-            inputs.cache[key] = fit_step_length(sessions, self.method.steps, inputs.cache)
-        self.fitted_step = float(inputs.cache[key]["step_length_m"])
-        return {"step_length": inputs.cache[key]}
+        fit = fitted_step_length(sessions, self.method.steps, inputs.cache)  # once per walks and detector
+        self.fitted_step = float(fit["step_length_m"])
+        return {"step_length": fit}
 
     def _step(self) -> float:
         if self.step_length is not None:
