@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables crossphone-sweep mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables mapping-curve realwalks-tables regression-check clean-demo
+.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables crossphone-sweep mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables mapping-curve realwalks-tables inertial-tables regression-check clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -412,6 +412,41 @@ realwalks-tables: $(STAMP)
 	      model_path=$(RW_FLOOR_PRIOR)_not_$${F}_onnx out=$(RW_OUT_OTHER)/$$F progress=false || exit 1; done
 	$(BIN)/python -m blenav.cli.realwalks priors $(RW_OUT) $(RW_OUT_OTHER) '$(RW_FLOOR_PRIOR)_not_{floor}_onnx' \
 	    docs/results-ilc20.md README.md
+
+# Issue 31: the learned inertial odometry, leave one floor out on the ILC floors (imported by realwalks-tables, or here
+# when absent): for each floor F, a model trained on the other floors' train walks plus simulated walks (IO_SIM), exported,
+# and experiment=realwalks_inertial on F with io_model= into $(IO_OUT)/F; a model trained on the simulated walks only, run
+# on every floor into $(IO_OUT)/sim_F; docs/results-inertial.md from those results and the runs' training.json. Trained
+# once: a run folder with its export is reused (delete $(IO_RUNS)_* to retrain). IO_MODEL picks the network.
+IO_OUT ?= data/results/inertial
+IO_RUNS ?= data/runs/inertial
+IO_MODEL ?= inertial_tcn
+IO_SIM = sim=procedural seed=11 duration_s=120 sim.unlabelled_every=0 sessions=12
+inertial-tables: $(STAMP)
+	for F in $(RW_FLOORS); do test -d $(RW_DATA)/imported_$$F || \
+	  $(BIN)/blenav-import ilc20 $(RW_RAW)/site1_$$F.tar.gz $(RW_DATA)/imported_$$F || exit 1; done
+	test -d data/inertial_sim || $(BIN)/blenav-sim $(IO_SIM) out=data/inertial_sim progress=false
+	SIMIDS=$$(ls data/inertial_sim/sessions | paste -sd,); \
+	for F in $(RW_FLOORS); do \
+	  O=$$(echo $(RW_FLOORS) | tr ' ' '\n' | grep -vx $$F); \
+	  EXTRA=$$(for G in $$O; do printf '%s,' $(RW_DATA)/imported_$$G; done | sed 's/,$$//'); \
+	  IDS=$$(for G in $$O; do $(BIN)/python -m blenav.cli.realwalks train-ids $(RW_DATA)/imported_$$G; done | paste -sd,); \
+	  test -e $(IO_RUNS)_not_$${F}_io/meta.json || { \
+	    $(BIN)/python train.py experiment=inertial model=$(IO_MODEL) data=data/inertial_sim \
+	        "data.extra_paths=[$$EXTRA]" "data.sessions=[$$IDS,$$SIMIDS]" \
+	        out=$(IO_RUNS)_not_$$F plots=false trainer.enable_progress_bar=false && \
+	    $(BIN)/python export.py ckpt=$(IO_RUNS)_not_$$F/last.ckpt out=$(IO_RUNS)_not_$${F}_io; } && \
+	  $(BIN)/blenav-eval overwrite=true experiment=realwalks_inertial data=$(RW_DATA)/imported_$$F runs=$(RW_RUNS) \
+	      io_model=$(IO_RUNS)_not_$${F}_io out=$(IO_OUT)/$$F progress=false || exit 1; done
+	test -e $(IO_RUNS)_sim_io/meta.json || { \
+	  $(BIN)/python train.py experiment=inertial model=$(IO_MODEL) data=data/inertial_sim out=$(IO_RUNS)_sim plots=false \
+	      trainer.enable_progress_bar=false && \
+	  $(BIN)/python export.py ckpt=$(IO_RUNS)_sim/last.ckpt out=$(IO_RUNS)_sim_io; }
+	for F in $(RW_FLOORS); do \
+	  $(BIN)/blenav-eval overwrite=true experiment=realwalks_inertial data=$(RW_DATA)/imported_$$F runs=$(RW_RUNS) \
+	      io_model=$(IO_RUNS)_sim_io out=$(IO_OUT)/sim_$$F progress=false || exit 1; done
+	$(BIN)/python -m blenav.cli.realwalks runs-json $(IO_OUT)/runs.json $(foreach F,$(RW_FLOORS),$(IO_RUNS)_not_$(F)) $(IO_RUNS)_sim
+	$(BIN)/python -m blenav.cli.realwalks inertial $(IO_OUT) docs/results-inertial.md
 
 # Issue 27: twelve experiments, shrunk (5 min), rerun and compared bit for bit with the numbers of 302d488 (exit 1 on
 # a difference); what it covers and how to refresh the reference: tools/regression_snapshot.py

@@ -75,11 +75,12 @@ def test_every_eval_experiment_composes_and_builds(experiment):
 @pytest.mark.parametrize("experiment", TRAIN)
 def test_every_train_experiment_composes(experiment):
     from blenav.learn.crossphone.data_config import WindowDataConfig
+    from blenav.learn.inertial.data_config import InertialDataConfig
     from blenav.learn.mapprior.data_config import MapPriorDataConfig
 
     cfg = compose("train", f"experiment={experiment}", "data=DIR")
     OmegaConf.to_container(cfg, resolve=True)
-    schema = MapPriorDataConfig if cfg.task == "mapprior" else WindowDataConfig
+    schema = {"mapprior": MapPriorDataConfig, "inertial": InertialDataConfig}.get(cfg.task, WindowDataConfig)
     assert OmegaConf.get_type(cfg.data) is schema
     if "_target_" in (cfg.model.get("net") or {}):
         get_class(cfg.model.net._target_)

@@ -30,6 +30,7 @@ def register_configs() -> None:
     ``beacon_map/schema``     :class:`blenav.eval.beacon_map.BeaconMapConfig`         conf/eval.yaml
     ``windows/schema``        :class:`blenav.learn.crossphone.data_config.WindowDataConfig`      conf/windows/default.yaml
     ``windows/mapprior_schema`` :class:`blenav.learn.mapprior.data_config.MapPriorDataConfig`  conf/windows/mapprior.yaml
+    ``windows/inertial_schema`` :class:`blenav.learn.inertial.data_config.InertialDataConfig`  conf/windows/inertial.yaml
     ``backend/schema``        :class:`blenav.backend.config.BackendConfig`            conf/backend/default.yaml
     ========================  ======================================================  =====================
 
@@ -45,6 +46,7 @@ def register_configs() -> None:
     from blenav.filters.attitude import AttitudeConfig
     from blenav.filters.engine import FilterConfig
     from blenav.learn.crossphone.data_config import WindowDataConfig
+    from blenav.learn.inertial.data_config import InertialDataConfig
     from blenav.learn.mapprior.data_config import MapPriorDataConfig
     from blenav.sim.config import SimConfig
 
@@ -57,6 +59,7 @@ def register_configs() -> None:
     cs.store(group="beacon_map", name="schema", node=BeaconMapConfig)
     cs.store(group="windows", name="schema", node=WindowDataConfig)
     cs.store(group="windows", name="mapprior_schema", node=MapPriorDataConfig)
+    cs.store(group="windows", name="inertial_schema", node=InertialDataConfig)
     cs.store(group="backend", name="schema", node=BackendConfig)
 
 

@@ -211,3 +211,25 @@ def check_weights(path: str | Path) -> str | None:
                      f"{WEIGHTS_KEY} recorded {str(want)[:16]}..., computed {digest[:16]}...): the file was "
                      "corrupted or edited after export; export it again from its checkpoint (python export.py "
                      "ckpt=RUN/last.ckpt out=...) or get an intact copy")
+
+
+def check_export_files(root: Path, meta: dict, names, meta_name: str = "meta.json") -> None:
+    """Refuse an export directory whose graphs ``names`` are not the ones written with its ``meta_name``: each graph's
+    weights against the hash in its own metadata (:func:`check_weights`, naming the tensors that changed), then each
+    file against the sha256 the meta records for it (any other change: graph, metadata). An export without recorded
+    hashes (older blenav) is checked by its weights only."""
+    import hashlib
+
+    recorded = meta.get("sha256") or {}
+    for name in names:
+        path = Path(root) / name
+        check_weights(path)
+        want = recorded.get(name)
+        if want is None:
+            continue
+        got = hashlib.sha256(path.read_bytes()).hexdigest()
+        if got != want:
+            raise ValueError(f"{path} is not the file exported with {Path(root) / meta_name} (sha256 recorded "
+                             f"{want[:16]}..., file {got[:16]}...; its weights are intact, so its graph or metadata "
+                             "was changed after export): export the directory again with `python export.py "
+                             "ckpt=RUN/last.ckpt out=DIR`")

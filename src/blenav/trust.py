@@ -62,6 +62,7 @@ TARGETS: frozenset[str] = frozenset({
     "blenav.models.TransNet", "blenav.models.transnet.TransNet",
     "blenav.models.DLRNN", "blenav.models.dlrnn.DLRNN",
     "blenav.models.mapprior.MapPriorNet",
+    "blenav.models.inertial.ResNet1D", "blenav.models.inertial.TCN",
 })
 
 #: What Hydra itself may build from its own ``hydra`` node before a task runs (launchers, sweepers, the Optuna

@@ -1,8 +1,8 @@
 """learn/ is one package per model over one shared learn/common (issue 27, section 3).
 
 The import graph of ``src/blenav/learn`` (every import: module level, lazy and type-only, as tests/test_layers.py
-counts them) has these edges between its packages only: ``common`` imports no model package; ``crossphone`` and
-``mapprior`` import ``common`` and not each other; ``fingerprint`` runs the cross-phone pipeline (``crossphone``,
+counts them) has these edges between its packages only: ``common`` imports no model package; ``crossphone``,
+``mapprior`` and ``inertial`` import ``common`` and not each other; ``fingerprint`` runs the cross-phone pipeline (``crossphone``,
 ``common`` and the ``train`` entry); the entries ``train``, ``export`` (and ``bundle`` over it) and ``reference`` sit above the models.
 """
 
@@ -10,15 +10,16 @@ from __future__ import annotations
 
 from helpers import import_graph
 
-PACKAGES = ("common", "crossphone", "mapprior", "fingerprint")
+PACKAGES = ("common", "crossphone", "mapprior", "fingerprint", "inertial")
 #: package (or top-level module of learn) -> the packages / modules of learn it may import
 ALLOWED = {
     "common": {"common"},
     "crossphone": {"common", "crossphone"},
     "mapprior": {"common", "mapprior"},
+    "inertial": {"common", "inertial"},
     "fingerprint": {"common", "crossphone", "fingerprint", "train"},
-    "train": {"crossphone", "mapprior"},
-    "export": {"common", "crossphone", "mapprior"},
+    "train": {"crossphone", "mapprior", "inertial"},
+    "export": {"common", "crossphone", "mapprior", "inertial"},
     "bundle": {"common", "export"},
     "reference": {"crossphone", "mapprior"},
 }

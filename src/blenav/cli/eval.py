@@ -1,4 +1,5 @@
-"""``blenav-eval experiment=NAME data=DIR runs=N out=OUT [sessions=ID,ID] [model_path=PATH] [overwrite=true]``: compare
+"""``blenav-eval experiment=NAME data=DIR runs=N out=OUT [sessions=ID,ID] [model_path=PATH] [io_model=DIR] [overwrite=true]``:
+compare
 localization methods (``model_path``: a trained model the experiment evaluates; ``model=PATH`` is its deprecated
 spelling).
 
@@ -34,7 +35,7 @@ def task(cfg: DictConfig) -> None:
 
     ecfg = parse_eval_config(cfg)
     evaluator = build_evaluator(ecfg)
-    inputs = [ecfg.data.path, ecfg.model_path]  # never inside an OUT that overwrite=true deletes
+    inputs = [ecfg.data.path, ecfg.model_path, ecfg.io_model]  # never inside an OUT that overwrite=true deletes
     with fresh_output(ecfg.out, ecfg.overwrite, inputs) as tmp:
         res = evaluator.run(dataclasses.replace(ecfg, out=str(tmp)))
     for line in summary_lines(res):

@@ -1,6 +1,8 @@
 """``python -m blenav.cli.realwalks train-ids DATA | coverage DATA [ROW] [--plot FILE] | tables OUT_ROOT SUMMARY.md
-[FLOORS_DIR] [README] | priors MAIN OTHER PRIOR_PATTERN PAGE.md [README]``: the steps of ``make realwalks-tables``
-(docs/results-ilc20.md), and ``coverage``: a fingerprint row's fix errors (default ``knn_both``, KNN-WiFi+BLE) by how
+[FLOORS_DIR] [README] | priors MAIN OTHER PRIOR_PATTERN PAGE.md [README] | inertial OUT_ROOT PAGE.md | runs-json OUT.json
+RUN_DIR...``: the steps of ``make realwalks-tables`` (docs/results-ilc20.md) and ``make inertial-tables``
+(docs/results-inertial.md: :func:`~blenav.reporting.realwalks_inertial.write_inertial`; ``runs-json`` gathers the training
+runs' reports), and ``coverage``: a fingerprint row's fix errors (default ``knn_both``, KNN-WiFi+BLE) by how
 far each true position lies from the train walks (:func:`~blenav.eval.realwalks.coverage`).
 
 An entry point composes ``conf/`` (:func:`blenav.configs.compose`, ``experiment=realwalks``) and hands the nodes
@@ -21,7 +23,7 @@ from .common import guarded, pop_debug
 
 PROG = "python -m blenav.cli.realwalks"
 USAGE = (f"usage: {PROG} train-ids DATA | coverage DATA [ROW] [--plot FILE.png] | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README] | "
-         f"priors MAIN OTHER PRIOR_PATTERN PAGE.md [README]")
+         f"priors MAIN OTHER PRIOR_PATTERN PAGE.md [README] | inertial OUT_ROOT PAGE.md | runs-json OUT.json RUN_DIR...")
 
 
 def experiment_config(*overrides: str, experiment: str = "realwalks"):
@@ -86,6 +88,26 @@ def _main(argv: list[str]) -> int:
 
         print(write_tables(args[0], args[1], table_rows_of(), floors_dir=args[2] if len(args) > 2 else None,
                            readme=args[3] if len(args) > 3 else None))
+    elif cmd == "inertial" and len(args) == 2:
+        from blenav.reporting.realwalks_inertial import write_inertial
+
+        print(write_inertial(args[0], args[1]))
+    elif cmd == "runs-json" and len(args) >= 2:  # OUT.json RUN_DIR...: the runs' training.json in one file
+        import json
+        from pathlib import Path
+
+        runs = {}
+        for d in args[1:]:
+            info = json.loads((Path(d) / "training.json").read_text(encoding="utf-8"))
+            info.pop("history", None)
+            cfg = Path(d) / "config.yaml"
+            if cfg.is_file():
+                import yaml
+
+                info["model"] = (yaml.safe_load(cfg.read_text(encoding="utf-8")).get("model") or {}).get("name")
+            runs[Path(d).name] = info
+        Path(args[0]).write_text(json.dumps(runs, indent=1) + "\n", encoding="utf-8")
+        print(f"wrote {args[0]} ({len(runs)} runs)")
     elif cmd == "priors" and len(args) in (4, 5):
         from blenav.reporting.realwalks_priors import write_priors
 

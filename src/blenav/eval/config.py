@@ -15,7 +15,7 @@ The schema (``conf/eval.yaml`` and every root key an experiment of ``conf/experi
       data: WindowDataConfig           (blenav.learn.data_config; data.path = the dataset)
       experiment: ExperimentConfig     name, title, evaluator {_target_}, kind (old spelling), paper, families, ...
       methods: {LABEL: localizer node}   filter, attitude (the FilterConfig / AttitudeConfig every localizer starts from)
-      sessions, runs, seed, out, overwrite, init_s, calibration, model_path, threads, plots, progress, peak_memory
+      sessions, runs, seed, out, overwrite, init_s, calibration, model_path, io_model, threads, plots, progress, peak_memory
       split: SplitConfig | None        fixes: FixesConfig | None      scoring: ScoringConfig
       plan_error: PlanErrorConfig      beacon_map: BeaconMapConfig    bound: BoundSettings | None
       floor_classifier, trainer, sim_devices, fix_sources (free-form)
@@ -181,6 +181,7 @@ class EvalConfig:
     scoring: ScoringConfig = field(default_factory=ScoringConfig)
     floor_classifier: dict | None = None
     model_path: str | None = None
+    io_model: str | None = None  # a learned inertial odometry export directory (issue 31)
     runs: int = 100
     seed: int = 0
     threads: int | None = 1

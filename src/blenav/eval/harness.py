@@ -53,8 +53,8 @@ from blenav.data import Dataset
 from blenav.errors import DatasetError, EvalError, MissingStream
 from blenav.filters.attitude import misalignment_deg
 from blenav.filters.calibration import fit_sessions
-from blenav.localizers import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, Trained,
-                               build_localizer)
+from blenav.localizers import (Estimate, FixConsumer, InertialModelConsumer, Localizer, ModelConsumer,
+                               PathLossCalibrated, Trained, build_localizer)
 from blenav.localizers.confine import confine
 from blenav.localizers.inputs import RunInputs
 from blenav.eval import beacon_map as BM
@@ -64,7 +64,7 @@ from .config import EvalConfig, parse_eval_config
 from .evaluators import evaluate
 from .fixes import FixProvider
 from .metrics import (cdf_band, convergence_times, fix_coverage_counts, pool, pool_convergence, pool_fix_coverage,
-                      session_metrics, waypoint_metrics)
+                      pool_segment_errors, segment_errors, session_metrics, waypoint_metrics)
 from .result import MethodResult, TrajectoryResult, write_results
 from .sessions import select_sessions
 
@@ -97,9 +97,10 @@ def build_methods(cfg: EvalConfig) -> dict[str, Localizer]:
     return out
 
 
-def attach_models(methods: dict[str, Localizer], path: str | None) -> dict | None:
-    """Give every :class:`ModelConsumer` the model of ``path`` (each file loaded once); returns
-    ``{"path", "unavailable": {method: reason}}`` when a consumer cannot run, else None."""
+def attach_models(methods: dict[str, Localizer], path: str | None, io_path: str | None = None) -> dict | None:
+    """Give every :class:`ModelConsumer` the model of ``path`` and every :class:`InertialModelConsumer` the inertial
+    odometry of ``io_path`` (each file loaded once); returns ``{"path", "io_model", "unavailable": {method: reason}}``
+    when a consumer cannot run, else None."""
     loaded: dict = {}
 
     def load(p: str, loader):
@@ -110,11 +111,17 @@ def attach_models(methods: dict[str, Localizer], path: str | None) -> dict | Non
 
     unavailable = {}
     for name, m in methods.items():
+        why = []
         if isinstance(m, ModelConsumer):
-            reason = m.attach_model(path, load)
-            if reason:
-                unavailable[name] = reason
-    return {"path": path, "unavailable": unavailable} if unavailable else None
+            why.append(m.attach_model(path, load))
+        if isinstance(m, InertialModelConsumer):
+            why.append(m.attach_io_model(io_path, load))
+        why = [w for w in why if w]
+        if why:
+            unavailable[name] = "; ".join(why)
+    if not unavailable:
+        return None
+    return {"path": path, **({"io_model": io_path} if io_path else {}), "unavailable": unavailable}
 
 
 def build_fix_provider(cfg: EvalConfig, methods: dict[str, Localizer], out: Path) -> FixProvider | None:
@@ -284,6 +291,8 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
         try:
             if s.groundtruth_sparse:  # sparse surveyed waypoints: the estimate interpolated at each waypoint time
                 m = waypoint_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), hold_ends)
+                # its displacement over each waypoint segment (the measure of an odometry, issue 31)
+                m["_segment_err"] = segment_errors(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy())
             else:
                 m = session_metrics(est.t, est.position, gt["t"].to_numpy(), gt[["x", "y"]].to_numpy(), init_s)
         except ValueError as exc:  # e.g. ground truth of one row, or all at one time: name the file
@@ -343,6 +352,7 @@ def aggregate(oc: MethodOutcome, runs: int) -> MethodResult:
         res.beacon_error_m = {k: float(np.mean([e[k] for e in errs if e[k] is not None]))
                               if any(e[k] is not None for e in errs) else None for k in ("prior", "optimized")}
     res.fix_coverage = pool_fix_coverage([m["fix_coverage"] for m in oc.metrics.values() if "fix_coverage" in m])
+    res.segment_error_m = pool_segment_errors([m["_segment_err"] for m in oc.metrics.values() if "_segment_err" in m])
     res.convergence = pool_convergence([m["_convergence_s"] for m in oc.metrics.values() if "_convergence_s" in m])
     orient = [m["orientation_rmse_deg"] for m in oc.metrics.values() if "orientation_rmse_deg" in m]
     if orient:

@@ -74,6 +74,16 @@ def _scored(err: np.ndarray, tt: np.ndarray, track: np.ndarray) -> dict:
     }
 
 
+def positions_at(t: np.ndarray, pos: np.ndarray, tw: np.ndarray) -> np.ndarray:
+    """(R, W, 2): the estimate (R, K, 2) at times ``t`` (K,) linearly interpolated at ``tw`` (W,), held before t[0] and
+    after t[-1]."""
+    ix = np.clip(np.searchsorted(t, tw, side="right") - 1, 0, max(len(t) - 2, 0))
+    if len(t) > 1:
+        w = np.clip((tw - t[ix]) / np.maximum(t[ix + 1] - t[ix], 1e-12), 0.0, 1.0)  # clipped: ends held
+        return pos[:, ix] * (1.0 - w)[None, :, None] + pos[:, ix + 1] * w[None, :, None]
+    return pos[:, ix]
+
+
 def errors_at_waypoints(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray,
                         hold_ends: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Errors (R, W') of the estimate (R, K, 2), linearly interpolated at the W' waypoint times inside its
@@ -81,13 +91,28 @@ def errors_at_waypoints(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy:
     (W' = W), those before t[0] / after t[-1] against the first / last estimate."""
     inside = np.ones(len(gt_t), bool) if hold_ends and len(t) else (gt_t >= t[0]) & (gt_t <= t[-1])
     tw = gt_t[inside]
-    ix = np.clip(np.searchsorted(t, tw, side="right") - 1, 0, max(len(t) - 2, 0))
-    if len(t) > 1:
-        w = np.clip((tw - t[ix]) / np.maximum(t[ix + 1] - t[ix], 1e-12), 0.0, 1.0)  # clipped: ends held
-        est = pos[:, ix] * (1.0 - w)[None, :, None] + pos[:, ix + 1] * w[None, :, None]
-    else:
-        est = pos[:, ix]
-    return np.linalg.norm(est - gt_xy[inside][None], axis=-1), tw
+    return np.linalg.norm(positions_at(t, pos, tw) - gt_xy[inside][None], axis=-1), tw
+
+
+def segment_errors(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray) -> np.ndarray:
+    """(R, S) m: the error of the estimate's displacement over each segment between consecutive waypoints that lies
+    inside its span, |(p(b) - p(a)) - (g(b) - g(a))| (the 2021 indoor challenge's measure of a step / odometry model;
+    issue 31's ``segment_error_m``). (R, 0) when no segment lies inside."""
+    a, b = gt_t[:-1], gt_t[1:]
+    ok = (a >= t[0]) & (b <= t[-1]) & (b > a) if len(t) else np.zeros(len(a), bool)
+    if not ok.any():
+        return np.zeros((pos.shape[0], 0))
+    pa, pb = positions_at(t, pos, a[ok]), positions_at(t, pos, b[ok])
+    d = (gt_xy[1:] - gt_xy[:-1])[ok]
+    return np.linalg.norm(pb - pa - d[None], axis=-1)
+
+
+def pool_segment_errors(errs: list[np.ndarray]) -> dict | None:
+    """``{mean, median, segments}`` (m) of the segment errors of every session and run; None without any."""
+    e = np.concatenate([np.ravel(x) for x in errs]) if errs else np.zeros(0)
+    if not len(e):
+        return None
+    return {"mean": float(e.mean()), "median": float(np.median(e)), "segments": int(sum(x.shape[-1] for x in errs))}
 
 
 def waypoint_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray,

@@ -69,6 +69,7 @@ class MethodResult:
     orientation_rmse_deg: float | None = None
     fix_coverage: dict | None = None  # role -> {1sigma, 2sigma, waypoints}: the fixes a fused method was given, their own std
     convergence: dict | None = None  # a fused method: time until it settles within 5 m (metrics.pool_convergence)
+    segment_error_m: dict | None = None  # waypoint walks: displacement error per waypoint segment (metrics.segment_errors)
     per_session: dict = field(default_factory=dict)
     windows: WindowStats | None = None
     bound: BoundStats | None = None
@@ -118,6 +119,8 @@ class MethodResult:
                 out["fix_coverage"] = self.fix_coverage
             if self.convergence is not None:
                 out["convergence"] = self.convergence
+            if self.segment_error_m is not None:
+                out["segment_error_m"] = self.segment_error_m
             out["per_session"] = self.per_session
             if self.peak_memory is not None:
                 out["peak_memory"] = self.peak_memory

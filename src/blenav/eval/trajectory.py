@@ -38,7 +38,7 @@ class TrajectoryEvaluator(Evaluator):
         ds = S.open_dataset(cfg)
         methods = H.build_methods(cfg)
         check_output_names(methods, "method")  # OUT/<session>/trajectories/<method>.tum: one file per method
-        model_info = H.attach_models(methods, cfg.model_path or None)
+        model_info = H.attach_models(methods, cfg.model_path or None, cfg.io_model or None)
         selected = S.scored_sessions(cfg, ds)
         try:  # bounded before any work (blenav.limits: 1..100,000; runs x particles: the filter's memory check)
             runs = check_range(cfg.runs, "runs", "eval config")

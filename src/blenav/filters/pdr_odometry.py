@@ -24,22 +24,44 @@ from .motion_pdr import pdr_track
 from .runner import session_imu
 from .steps import SessionArrays, StepDetectorConfig, detect_steps
 
-__all__ = ["HEADINGS", "DEFAULT_STEP_M", "pdr_odometry", "fit_step_length", "fitted_step_length"]
+__all__ = ["HEADINGS", "DEFAULT_STEP_M", "pdr_odometry", "fit_step_length", "fitted_step_length", "attitude_track",
+           "resolve_heading"]
 
 HEADINGS = ("orientation", "ahrs")
 DEFAULT_STEP_M = 0.7
 _NO_ANCHORS = AnchorTable.empty()
 
 
-def _orientation_track(session, heading: str, att: AttitudeConfig, steps: StepDetectorConfig,
-                       cache: dict | None) -> tuple[np.ndarray, np.ndarray]:
-    """(q_t (Q,) s, q (Q, 4) w, x, y, z): the device->world orientation the PDR heading comes from."""
+def resolve_heading(session, heading: str) -> str:
+    """``auto``: the phone's rotation vector where the walk has one (orientation.csv), else blenav's AHRS; any other
+    source unchanged."""
+    if heading != "auto":
+        return heading
+    return "orientation" if (session.root / "orientation.csv").is_file() else "ahrs"
+
+
+def attitude_track(session, heading: str, att: AttitudeConfig | None = None, steps: StepDetectorConfig | None = None,
+                   cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(q_t (Q,) s, q (Q, 4) w, x, y, z): the device->world orientation of ``session`` from ``heading``:
+    ``orientation`` (the phone's rotation vector, orientation.csv), ``ahrs`` (blenav's Madgwick AHRS, the PDR motion
+    model's, hard-iron offset per ``att``), ``auto`` (:func:`resolve_heading`) or ``groundtruth`` (the ground truth's
+    orientation: simulated walks, for training only). :class:`MissingStream` when the source is absent."""
+    heading = resolve_heading(session, heading)
+    att, steps = att or AttitudeConfig(), steps or StepDetectorConfig()
     if heading == "orientation":
         o = session.orientation if (session.root / "orientation.csv").is_file() else None
         if o is None or not len(o):
             raise MissingStream(f"session {session.id} has no orientation.csv (the phone's rotation vector), which "
                                 f"the PDR heading 'orientation' needs")
         return o["t"].to_numpy(float), o[["qw", "qx", "qy", "qz"]].to_numpy(float)
+    if heading == "groundtruth":
+        gt = session.groundtruth
+        if session.groundtruth_sparse or len(gt) < 2 or not {"qw", "qx", "qy", "qz"} <= set(gt.columns) \
+                or not np.isfinite(gt[["qw", "qx", "qy", "qz"]].to_numpy(float)).all():
+            raise MissingStream(f"session {session.id} has no ground-truth orientation track")
+        return gt["t"].to_numpy(float), gt[["qw", "qx", "qy", "qz"]].to_numpy(float)
+    if heading != "ahrs":
+        raise ValueError(f"heading must be one of {HEADINGS + ('auto', 'groundtruth')}, got {heading!r}")
     arrays = SessionArrays.from_session(session, _NO_ANCHORS)
     q, _ = session_imu(session.id, arrays, att, steps, cache)  # the PDR motion model's AHRS (hard-iron removed)
     return arrays.imu_t, q
@@ -65,8 +87,9 @@ def pdr_odometry(session, heading: str = "orientation", step_length: float = DEF
     """The session's PDR odometry (DataFrame t, x, y: s, world-aligned m from 0), as ``odometry.csv`` holds it.
 
     Raises :class:`MissingStream` without IMU data or (``heading='orientation'``) without orientation.csv."""
-    if heading not in HEADINGS:
-        raise ValueError(f"odometry.heading must be one of {HEADINGS}, got {heading!r}")
+    if heading not in HEADINGS + ("auto",):
+        raise ValueError(f"odometry.heading must be one of {HEADINGS + ('auto',)}, got {heading!r}")
+    heading = resolve_heading(session, heading)
     att, steps = att or AttitudeConfig(), steps or StepDetectorConfig()
     key = ("rw-pdr", session.id, heading, float(step_length), repr(att), repr(steps))
     if cache is not None and key in cache:
@@ -74,7 +97,7 @@ def pdr_odometry(session, heading: str = "orientation", step_length: float = DEF
     imu = session.imu
     if len(imu) < 2:
         raise MissingStream(f"session {session.id} has no IMU data, which the PDR odometry needs")
-    q_t, q = _orientation_track(session, heading, att, steps, cache)
+    q_t, q = attitude_track(session, heading, att, steps, cache)
     t, xy = pdr_track(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), q_t, q, step_length, steps,
                       flags=_step_flags(session, steps, cache))
     df = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1]})

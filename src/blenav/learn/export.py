@@ -1,6 +1,7 @@
 """``export(cfg)``: ``python export.py ckpt=RUN/last.ckpt out=...`` for a checkpoint of either task, dispatched on its
 meta's ``kind``: a cross-phone localizer (no kind) gives one .onnx file (:mod:`blenav.learn.crossphone.export`); a
-map prior (``kind: mapprior``) a directory with two graphs and meta.json (:mod:`blenav.learn.mapprior.export`).
+map prior (``kind: mapprior``) a directory with two graphs and meta.json (:mod:`blenav.learn.mapprior.export`); an inertial
+odometry (``kind: inertial``) a directory with inertial.onnx and meta.json (:mod:`blenav.learn.inertial.export`).
 """
 
 from __future__ import annotations
@@ -24,9 +25,14 @@ def export(cfg) -> Path:
     if Path(cfg.out).resolve() == Path(cfg.ckpt).resolve():  # the export would replace the checkpoint it reads
         raise ValueError(f"out={cfg.out} is the checkpoint itself; write the export elsewhere")
     check_run_folder(Path(cfg.out), "an export")
-    if read_meta(cfg.ckpt).get("kind") == "mapprior":
+    kind = read_meta(cfg.ckpt).get("kind")
+    if kind == "mapprior":
         from .mapprior.export import export_checkpoint
 
         return export_checkpoint(cfg.ckpt, cfg.out, opset=opset)
+    if kind == "inertial":
+        from .inertial.export import export_checkpoint as export_inertial
+
+        return export_inertial(cfg.ckpt, cfg.out, opset=opset)
     module, meta = load_module(cfg.ckpt)
     return export_module(module, meta, cfg.out, opset=opset)

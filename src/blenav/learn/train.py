@@ -15,7 +15,7 @@ from omegaconf import DictConfig
 from .crossphone.data import WindowDataModule
 from .crossphone.train import train_crossphone
 
-TASKS = ("crossphone", "mapprior")
+TASKS = ("crossphone", "mapprior", "inertial")
 
 
 def train(cfg: DictConfig, callbacks: list | None = None,
@@ -33,4 +33,8 @@ def train(cfg: DictConfig, callbacks: list | None = None,
         from .mapprior.train import train_mapprior  # only this task needs the map prior's data stack
 
         return train_mapprior(cfg, callbacks=callbacks)
+    if task == "inertial":
+        from .inertial.train import train_inertial  # the learned inertial odometry (issue 31)
+
+        return train_inertial(cfg, callbacks=callbacks)
     return train_crossphone(cfg, callbacks=callbacks, datamodule=datamodule)

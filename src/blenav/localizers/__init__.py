@@ -4,11 +4,11 @@ A new method is one class deriving from :class:`Localizer`, one YAML file in ``c
 ``_target_``, and that name in :data:`blenav.trust.TARGETS`; the evaluation harness needs no change.
 """
 
-from .base import (Estimate, FixConsumer, Localizer, ModelConsumer, PathLossCalibrated, Trained,
+from .base import (Estimate, FixConsumer, InertialModelConsumer, Localizer, ModelConsumer, PathLossCalibrated, Trained,
                    build_localizer)
 from .fixtrack import FixTrackLocalizer
 from .inputs import Fixes, RoleFixes, RunInputs
 from .particle import ParticleFilterLocalizer
 
-__all__ = ["Estimate", "FixConsumer", "FixTrackLocalizer", "Fixes", "Localizer", "ModelConsumer", "Trained",
+__all__ = ["Estimate", "FixConsumer", "FixTrackLocalizer", "Fixes", "InertialModelConsumer", "Localizer", "ModelConsumer", "Trained",
            "ParticleFilterLocalizer", "PathLossCalibrated", "RoleFixes", "RunInputs", "build_localizer"]

@@ -15,6 +15,7 @@ Methods that need something from the evaluation declare it by deriving from a ca
   ``fixes`` block, resolved for the session before the run and handed over as arrays in ``inputs.fixes``
   (:class:`~blenav.localizers.inputs.Fixes`): a localizer never calls back into the evaluation;
 * :class:`ModelConsumer`: a trained model given by path (``model_path``);
+* :class:`InertialModelConsumer`: a learned inertial odometry given by path (``io_model``);
 * :class:`Trained`: a method that learns from the dataset's own labelled train sessions (fingerprinting:
   KNN, LocNet on WiFi/BLE scans) before it is run on the scored ones (the experiment's ``split``).
 
@@ -32,7 +33,7 @@ from blenav.filters.estimate import Estimate
 from .inputs import Fixes, RoleFixes, RunInputs
 
 __all__ = ["Estimate", "RunInputs", "Fixes", "RoleFixes", "Localizer", "PathLossCalibrated",
-           "FixConsumer", "ModelConsumer", "Trained", "build_localizer"]
+           "FixConsumer", "ModelConsumer", "InertialModelConsumer", "Trained", "build_localizer"]
 
 class Localizer:
     """Base of every localization method: a name, and ``run``.
@@ -89,6 +90,16 @@ class ModelConsumer:
 
         ``load(path, loader)``: the evaluation's shared loader, so that methods of one experiment load the
         same file once (``loader(path)`` does the actual loading)."""
+        raise NotImplementedError
+
+
+class InertialModelConsumer:
+    """A method that can run on a learned inertial odometry given by path (``io_model=``, an export directory of
+    ``python export.py`` on a run of ``train.py experiment=inertial``)."""
+
+    def attach_io_model(self, path: str | None, load: Callable[[str, Callable], Any]) -> str | None:
+        """Attach the inertial odometry of ``path`` (None: none given); returns why the method cannot run, or None.
+        ``load(path, loader)``: the evaluation's shared loader (:meth:`ModelConsumer.attach_model`)."""
         raise NotImplementedError
 
 

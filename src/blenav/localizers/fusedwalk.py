@@ -48,9 +48,9 @@ import numpy as np
 from blenav.crf.grid import build_grid
 from blenav.crf.smoother import Layers, forward_backward, viterbi
 from blenav.errors import MissingStream
-from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fitted_step_length, pdr_odometry
+from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fitted_step_length, pdr_odometry, resolve_heading
 
-from .base import Estimate, FixConsumer, Localizer, Trained
+from .base import Estimate, FixConsumer, InertialModelConsumer, Localizer, Trained
 from .inputs import RunInputs
 from .radiomap import RadioMapConfig, build_radio_map
 
@@ -94,8 +94,9 @@ def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5) -> n
     return img / tot if tot > 0 else np.full(grid.n_cells, 1.0 / grid.n_cells)
 
 
-class FusedWalk(Localizer, FixConsumer, Trained):
-    """Fixes + PDR odometry + plan + train-walk prior on the walkable grid, no known start (module doc)."""
+class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
+    """Fixes + inertial odometry (PDR or learned) + plan + train-walk prior on the walkable grid, no known start
+    (module doc)."""
 
     uses_floor_plan = True
     fix_roles_are_alternatives = True  # the first role of fix_roles the session has
@@ -119,7 +120,11 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         self.roles = [str(r) for r in (fix_roles or [])]
         if not self.roles:
             raise ValueError(f"method {name!r}: fix_roles names no role of the experiment's fixes block")
-        odo = _block(name, "odometry", odometry, {"heading": "auto", "step_length": None})
+        odo = _block(name, "odometry", odometry, {"source": "auto", "heading": "auto", "step_length": None})
+        self.source = str(odo.get("source", "auto"))
+        if self.source not in ("auto", "pdr", "lio"):
+            raise ValueError(f"method {name!r}: odometry.source must be auto, pdr or lio, got {self.source!r}")
+        self.io_model, self.io_reason = None, None
         self.heading = str(odo.get("heading", "auto"))
         if self.heading not in HEADINGS + ("auto",):
             raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS + ('auto',)}, got "
@@ -178,6 +183,16 @@ class FusedWalk(Localizer, FixConsumer, Trained):
     def fix_roles(self) -> list[str]:
         return list(self.roles)
 
+    def attach_io_model(self, path: str | None, load) -> str | None:
+        """``source: lio`` needs ``io_model`` (skipped with the reason without it); ``auto`` uses it when given, PDR
+        otherwise; ``pdr`` never does."""
+        if self.source == "pdr" or (self.source == "auto" and not path):
+            return None
+        from .realwalk import attach_inertial  # noqa: PLC0415 (the realwalk rows' loader, onnxruntime on call)
+
+        self.io_model, self.io_reason = attach_inertial(path, load)
+        return self.io_reason if self.source == "lio" else None
+
     # ------------------------------------------------------------------ training
     def fit(self, sessions: list, inputs: RunInputs) -> dict | None:
         """The step length (unless given) and the train walks the path prior is built from (per floor, at run
@@ -222,9 +237,7 @@ class FusedWalk(Localizer, FixConsumer, Trained):
     def heading_of(self, session) -> str:
         """The PDR heading source: ``auto`` takes the phone's rotation vector where the walk has one (orientation.csv),
         else blenav's AHRS."""
-        if self.heading != "auto":
-            return self.heading
-        return "orientation" if (session.root / "orientation.csv").is_file() else "ahrs"
+        return resolve_heading(session, self.heading)
 
     def _fixes(self, inputs: RunInputs):
         """The first role of ``fix_roles`` the session has: (role, RoleFixes)."""
@@ -243,7 +256,11 @@ class FusedWalk(Localizer, FixConsumer, Trained):
             raise MissingStream(f"{self.name}: the experiment has no fixes block (roles {self.roles})")
         role, fx = self._fixes(inputs)
         digest = hashlib.sha1(b"".join(np.ascontiguousarray(a, float).tobytes() for a in (fx.t, fx.xy, fx.std)))
-        key = ("fused-walk", session.id, role, digest.hexdigest(), self._step(), self.heading, self.cell_m, self.max_step_m,
+        lio = self.io_model if self.source in ("auto", "lio") else None
+        if self.source == "lio" and lio is None:
+            raise MissingStream(self.io_reason or "no learned inertial odometry was given (io_model=IO_DIR)")
+        key = ("fused-walk", session.id, role, digest.hexdigest(), self._step(), self.heading, id(lio), self.cell_m,
+               self.max_step_m,
                self.dt_s, self.sigma0, self.sigma_per, self.no_odometry_sigma, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
                self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", self.fix_weight,
                self.radio_map, self.radio_weight, self._lag_nodes(), tuple(s.id for s in self.train))
@@ -257,7 +274,11 @@ class FusedWalk(Localizer, FixConsumer, Trained):
         fsd = self.fix_std_scale * np.where(np.isfinite(fx.std[ok]) & (fx.std[ok] > 0), fx.std[ok], 3.0)
         heading = self.heading_of(session)
         try:
-            odo = pdr_odometry(session, heading, self._step(), cache=inputs.cache)
+            if lio is not None:  # the learned inertial odometry (issue 31), in the frame of the walk's attitude
+                odo = lio.odometry(session, self.heading, cache=inputs.cache)
+                heading = f"learned ({heading} frame)"
+            else:
+                odo = pdr_odometry(session, heading, self._step(), cache=inputs.cache)
         except MissingStream as exc:  # no IMU (or no heading): the fixes alone, under a random walk at walking pace
             odo, heading = None, f"none ({exc}; random walk of {self.no_odometry_sigma:g} m per node)"
         grid, log_prior, n_prior, rmap = self._floor_model(session, inputs.cache)
@@ -336,7 +357,8 @@ class FusedWalk(Localizer, FixConsumer, Trained):
                         notes=[f"{self.mode}: fixes of role {sm['role']}"
                                + (f" (weight {self.fix_weight:g})" if self.fix_weight != 1.0 else "")
                                + (f" + {sm['radio_scans']} scans on the radio map" if self.radio_map is not None else "")
-                               + f" + PDR odometry (heading {sm['heading']}, step "
-                               f"{self._step():.3f} m) + plan + train-walk prior ({sm['prior_walks']} walks), "
+                               + (f" + learned inertial odometry ({sm['heading']})" if sm['heading'].startswith("learned")
+                                  else f" + PDR odometry (heading {sm['heading']}, step {self._step():.3f} m)")
+                               + f" + plan + train-walk prior ({sm['prior_walks']} walks), "
                                f"uniform start; grid {self.cell_m:g} m, {self.layers.n} heading/scale layers"],
                         outputs={"layer": {"heading_offset_deg": math.degrees(th), "step_scale": sc}})

@@ -5,7 +5,11 @@ the fixes of a fingerprint localizer trained on the dataset's own train walks.
 ``measurements``, ``map``, ``filter``, ...) with one addition for walks that have no ``odometry.csv``:
 
 ``odometry`` (optional)
-    ``{heading: orientation | ahrs, step_length: 0.7 | null}``: the filter runs on a PDR odometry track
+    ``{source: pdr | lio, heading: orientation | ahrs | auto, step_length: 0.7 | null, attitude: auto}``: ``source:
+    lio`` runs the filter on the learned inertial odometry of ``io_model=IO_DIR`` (issue 31,
+    :func:`blenav.filters.inertial_odometry.lio_odometry`: the network's velocities integrated, in the frame of
+    ``attitude``: the rotation vector where the walk has one, else the AHRS; skipped with the reason when no
+    io_model was given). ``source: pdr`` (the default) runs the filter on a PDR odometry track
     (:func:`blenav.filters.pdr_odometry.pdr_odometry`: detected steps along the phone's heading, world-aligned
     because the heading is magnetic-north referenced and the floor frame is east/north), handed to
     :func:`~blenav.filters.runner.run_session` as ``odometry=`` in place of ``odometry.csv``, so that Roy's
@@ -32,33 +36,66 @@ from __future__ import annotations
 
 import pandas as pd
 
+from blenav.errors import MissingStream
 from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fitted_step_length, pdr_odometry
-from blenav.localizers.base import Estimate, Trained
+from blenav.localizers.base import Estimate, InertialModelConsumer, Trained
 from blenav.localizers.inputs import RunInputs
 from blenav.localizers.particle import ParticleFilterLocalizer
 
 __all__ = ["RealWalkPF"]
 
 
-class RealWalkPF(ParticleFilterLocalizer, Trained):
-    """A particle filter on real walks: PDR odometry computed from the IMU (module doc)."""
+NO_IO_MODEL = ("no learned inertial odometry was given: pass io_model=IO_DIR (python export.py ckpt=RUN/last.ckpt "
+               "out=IO_DIR on a run of train.py experiment=inertial)")
+ODOMETRY_SOURCES = ("pdr", "lio")
+
+
+def load_inertial_model(path: str):
+    """The inertial odometry export directory ``path`` in onnxruntime (:class:`blenav.runtime.inertial.InertialModel`)."""
+    from blenav.runtime.inertial import InertialModel  # noqa: PLC0415 (optional: onnxruntime)
+
+    return InertialModel(str(path))
+
+
+def attach_inertial(path: str | None, load) -> tuple[object | None, str | None]:
+    """(model, None) of ``io_model`` ``path`` through the evaluation's shared ``load``, or (None, why not)."""
+    if not path:
+        return None, NO_IO_MODEL
+    try:
+        return load(path, load_inertial_model), None
+    except (OSError, ValueError, ImportError) as exc:
+        return None, f"io_model={path} cannot be used: {exc}"
+
+
+class RealWalkPF(ParticleFilterLocalizer, Trained, InertialModelConsumer):
+    """A particle filter on real walks: PDR or learned odometry computed from the IMU (module doc)."""
 
     def __init__(self, name: str, shared=None, odometry=None, **pf):
         super().__init__(name, shared, **pf)
         odo = dict(odometry or {})
-        unknown = set(odo) - {"heading", "step_length"}
+        unknown = set(odo) - {"source", "heading", "step_length", "attitude"}
         if unknown:
-            raise ValueError(f"method {name!r}, odometry: unknown key(s) {sorted(unknown)}; known: heading, "
-                             f"step_length")
+            raise ValueError(f"method {name!r}, odometry: unknown key(s) {sorted(unknown)}; known: source, heading, "
+                             f"step_length, attitude")
         self.odometry = odo if odometry is not None else None
-        if self.odometry is not None and self.odometry.get("heading", "orientation") not in HEADINGS:
-            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS}, got "
+        if self.odometry is not None and self.odometry.get("heading", "orientation") not in HEADINGS + ("auto",):
+            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS + ('auto',)}, got "
                              f"{self.odometry['heading']!r}")
+        self.source = str(odo.get("source", "pdr"))
+        if self.source not in ODOMETRY_SOURCES:
+            raise ValueError(f"method {name!r}: odometry.source must be one of {ODOMETRY_SOURCES}, got {self.source!r}")
         self.step_length = odo.get("step_length", DEFAULT_STEP_M)
         self.fitted_step: float | None = None
+        self.io_model, self.io_reason = None, NO_IO_MODEL
+
+    def attach_io_model(self, path: str | None, load) -> str | None:
+        if self.odometry is None or self.source != "lio":
+            return None
+        self.io_model, self.io_reason = attach_inertial(path, load)
+        return self.io_reason
 
     def fit(self, sessions: list, inputs: RunInputs) -> dict | None:
-        if self.odometry is None or self.step_length is not None:
+        if self.odometry is None or self.source != "pdr" or self.step_length is not None:
             return None
         fit = fitted_step_length(sessions, self.method.steps, inputs.cache)  # once per walks and detector
         self.fitted_step = float(fit["step_length_m"])
@@ -70,15 +107,22 @@ class RealWalkPF(ParticleFilterLocalizer, Trained):
         return self.fitted_step if self.fitted_step is not None else DEFAULT_STEP_M
 
     def odometry_for(self, session, inputs: RunInputs) -> pd.DataFrame | None:
-        """The PDR odometry the filter runs on (None without ``odometry``: the session's odometry.csv)."""
+        """The PDR or learned odometry the filter runs on (None without ``odometry``: the session's odometry.csv)."""
         if self.odometry is None:
             return None
+        if self.source == "lio":
+            if self.io_model is None:
+                raise MissingStream(self.io_reason)
+            return self.io_model.odometry(session, self.odometry.get("attitude", "auto"), cache=inputs.cache)
         return pdr_odometry(session, self.odometry.get("heading", "orientation"), self._step(), self.method.attitude,
                             self.method.steps, inputs.cache)
 
     def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         est = super().run(session, n_runs, seed, inputs)
-        if self.odometry is not None:
+        if self.odometry is not None and self.source == "lio":
+            est.notes.append(f"learned inertial odometry ({self.io_model.root}), frame "
+                             f"{self.odometry.get('attitude', 'auto')}")
+        elif self.odometry is not None:
             est.notes.append(f"PDR odometry: heading from {self.odometry.get('heading', 'orientation')}, step "
                              f"{self._step():.3f} m")
         return est

@@ -69,9 +69,10 @@ def _fmt(v, pct: bool = False) -> str:
 
 def floor_table(results: dict, rows: dict) -> str:
     """Markdown: one row per method of a realwalks results.json (error_m over the test walks' waypoints, m;
-    share of walks within 2 m / 5 m), in the order of ``rows`` (:func:`table_rows`), skipped methods with the first
+    share of walks within 2 m / 5 m; the mean displacement error per waypoint segment, m), in the order of ``rows`` (:func:`table_rows`), skipped methods with the first
     reason."""
-    lines = ["| method | mean | median | p90 | walks within 2 m | within 5 m | walks |", "|---|---|---|---|---|---|---|"]
+    lines = ["| method | mean | median | p90 | walks within 2 m | within 5 m | walks | segment error |",
+             "|---|---|---|---|---|---|---|---|"]
     order = rows["all"]
     names = [r for r in order if r in results["methods"]] + [r for r in results["methods"] if r not in order]
     for name in names:
@@ -79,12 +80,13 @@ def floor_table(results: dict, rows: dict) -> str:
         e = m.get("error_m")
         if not e:
             reason = next(iter((m.get("skipped") or {}).values()), "not run")
-            lines.append(f"| {name} | skipped: {str(reason)[:110]} | | | | | |")
+            lines.append(f"| {name} | skipped: {str(reason)[:110]} | | | | | | |")
             continue
         w = m.get("walks_within_m") or {}
         n = len(m.get("per_session") or {})
+        seg = (m.get("segment_error_m") or {}).get("mean")  # displacement error per waypoint segment (issue 31)
         lines.append(f"| {name} | {_fmt(e.get('mean'))} | {_fmt(e.get('median'))} | {_fmt(e.get('p90'))} | "
-                     f"{_fmt(w.get('2'), True)} | {_fmt(w.get('5'), True)} | {n} |")
+                     f"{_fmt(w.get('2'), True)} | {_fmt(w.get('5'), True)} | {n} | {_fmt(seg)} |")
     return "\n".join(lines)
 
 

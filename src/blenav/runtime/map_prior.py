@@ -49,7 +49,7 @@ import numpy as np
 
 from blenav.features.mapgrid import NetGrid, floor_key, net_grid, pad_to_multiple
 from blenav.limits import check_memory, check_range, read_json
-from blenav.onnx_io import check_weights, session
+from blenav.onnx_io import check_export_files, session
 
 SCORE_FLOOR = 1e-12
 LOG_FLOOR = float(np.log(SCORE_FLOOR))
@@ -90,23 +90,9 @@ class OnnxBackend:
 
 
 def check_export(root: Path, meta: dict) -> None:
-    """Refuse an export directory whose graphs are not the ones written with its meta.json: each graph's weights
-    against the hash in its own metadata (:func:`blenav.onnx_io.check_weights`, naming the tensors that
-    changed), then each file against the sha256 meta.json records for it (any other change: graph, metadata).
-    An export without recorded hashes (older blenav) only warns."""
-    recorded = meta.get("sha256") or {}
-    for name in (MAP_ENCODER_ONNX, TRAJECTORY_ENCODER_ONNX):
-        path = root / name
-        check_weights(path)
-        want = recorded.get(name)
-        if want is None:
-            continue
-        got = hashlib.sha256(path.read_bytes()).hexdigest()
-        if got != want:
-            raise ValueError(f"{path} is not the file exported with {root / META_JSON} (sha256 recorded "
-                             f"{want[:16]}..., file {got[:16]}...; its weights are intact, so its graph or metadata "
-                             "was changed after export): export the directory again with `python export.py "
-                             "ckpt=RUN/last.ckpt out=DIR`")
+    """Refuse an export directory whose graphs are not the ones written with its meta.json
+    (:func:`blenav.onnx_io.check_export_files`)."""
+    check_export_files(root, meta, (MAP_ENCODER_ONNX, TRAJECTORY_ENCODER_ONNX), META_JSON)
 
 
 # --- the prior -------------------------------------------------------------------------------------------

@@ -30,8 +30,10 @@ def _converged(history: list[dict]) -> bool:
 
 
 def training_report(monitor: TrainingMonitor, reason: str, steps: int, knn_err: float | None,
-                    stage: str = "supervised") -> dict:
-    """The training dict of a run (results.json ``methods.NAME.training``, OUT/training.json)."""
+                    stage: str = "supervised", baseline: str = "KNN") -> dict:
+    """The training dict of a run (results.json ``methods.NAME.training``, OUT/training.json); ``knn_err`` is the
+    validation error (m) of the simplest ``baseline`` on the same validation data (KNN for a fingerprint network,
+    PDR for the inertial odometry), stored as ``knn_val_error_m`` for KNN, else ``baseline_val_error_m`` too."""
     best = monitor.best or {}
     last = monitor.history[-1] if monitor.history else {}
     err = best.get("val_err_m") if stage == "supervised" else last.get("val_err_m")
@@ -40,8 +42,10 @@ def training_report(monitor: TrainingMonitor, reason: str, steps: int, knn_err: 
             "best_step": best.get("step"), "best_val_loss": best.get("val_loss"),
             "best_val_error_m": err, "knn_val_error_m": knn_err,
             "converged": early or _converged(monitor.history), "val_checks": len(monitor.history), "warnings": []}
+    if baseline != "KNN":
+        info.update(baseline=baseline, baseline_val_error_m=knn_err)
     if err is not None and knn_err is not None and err > knn_err:
-        info["warnings"].append(f"worse than KNN on the validation windows: {err:.2f} m vs {knn_err:.2f} m")
+        info["warnings"].append(f"worse than {baseline} on the validation data: {err:.2f} m vs {knn_err:.2f} m")
     if not info["converged"] and stage == "supervised":
         info["warnings"].append(f"stopped ({reason}) after {steps} steps before the validation loss levelled off "
                                 "(raise trainer.budget.max_steps or model.lr)")

@@ -37,7 +37,6 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
-import lightning as L
 import torch
 from omegaconf import DictConfig, OmegaConf
 
@@ -46,8 +45,9 @@ from blenav.runtime.signature import building_signature
 
 from ..common.budget import budget, budget_steps, steps_per_epoch, trainer_settings
 from ..common.checkpoint import read_checkpoint
-from ..common.report import training_report, write_report
-from ..common.trainer import LAST, StepBudget, TrainingMonitor, fit, start_run, stop_reason
+from ..common.report import training_report
+from ..common.stage import end_stage, prior_training, supervised_stage, validate_last
+from ..common.trainer import LAST, StepBudget, TrainingMonitor, fit, start_run
 from .augment import ReceiverAugment
 from .checkpoint import build_networks
 from .data import WindowDataConfig, WindowDataModule
@@ -110,74 +110,6 @@ def _window_counts(dm: WindowDataModule) -> dict:
                for k in ("train", "val", "unlabelled")}, "batch_size": dm.batch_size}
 
 
-def _final_step_checkpoint(trainer, out: Path) -> None:
-    """OUT/last.ckpt of the final step (its loop state resumes correctly when the budget is raised later), written
-    on *every* rank: under DDP ``Trainer.save_checkpoint`` is a collective (rank 0 writes, all wait), so calling it
-    on rank 0 alone hung the run. Unconditional: one write is cheaper than loading the last one to compare steps."""
-    trainer.save_checkpoint(out / LAST)
-
-
-def _finish_checkpoint(module, out: Path, info: dict, monitor: TrainingMonitor) -> None:
-    """OUT/last.ckpt of a finished fit (the final step's, :func:`_final_step_checkpoint`) amended with the module's
-    weights now (the best validation check's), the training report and the monitor's final curve."""
-    ck = read_checkpoint(out / LAST, require_meta=False)
-    ck["state_dict"] = {k: v.detach().cpu().clone() for k, v in module.state_dict().items()}
-    ck["blenav_training"] = info
-    ck.setdefault("callbacks", {})[monitor.state_key] = monitor.state_dict()
-    tmp = (out / LAST).with_suffix(".tmp")
-    torch.save(ck, tmp)
-    tmp.replace(out / LAST)
-
-
-def _prior(out: Path) -> dict:
-    """The ``blenav_training`` entry of OUT/last.ckpt ({} without one)."""
-    ck = out / LAST
-    if not ck.is_file():
-        return {}
-    return dict(read_checkpoint(ck, require_meta=False).get("blenav_training") or {})
-
-
-def _validate_last(trainer, module, dm: WindowDataModule, monitor: TrainingMonitor) -> None:
-    """Validate the steps since the monitor's last check (none when the fit ended on one, or without validation
-    windows), so that the report and the best weights see the final step."""
-    if dm.sets.get("val") is not None and (not monitor.history or monitor.history[-1]["step"] != trainer.global_step):
-        trainer.validate(module, datamodule=dm, verbose=False)
-
-
-def _end_stage(module, trainer, out: Path, info: dict, monitor: TrainingMonitor, title: str, plots: bool) -> None:
-    """A stage's end: ``info`` on the module, OUT/last.ckpt of the final step amended on rank 0 with the module's
-    weights and ``info`` (:func:`_finish_checkpoint`), and the training report."""
-    module.training_info = info
-    _final_step_checkpoint(trainer, out)
-    if trainer.is_global_zero:
-        _finish_checkpoint(module, out, info, monitor)
-    write_report(out, info, monitor, title, plots)
-
-
-def _supervised_stage(module, dm, out: Path, trainer_kw: dict, b: dict, max_steps: int, monitor, knn_err,
-                      callbacks, title: str, plots: bool):
-    """Fit with the step budget and early stopping; keep the best validation check's weights; write the
-    checkpoint and the training report. Returns (training info, trainer)."""
-    es = None
-    step_budget = StepBudget(max_steps)
-    callbacks_1 = [monitor, step_budget, *(callbacks or [])]
-    if b["patience"] is not None:
-        es = L.pytorch.callbacks.EarlyStopping(monitor="val/loss", patience=int(b["patience"]),
-                                               min_delta=float(b["min_delta"]), mode="min",
-                                               check_on_train_epoch_end=False)
-        callbacks_1.append(es)
-    module.training_info = {"stage": "supervised"}
-    trainer = fit(module, dm, out, trainer_kw, callbacks_1)
-    _validate_last(trainer, module, dm, monitor)
-    reason = stop_reason(trainer, es, step_budget)
-    if monitor.best_state is not None:  # the weights of the best validation check
-        module.load_state_dict(monitor.best_state)
-    info = training_report(monitor, reason, trainer.global_step, knn_err)
-    info.update(_window_counts(dm), budget_steps=int(max_steps))
-    _end_stage(module, trainer, out, info, monitor, title, plots)
-    return info, trainer
-
-
 def _semi_stage(module, dm, out: Path, trainer_kw: dict, semi, info: dict, knn_err, callbacks, title: str,
                 plots: bool):
     """The semi-supervised stage (scenario 3) for ``semi.steps`` optimizer steps (or ``semi.epochs``) after the
@@ -193,12 +125,12 @@ def _semi_stage(module, dm, out: Path, trainer_kw: dict, semi, info: dict, knn_e
     module.training_info = {**info, "stage": "semi", "semi_from_step": start, "stop_reason": None}
     monitor2 = TrainingMonitor()
     trainer = fit(module, dm, out, kw2, [monitor2, StepBudget(start + steps), *(callbacks or [])])
-    _validate_last(trainer, module, dm, monitor2)
+    validate_last(trainer, module, dm, monitor2)
     sup = {k: info.get(k) for k in ("steps", "budget_steps", "early_stopped", "stop_reason", "best_val_error_m")}
     info = {**training_report(monitor2, "semi_steps", trainer.global_step, knn_err, stage="semi"),
             **_window_counts(dm), "semi_from_step": start, "supervised": sup, "early_stopped": bool(sup["early_stopped"]),
             "budget_steps": sup["budget_steps"]}
-    _end_stage(module, trainer, out, info, monitor2, title, plots)
+    end_stage(module, trainer, out, info, monitor2, title, plots)
     return info, trainer
 
 
@@ -230,7 +162,7 @@ def train_crossphone(cfg: DictConfig, callbacks: list | None = None,
     title = f"{(cfg.model or {}).get('name', 'model')} ({out})"
     plots = bool(cfg.get("plots", True))
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True), encoding="utf-8")
-    prior = _prior(out)
+    prior = prior_training(out)
     knn_err = knn_val_error(dm)
     monitor = TrainingMonitor()
     # -- supervised stage: skipped when the checkpoint's run stopped early or is in (or past) the semi stage
@@ -238,8 +170,8 @@ def train_crossphone(cfg: DictConfig, callbacks: list | None = None,
     if prior.get("stage") == "semi" or prior.get("stop_reason") == "early_stopping":
         info = prior
     else:
-        info, trainer = _supervised_stage(module, dm, out, trainer_kw, b, max_steps, monitor, knn_err, callbacks,
-                                          title, plots)
+        info, trainer = supervised_stage(module, dm, out, trainer_kw, b, max_steps, monitor, knn_err, callbacks,
+                                         title, plots, extra_info=_window_counts(dm))
     # -- semi-supervised stage (scenario 3)
     if semi:
         info, trainer = _semi_stage(module, dm, out, trainer_kw, semi, info, knn_err, callbacks, title, plots)

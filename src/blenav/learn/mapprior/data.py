@@ -57,9 +57,9 @@ import torch.nn.functional as F
 from scipy import ndimage
 from torch.utils.data import DataLoader, Dataset as TorchDataset, Sampler
 
-from blenav.data import Dataset
 from blenav.features.mapgrid import NetGrid, net_grid
 
+from ..common.sessions import labelled_sessions
 from .data_config import MapPriorDataConfig  # the schema of the data node (torch-free)
 
 SPLITS = {"train": 0, "val_seen": 1, "val_unseen": 2}
@@ -323,34 +323,8 @@ class MapPriorDataModule(L.LightningDataModule):
 
     def _sessions(self) -> list:
         """The labelled sessions with at least two ground-truth rows of ``path`` and ``extra_paths`` (only the ids of
-        ``sessions`` when given), checked for clashes between the datasets; an id of ``sessions`` that none of
-        them has fails, naming it."""
-        c = self.cfg
-        paths = c.paths
-        keep = None if c.sessions is None else {str(i) for i in c.sessions}
-        out, origin, floors, seen = [], {}, {}, set()
-        for p in paths:
-            ds = Dataset.open(p)
-            seen |= set(ds.session_ids)
-            for s in ds.sessions(labelled=True):
-                if keep is not None and s.id not in keep:
-                    continue
-                if len(s.groundtruth) < 2:
-                    continue
-                if s.id in origin:
-                    raise ValueError(f"session {s.id} is in both {origin[s.id]} and {p}: data.extra_paths must be "
-                                     "datasets with distinct session ids")
-                key = (s.building.id, str(s.meta.get("floor")))
-                if floors.setdefault(key, p) != p:
-                    raise ValueError(f"floor {key[1]} of building {key[0]} is in both {floors[key]} and {p}: "
-                                     "data.extra_paths must not repeat a floor")
-                origin[s.id] = p
-                out.append(s)
-        unknown = sorted((keep or set()) - seen)
-        if unknown:
-            raise ValueError(f"data.sessions {unknown[:5]}{' ...' if len(unknown) > 5 else ''} ({len(unknown)}) are not "
-                             f"sessions of {', '.join(paths)}")
-        return out
+        ``sessions`` when given), checked for clashes between the datasets (:func:`labelled_sessions`)."""
+        return labelled_sessions(self.cfg.paths, self.cfg.sessions, unique_floors=True)
 
     def setup(self, stage: str | None = None) -> None:
         if self.sets:

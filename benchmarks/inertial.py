@@ -1,0 +1,107 @@
+"""Learned inertial odometry (issue 31): ONNX parity, the streaming step with the network in the loop, and training time.
+
+Given an export directory (``python export.py ckpt=RUN/last.ckpt out=IO_DIR``) and a dataset with IMU walks:
+
+* parity: the export's own record (meta.json ``parity``: max relative |onnxruntime - PyTorch| on random and real windows,
+  gate 1e-4), and, when ``--ckpt RUN/last.ckpt`` is given, the same measured here on the dataset's first walk's windows;
+* streaming step: what a phone does every ``stride_s`` (0.5 s): rotate the new stride of IMU samples into the attitude's
+  frame, cut the window, turn it into its heading frame, one onnxruntime call on one window, turn the velocity back and
+  add it to the track; median and p99 over every stride of the walks, against the 5 ms target (ratio <= 1: met);
+* batch throughput: the whole walk's windows in one call (what the evaluation does), ms per walk-minute;
+* training time: ``RUN/training.json``'s ``fit_wall_s`` and steps, when ``--ckpt`` is given.
+
+    .venv/bin/python benchmarks/inertial.py IO_DIR DATA [--walks 5] [--ckpt RUN/last.ckpt]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from blenav.data import Dataset
+from blenav.features.inertial import heading_frame, rotate_velocity, windows
+from blenav.filters.inertial_odometry import world_frame_imu
+from blenav.filters.pdr_odometry import attitude_track
+from blenav.runtime.inertial import InertialModel
+
+TARGET_MS = 5.0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("io_model", help="an export directory of python export.py on a train.py experiment=inertial run")
+    ap.add_argument("data", help="a dataset with IMU walks")
+    ap.add_argument("--walks", type=int, default=5)
+    ap.add_argument("--ckpt", default=None, help="the run's last.ckpt: parity measured here and its training time")
+    args = ap.parse_args()
+    model = InertialModel(args.io_model)
+    g = model.grid
+    print(f"load average {os.getloadavg()[0]:.2f}; model {args.io_model}: {model.meta['model']['net']['_target_']}, "
+          f"{g.rate_hz:g} Hz, window {g.window_s:g} s, stride {g.stride_s:g} s, frame {model.frame}")
+    print(f"parity at export: {model.meta['parity']}")
+    walks = [s for s in Dataset.open(args.data).sessions() if (s.root / "imu.csv").is_file()][: args.walks]
+    step_ms, batch_ms, minutes = [], 0.0, 0.0
+    for s in walks:
+        imu = s.imu
+        t, acc, gyr = imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), imu[["gx", "gy", "gz"]].to_numpy(float)
+        q_t, q = attitude_track(s, "auto")
+        _, X = world_frame_imu(t, acc, gyr, q_t, q, g.rate_hz)
+        a = time.perf_counter()
+        W, psi = heading_frame(windows(X, g))
+        v, lv = model.predict(W)
+        rotate_velocity(v, lv, psi)
+        batch_ms += 1e3 * (time.perf_counter() - a)
+        minutes += (t[-1] - t[0]) / 60.0
+        # streaming: per stride, the new samples rotated and resampled, one window, one call
+        n_s, n_w = g.n_stride, g.n_window
+        pos = np.zeros(2)
+        for k in range(1, len(X) // n_s):
+            a = time.perf_counter()
+            lo = max(0, (k * n_s) - n_w - 1)
+            sl = (t >= t[0] + lo / g.rate_hz - 0.05) & (t <= t[0] + k * n_s / g.rate_hz + 0.05)
+            _, Xs = world_frame_imu(t[sl], acc[sl], gyr[sl], q_t, q, g.rate_hz)
+            win = windows(Xs, g)[-1:]
+            Wk, pk = heading_frame(win)
+            vk, lk = model.predict(Wk)
+            vw, _ = rotate_velocity(vk, lk, pk)
+            pos = pos + g.stride_s * vw[0]
+            step_ms.append(1e3 * (time.perf_counter() - a))
+    st = np.array(step_ms)
+    med, p99 = float(np.median(st)), float(np.percentile(st, 99))
+    print(f"streaming step ({len(st)} strides of {len(walks)} walks): median {med:.2f} ms, p99 {p99:.2f} ms; target "
+          f"{TARGET_MS:g} ms: ratio {p99 / TARGET_MS:.2f} (p99)")
+    print(f"batch (the evaluation): {batch_ms / max(minutes, 1e-9):.1f} ms per walk-minute over {minutes:.1f} min")
+    if args.ckpt:
+        import torch
+
+        from blenav.learn.inertial.checkpoint import load_inertial
+
+        net, _ = load_inertial(args.ckpt)
+        s = walks[0]
+        q_t, q = attitude_track(s, "auto")
+        imu = s.imu
+        _, X = world_frame_imu(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float),
+                               imu[["gx", "gy", "gz"]].to_numpy(float), q_t, q, g.rate_hz)
+        W, _ = heading_frame(windows(X, g)) if model.frame == "heading" else (windows(X, g), None)
+        v, lv = model.predict(W)
+        with torch.no_grad():
+            ref = net(torch.from_numpy(W)).numpy()
+        scale = max(1.0, float(np.abs(ref).max()))
+        print(f"parity here ({len(W)} windows of {s.id}): velocity {np.abs(v - ref[:, :2]).max() / scale:.2e}, "
+              f"log_var {np.abs(lv - ref[:, 2:]).max() / scale:.2e} (gate 1e-4)")
+        tj = Path(args.ckpt).parent / "training.json"
+        if tj.is_file():
+            info = json.loads(tj.read_text())
+            d = info.get("data", {}).get("train", {})
+            print(f"training: {info.get('steps')} steps ({info.get('stop_reason')}), {info.get('fit_wall_s') or float('nan'):.0f} s "
+                  f"wall on {d.get('walks')} walks / {d.get('segment_s', 0) / 60:.0f} min of supervised segments; best "
+                  f"validation segment error {info.get('best_val_error_m'):.3f} m vs PDR {info.get('baseline_val_error_m')}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,268 @@
+"""Training data of the inertial odometry (issue 31): IMU windows of labelled walks and the segments that supervise
+them.
+
+Walks. Every labelled session with an IMU of ``data.path`` and ``data.extra_paths`` (only ``data.sessions`` when
+given): its IMU in the gravity-aligned frame of its attitude (``data.attitude``; ``data.dense_attitude`` for walks with
+a dense ground-truth orientation, e.g. simulated ones), resampled and cut into windows
+(:mod:`blenav.features.inertial`; :func:`blenav.filters.inertial_odometry.session_frame_imu`).
+
+Segments (no invented positions). A segment is a stretch [a, b] of a walk whose displacement is known: between two
+consecutive surveyed waypoints (``groundtruth_kind: waypoints``, the ILC walks; gaps longer than
+``waypoint_max_gap_s`` are left out), or ``dense_segment_s`` long on a dense ground-truth trajectory (interpolated,
+no gap over 1 s inside). The network's velocities integrate over it (:func:`blenav.features.inertial.segment_weights`:
+the seconds of each window's output interval inside [a, b]); the loss compares that integral with the displacement
+(:mod:`blenav.learn.inertial.module`).
+
+Validation: ``val_fraction`` of the walks, whole, seeded. Augmentation (training segments only, one draw per segment
+for all its windows): a uniform yaw turning inputs and target together, gyro / accelerometer biases and scales,
+dropped samples held (``data.augment``).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset as TorchDataset
+
+from blenav.errors import MissingStream
+from blenav.features.inertial import FRAMES, YAW_PAIRS, InertialGrid, heading_frame, segment_weights, windows
+from blenav.filters.inertial_odometry import session_frame_imu
+
+from ..common.sessions import labelled_sessions
+from .data_config import InertialDataConfig
+
+log = logging.getLogger("blenav.learn")
+
+DENSE_MAX_GAP_S = 1.0
+
+
+@dataclass
+class Walk:
+    """One walk's windows (K, n_window, 15) float32 (in their heading frame for ``frame: heading``), each window's heading
+    psi (K,) rad (zeros for ``frame: world``), the grid's first time ``t0`` s, and the attitude source."""
+
+    session: str
+    windows: np.ndarray
+    psi: np.ndarray
+    t0: float
+    attitude: str
+    sparse: bool
+
+
+@dataclass
+class Segments:
+    """Segments of the walks: walk index (S,), target displacement (S, 2) m, [a, b] (S, 2) s, and per segment its
+    windows (indices into the walk's windows) with their weights (s)."""
+
+    walk: np.ndarray
+    target: np.ndarray
+    span: np.ndarray
+    win: list[np.ndarray]
+    weight: list[np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.walk)
+
+
+def walk_segments(session, grid: InertialGrid, t0: float, K: int, cfg: InertialDataConfig):
+    """(a (S,), b (S,), target (S, 2)) of one session (module doc), inside the windows' span [t0, t0 + K stride]."""
+    gt = session.groundtruth
+    t = gt["t"].to_numpy(float)
+    xy = gt[["x", "y"]].to_numpy(float)
+    t_end = t0 + K * grid.stride_s
+    if session.groundtruth_sparse:
+        a, b = t[:-1], t[1:]
+        ok = (b - a > 0) & (b - a <= cfg.waypoint_max_gap_s) & (a >= t0) & (b <= t_end + 1e-9)
+        return a[ok], b[ok], (xy[1:] - xy[:-1])[ok]
+    L_s = float(cfg.dense_segment_s)
+    lo, hi = max(t[0], t0), min(t[-1], t_end)
+    if hi - lo < L_s:
+        return np.zeros(0), np.zeros(0), np.zeros((0, 2))
+    a = lo + L_s * np.arange(int(np.floor((hi - lo) / L_s + 1e-9)))
+    b = a + L_s
+    # no ground-truth gap over DENSE_MAX_GAP_S inside a segment
+    gaps = np.flatnonzero(np.diff(t) > DENSE_MAX_GAP_S)
+    ok = np.ones(len(a), bool)
+    for g in gaps:
+        ok &= ~((a < t[g + 1]) & (b > t[g]))
+    a, b = a[ok], b[ok]
+    pa = np.stack([np.interp(a, t, xy[:, j]) for j in (0, 1)], axis=1)
+    pb = np.stack([np.interp(b, t, xy[:, j]) for j in (0, 1)], axis=1)
+    return a, b, pb - pa
+
+
+def make_segments(walks: list[Walk], per_walk: list[tuple], grid: InertialGrid) -> Segments:
+    """:class:`Segments` of ``walks`` from each walk's (a, b, target)."""
+    walk, target, span, win, weight = [], [], [], [], []
+    for i, (w, (a, b, d)) in enumerate(zip(walks, per_walk)):
+        seg, k, wt = segment_weights(w.t0, grid, len(w.windows), a, b)
+        for j in range(len(a)):
+            m = seg == j
+            if not m.any():
+                continue
+            walk.append(i)
+            target.append(d[j])
+            span.append((a[j], b[j]))
+            win.append(k[m])
+            weight.append(wt[m])
+    return Segments(np.asarray(walk, np.int64), np.asarray(target, float).reshape(-1, 2),
+                    np.asarray(span, float).reshape(-1, 2), win, weight)
+
+
+def _rot(c: float, s: float, v: np.ndarray) -> np.ndarray:
+    """Turn the (..., 2) vectors ``v`` by the angle of (cos, sin) = (c, s)."""
+    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)
+
+
+class SegmentSet(TorchDataset):
+    """Items: one segment's windows (n, n_window, 15), their headings psi (n,), weights (n,), target (2,); augmented when
+    ``augment``."""
+
+    def __init__(self, walks: list[Walk], segs: Segments, cfg: InertialDataConfig, augment: bool, seed: int):
+        self.walks, self.segs, self.cfg, self.augment = walks, segs, cfg, augment
+        self.seed, self.epoch = int(seed), 0
+
+    def __len__(self) -> int:
+        return len(self.segs)
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def __getitem__(self, i: int) -> dict:
+        s = self.segs
+        w = self.walks[s.walk[i]]
+        W, psi = w.windows[s.win[i]].copy(), w.psi[s.win[i]].astype(np.float32)
+        d = s.target[i].copy()
+        if self.augment:
+            W, d = self._augment(W, d, np.random.default_rng([self.seed, self.epoch, int(i)]))
+        return {"windows": torch.from_numpy(W), "psi": torch.from_numpy(psi),
+                "weight": torch.from_numpy(s.weight[i].astype(np.float32)), "target": torch.from_numpy(d.astype(np.float32))}
+
+    def _augment(self, W: np.ndarray, d: np.ndarray, rng: np.random.Generator):
+        a = self.cfg.augment
+        if a.yaw and self.cfg.frame == "world":  # in the heading frame a yaw changes nothing (exactly equivariant)
+            th = rng.uniform(-np.pi, np.pi)
+            c, s = np.cos(th), np.sin(th)
+            for i, j in YAW_PAIRS:
+                W[..., [i, j]] = _rot(c, s, W[..., [i, j]])
+            d = _rot(c, s, d)
+        W[..., 0:3] = W[..., 0:3] * (1.0 + a.scale_std * rng.standard_normal()) + a.acc_bias_std * rng.standard_normal(3)
+        W[..., 3:6] = W[..., 3:6] * (1.0 + a.scale_std * rng.standard_normal()) + a.gyro_bias_std * rng.standard_normal(3)
+        if a.drop_prob > 0:
+            drop = rng.random(W.shape[:2]) < a.drop_prob
+            drop[:, 0] = False
+            n, t = np.nonzero(drop)
+            W[n, t] = W[n, t - 1]  # the dropped sample holds the previous one
+        return W.astype(np.float32), d
+
+
+def collate(rows: list[dict]) -> dict[str, torch.Tensor]:
+    """Concatenated windows (N, n_window, 15), their headings (N,), segment index (N,) and weights (N,), targets (B, 2)."""
+    return {"windows": torch.cat([r["windows"] for r in rows]), "psi": torch.cat([r["psi"] for r in rows]),
+            "segment": torch.cat([torch.full((len(r["weight"]),), i, dtype=torch.long) for i, r in enumerate(rows)]),
+            "weight": torch.cat([r["weight"] for r in rows]),
+            "target": torch.stack([r["target"] for r in rows])}
+
+
+class InertialDataModule(L.LightningDataModule):
+    """Walks and segments of the datasets: loaders ``train`` and ``val`` (module doc)."""
+
+    def __init__(self, cfg: InertialDataConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.grid = InertialGrid(cfg.rate_hz, cfg.window_s, cfg.stride_s)
+        if cfg.frame not in FRAMES:
+            raise ValueError(f"data.frame must be one of {FRAMES}, got {cfg.frame!r}")
+        self.walks: dict[str, list[Walk]] = {}
+        self.segments: dict[str, Segments] = {}
+        self.sets: dict[str, SegmentSet] = {}
+        self.sessions: dict[str, list] = {}
+        self.skipped: dict[str, str] = {}
+
+    def _walk(self, s) -> tuple[Walk, tuple] | None:
+        c = self.cfg
+        dense = not s.groundtruth_sparse
+        source = c.dense_attitude if (dense and c.dense_attitude) else c.attitude
+        try:
+            t, X, used = session_frame_imu(s, self.grid, source)
+        except MissingStream as exc:
+            if source == c.attitude:
+                raise
+            log.info("session %s: %s; its frame from data.attitude=%s", s.id, exc, c.attitude)
+            t, X, used = session_frame_imu(s, self.grid, c.attitude)
+        W = windows(X, self.grid)
+        seg = walk_segments(s, self.grid, float(t[0]), len(W), c)
+        if not len(W) or not len(seg[0]):
+            return None
+        W, psi = heading_frame(W) if c.frame == "heading" else (W, np.zeros(len(W)))
+        return Walk(s.id, W, psi, float(t[0]), used, bool(s.groundtruth_sparse)), seg
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.sets:
+            return
+        c = self.cfg
+        where = ", ".join(c.paths)
+        sessions = [s for s in labelled_sessions(c.paths, c.sessions) if (s.root / "imu.csv").is_file()]
+        if not sessions:
+            raise ValueError(f"{where} has no labelled session with an IMU and ground truth"
+                             f"{' among data.sessions' if c.sessions is not None else ''}: the inertial odometry "
+                             "trains on imu.csv with groundtruth.csv (a trajectory or surveyed waypoints)")
+        rng = np.random.default_rng([int(c.seed), 31])
+        order = rng.permutation(len(sessions))
+        n_val = int(round(c.val_fraction * len(sessions))) if len(sessions) > 1 else 0
+        val = {sessions[i].id for i in order[:n_val]}
+        built: dict[str, list] = {"train": [], "val": []}
+        for s in sessions:
+            try:
+                got = self._walk(s)
+            except MissingStream as exc:
+                self.skipped[s.id] = str(exc)
+                continue
+            if got is None:
+                self.skipped[s.id] = "no supervised segment (ground truth outside the IMU's span, or gaps)"
+                continue
+            built["val" if s.id in val else "train"].append((s, *got))
+        if not built["train"]:
+            raise ValueError(f"no training segment in {where} ({len(sessions)} labelled walks with an IMU; skipped: "
+                             f"{dict(list(self.skipped.items())[:3])}); record walks with ground truth inside the IMU's "
+                             "span, or allow longer waypoint gaps (data.waypoint_max_gap_s)")
+        for split, rows in built.items():
+            if not rows:
+                continue
+            self.sessions[split] = [r[0] for r in rows]
+            self.walks[split] = [r[1] for r in rows]
+            self.segments[split] = make_segments(self.walks[split], [r[2] for r in rows], self.grid)
+            self.sets[split] = SegmentSet(self.walks[split], self.segments[split], c, augment=(split == "train"),
+                                          seed=c.seed)
+
+    def normalisation(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-channel mean and std (6,) of the training walks' windows' last strides (each sample once)."""
+        n_s = self.grid.n_stride
+        X = np.concatenate([w.windows[:, -n_s:].reshape(-1, w.windows.shape[-1]) for w in self.walks["train"]])
+        return X.mean(axis=0), X.std(axis=0)
+
+    def counts(self) -> dict:
+        """Walks, segments and windows per split, the waypoint walks among them, the skipped walks."""
+        out = {}
+        for split, ws in self.walks.items():
+            seg = self.segments[split]
+            out[split] = {"walks": len(ws), "waypoint_walks": int(sum(w.sparse for w in ws)),
+                          "segments": len(seg), "windows": int(sum(len(w.windows) for w in ws)),
+                          "segment_s": float((seg.span[:, 1] - seg.span[:, 0]).sum())}
+        out["skipped"] = dict(self.skipped)
+        return out
+
+    def train_dataloader(self) -> DataLoader:
+        g = torch.Generator().manual_seed(int(self.cfg.seed))  # the augmentation's epoch: the module sets it
+        return DataLoader(self.sets["train"], batch_size=self.cfg.batch_segments, shuffle=True, generator=g,
+                          collate_fn=collate, num_workers=self.cfg.num_workers)
+
+    def val_dataloader(self):
+        if "val" not in self.sets:
+            return []
+        return DataLoader(self.sets["val"], batch_size=self.cfg.batch_segments, shuffle=False, collate_fn=collate,
+                          num_workers=self.cfg.num_workers)
