@@ -10,7 +10,7 @@ import pytest
 from blenav.errors import EvalError
 from blenav.eval.config import SplitConfig
 from blenav.eval.sessions import split_sessions
-from blenav.eval.metrics import errors_at_waypoints, pool, waypoint_metrics
+from blenav.eval.metrics import errors_at_waypoints, pool, pool_segment_errors, segment_errors, waypoint_metrics
 
 
 def test_waypoint_errors_interpolate_the_estimate_not_the_truth():
@@ -80,3 +80,21 @@ def test_convergence_is_the_time_from_which_the_track_stays_within_5_m():
     np.testing.assert_array_equal(got[:2], [15.0, 0.0])
     assert np.isnan(got[2])
     assert pool_convergence([got]) == {"within_m": 5.0, "settled": 2 / 3, "median_s": 7.5, "p90_s": 13.5}
+
+
+def test_segment_errors_by_hand():
+    """An estimate along x at 1 m/s against waypoints at t = 0, 2, 6 s: the second segment's displacement is 4 m east,
+    the truth 3 m east and 3 m north (length 4.24 m, 45 deg off); the first is exact. A segment outside the estimate's
+    span is left out."""
+    t = np.array([0.0, 10.0])
+    pos = np.array([[[0.0, 0.0], [10.0, 0.0]]])
+    gt_t = np.array([0.0, 2.0, 6.0, 12.0])
+    gt_xy = np.array([[0.0, 0.0], [2.0, 0.0], [5.0, 3.0], [9.0, 3.0]])
+    s = segment_errors(t, pos, gt_t, gt_xy)
+    np.testing.assert_allclose(s["err"], [[0.0, np.hypot(1.0, 3.0)]])
+    np.testing.assert_allclose(s["length"], [[0.0, 4.0 - np.hypot(3.0, 3.0)]])
+    np.testing.assert_allclose(s["angle"], [[0.0, -45.0]])
+    p = pool_segment_errors([s])
+    assert p["segments"] == 2 and p["mean"] == pytest.approx(np.hypot(1.0, 3.0) / 2)
+    assert p["heading_abs_median_deg"] == pytest.approx(22.5)  # both segments >= 2 m
+    assert pool_segment_errors([segment_errors(t, pos, gt_t[2:], gt_xy[2:])]) is None  # no segment inside

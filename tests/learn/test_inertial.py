@@ -209,3 +209,34 @@ def test_eval_rows_with_io_model(trained, tmp_path):
                      "split.train_fraction=0.67", "plots=false", "progress=false"))
     ms2 = json.loads((out2 / "results.json").read_text())["methods"]
     assert "io_model" in next(iter(ms2["LIO"]["skipped"].values()))
+
+
+def test_heading_frame_run_exports_and_runs(trained, tmp_path):
+    """data.frame=heading: the windows turned into their heading frames for training, the export says so, and the
+    runtime turns them the same way (the track equals the network's own velocities turned back and integrated)."""
+    import json
+
+    from blenav.data import Dataset
+    from blenav.filters.inertial_odometry import session_frame_imu
+    from blenav.learn.export import export
+    from blenav.learn.inertial.checkpoint import load_inertial
+    from blenav.learn.train import train
+    from blenav.runtime.inertial import InertialModel
+
+    run = tmp_path / "run"
+    train(compose("train", "experiment=inertial", f"data.path={trained['data']}", f"out={run}", "plots=false",
+                  "data.frame=heading", "trainer.budget.max_steps=10", "trainer.enable_progress_bar=false",
+                  "model=inertial_resnet"))
+    io = export(compose("export", f"ckpt={run / 'last.ckpt'}", f"out={tmp_path / 'io'}"))
+    assert json.loads((io / "meta.json").read_text())["input_frame"] == "heading"
+    model = InertialModel(io)
+    s = next(iter(Dataset.open(trained["data"]).sessions()))
+    odo = model.odometry(s)
+    net, _ = load_inertial(run / "last.ckpt")
+    _, X, _ = session_frame_imu(s, model.grid, "auto")
+    W, psi = heading_frame(windows(X, model.grid))
+    with torch.no_grad():
+        out = net(torch.from_numpy(W)).numpy()
+    v, lv = rotate_velocity(out[:, :2], out[:, 2:], psi)
+    _, xy, _ = integrate(0.0, model.grid, v, lv)
+    np.testing.assert_allclose(odo[["x", "y"]].to_numpy(), xy, atol=1e-3)

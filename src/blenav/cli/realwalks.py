@@ -106,7 +106,9 @@ def _main(argv: list[str]) -> int:
 
                 info["model"] = (yaml.safe_load(cfg.read_text(encoding="utf-8")).get("model") or {}).get("name")
             runs[Path(d).name] = info
-        Path(args[0]).write_text(json.dumps(runs, indent=1) + "\n", encoding="utf-8")
+        from blenav.eval.common import write_text
+
+        write_text(Path(args[0]), json.dumps(runs, indent=1) + "\n")
         print(f"wrote {args[0]} ({len(runs)} runs)")
     elif cmd == "priors" and len(args) in (4, 5):
         from blenav.reporting.realwalks_priors import write_priors

@@ -94,25 +94,40 @@ def errors_at_waypoints(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy:
     return np.linalg.norm(positions_at(t, pos, tw) - gt_xy[inside][None], axis=-1), tw
 
 
-def segment_errors(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray) -> np.ndarray:
-    """(R, S) m: the error of the estimate's displacement over each segment between consecutive waypoints that lies
-    inside its span, |(p(b) - p(a)) - (g(b) - g(a))| (the 2021 indoor challenge's measure of a step / odometry model;
-    issue 31's ``segment_error_m``). (R, 0) when no segment lies inside."""
+def segment_errors(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray) -> dict[str, np.ndarray]:
+    """The estimate's displacement over each segment between consecutive waypoints that lies inside its span, against
+    the surveyed one (the 2021 indoor challenge's measure of a step / odometry model; issue 31's ``segment_error_m``):
+    ``err`` (R, S) m = |(p(b) - p(a)) - (g(b) - g(a))|, ``length`` (R, S) m = |p(b) - p(a)| - |g(b) - g(a)| (how much
+    the odometry over- or under-shoots), ``angle`` (R, S) deg between the two displacements (how far its heading is
+    off), ``true`` (S,) m = |g(b) - g(a)|. S = 0 when no segment lies inside."""
     a, b = gt_t[:-1], gt_t[1:]
     ok = (a >= t[0]) & (b <= t[-1]) & (b > a) if len(t) else np.zeros(len(a), bool)
-    if not ok.any():
-        return np.zeros((pos.shape[0], 0))
-    pa, pb = positions_at(t, pos, a[ok]), positions_at(t, pos, b[ok])
     d = (gt_xy[1:] - gt_xy[:-1])[ok]
-    return np.linalg.norm(pb - pa - d[None], axis=-1)
+    e = positions_at(t, pos, b[ok]) - positions_at(t, pos, a[ok]) if ok.any() else np.zeros((pos.shape[0], 0, 2))
+    true = np.linalg.norm(d, axis=-1)
+    ang = np.arctan2(e[..., 1], e[..., 0]) - np.arctan2(d[:, 1], d[:, 0])[None]
+    return {"err": np.linalg.norm(e - d[None], axis=-1), "length": np.linalg.norm(e, axis=-1) - true[None],
+            "angle": np.degrees(np.angle(np.exp(1j * ang))), "true": true}
 
 
-def pool_segment_errors(errs: list[np.ndarray]) -> dict | None:
-    """``{mean, median, segments}`` (m) of the segment errors of every session and run; None without any."""
-    e = np.concatenate([np.ravel(x) for x in errs]) if errs else np.zeros(0)
-    if not len(e):
+#: segments shorter than this (m) are left out of the heading statistic: their angle is mostly noise
+MIN_SEGMENT_FOR_ANGLE_M = 2.0
+
+
+def pool_segment_errors(segs: list[dict]) -> dict | None:
+    """``{mean, median, segments, length_abs_mean, length_mean, heading_abs_median_deg}`` (m, deg) of the segment
+    errors (:func:`segment_errors`) of every session and run: the displacement error, the mean absolute and signed
+    length error, and the median absolute angle of the segments of at least :data:`MIN_SEGMENT_FOR_ANGLE_M`; None
+    without any segment."""
+    segs = [x for x in segs if x["err"].size]
+    if not segs:
         return None
-    return {"mean": float(e.mean()), "median": float(np.median(e)), "segments": int(sum(x.shape[-1] for x in errs))}
+    e = np.concatenate([x["err"].ravel() for x in segs])
+    ln = np.concatenate([x["length"].ravel() for x in segs])
+    ang = np.concatenate([x["angle"][:, x["true"] >= MIN_SEGMENT_FOR_ANGLE_M].ravel() for x in segs])
+    return {"mean": float(e.mean()), "median": float(np.median(e)), "segments": int(sum(x["err"].shape[-1] for x in segs)),
+            "length_abs_mean": float(np.abs(ln).mean()), "length_mean": float(ln.mean()),
+            "heading_abs_median_deg": float(np.median(np.abs(ang))) if len(ang) else None}
 
 
 def waypoint_metrics(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray,

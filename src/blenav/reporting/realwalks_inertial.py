@@ -13,6 +13,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from blenav.eval.common import write_text
+
 __all__ = ["inertial_markdown", "write_inertial"]
 
 ROWS = ("PDR (rotation vector)", "PDR", "LIO", "PDR+map", "LIO+map")
@@ -54,6 +56,17 @@ def inertial_markdown(floors: dict[str, dict], sim_only: dict[str, dict], runs: 
             f"{_f(_get(r, 'LIO', 'error_m', 'mean'))} | {_f(_get(r, 'PDR+map', 'error_m', 'mean'))} | "
             f"{_f(_get(r, 'LIO+map', 'error_m', 'mean'))} | {_f((sl or {}).get('mean'))} / "
             f"{_f(_get(s, 'LIO', 'error_m', 'mean') if s else None)} |")
+    lines += ["", "Where the segment error comes from (test walks; length: mean | |p(b) - p(a)| - |g(b) - g(a)| |, how much a "
+              "row over- or under-shoots; heading: median angle between its displacement and the surveyed one, segments of "
+              "2 m or more). The heading of both rows is the phone's rotation vector (magnetic north): the network "
+              "corrects how far the walker went far more than which way.", "",
+              "| floor | row | segment error | length error | heading error |", "|---|---|---|---|---|"]
+    for fl in sorted(floors):
+        for row in ("PDR (rotation vector)", "LIO", "LIO+map"):
+            se = _get(floors[fl], row, "segment_error_m") or {}
+            if se:
+                lines.append(f"| {fl} | {row} | {_f(se.get('mean'))} | {_f(se.get('length_abs_mean'))} | "
+                             f"{_f(se.get('heading_abs_median_deg'), 1)} deg |")
     if runs:
         lines += ["", "Training runs (validation walks are a held-out share of the training walks; PDR on the same "
                   "validation segments):", "", "| run | model | steps | stop | wall s | walks | best val. segment error | "
@@ -77,5 +90,5 @@ def write_inertial(out_root: str | Path, page: str | Path, command: str = "make 
         raise ValueError(f"{root} holds no <floor>/results.json (run make inertial-tables)")
     runs_file = root / "runs.json"
     runs = json.loads(runs_file.read_text(encoding="utf-8")) if runs_file.is_file() else None
-    Path(page).write_text(inertial_markdown(floors, sim_only, runs, command), encoding="utf-8")
+    write_text(Path(page), inertial_markdown(floors, sim_only, runs, command))
     return f"wrote {page} ({len(floors)} floors, {len(sim_only)} simulator-only)"

@@ -41,3 +41,15 @@ def trace_onnx(net: nn.Module, inputs: tuple, path: str | Path, input_names, out
                           output_names=list(output_names), dynamic_axes=dynamic_axes, opset_version=int(opset),
                           dynamo=False)
     return finish_model(path, metadata, doc, io_docs)
+
+
+def export_dir(out: str | Path, what: str, files: str) -> Path:
+    """The export directory ``out`` of a model that exports to a folder (``what``, e.g. "a map prior"; ``files``: what it
+    holds, for the message), created; ValueError for an ``.onnx`` path or an existing file."""
+    out = Path(out)
+    if out.suffix == ".onnx":
+        raise ValueError(f"{what} exports to a directory ({files}), not {out}")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out} exists and is not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    return out

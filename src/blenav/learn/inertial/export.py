@@ -22,7 +22,7 @@ from blenav.models.inertial import InertialNet
 from blenav.onnx_io import blenav_version, check_weights, json_props, max_diff, session
 from blenav.runtime.inertial import INERTIAL_ONNX, KIND, META_JSON
 
-from ..common.onnx_export import DEFAULT_OPSET, trace_onnx
+from ..common.onnx_export import DEFAULT_OPSET, export_dir, trace_onnx
 from .checkpoint import load_inertial
 
 TOL = 1e-4
@@ -103,12 +103,7 @@ def real_windows(meta: dict, n: int = 256) -> torch.Tensor | None:
 def export_inertial(net: InertialNet, meta: dict, out: str | Path, opset: int = DEFAULT_OPSET) -> Path:
     """Write inertial.onnx and meta.json of ``net`` (eval mode) and its checkpoint ``meta`` into the directory ``out``;
     check parity. Returns the directory."""
-    out = Path(out)
-    if out.suffix == ".onnx":
-        raise ValueError(f"an inertial odometry exports to a directory (inertial.onnx and meta.json), not {out}")
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out} exists and is not a directory")
-    out.mkdir(parents=True, exist_ok=True)
+    out = export_dir(out, "an inertial odometry", "inertial.onnx and meta.json")
     net = net.eval()
     grid = meta["grid"]
     info = {

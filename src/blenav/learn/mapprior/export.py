@@ -41,7 +41,7 @@ from blenav.models.mapprior import MapPriorNet
 from blenav.onnx_io import blenav_version, check_weights, json_props, max_diff, session
 from blenav.runtime.map_prior import LOG_FLOOR, MAP_ENCODER_ONNX, META_JSON, SCORE_FLOOR, TRAJECTORY_ENCODER_ONNX
 
-from ..common.onnx_export import DEFAULT_OPSET, trace_onnx
+from ..common.onnx_export import DEFAULT_OPSET, export_dir, trace_onnx
 from .checkpoint import load_mapprior
 
 TOL = 1e-4
@@ -93,12 +93,7 @@ def parity(net: MapPriorNet, out_dir: Path, resolution_m: float, seed: int = 0) 
 def export_mapprior(net: MapPriorNet, meta: dict, out: str | Path, opset: int = DEFAULT_OPSET) -> Path:
     """Write the two graphs and meta.json of a map prior (``net`` in eval mode, ``meta`` of its checkpoint) into
     the directory ``out``; check parity. Returns the directory."""
-    out = Path(out)
-    if out.suffix == ".onnx":
-        raise ValueError(f"a map prior exports to a directory (two .onnx files and meta.json), not {out}")
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out} exists and is not a directory")
-    out.mkdir(parents=True, exist_ok=True)
+    out = export_dir(out, "a map prior", "two .onnx files and meta.json")
     net = net.eval()
     res = float(meta["resolution_m"])
     k = net.map_encoder.size_multiple
