@@ -134,6 +134,9 @@ def test_training_resumes_and_reports(trained):
     info = trained["second"]["training"]
     assert info["baseline"] == "PDR" and info["data"]["train"]["waypoint_walks"] == 2
     assert info["best_val_error_m"] is not None and np.isfinite(info["best_val_error_m"])
+    import json
+
+    assert json.loads((trained["root"] / "run" / "training.json").read_text())["fit_wall_s"] > 0
 
 
 def test_export_parity_and_runtime_track(trained):

@@ -19,6 +19,7 @@ Real walks with surveyed waypoints and simulated walks train together, e.g. leav
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 
@@ -120,11 +121,15 @@ def train_inertial(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict
         trainer = fit(module, dm, out, trainer_kw, [], run=False)
     else:
         base = pdr_val_error(dm)
-        counts["fit_wall_s"] = None  # filled in below: this stage's wall time (a resumed run: since the resume)
         t0 = time.perf_counter()
         info, trainer = supervised_stage(module, dm, out, trainer_kw, b, max_steps, TrainingMonitor(), base,
                                          callbacks, title, plots, extra_info=counts, baseline="PDR")
+        # the fit's wall time (a resumed run: since the resume) into the report written by the stage
         info["fit_wall_s"] = time.perf_counter() - t0
+        report = out / "training.json"
+        if report.is_file():
+            report.write_text(json.dumps({**json.loads(report.read_text(encoding="utf-8")),
+                                          "fit_wall_s": info["fit_wall_s"]}, indent=1) + "\n", encoding="utf-8")
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     if info.get("best_val_error_m") is not None:
         metrics["best_val_err_m"] = float(info["best_val_error_m"])
