@@ -417,7 +417,8 @@ realwalks-tables: $(STAMP)
 # when absent): for each floor F, a model trained on the other floors' train walks plus simulated walks (IO_SIM), exported,
 # and experiment=realwalks_inertial on F with io_model= into $(IO_OUT)/F; a model trained on the simulated walks only, run
 # on every floor into $(IO_OUT)/sim_F; docs/results-inertial.md from those results and the runs' training.json. Trained
-# once: a run folder with its export is reused (delete $(IO_RUNS)_* to retrain). IO_MODEL picks the network.
+# once: a run folder with its export is reused (delete $(IO_RUNS)_* to retrain); IO_MODEL picks the network (its runs
+# are named after it).
 IO_OUT ?= data/results/inertial
 IO_RUNS ?= data/runs/inertial
 IO_MODEL ?= inertial_tcn
@@ -431,21 +432,21 @@ inertial-tables: $(STAMP)
 	  O=$$(echo $(RW_FLOORS) | tr ' ' '\n' | grep -vx $$F); \
 	  EXTRA=$$(for G in $$O; do printf '%s,' $(RW_DATA)/imported_$$G; done | sed 's/,$$//'); \
 	  IDS=$$(for G in $$O; do $(BIN)/python -m blenav.cli.realwalks train-ids $(RW_DATA)/imported_$$G; done | paste -sd,); \
-	  test -e $(IO_RUNS)_not_$${F}_io/meta.json || { \
+	  test -e $(IO_RUNS)_$(IO_MODEL)_not_$${F}_io/meta.json || { \
 	    $(BIN)/python train.py experiment=inertial model=$(IO_MODEL) data=data/inertial_sim \
 	        "data.extra_paths=[$$EXTRA]" "data.sessions=[$$IDS,$$SIMIDS]" \
-	        out=$(IO_RUNS)_not_$$F plots=false trainer.enable_progress_bar=false && \
-	    $(BIN)/python export.py ckpt=$(IO_RUNS)_not_$$F/last.ckpt out=$(IO_RUNS)_not_$${F}_io; } && \
+	        out=$(IO_RUNS)_$(IO_MODEL)_not_$$F plots=false trainer.enable_progress_bar=false && \
+	    $(BIN)/python export.py ckpt=$(IO_RUNS)_$(IO_MODEL)_not_$$F/last.ckpt out=$(IO_RUNS)_$(IO_MODEL)_not_$${F}_io; } && \
 	  $(BIN)/blenav-eval overwrite=true experiment=realwalks_inertial data=$(RW_DATA)/imported_$$F runs=$(RW_RUNS) \
-	      io_model=$(IO_RUNS)_not_$${F}_io out=$(IO_OUT)/$$F progress=false || exit 1; done
-	test -e $(IO_RUNS)_sim_io/meta.json || { \
-	  $(BIN)/python train.py experiment=inertial model=$(IO_MODEL) data=data/inertial_sim out=$(IO_RUNS)_sim plots=false \
+	      io_model=$(IO_RUNS)_$(IO_MODEL)_not_$${F}_io out=$(IO_OUT)/$$F progress=false || exit 1; done
+	test -e $(IO_RUNS)_$(IO_MODEL)_sim_io/meta.json || { \
+	  $(BIN)/python train.py experiment=inertial model=$(IO_MODEL) data=data/inertial_sim out=$(IO_RUNS)_$(IO_MODEL)_sim plots=false \
 	      trainer.enable_progress_bar=false && \
-	  $(BIN)/python export.py ckpt=$(IO_RUNS)_sim/last.ckpt out=$(IO_RUNS)_sim_io; }
+	  $(BIN)/python export.py ckpt=$(IO_RUNS)_$(IO_MODEL)_sim/last.ckpt out=$(IO_RUNS)_$(IO_MODEL)_sim_io; }
 	for F in $(RW_FLOORS); do \
 	  $(BIN)/blenav-eval overwrite=true experiment=realwalks_inertial data=$(RW_DATA)/imported_$$F runs=$(RW_RUNS) \
-	      io_model=$(IO_RUNS)_sim_io out=$(IO_OUT)/sim_$$F progress=false || exit 1; done
-	$(BIN)/python -m blenav.cli.realwalks runs-json $(IO_OUT)/runs.json $(foreach F,$(RW_FLOORS),$(IO_RUNS)_not_$(F)) $(IO_RUNS)_sim
+	      io_model=$(IO_RUNS)_$(IO_MODEL)_sim_io out=$(IO_OUT)/sim_$$F progress=false || exit 1; done
+	$(BIN)/python -m blenav.cli.realwalks runs-json $(IO_OUT)/runs.json $(foreach F,$(RW_FLOORS),$(IO_RUNS)_$(IO_MODEL)_not_$(F)) $(IO_RUNS)_$(IO_MODEL)_sim
 	$(BIN)/python -m blenav.cli.realwalks inertial $(IO_OUT) docs/results-inertial.md
 
 # Issue 27: twelve experiments, shrunk (5 min), rerun and compared bit for bit with the numbers of 302d488 (exit 1 on

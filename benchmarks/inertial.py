@@ -52,24 +52,28 @@ def main() -> None:
         q_t, q = attitude_track(s, "auto")
         _, X = world_frame_imu(t, acc, gyr, q_t, q, g.rate_hz)
         a = time.perf_counter()
-        W, psi = heading_frame(windows(X, g))
+        W = windows(X, g)
+        W, psi = heading_frame(W) if model.frame == "heading" else (W, None)
         v, lv = model.predict(W)
-        rotate_velocity(v, lv, psi)
+        if psi is not None:
+            rotate_velocity(v, lv, psi)
         batch_ms += 1e3 * (time.perf_counter() - a)
         minutes += (t[-1] - t[0]) / 60.0
-        # streaming: per stride, the new samples rotated and resampled, one window, one call
+        # streaming: per stride, the last window's raw samples rotated and resampled, one window, one call, the track
+        # advanced (a phone's work per 0.5 s; its grid starts at the window, not at the walk's first sample)
         n_s, n_w = g.n_stride, g.n_window
         pos = np.zeros(2)
         for k in range(1, len(X) // n_s):
             a = time.perf_counter()
-            lo = max(0, (k * n_s) - n_w - 1)
-            sl = (t >= t[0] + lo / g.rate_hz - 0.05) & (t <= t[0] + k * n_s / g.rate_hz + 0.05)
-            _, Xs = world_frame_imu(t[sl], acc[sl], gyr[sl], q_t, q, g.rate_hz)
-            win = windows(Xs, g)[-1:]
-            Wk, pk = heading_frame(win)
+            t_end = t[0] + k * n_s / g.rate_hz
+            i0, i1 = np.searchsorted(t, [t_end - n_w / g.rate_hz - 0.05, t_end + 0.05])
+            _, Xs = world_frame_imu(t[i0:i1], acc[i0:i1], gyr[i0:i1], q_t, q, g.rate_hz)
+            Wk = windows(Xs, g)[-1:]
+            Wk, pk = heading_frame(Wk) if model.frame == "heading" else (Wk, None)
             vk, lk = model.predict(Wk)
-            vw, _ = rotate_velocity(vk, lk, pk)
-            pos = pos + g.stride_s * vw[0]
+            if pk is not None:
+                vk, lk = rotate_velocity(vk, lk, pk)
+            pos = pos + g.stride_s * vk[0]
             step_ms.append(1e3 * (time.perf_counter() - a))
     st = np.array(step_ms)
     med, p99 = float(np.median(st)), float(np.percentile(st, 99))
@@ -100,7 +104,8 @@ def main() -> None:
             d = info.get("data", {}).get("train", {})
             print(f"training: {info.get('steps')} steps ({info.get('stop_reason')}), {info.get('fit_wall_s') or float('nan'):.0f} s "
                   f"wall on {d.get('walks')} walks / {d.get('segment_s', 0) / 60:.0f} min of supervised segments; best "
-                  f"validation segment error {info.get('best_val_error_m'):.3f} m vs PDR {info.get('baseline_val_error_m')}")
+                  f"validation segment error {info.get('best_val_error_m') or float('nan'):.3f} m vs PDR "
+                  f"{info.get('baseline_val_error_m') or float('nan'):.3f} m")
 
 
 if __name__ == "__main__":

@@ -243,3 +243,36 @@ def test_heading_frame_run_exports_and_runs(trained, tmp_path):
     v, lv = rotate_velocity(out[:, :2], out[:, 2:], psi)
     _, xy, _ = integrate(0.0, model.grid, v, lv)
     np.testing.assert_allclose(odo[["x", "y"]].to_numpy(), xy, atol=1e-3)
+
+
+def test_resume_with_another_contract_refused(trained, tmp_path):
+    """A run folder trained with one grid cannot be resumed with another: the TCN's weights would load and the new meta
+    would describe inputs they never saw."""
+    from blenav.learn.train import train
+
+    run = shutil.copytree(trained["root"] / "run", tmp_path / "run")
+    with pytest.raises(ValueError, match="grid"):
+        train(compose("train", "experiment=inertial", f"data.path={trained['data']}", f"out={run}", "plots=false",
+                      "data.stride_s=1.0", "trainer.budget.max_steps=70", "trainer.enable_progress_bar=false"))
+
+
+def test_memory_of_a_strangers_grid_or_clock_is_bounded():
+    from blenav.limits import MemoryLimitError
+
+    t = np.array([0.0, 1e7])  # a 10^7 s gap (t in ms read as s)
+    q = np.array([[1.0, 0, 0, 0]] * 2)
+    with pytest.raises(MemoryLimitError, match="IMU resampled"):
+        world_frame_imu(t, np.zeros((2, 3)), np.zeros((2, 3)), t, q, 50.0)
+    fine = InertialGrid(1000.0, 10.0, 0.001)  # within every range, yet 10,000 samples per window, one per sample
+    with pytest.raises(MemoryLimitError, match="IMU windows"):
+        windows(np.zeros((600_000, len(CHANNELS)), np.float32), fine)  # 10 min at 1 kHz
+
+
+def test_fused_rows_say_when_a_given_io_model_cannot_be_used(tmp_path):
+    """odometry.source auto: no io_model -> PDR; an io_model that cannot be loaded -> the reason, not PDR in silence."""
+    from blenav.localizers.fusedwalk import FusedWalk
+
+    fw = FusedWalk("fused-offline")
+    assert fw.attach_io_model(None, lambda p, loader: loader(p)) is None
+    why = fw.attach_io_model(str(tmp_path / "nothing"), lambda p, loader: loader(p))
+    assert why and "io_model=" in why

@@ -51,6 +51,10 @@ class BoundStats:
     no_position: dict = field(default_factory=dict)
 
 
+#: a trajectory method's optional summaries, written in this order after its timing when set
+OPTIONAL_KEYS = ("beacon_error_m", "orientation_rmse_deg", "fix_coverage", "convergence", "segment_error_m")
+
+
 @dataclass
 class MethodResult:
     """One method of an experiment. ``metrics``: the pooled summaries in the order written (empty: the method ran
@@ -111,16 +115,7 @@ class MethodResult:
                 out["skipped"] = self.skipped
             out.update({"wall_s": self.wall_s, "realtime_factor": self.realtime_factor, "recoveries": self.recoveries,
                         "map_notes": self.map_notes, "confined": self.confined})
-            if self.beacon_error_m is not None:
-                out["beacon_error_m"] = self.beacon_error_m
-            if self.orientation_rmse_deg is not None:
-                out["orientation_rmse_deg"] = self.orientation_rmse_deg
-            if self.fix_coverage is not None:
-                out["fix_coverage"] = self.fix_coverage
-            if self.convergence is not None:
-                out["convergence"] = self.convergence
-            if self.segment_error_m is not None:
-                out["segment_error_m"] = self.segment_error_m
+            out.update({k: getattr(self, k) for k in OPTIONAL_KEYS if getattr(self, k) is not None})
             out["per_session"] = self.per_session
             if self.peak_memory is not None:
                 out["peak_memory"] = self.peak_memory

@@ -10,7 +10,7 @@ rotation vector: magnetic north; blenav's AHRS: magnetic north; a simulator's gr
 is trained with the frame turned by random yaws (heading-agnostic, :mod:`blenav.learn.inertial.data`), so the
 velocity it returns is in the same frame as its input: world-aligned exactly as far as the attitude's yaw is.
 
-The heading frame (``frame: heading``, the default). Each window is turned about z by -psi_k, psi_k the heading of the
+The heading frame (``frame: heading``; the default is ``world``). Each window is turned about z by -psi_k, psi_k the heading of the
 device's +y axis (mean over the window, horizontal part; its z axis where +y is near vertical), so its input does not
 depend on which way the walker faces: the network is exactly yaw-equivariant, and its velocity (in the window's frame)
 is turned back by +psi_k (:func:`heading_frame`, :func:`rotate_velocity`). ``frame: world`` feeds the attitude's frame
@@ -35,7 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-__all__ = ["GRAVITY", "CHANNELS", "YAW_PAIRS", "FRAMES", "heading_frame", "rotate_velocity", "InertialGrid", "windows", "integrate", "segment_weights",
+from blenav.limits import LimitError, check_memory, check_range
+
+__all__ = ["GRAVITY", "CHANNELS", "YAW_PAIRS", "FRAMES", "heading_frame", "rotate_velocity", "InertialGrid", "windows", "n_windows", "padded", "cut", "turn_pairs", "integrate", "segment_weights",
            "displacement_errors"]
 
 GRAVITY = 9.80665
@@ -85,18 +87,53 @@ class InertialGrid:
     def as_dict(self) -> dict:
         return {"rate_hz": float(self.rate_hz), "window_s": float(self.window_s), "stride_s": float(self.stride_s)}
 
+    @classmethod
+    def from_meta(cls, node, where: str, field: str = "grid") -> "InertialGrid":
+        """The grid of a stranger's file (a checkpoint's meta, an export's meta.json): every number bounded
+        (:func:`blenav.limits.check_range`) before use, errors naming ``where`` and the field."""
+        g = node if isinstance(node, dict) else {}
+        try:
+            grid = cls(check_range(g.get("rate_hz"), "rate_hz", where, field=f"{field}.rate_hz"),
+                       check_range(g.get("window_s"), "window_s", where, field=f"{field}.window_s"),
+                       check_range(g.get("stride_s"), "window_s", where, field=f"{field}.stride_s"))
+        except LimitError:
+            raise
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
+        check_range(grid.n_window, "history", where, field=f"{field} (window samples)")
+        return grid
+
+
+def n_windows(n_samples: int, grid: InertialGrid) -> int:
+    """K: the windows of a walk of ``n_samples`` resampled IMU samples (module doc; 0 when shorter than one stride)."""
+    return max((int(n_samples) - 1) // grid.n_stride, 0)
+
+
+def padded(X: np.ndarray, grid: InertialGrid) -> np.ndarray:
+    """The resampled IMU ``X`` (N, C) with its first sample repeated ``n_window - 1`` times in front (a phone at rest
+    before it moved) and cut after the last window's end: what :func:`cut` slices windows from."""
+    K = n_windows(len(X), grid)
+    return np.concatenate([np.repeat(X[:1], grid.n_window - 1, axis=0), X[: K * grid.n_stride + 1]], axis=0)
+
+
+def cut(Xp: np.ndarray, grid: InertialGrid, index: np.ndarray) -> np.ndarray:
+    """(len(index), n_window, C) float32: windows ``index`` of a :func:`padded` IMU (only those are copied)."""
+    view = sliding_window_view(Xp, grid.n_window, axis=0)  # (N', C, n_w): view[j] = Xp[j : j + n_w]
+    # window k ends at X sample (k + 1) n_s = padded index (k + 1) n_s + n_w - 1: it starts at padded (k + 1) n_s
+    return np.ascontiguousarray(view[grid.n_stride * (np.asarray(index) + 1)].transpose(0, 2, 1), dtype=np.float32)
+
 
 def windows(X: np.ndarray, grid: InertialGrid) -> np.ndarray:
     """(K, n_window, C) float32 windows of the resampled IMU ``X`` (N, C) (module doc: window k ends at sample
-    (k + 1) n_stride; K = (N - 1) // n_stride, zero when the walk is shorter than one stride)."""
-    n_w, n_s = grid.n_window, grid.n_stride
-    K = (len(X) - 1) // n_s
+    (k + 1) n_stride; K = (N - 1) // n_stride, zero when the walk is shorter than one stride). Their memory,
+    K n_window C 4 bytes (n_window / n_stride times the IMU's), is checked first (:func:`blenav.limits.check_memory`):
+    a stranger's grid (a 1 ms stride) cannot claim hundreds of GB."""
+    K = n_windows(len(X), grid)
     if K <= 0:
-        return np.zeros((0, n_w, X.shape[1]), np.float32)
-    padded = np.concatenate([np.repeat(X[:1], n_w - 1, axis=0), X[: K * n_s + 1]], axis=0)
-    view = sliding_window_view(padded, n_w, axis=0)  # (N', C, n_w): view[j] = padded[j : j + n_w]
-    # window k ends at X sample (k + 1) n_s = padded index (k + 1) n_s + n_w - 1: it starts at padded (k + 1) n_s
-    return np.ascontiguousarray(view[n_s * np.arange(1, K + 1)].transpose(0, 2, 1), dtype=np.float32)
+        return np.zeros((0, grid.n_window, X.shape[1]), np.float32)
+    check_memory(4.0 * K * grid.n_window * X.shape[1], f"{K:,} IMU windows of {grid.n_window} samples",
+                 "inertial odometry")
+    return cut(padded(X, grid), grid, np.arange(K))
 
 
 def integrate(t0: float, grid: InertialGrid, velocity: np.ndarray, log_var: np.ndarray | None = None
@@ -154,8 +191,8 @@ def displacement_errors(t: np.ndarray, xy: np.ndarray, a: np.ndarray, b: np.ndar
     return np.linalg.norm(pb - pa - np.asarray(d, float).reshape(-1, 2), axis=1)
 
 
-def _turn(W: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Every (x, y) channel pair of ``W`` (K, n, C) turned by the angle with cos c (K,), sin s (K,)."""
+def turn_pairs(W: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Every (x, y) channel pair (:data:`YAW_PAIRS`) of ``W`` (K, n, C) turned by the angle with cos c (K,), sin s (K,)."""
     W = np.array(W, dtype=np.float32, copy=True)
     c, s = c[:, None].astype(np.float32), s[:, None].astype(np.float32)
     for i, j in YAW_PAIRS:
@@ -171,7 +208,7 @@ def heading_frame(W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     use = np.linalg.norm(h, axis=1) >= MIN_HORIZONTAL
     v = np.where(use[:, None], h, z)
     psi = np.arctan2(v[:, 1], v[:, 0])
-    return _turn(W, np.cos(-psi), np.sin(-psi)), psi
+    return turn_pairs(W, np.cos(-psi), np.sin(-psi)), psi
 
 
 def rotate_velocity(v: np.ndarray, log_var: np.ndarray, psi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from blenav.errors import MissingStream
+from blenav.limits import check_memory
 from blenav.features.inertial import GRAVITY, InertialGrid, heading_frame, integrate, rotate_velocity, windows
 
 from .attitude import AttitudeConfig
@@ -29,6 +30,7 @@ __all__ = ["VelocityModel", "world_frame_imu", "session_frame_imu", "lio_odometr
 
 class VelocityModel(Protocol):
     grid: InertialGrid
+    key: str  # identifies the model's weights (a cache key part: the same key, the same velocities)
     frame: str  # blenav.features.inertial.FRAMES: heading (turn each window, turn the velocity back) or world
 
     def predict(self, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -58,6 +60,10 @@ def world_frame_imu(imu_t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, q_t: np
     g_w = np.einsum("tij,tj->ti", R, np.asarray(gyr, float))
     a_w[:, 2] -= GRAVITY
     n = int(np.floor((imu_t[-1] - imu_t[0]) * rate_hz + 1e-9)) + 1
+    # the grid spans the recording's first to last time: a file whose clock jumps (t in ms, a 10^6 s gap) would ask
+    # for an enormous grid; refused here, before anything is allocated (BLENAV_MAX_MEMORY_GB)
+    check_memory(4.0 * n * (6 + 9) * 8, f"the IMU resampled to {rate_hz:g} Hz over {imu_t[-1] - imu_t[0]:.6g} s "
+                 f"({n:,} samples)", "inertial odometry")
     t = imu_t[0] + np.arange(n) / float(rate_hz)
     raw = np.concatenate([a_w, g_w, R[:, :, 0], R[:, :, 1], R[:, :, 2]], axis=1)
     X = np.stack([np.interp(t, imu_t, raw[:, j]) for j in range(raw.shape[1])], axis=1)
@@ -65,10 +71,11 @@ def world_frame_imu(imu_t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, q_t: np
 
 
 def session_frame_imu(session, grid: InertialGrid, attitude: str = "auto", att: AttitudeConfig | None = None,
-                      steps: StepDetectorConfig | None = None, cache: dict | None = None
+                      steps: StepDetectorConfig | None = None, cache: dict | None = None, keep: bool = True
                       ) -> tuple[np.ndarray, np.ndarray, str]:
-    """The session's IMU in the attitude's gravity-aligned frame on ``grid``'s rate: (t (N,) s, X (N, 6) float32,
-    the attitude source used). :class:`MissingStream` without IMU data or the attitude source."""
+    """The session's IMU in the attitude's gravity-aligned frame on ``grid``'s rate: (t (N,) s, X (N, 15) float32,
+    the attitude source used). :class:`MissingStream` without IMU data or the attitude source. ``cache``: the
+    attitude (an AHRS run) is kept there, and the result too unless ``keep`` is false."""
     imu = session.imu
     if len(imu) < 2:
         raise MissingStream(f"session {session.id} has no IMU data, which the inertial odometry needs")
@@ -80,7 +87,7 @@ def session_frame_imu(session, grid: InertialGrid, attitude: str = "auto", att: 
     t, X = world_frame_imu(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float),
                            imu[["gx", "gy", "gz"]].to_numpy(float), q_t, q, grid.rate_hz)
     out = (t, X, source)
-    if cache is not None:
+    if cache is not None and keep:
         cache[key] = out
     return out
 
@@ -89,10 +96,11 @@ def lio_odometry(session, model: VelocityModel, attitude: str = "auto", att: Att
                  steps: StepDetectorConfig | None = None, cache: dict | None = None, batch: int = 512) -> pd.DataFrame:
     """The learned odometry track of ``session`` (DataFrame t, x, y, var: s, m from 0, m^2), ``model`` run on every
     window (``batch`` at a time). :class:`MissingStream` without IMU data, the attitude, or a full stride of IMU."""
-    key = ("lio-odometry", session.id, id(model), attitude, repr(att), repr(steps))
+    key = ("lio-odometry", session.id, model.key, attitude, repr(att), repr(steps))
     if cache is not None and key in cache:
         return cache[key]
-    t, X, _ = session_frame_imu(session, model.grid, attitude, att, steps, cache)
+    # the attitude (an AHRS run) through the cache; the rotated IMU itself is not kept once the track is
+    t, X, _ = session_frame_imu(session, model.grid, attitude, att, steps, cache, keep=False)
     W = windows(X, model.grid)
     psi = np.zeros(len(W))
     if model.frame == "heading":

@@ -24,10 +24,12 @@ from .motion_pdr import pdr_track
 from .runner import session_imu
 from .steps import SessionArrays, StepDetectorConfig, detect_steps
 
-__all__ = ["HEADINGS", "DEFAULT_STEP_M", "pdr_odometry", "fit_step_length", "fitted_step_length", "attitude_track",
+__all__ = ["HEADINGS", "HEADING_SOURCES", "DEFAULT_STEP_M", "pdr_odometry", "fit_step_length", "fitted_step_length", "attitude_track",
            "resolve_heading"]
 
 HEADINGS = ("orientation", "ahrs")
+#: what a method may ask for: a heading source, or auto (the rotation vector where the walk has one, else the AHRS)
+HEADING_SOURCES = HEADINGS + ("auto",)
 DEFAULT_STEP_M = 0.7
 _NO_ANCHORS = AnchorTable.empty()
 
@@ -61,7 +63,7 @@ def attitude_track(session, heading: str, att: AttitudeConfig | None = None, ste
             raise MissingStream(f"session {session.id} has no ground-truth orientation track")
         return gt["t"].to_numpy(float), gt[["qw", "qx", "qy", "qz"]].to_numpy(float)
     if heading != "ahrs":
-        raise ValueError(f"heading must be one of {HEADINGS + ('auto', 'groundtruth')}, got {heading!r}")
+        raise ValueError(f"heading must be one of {HEADING_SOURCES + ('groundtruth',)}, got {heading!r}")
     arrays = SessionArrays.from_session(session, _NO_ANCHORS)
     q, _ = session_imu(session.id, arrays, att, steps, cache)  # the PDR motion model's AHRS (hard-iron removed)
     return arrays.imu_t, q
@@ -87,8 +89,8 @@ def pdr_odometry(session, heading: str = "orientation", step_length: float = DEF
     """The session's PDR odometry (DataFrame t, x, y: s, world-aligned m from 0), as ``odometry.csv`` holds it.
 
     Raises :class:`MissingStream` without IMU data or (``heading='orientation'``) without orientation.csv."""
-    if heading not in HEADINGS + ("auto",):
-        raise ValueError(f"odometry.heading must be one of {HEADINGS + ('auto',)}, got {heading!r}")
+    if heading not in HEADING_SOURCES:
+        raise ValueError(f"odometry.heading must be one of {HEADING_SOURCES}, got {heading!r}")
     heading = resolve_heading(session, heading)
     att, steps = att or AttitudeConfig(), steps or StepDetectorConfig()
     key = ("rw-pdr", session.id, heading, float(step_length), repr(att), repr(steps))

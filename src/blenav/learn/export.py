@@ -33,6 +33,7 @@ def export(cfg) -> Path:
     if kind == "inertial":
         from .inertial.export import export_checkpoint as export_inertial
 
-        return export_inertial(cfg.ckpt, cfg.out, opset=opset)
+        data = (cfg.get("data") or {}).get("path") if hasattr(cfg, "get") else None
+        return export_inertial(cfg.ckpt, cfg.out, opset=opset, data=data)
     module, meta = load_module(cfg.ckpt)
     return export_module(module, meta, cfg.out, opset=opset)

@@ -33,7 +33,8 @@ from blenav.filters.estimate import Estimate
 from .inputs import Fixes, RoleFixes, RunInputs
 
 __all__ = ["Estimate", "RunInputs", "Fixes", "RoleFixes", "Localizer", "PathLossCalibrated",
-           "FixConsumer", "ModelConsumer", "InertialModelConsumer", "Trained", "build_localizer"]
+           "FixConsumer", "ModelConsumer", "InertialModelConsumer", "Trained", "build_localizer", "attach_inertial",
+           "NO_IO_MODEL"]
 
 class Localizer:
     """Base of every localization method: a name, and ``run``.
@@ -101,6 +102,27 @@ class InertialModelConsumer:
         """Attach the inertial odometry of ``path`` (None: none given); returns why the method cannot run, or None.
         ``load(path, loader)``: the evaluation's shared loader (:meth:`ModelConsumer.attach_model`)."""
         raise NotImplementedError
+
+
+NO_IO_MODEL = ("no learned inertial odometry was given: pass io_model=IO_DIR (python export.py ckpt=RUN/last.ckpt "
+               "out=IO_DIR on a run of train.py experiment=inertial)")
+
+
+def load_inertial_model(path: str):
+    """The inertial odometry export directory ``path`` in onnxruntime (:class:`blenav.runtime.inertial.InertialModel`)."""
+    from blenav.runtime.inertial import InertialModel  # noqa: PLC0415 (optional: onnxruntime)
+
+    return InertialModel(str(path))
+
+
+def attach_inertial(path: str | None, load) -> tuple[object | None, str | None]:
+    """(model, None) of ``io_model`` ``path`` through the evaluation's shared ``load``, or (None, why not)."""
+    if not path:
+        return None, NO_IO_MODEL
+    try:
+        return load(path, load_inertial_model), None
+    except (OSError, ValueError, ImportError) as exc:
+        return None, f"io_model={path} cannot be used: {exc}"
 
 
 class Trained:

@@ -48,9 +48,9 @@ import numpy as np
 from blenav.crf.grid import build_grid
 from blenav.crf.smoother import Layers, forward_backward, viterbi
 from blenav.errors import MissingStream
-from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fitted_step_length, pdr_odometry, resolve_heading
+from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADING_SOURCES, fitted_step_length, pdr_odometry, resolve_heading
 
-from .base import Estimate, FixConsumer, InertialModelConsumer, Localizer, Trained
+from .base import NO_IO_MODEL, Estimate, FixConsumer, InertialModelConsumer, Localizer, Trained, attach_inertial
 from .inputs import RunInputs
 from .radiomap import RadioMapConfig, build_radio_map
 
@@ -124,10 +124,10 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         self.source = str(odo.get("source", "auto"))
         if self.source not in ("auto", "pdr", "lio"):
             raise ValueError(f"method {name!r}: odometry.source must be auto, pdr or lio, got {self.source!r}")
-        self.io_model, self.io_reason = None, None
+        self.io_model, self.io_reason = None, (NO_IO_MODEL if self.source == "lio" else None)
         self.heading = str(odo.get("heading", "auto"))
-        if self.heading not in HEADINGS + ("auto",):
-            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS + ('auto',)}, got "
+        if self.heading not in HEADING_SOURCES:
+            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADING_SOURCES}, got "
                              f"{self.heading!r}")
         self.step_length = odo.get("step_length")
         g = _block(name, "grid", grid, {"cell_m": 1.0, "max_step_m": 3.0})
@@ -184,14 +184,12 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         return list(self.roles)
 
     def attach_io_model(self, path: str | None, load) -> str | None:
-        """``source: lio`` needs ``io_model`` (skipped with the reason without it); ``auto`` uses it when given, PDR
-        otherwise; ``pdr`` never does."""
+        """``source: lio`` needs ``io_model`` (skipped with the reason without it); ``auto`` uses it when given (and is
+        skipped with the reason when the given one cannot be used), PDR otherwise; ``pdr`` never does."""
         if self.source == "pdr" or (self.source == "auto" and not path):
             return None
-        from .realwalk import attach_inertial  # noqa: PLC0415 (the realwalk rows' loader, onnxruntime on call)
-
         self.io_model, self.io_reason = attach_inertial(path, load)
-        return self.io_reason if self.source == "lio" else None
+        return self.io_reason  # a model given that cannot be used is said, never replaced by PDR in silence
 
     # ------------------------------------------------------------------ training
     def fit(self, sessions: list, inputs: RunInputs) -> dict | None:
@@ -257,9 +255,9 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         role, fx = self._fixes(inputs)
         digest = hashlib.sha1(b"".join(np.ascontiguousarray(a, float).tobytes() for a in (fx.t, fx.xy, fx.std)))
         lio = self.io_model if self.source in ("auto", "lio") else None
-        if self.source == "lio" and lio is None:
-            raise MissingStream(self.io_reason or "no learned inertial odometry was given (io_model=IO_DIR)")
-        key = ("fused-walk", session.id, role, digest.hexdigest(), self._step(), self.heading, id(lio), self.cell_m,
+        if self.io_reason is not None:  # source lio without a model, or a model given that cannot be used
+            raise MissingStream(self.io_reason)
+        key = ("fused-walk", session.id, role, digest.hexdigest(), self._step(), self.heading, lio.key if lio else None, self.cell_m,
                self.max_step_m,
                self.dt_s, self.sigma0, self.sigma_per, self.no_odometry_sigma, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
                self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", self.fix_weight,
@@ -275,8 +273,8 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         heading = self.heading_of(session)
         try:
             if lio is not None:  # the learned inertial odometry (issue 31), in the frame of the walk's attitude
-                odo = lio.odometry(session, self.heading, cache=inputs.cache)
-                heading = f"learned ({heading} frame)"
+                odo = lio.odometry(session, cache=inputs.cache)  # in the attitude it was trained in
+                heading = f"learned ({resolve_heading(session, lio.attitude)} frame)"
             else:
                 odo = pdr_odometry(session, heading, self._step(), cache=inputs.cache)
         except MissingStream as exc:  # no IMU (or no heading): the fixes alone, under a random walk at walking pace

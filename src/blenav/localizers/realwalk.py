@@ -5,10 +5,11 @@ the fixes of a fingerprint localizer trained on the dataset's own train walks.
 ``measurements``, ``map``, ``filter``, ...) with one addition for walks that have no ``odometry.csv``:
 
 ``odometry`` (optional)
-    ``{source: pdr | lio, heading: orientation | ahrs | auto, step_length: 0.7 | null, attitude: auto}``: ``source:
+    ``{source: pdr | lio, heading: orientation | ahrs | auto, step_length: 0.7 | null, attitude: null}``: ``source:
     lio`` runs the filter on the learned inertial odometry of ``io_model=IO_DIR`` (issue 31,
     :func:`blenav.filters.inertial_odometry.lio_odometry`: the network's velocities integrated, in the frame of
-    ``attitude``: the rotation vector where the walk has one, else the AHRS; skipped with the reason when no
+    ``attitude`` (null: the source the network was trained in, usually ``auto``: the rotation vector where the walk
+    has one, else the AHRS); skipped with the reason when no
     io_model was given). ``source: pdr`` (the default) runs the filter on a PDR odometry track
     (:func:`blenav.filters.pdr_odometry.pdr_odometry`: detected steps along the phone's heading, world-aligned
     because the heading is magnetic-north referenced and the floor frame is east/north), handed to
@@ -37,34 +38,15 @@ from __future__ import annotations
 import pandas as pd
 
 from blenav.errors import MissingStream
-from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADINGS, fitted_step_length, pdr_odometry
-from blenav.localizers.base import Estimate, InertialModelConsumer, Trained
+from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADING_SOURCES, fitted_step_length, pdr_odometry
+from blenav.localizers.base import NO_IO_MODEL, Estimate, InertialModelConsumer, Trained, attach_inertial
 from blenav.localizers.inputs import RunInputs
 from blenav.localizers.particle import ParticleFilterLocalizer
 
 __all__ = ["RealWalkPF"]
 
 
-NO_IO_MODEL = ("no learned inertial odometry was given: pass io_model=IO_DIR (python export.py ckpt=RUN/last.ckpt "
-               "out=IO_DIR on a run of train.py experiment=inertial)")
 ODOMETRY_SOURCES = ("pdr", "lio")
-
-
-def load_inertial_model(path: str):
-    """The inertial odometry export directory ``path`` in onnxruntime (:class:`blenav.runtime.inertial.InertialModel`)."""
-    from blenav.runtime.inertial import InertialModel  # noqa: PLC0415 (optional: onnxruntime)
-
-    return InertialModel(str(path))
-
-
-def attach_inertial(path: str | None, load) -> tuple[object | None, str | None]:
-    """(model, None) of ``io_model`` ``path`` through the evaluation's shared ``load``, or (None, why not)."""
-    if not path:
-        return None, NO_IO_MODEL
-    try:
-        return load(path, load_inertial_model), None
-    except (OSError, ValueError, ImportError) as exc:
-        return None, f"io_model={path} cannot be used: {exc}"
 
 
 class RealWalkPF(ParticleFilterLocalizer, Trained, InertialModelConsumer):
@@ -78,8 +60,8 @@ class RealWalkPF(ParticleFilterLocalizer, Trained, InertialModelConsumer):
             raise ValueError(f"method {name!r}, odometry: unknown key(s) {sorted(unknown)}; known: source, heading, "
                              f"step_length, attitude")
         self.odometry = odo if odometry is not None else None
-        if self.odometry is not None and self.odometry.get("heading", "orientation") not in HEADINGS + ("auto",):
-            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADINGS + ('auto',)}, got "
+        if self.odometry is not None and self.odometry.get("heading", "orientation") not in HEADING_SOURCES:
+            raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADING_SOURCES}, got "
                              f"{self.odometry['heading']!r}")
         self.source = str(odo.get("source", "pdr"))
         if self.source not in ODOMETRY_SOURCES:
@@ -113,7 +95,7 @@ class RealWalkPF(ParticleFilterLocalizer, Trained, InertialModelConsumer):
         if self.source == "lio":
             if self.io_model is None:
                 raise MissingStream(self.io_reason)
-            return self.io_model.odometry(session, self.odometry.get("attitude", "auto"), cache=inputs.cache)
+            return self.io_model.odometry(session, self.odometry.get("attitude"), cache=inputs.cache)
         return pdr_odometry(session, self.odometry.get("heading", "orientation"), self._step(), self.method.attitude,
                             self.method.steps, inputs.cache)
 
@@ -121,7 +103,7 @@ class RealWalkPF(ParticleFilterLocalizer, Trained, InertialModelConsumer):
         est = super().run(session, n_runs, seed, inputs)
         if self.odometry is not None and self.source == "lio":
             est.notes.append(f"learned inertial odometry ({self.io_model.root}), frame "
-                             f"{self.odometry.get('attitude', 'auto')}")
+                             f"{self.odometry.get('attitude') or self.io_model.attitude}")
         elif self.odometry is not None:
             est.notes.append(f"PDR odometry: heading from {self.odometry.get('heading', 'orientation')}, step "
                              f"{self._step():.3f} m")

@@ -109,7 +109,6 @@ class TCN(InertialNet):
         self.proj = nn.Conv1d(self.in_channels, c, 1)
         self.blocks = nn.Sequential(*[_CausalBlock(c, int(kernel), 2 ** i) for i in range(int(levels))])
         self.head = nn.Linear(c, 4)
-        self.receptive_field = 1 + 2 * (int(kernel) - 1) * (2 ** int(levels) - 1)
 
     def features(self, x):
         h = self.blocks(self.proj(x))

@@ -107,10 +107,12 @@ def figure_trajectories(session: Session, tracks: dict[str, tuple[np.ndarray, np
     return fig
 
 
-def figure_learning_curves(history: Sequence[dict], knn_val_err_m: float | None = None, title: str = "") -> Figure:
+def figure_learning_curves(history: Sequence[dict], knn_val_err_m: float | None = None, title: str = "",
+                           baseline: str = "KNN") -> Figure:
     """Learning curves of one training run (:class:`blenav.learn.common.trainer.TrainingMonitor` history): left, the
     training and validation loss per validation check against optimizer steps (log scale) and the learning
-    rate (right axis); right, the validation error in metres with KNN's on the same validation windows."""
+    rate (right axis); right, the validation error in metres with the simplest ``baseline``'s on the same validation
+    data (KNN for a fingerprint network, PDR for the inertial odometry)."""
     fig = new_figure(9.0, 3.6)
     ax, ax2 = fig.subplots(1, 2)
     step = np.array([h.get("step", np.nan) for h in history], float)
@@ -133,7 +135,7 @@ def figure_learning_curves(history: Sequence[dict], knn_val_err_m: float | None 
     ax.legend(fontsize=7)
     ax2.plot(step, col("val_err_m"), label="network, validation", lw=1.0)
     if knn_val_err_m is not None and np.isfinite(knn_val_err_m):
-        ax2.axhline(knn_val_err_m, color="k", ls="--", lw=0.8, label=f"KNN, validation ({knn_val_err_m:.2f} m)")
+        ax2.axhline(knn_val_err_m, color="k", ls="--", lw=0.8, label=f"{baseline}, validation ({knn_val_err_m:.2f} m)")
     ax2.set_xlabel("optimizer step")
     ax2.set_ylabel("mean validation error [m]")
     ax2.grid(True, alpha=0.3)

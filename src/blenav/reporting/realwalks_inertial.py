@@ -17,9 +17,6 @@ from blenav.eval.common import write_text
 
 __all__ = ["inertial_markdown", "write_inertial"]
 
-ROWS = ("PDR (rotation vector)", "PDR", "LIO", "PDR+map", "LIO+map")
-
-
 def _get(results: dict, row: str, *keys):
     m = (results or {}).get("methods", {}).get(row) or {}
     for k in keys:

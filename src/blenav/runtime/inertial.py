@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from blenav.features.inertial import CHANNELS, FRAMES, InertialGrid
-from blenav.limits import check_range, read_json
+from blenav.limits import read_json
 from blenav.onnx_io import check_export_files, read_metadata, session
 
 __all__ = ["InertialModel", "INERTIAL_ONNX", "META_JSON", "KIND"]
@@ -51,14 +51,7 @@ class InertialModel:
         if not isinstance(meta, dict) or meta.get("kind") != KIND:
             got = meta.get("kind") if isinstance(meta, dict) else type(meta).__name__
             raise ValueError(f"{where}: kind {got!r}, not an inertial odometry export ({KIND!r})")
-        g = meta.get("grid") if isinstance(meta.get("grid"), dict) else {}
-        try:
-            self.grid = InertialGrid(check_range(g.get("rate_hz"), "rate_hz", where, field="grid.rate_hz"),
-                                     check_range(g.get("window_s"), "window_s", where, field="grid.window_s"),
-                                     check_range(g.get("stride_s"), "window_s", where, field="grid.stride_s"))
-        except ValueError as exc:
-            raise ValueError(f"{where}: {exc}") from None
-        check_range(self.grid.n_window, "history", where, field="grid (window samples)")
+        self.grid = InertialGrid.from_meta(meta.get("grid"), where)
         if list(meta.get("channels") or []) != list(CHANNELS):
             raise ValueError(f"{where}: channels {meta.get('channels')!r}, this blenav feeds {list(CHANNELS)}")
         self.frame = meta.get("input_frame", "world")
@@ -66,6 +59,9 @@ class InertialModel:
             raise ValueError(f"{where}: input_frame {self.frame!r}, not one of {FRAMES}")
         check_export_files(root, meta, (INERTIAL_ONNX,), META_JSON)
         self.meta, self.root = meta, root
+        self.key = "onnx:" + str((meta.get("sha256") or {}).get(INERTIAL_ONNX) or root.resolve())  # cache key part
+        #: the attitude source the network was trained in (the default of :meth:`odometry`)
+        self.attitude = str((meta.get("attitude") or {}).get("attitude") or "auto")
         self.sess = session(paths[0], threads)
         props = read_metadata(self.sess)  # the contract the graph was exported with: meta.json must say the same
         for key in ("grid", "channels", "input_frame"):
@@ -88,8 +84,9 @@ class InertialModel:
         v, lv = self.sess.run(["velocity", "log_var"], {"imu": W})
         return v, lv
 
-    def odometry(self, session, attitude: str = "auto", cache: dict | None = None):
-        """The session's learned odometry track (:func:`blenav.filters.inertial_odometry.lio_odometry`)."""
+    def odometry(self, session, attitude: str | None = None, cache: dict | None = None):
+        """The session's learned odometry track (:func:`blenav.filters.inertial_odometry.lio_odometry`) in the frame of
+        ``attitude`` (None: the source the network was trained in, :attr:`attitude`)."""
         from blenav.filters.inertial_odometry import lio_odometry
 
-        return lio_odometry(session, self, attitude, cache=cache)
+        return lio_odometry(session, self, attitude or self.attitude, cache=cache)

@@ -33,24 +33,24 @@ def training_report(monitor: TrainingMonitor, reason: str, steps: int, knn_err: 
                     stage: str = "supervised", baseline: str = "KNN") -> dict:
     """The training dict of a run (results.json ``methods.NAME.training``, OUT/training.json); ``knn_err`` is the
     validation error (m) of the simplest ``baseline`` on the same validation data (KNN for a fingerprint network,
-    PDR for the inertial odometry), stored as ``knn_val_error_m`` for KNN, else ``baseline_val_error_m`` too."""
+    PDR for the inertial odometry), stored as ``knn_val_error_m`` for KNN, else as ``baseline_val_error_m`` with
+    ``baseline`` naming it."""
     best = monitor.best or {}
     last = monitor.history[-1] if monitor.history else {}
     err = best.get("val_err_m") if stage == "supervised" else last.get("val_err_m")
     early = reason == "early_stopping"
     info = {"stage": stage, "steps": int(steps), "early_stopped": early, "stop_reason": reason,
             "best_step": best.get("step"), "best_val_loss": best.get("val_loss"),
-            "best_val_error_m": err, "knn_val_error_m": knn_err,
+            "best_val_error_m": err, **({"knn_val_error_m": knn_err} if baseline == "KNN" else
+                                        {"baseline": baseline, "baseline_val_error_m": knn_err}),
             "converged": early or _converged(monitor.history), "val_checks": len(monitor.history), "warnings": []}
-    if baseline != "KNN":
-        info.update(baseline=baseline, baseline_val_error_m=knn_err)
     if err is not None and knn_err is not None and err > knn_err:
         info["warnings"].append(f"worse than {baseline} on the validation data: {err:.2f} m vs {knn_err:.2f} m")
     if not info["converged"] and stage == "supervised":
         info["warnings"].append(f"stopped ({reason}) after {steps} steps before the validation loss levelled off "
                                 "(raise trainer.budget.max_steps or model.lr)")
     if err is None:
-        info["warnings"].append("no validation windows: nothing to stop early on or to compare with KNN "
+        info["warnings"].append(f"no validation windows: nothing to stop early on or to compare with {baseline} "
                                 "(data.val_fraction > 0 and more than one labelled training session)")
     return info
 
@@ -64,5 +64,7 @@ def write_report(out: Path, info: dict, monitor: TrainingMonitor, title: str, pl
     if plots and monitor.history:
         from blenav import plotting
 
-        fig = plotting.figure_learning_curves(monitor.history, info.get("knn_val_error_m"), title)
+        base = info.get("baseline", "KNN")
+        fig = plotting.figure_learning_curves(monitor.history, info.get(f"{base.lower()}_val_error_m",
+                                                                         info.get("baseline_val_error_m")), title, base)
         plotting.save_figure(fig, out / "learning_curves.png")

@@ -7,6 +7,7 @@ A data module here has ``sets`` with an optional ``"val"``.
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import lightning as L
@@ -62,10 +63,12 @@ def end_stage(module, trainer, out: Path, info: dict, monitor: TrainingMonitor, 
 
 
 def supervised_stage(module, dm, out: Path, trainer_kw: dict, b: dict, max_steps: int, monitor, knn_err,
-                     callbacks, title: str, plots: bool, extra_info: dict | None = None, baseline: str = "KNN"):
+                     callbacks, title: str, plots: bool, extra_info: dict | None = None, baseline: str = "KNN",
+                     timed: bool = False):
     """Fit with the step budget and early stopping (on ``val/loss``); keep the best validation check's weights; write
     the checkpoint and the training report (``knn_err``: the ``baseline``'s validation error, m, beside the network's;
-    ``extra_info`` added to the report). Returns (training info, trainer)."""
+    ``extra_info`` added to the report; ``timed``: the fit's wall time as ``fit_wall_s``, since the resume for a resumed
+    run). Returns (training info, trainer)."""
     es = None
     step_budget = StepBudget(max_steps)
     callbacks_1 = [monitor, step_budget, *(callbacks or [])]
@@ -75,6 +78,7 @@ def supervised_stage(module, dm, out: Path, trainer_kw: dict, b: dict, max_steps
                                                check_on_train_epoch_end=False)
         callbacks_1.append(es)
     module.training_info = {"stage": "supervised"}
+    t0 = time.perf_counter()
     trainer = fit(module, dm, out, trainer_kw, callbacks_1)
     validate_last(trainer, module, dm, monitor)
     reason = stop_reason(trainer, es, step_budget)
@@ -82,5 +86,7 @@ def supervised_stage(module, dm, out: Path, trainer_kw: dict, b: dict, max_steps
         module.load_state_dict(monitor.best_state)
     info = training_report(monitor, reason, trainer.global_step, knn_err, baseline=baseline)
     info.update(extra_info or {}, budget_steps=int(max_steps))
+    if timed:
+        info["fit_wall_s"] = time.perf_counter() - t0
     end_stage(module, trainer, out, info, monitor, title, plots)
     return info, trainer

@@ -16,7 +16,6 @@ from pathlib import Path
 from hydra.utils import instantiate
 
 from blenav.features.inertial import CHANNELS, InertialGrid
-from blenav.limits import check_range
 from blenav.models.inertial import InertialNet
 from blenav.trust import check_targets
 
@@ -39,20 +38,6 @@ def build_net(model: dict, grid: InertialGrid, where: str = "model config") -> I
     return net
 
 
-def grid_of(meta: dict, where: str) -> InertialGrid:
-    """The meta's grid, each number bounded before use (a stranger's file)."""
-    g = meta.get("grid") if isinstance(meta.get("grid"), dict) else {}
-    rate = check_range(g.get("rate_hz"), "rate_hz", where, field="blenav.grid.rate_hz")
-    window = check_range(g.get("window_s"), "window_s", where, field="blenav.grid.window_s")
-    stride = check_range(g.get("stride_s"), "window_s", where, field="blenav.grid.stride_s")
-    try:
-        grid = InertialGrid(float(rate), float(window), float(stride))
-    except ValueError as exc:
-        raise ValueError(f"{where}: {exc}") from None
-    check_range(grid.n_window, "history", where, field="blenav.grid (window samples)")
-    return grid
-
-
 def load_inertial(path: str | Path) -> tuple[InertialNet, dict]:
     """(network in eval mode, meta) of a ``last.ckpt`` of ``train.py experiment=inertial``."""
     ck = read_checkpoint(path, "inertial odometry")
@@ -60,7 +45,7 @@ def load_inertial(path: str | Path) -> tuple[InertialNet, dict]:
     if meta.get("kind") != KIND:
         raise ValueError(f"{path}: a {meta.get('kind', 'crossphone')} checkpoint, not an inertial odometry model")
     where = f"checkpoint {path}"
-    grid = grid_of(meta, where)
+    grid = InertialGrid.from_meta(meta.get("grid"), where, field="blenav.grid")
     check_weight_shapes(lambda: {"net": build_net(meta["model"], grid, where)}, ck["state_dict"], where,
                         "blenav.model and blenav.grid")
     net = build_net(meta["model"], grid, where)

@@ -14,8 +14,8 @@ the seconds of each window's output interval inside [a, b]); the loss compares t
 (:mod:`blenav.learn.inertial.module`).
 
 Validation: ``val_fraction`` of the walks, whole, seeded. Augmentation (training segments only, one draw per segment
-for all its windows): a uniform yaw turning inputs and target together, gyro / accelerometer biases and scales,
-dropped samples held (``data.augment``).
+for all its windows): a uniform yaw turning inputs and target together, gyro / accelerometer biases and scales; and
+dropped samples, drawn per window, each replaced by the sample before it (``data.augment``).
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ import torch
 from torch.utils.data import DataLoader, Dataset as TorchDataset
 
 from blenav.errors import MissingStream
-from blenav.features.inertial import FRAMES, YAW_PAIRS, InertialGrid, heading_frame, segment_weights, windows
+from blenav.features.inertial import (CHANNELS, FRAMES, InertialGrid, cut, heading_frame, n_windows, padded,
+                                      segment_weights, turn_pairs)
 from blenav.filters.inertial_odometry import session_frame_imu
 
 from ..common.sessions import labelled_sessions
@@ -42,14 +43,14 @@ DENSE_MAX_GAP_S = 1.0
 
 @dataclass
 class Walk:
-    """One walk's windows (K, n_window, 15) float32 (in their heading frame for ``frame: heading``), each window's heading
-    psi (K,) rad (zeros for ``frame: world``), the grid's first time ``t0`` s, and the attitude source."""
+    """One walk's resampled IMU, padded for cutting its K windows (:func:`blenav.features.inertial.padded`; windows are
+    cut per item, n_window / n_stride times less memory than keeping them), the grid's first time ``t0`` s, and
+    whether its ground truth is waypoints."""
 
     session: str
-    windows: np.ndarray
-    psi: np.ndarray
+    Xp: np.ndarray
+    K: int
     t0: float
-    attitude: str
     sparse: bool
 
 
@@ -99,31 +100,32 @@ def make_segments(walks: list[Walk], per_walk: list[tuple], grid: InertialGrid) 
     """:class:`Segments` of ``walks`` from each walk's (a, b, target)."""
     walk, target, span, win, weight = [], [], [], [], []
     for i, (w, (a, b, d)) in enumerate(zip(walks, per_walk)):
-        seg, k, wt = segment_weights(w.t0, grid, len(w.windows), a, b)
-        for j in range(len(a)):
-            m = seg == j
-            if not m.any():
-                continue
+        seg, k, wt = segment_weights(w.t0, grid, w.K, a, b)  # sorted by segment
+        cuts = np.flatnonzero(np.diff(seg)) + 1
+        for j, kj, wj in zip(seg[np.r_[0, cuts]] if len(seg) else [], np.split(k, cuts), np.split(wt, cuts)):
             walk.append(i)
             target.append(d[j])
             span.append((a[j], b[j]))
-            win.append(k[m])
-            weight.append(wt[m])
+            win.append(kj)
+            weight.append(wj)
     return Segments(np.asarray(walk, np.int64), np.asarray(target, float).reshape(-1, 2),
                     np.asarray(span, float).reshape(-1, 2), win, weight)
 
 
-def _rot(c: float, s: float, v: np.ndarray) -> np.ndarray:
-    """Turn the (..., 2) vectors ``v`` by the angle of (cos, sin) = (c, s)."""
-    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)
+def window_batch(walk: Walk, grid: InertialGrid, frame: str, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(windows ``index`` of ``walk`` (n, n_window, 15) float32 as the network sees them, their headings psi (n,)):
+    turned into their heading frames for ``frame: heading``, psi 0 for ``world``."""
+    W = cut(walk.Xp, grid, index)
+    return heading_frame(W) if frame == "heading" else (W, np.zeros(len(W)))
 
 
 class SegmentSet(TorchDataset):
     """Items: one segment's windows (n, n_window, 15), their headings psi (n,), weights (n,), target (2,); augmented when
     ``augment``."""
 
-    def __init__(self, walks: list[Walk], segs: Segments, cfg: InertialDataConfig, augment: bool, seed: int):
-        self.walks, self.segs, self.cfg, self.augment = walks, segs, cfg, augment
+    def __init__(self, walks: list[Walk], segs: Segments, cfg: InertialDataConfig, grid: InertialGrid, augment: bool,
+                 seed: int):
+        self.walks, self.segs, self.cfg, self.grid, self.augment = walks, segs, cfg, grid, augment
         self.seed, self.epoch = int(seed), 0
 
     def __len__(self) -> int:
@@ -134,8 +136,8 @@ class SegmentSet(TorchDataset):
 
     def __getitem__(self, i: int) -> dict:
         s = self.segs
-        w = self.walks[s.walk[i]]
-        W, psi = w.windows[s.win[i]].copy(), w.psi[s.win[i]].astype(np.float32)
+        W = window_batch(self.walks[s.walk[i]], self.grid, self.cfg.frame, s.win[i])
+        psi, W = W[1].astype(np.float32), W[0]
         d = s.target[i].copy()
         if self.augment:
             W, d = self._augment(W, d, np.random.default_rng([self.seed, self.epoch, int(i)]))
@@ -147,9 +149,8 @@ class SegmentSet(TorchDataset):
         if a.yaw and self.cfg.frame == "world":  # in the heading frame a yaw changes nothing (exactly equivariant)
             th = rng.uniform(-np.pi, np.pi)
             c, s = np.cos(th), np.sin(th)
-            for i, j in YAW_PAIRS:
-                W[..., [i, j]] = _rot(c, s, W[..., [i, j]])
-            d = _rot(c, s, d)
+            W = turn_pairs(W, np.full(len(W), c), np.full(len(W), s))
+            d = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
         W[..., 0:3] = W[..., 0:3] * (1.0 + a.scale_std * rng.standard_normal()) + a.acc_bias_std * rng.standard_normal(3)
         W[..., 3:6] = W[..., 3:6] * (1.0 + a.scale_std * rng.standard_normal()) + a.gyro_bias_std * rng.standard_normal(3)
         if a.drop_prob > 0:
@@ -194,12 +195,11 @@ class InertialDataModule(L.LightningDataModule):
                 raise
             log.info("session %s: %s; its frame from data.attitude=%s", s.id, exc, c.attitude)
             t, X, used = session_frame_imu(s, self.grid, c.attitude)
-        W = windows(X, self.grid)
-        seg = walk_segments(s, self.grid, float(t[0]), len(W), c)
-        if not len(W) or not len(seg[0]):
+        K = n_windows(len(X), self.grid)
+        seg = walk_segments(s, self.grid, float(t[0]), K, c)
+        if not K or not len(seg[0]):
             return None
-        W, psi = heading_frame(W) if c.frame == "heading" else (W, np.zeros(len(W)))
-        return Walk(s.id, W, psi, float(t[0]), used, bool(s.groundtruth_sparse)), seg
+        return Walk(s.id, padded(X, self.grid), K, float(t[0]), bool(s.groundtruth_sparse)), seg
 
     def setup(self, stage: str | None = None) -> None:
         if self.sets:
@@ -236,13 +236,15 @@ class InertialDataModule(L.LightningDataModule):
             self.sessions[split] = [r[0] for r in rows]
             self.walks[split] = [r[1] for r in rows]
             self.segments[split] = make_segments(self.walks[split], [r[2] for r in rows], self.grid)
-            self.sets[split] = SegmentSet(self.walks[split], self.segments[split], c, augment=(split == "train"),
-                                          seed=c.seed)
+            self.sets[split] = SegmentSet(self.walks[split], self.segments[split], c, self.grid,
+                                          augment=(split == "train"), seed=c.seed)
 
     def normalisation(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per-channel mean and std (6,) of the training walks' windows' last strides (each sample once)."""
+        """Per-channel mean and std (15,) of the training walks' windows' last strides (each sample once), as the network
+        sees them (in their heading frames for ``frame: heading``)."""
         n_s = self.grid.n_stride
-        X = np.concatenate([w.windows[:, -n_s:].reshape(-1, w.windows.shape[-1]) for w in self.walks["train"]])
+        X = np.concatenate([window_batch(w, self.grid, self.cfg.frame, np.arange(w.K))[0][:, -n_s:].reshape(-1, len(CHANNELS))
+                            for w in self.walks["train"]])
         return X.mean(axis=0), X.std(axis=0)
 
     def counts(self) -> dict:
@@ -251,7 +253,7 @@ class InertialDataModule(L.LightningDataModule):
         for split, ws in self.walks.items():
             seg = self.segments[split]
             out[split] = {"walks": len(ws), "waypoint_walks": int(sum(w.sparse for w in ws)),
-                          "segments": len(seg), "windows": int(sum(len(w.windows) for w in ws)),
+                          "segments": len(seg), "windows": int(sum(w.K for w in ws)),
                           "segment_s": float((seg.span[:, 1] - seg.span[:, 0]).sum())}
         out["skipped"] = dict(self.skipped)
         return out

@@ -19,7 +19,7 @@ class InertialAugmentConfig:
     gyro_bias_std: float = 0.01  # rad/s added per axis
     acc_bias_std: float = 0.1  # m/s^2 added per axis
     scale_std: float = 0.02  # each sensor's readings times N(1, scale_std)
-    drop_prob: float = 0.02  # share of samples replaced by the previous one (a dropped sample, held)
+    drop_prob: float = 0.02  # share of samples replaced by the previous one (a dropped sample, held; drawn per window)
 
 
 @dataclass

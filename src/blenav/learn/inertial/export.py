@@ -3,7 +3,7 @@ of ``train.py experiment=inertial`` writes ``inertial.onnx`` and ``meta.json`` i
 :mod:`blenav.runtime.inertial`).
 
 Parity (checked on every export; a failing export is deleted): on random IMU-like windows of three batch sizes and,
-when the checkpoint's training datasets are readable, on real windows of its validation walks, max |onnx - torch| <=
+with ``python export.py ... data=DIR``, on real windows of DIR's first walks, max |onnx - torch| <=
 ``TOL`` * max(1, max |torch|) for the velocity and the log variance (1e-4).
 """
 
@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from blenav.features.inertial import CHANNELS
+from blenav.features.inertial import CHANNELS, InertialGrid
 from blenav.models.inertial import InertialNet
 from blenav.onnx_io import blenav_version, check_weights, json_props, max_diff, session
 from blenav.runtime.inertial import INERTIAL_ONNX, KIND, META_JSON
@@ -40,15 +40,15 @@ class _Graph(nn.Module):
         return out[:, :2], out[:, 2:]
 
 
-def sample_windows(n: int, n_window: int, seed: int = 0) -> torch.Tensor:
+def sample_windows(n: int, n_window: int, seed: int = 0, rate_hz: float = 50.0) -> torch.Tensor:
     """(n, n_window, 15) float32 IMU-like windows: a 2 Hz gait on the vertical and along a random heading, noise,
     rates of a turning walker (parity inputs in the ranges a walk has)."""
     g = torch.Generator().manual_seed(seed)
-    t = torch.arange(n_window, dtype=torch.float32) / 50.0
+    t = torch.arange(n_window, dtype=torch.float32) / float(rate_hz)
     ph = 2 * torch.pi * torch.rand(n, 1, generator=g)
     hd = 2 * torch.pi * torch.rand(n, 1, generator=g)
     gait = torch.sin(2 * torch.pi * 2.0 * t[None] + ph)
-    x = torch.randn(n, n_window, 15, generator=g) * torch.tensor([0.4, 0.4, 0.5, 0.1, 0.1, 0.2] + [0.02] * 9)
+    x = torch.randn(n, n_window, len(CHANNELS), generator=g) * torch.tensor([0.4, 0.4, 0.5, 0.1, 0.1, 0.2] + [0.02] * 9)
     x[..., 0] += gait * torch.cos(hd)
     x[..., 1] += gait * torch.sin(hd)
     x[..., 2] += 2.0 * gait
@@ -77,32 +77,36 @@ def parity(net: InertialNet, path: Path, extra: torch.Tensor | None = None) -> d
     return worst
 
 
-def real_windows(meta: dict, n: int = 256) -> torch.Tensor | None:
-    """Up to ``n`` windows of the checkpoint's validation walks (its datasets read again), None when unreadable."""
-    try:
-        from blenav.data import Dataset
-        from blenav.features.inertial import windows
-        from blenav.filters.inertial_odometry import session_frame_imu
-
-        from .checkpoint import grid_of
-
-        grid = grid_of(meta, "checkpoint meta")
-        val = set((meta.get("val_sessions") or [])[:4])
-        out = []
-        for p in meta.get("datasets") or []:
-            for s in Dataset.open(p).sessions(labelled=True):
-                if s.id in val:
-                    _, X, _ = session_frame_imu(s, grid, (meta.get("attitude") or {}).get("attitude", "auto"))
-                    out.append(windows(X, grid))
-        W = np.concatenate(out)[:n] if out else None
-        return torch.from_numpy(W) if W is not None and len(W) else None
-    except Exception:  # the datasets moved or are gone: the random windows still gate the export
+def real_windows(data: str | None, grid: InertialGrid, attitude: str = "auto", frame: str = "world", walks: int = 4,
+                 n: int = 256) -> torch.Tensor | None:
+    """Up to ``n`` windows of the first ``walks`` walks with an IMU of the dataset ``data`` (the export's ``data=DIR``,
+    given by the user: nothing is read that a checkpoint names), as the network sees them (turned into their heading
+    frames for ``frame: heading``); None without ``data``."""
+    if not data:
         return None
+    from blenav.data import Dataset
+    from blenav.errors import MissingStream
+    from blenav.features.inertial import heading_frame, windows
+    from blenav.filters.inertial_odometry import session_frame_imu
+
+    out = []
+    for s in Dataset.open(data).sessions():
+        if len(out) >= walks:
+            break
+        try:
+            _, X, _ = session_frame_imu(s, grid, attitude)
+        except MissingStream:
+            continue
+        W = windows(X, grid)
+        out.append(heading_frame(W)[0] if frame == "heading" else W)
+    W = np.concatenate(out)[:n] if out else np.zeros(0)
+    return torch.from_numpy(W) if len(W) else None
 
 
-def export_inertial(net: InertialNet, meta: dict, out: str | Path, opset: int = DEFAULT_OPSET) -> Path:
+def export_inertial(net: InertialNet, meta: dict, out: str | Path, opset: int = DEFAULT_OPSET,
+                    data: str | None = None) -> Path:
     """Write inertial.onnx and meta.json of ``net`` (eval mode) and its checkpoint ``meta`` into the directory ``out``;
-    check parity. Returns the directory."""
+    check parity (also on windows of the dataset ``data`` when given). Returns the directory."""
     out = export_dir(out, "an inertial odometry", "inertial.onnx and meta.json")
     net = net.eval()
     grid = meta["grid"]
@@ -130,7 +134,9 @@ def export_inertial(net: InertialNet, meta: dict, out: str | Path, opset: int = 
         trace_onnx(_Graph(net), (torch.zeros(2, net.n_window, 15),), path, ["imu"], ["velocity", "log_var"],
                    {"imu": {0: "batch"}, "velocity": {0: "batch"}, "log_var": {0: "batch"}}, opset, props,
                    f"blenav inertial odometry ({type(net).__name__}): IMU window -> velocity and log variance")
-        worst = parity(net, path, real_windows(meta))
+        grid_obj = InertialGrid(**grid)
+        worst = parity(net, path, real_windows(data, grid_obj, (meta.get("attitude") or {}).get("attitude", "auto"),
+                                               info["input_frame"]))
         if not all(v <= TOL for v in worst.values()):
             raise RuntimeError(f"{out}: onnxruntime differs from PyTorch ({worst}) beyond {TOL:g}; export rejected")
     except Exception:
@@ -143,7 +149,7 @@ def export_inertial(net: InertialNet, meta: dict, out: str | Path, opset: int = 
     return out
 
 
-def export_checkpoint(ckpt: str | Path, out: str | Path, opset: int = DEFAULT_OPSET) -> Path:
-    """``last.ckpt`` of ``train.py experiment=inertial`` -> export directory ``out``."""
+def export_checkpoint(ckpt: str | Path, out: str | Path, opset: int = DEFAULT_OPSET, data: str | None = None) -> Path:
+    """``last.ckpt`` of ``train.py experiment=inertial`` -> export directory ``out`` (parity also on ``data``'s walks)."""
     net, meta = load_inertial(ckpt)
-    return export_inertial(net, meta, out, opset)
+    return export_inertial(net, meta, out, opset, data)

@@ -51,9 +51,9 @@ def segment_integral(out: torch.Tensor, segment: torch.Tensor, weight: torch.Ten
     else:
         v, var = to_attitude_frame(out, psi)
     w = weight[:, None]
-    D = torch.zeros(n_segments, 2, dtype=out.dtype).index_add(0, segment, w * v)
-    V = torch.zeros(n_segments, 2, dtype=out.dtype).index_add(0, segment, w * w * var)
-    T = torch.zeros(n_segments, dtype=out.dtype).index_add(0, segment, weight)
+    D = out.new_zeros(n_segments, 2).index_add(0, segment, w * v)  # on the outputs' device
+    V = out.new_zeros(n_segments, 2).index_add(0, segment, w * w * var)
+    T = out.new_zeros(n_segments).index_add(0, segment, weight.to(out.dtype))
     return D, V, T
 
 

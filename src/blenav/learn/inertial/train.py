@@ -19,9 +19,7 @@ Real walks with surveyed waypoints and simulated walks train together, e.g. leav
 
 from __future__ import annotations
 
-import json
 import logging
-import time
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -30,7 +28,7 @@ from blenav.errors import MissingStream
 from blenav.features.inertial import CHANNELS, displacement_errors
 from blenav.filters.pdr_odometry import fitted_step_length, pdr_odometry
 
-from ..common.budget import budget, trainer_settings
+from ..common.budget import budget, budget_steps, trainer_settings
 from ..common.checkpoint import data_hash, read_checkpoint
 from ..common.stage import prior_training, supervised_stage
 from ..common.trainer import LAST, TrainingMonitor, fit, start_run
@@ -51,7 +49,7 @@ def inertial_data_config(cfg: DictConfig) -> InertialDataConfig:
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(InertialDataConfig), node))
 
 
-def build_meta(model: dict, dm: InertialDataModule) -> dict:
+def build_meta(model: dict, dm: InertialDataModule, counts: dict) -> dict:
     c = dm.cfg
     return {"kind": KIND, "model": model, "grid": dm.grid.as_dict(), "channels": list(CHANNELS), "frame": FRAME,
             "input_frame": c.frame,
@@ -59,8 +57,10 @@ def build_meta(model: dict, dm: InertialDataModule) -> dict:
             "outputs": "velocity (vx, vy) m/s over the window's last stride, log variance (log vx^2, log vy^2)",
             "datasets": c.paths, "sessions": sorted(s.id for v in dm.sessions.values() for s in v),
             "val_sessions": sorted(s.id for s in dm.sessions.get("val", [])),
-            "counts": dm.counts(),
-            "data_hash": data_hash(*[w.windows[:, -1] for w in dm.walks["train"]])}
+            "counts": counts,
+            # every training sample and every supervised segment (its span and target)
+            "data_hash": data_hash(*[w.Xp for w in dm.walks["train"]], dm.segments["train"].span,
+                                   dm.segments["train"].target)}
 
 
 def pdr_val_error(dm: InertialDataModule) -> float | None:
@@ -87,6 +87,28 @@ def pdr_val_error(dm: InertialDataModule) -> float | None:
     return float(np.concatenate(errs).mean()) if errs and sum(map(len, errs)) else None
 
 
+#: what a resumed run must share with the checkpoint it resumes: its weights mean nothing under another contract
+RESUME_KEYS = ("grid", "channels", "input_frame", "attitude")
+
+
+def check_resume(out, meta: dict) -> None:
+    """Refuse (ValueError naming the keys) to resume ``out/last.ckpt`` when its meta's input contract or network differ
+    from this run's: a TCN's weights load whatever the grid or frame, and the new meta would then describe inputs the
+    weights never saw."""
+    ck = out / LAST
+    if not ck.is_file():
+        return
+    old = read_checkpoint(ck, "inertial odometry").get("blenav") or {}
+    if old.get("kind") != meta.get("kind"):
+        raise ValueError(f"{ck}: a {old.get('kind') or 'crossphone'} run, not an inertial odometry one; choose another out=")
+    differ = [k for k in RESUME_KEYS if old.get(k) != meta.get(k)]
+    if (old.get("model") or {}).get("net") != (meta.get("model") or {}).get("net"):
+        differ.append("model.net")
+    if differ:
+        raise ValueError(f"{ck} was trained with other {', '.join(differ)} than this run asks for; it cannot be resumed: "
+                         "choose another out= (or restore the run's settings)")
+
+
 def train_inertial(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict, dict]:
     """``task: inertial``: fit the network of ``cfg.model`` on the walks of ``cfg.data``; returns (metrics, objects)."""
     out = start_run(cfg.seed, cfg.out)
@@ -97,16 +119,18 @@ def train_inertial(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict
     dcfg = inertial_data_config(cfg)
     dm = InertialDataModule(dcfg)
     dm.setup()
+    counts = dm.counts()
     net = build_net(model, dm.grid)
     mean, std = dm.normalisation()
     net.set_normalisation(mean, std)
     module = InertialModule(net, lr=float(model["lr"]), weight_decay=float(model.get("weight_decay", 1e-4)),
-                            nll_weight=float(model.get("nll_weight", 0.1)), meta=build_meta(model, dm))
+                            nll_weight=float(model.get("nll_weight", 0.1)), meta=build_meta(model, dm, counts))
+    check_resume(out, module.meta)  # before anything of the run folder is written
     b = budget(cfg)
     has_val = "val" in dm.sets
     if not has_val:
         b["patience"] = None
-    max_steps = int(b["max_steps"]) if b["max_steps"] not in (None, "auto") else 3000
+    max_steps = budget_steps(b, counts["train"]["windows"])  # a number, -1 (none) or auto (grows with the windows)
     trainer_kw, module.schedule = trainer_settings(cfg, b, max_steps, len(dm.sets["train"]), dcfg.batch_segments)
     if not has_val:
         trainer_kw["limit_val_batches"] = 0
@@ -114,22 +138,16 @@ def train_inertial(cfg: DictConfig, callbacks: list | None = None) -> tuple[dict
     title = f"{model.get('name', 'inertial')} ({out})"
     plots = bool(cfg.get("plots", True))
     prior = prior_training(out)
-    counts = {"data": dm.counts()}
     if prior.get("stop_reason") == "early_stopping" or (prior and prior.get("steps", 0) >= max_steps > 0):
         info = prior  # finished before: its checkpoint's weights
+        module.training_info = info
         module.load_state_dict(read_checkpoint(out / LAST, require_meta=False)["state_dict"])
         trainer = fit(module, dm, out, trainer_kw, [], run=False)
     else:
         base = pdr_val_error(dm)
-        t0 = time.perf_counter()
         info, trainer = supervised_stage(module, dm, out, trainer_kw, b, max_steps, TrainingMonitor(), base,
-                                         callbacks, title, plots, extra_info=counts, baseline="PDR")
-        # the fit's wall time (a resumed run: since the resume) into the report written by the stage
-        info["fit_wall_s"] = time.perf_counter() - t0
-        report = out / "training.json"
-        if report.is_file():
-            report.write_text(json.dumps({**json.loads(report.read_text(encoding="utf-8")),
-                                          "fit_wall_s": info["fit_wall_s"]}, indent=1) + "\n", encoding="utf-8")
+                                         callbacks, title, plots, extra_info={"data": counts}, baseline="PDR",
+                                         timed=True)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     if info.get("best_val_error_m") is not None:
         metrics["best_val_err_m"] = float(info["best_val_error_m"])
