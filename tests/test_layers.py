@@ -53,7 +53,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("blenav.eval",),                    # the evaluation harness and its experiments
     ("blenav.reporting",),               # the README / docs tables written from evaluations' results
     ("blenav.configs",),                 # composes conf/ (Hydra): only entry points call it
-    ("blenav.cli",),                     # the command lines
+    ("blenav.cli", "blenav.__main__"),   # the command lines (python -m blenav: the blenav command)
 )
 
 

@@ -1,4 +1,5 @@
-"""Where the project's Hydra configs live (``conf/`` at the repository root), and :func:`inside`, the one test of
+"""Where the project's Hydra configs live (``blenav/conf/`` inside the package; the repository's ``conf/`` is a link to
+it), and :func:`inside`, the one test of
 whether a path lies in a folder (the commands refuse an output inside what they read)."""
 
 from __future__ import annotations
@@ -8,16 +9,18 @@ from pathlib import Path
 
 
 def conf_dir() -> Path:
-    """The ``conf/`` folder: $BLENAV_CONF if set, else the repository's (editable install)."""
+    """The config folder: $BLENAV_CONF if set (a copy a user edits), else the one installed with the package
+    (``blenav/conf``, shipped in the wheel as package data)."""
     env = os.environ.get("BLENAV_CONF")
     candidates = [Path(env)] if env else []
-    candidates.append(Path(__file__).resolve().parents[2] / "conf")
+    candidates.append(Path(__file__).resolve().parent / "conf")
     for c in candidates:
         if (c / "sim.yaml").is_file():
             return c
+    where = f"BLENAV_CONF={env} has no sim.yaml; " if env else ""
     raise FileNotFoundError(
-        "cannot find blenav's conf/ folder; install the package editable from a clone (`make install`) "
-        "or set BLENAV_CONF to the path of conf/")
+        f"{where}cannot find blenav's config folder (blenav/conf inside the installed package): reinstall blenav, "
+        "or set BLENAV_CONF to a folder holding its configs")
 
 
 def inside(path, folder) -> bool:

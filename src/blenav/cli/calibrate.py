@@ -7,16 +7,16 @@ labelled sessions against the distance to the anchors' prior positions; ``--out`
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 from blenav.paths import inside
 
+from .args import ArgumentParser
 from .common import guarded, pop_debug
 
 
 def _main(argv: list[str] | None) -> int:
-    p = argparse.ArgumentParser(prog="blenav-calibrate", description=__doc__.splitlines()[0])
+    p = ArgumentParser(prog="blenav-calibrate", description=__doc__.splitlines()[0])
     p.add_argument("dataset")
     p.add_argument("--sessions", default=None, help="comma-separated session ids (default: every labelled session)")
     p.add_argument("--out", default=None, help="write the fit to this YAML file")

@@ -28,6 +28,25 @@ from typing import Callable
 
 KNOWN_ERRORS = (ValueError, OSError, MemoryError, ImportError)
 
+#: the name the running command was called by (``blenav eval``), set by the ``blenav`` dispatcher
+#: (:mod:`blenav.cli.main`); None: the entry point's own name (``blenav-eval``)
+_CALLED_AS: list[str] = []
+
+
+def display_prog(prog: str) -> str:
+    """``prog`` as the user called it: ``blenav eval`` under the ``blenav`` command, else ``prog`` itself."""
+    return _CALLED_AS[-1] if _CALLED_AS else prog
+
+
+@contextmanager
+def called_as(name: str):
+    """Within the block, :func:`display_prog` (error lines, usage lines) says ``name``."""
+    _CALLED_AS.append(name)
+    try:
+        yield
+    finally:
+        _CALLED_AS.pop()
+
 
 class Terminated(BaseException):
     """SIGTERM, raised in the main thread as SIGINT raises ``KeyboardInterrupt`` (a ``BaseException``: the same
@@ -75,20 +94,27 @@ def pop_debug(args: list[str]) -> tuple[bool, list[str]]:
     return debug, [a for a in args if a != "--debug"]
 
 
+#: the install extra (pyproject.toml) that brings a module the base install lacks
+_EXTRA_OF = {**dict.fromkeys(("torch", "lightning"), "train"), "gtsam": "backend",
+             **dict.fromkeys(("hydra", "omegaconf", "matplotlib", "sklearn", "skimage", "ahrs"), "eval")}
+
+
 def error_message(exc: BaseException | str) -> str:
     """The one-line message of a known error: its text, said as what it means for a memory or import error."""
     msg = " ".join(str(exc).split())
     if isinstance(exc, MemoryError):  # numpy says how much; a bare MemoryError says nothing
         return f"out of memory{': ' + msg if msg else ''} (a size in a setting or file is too large for this machine)"
     if isinstance(exc, ImportError):
-        return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+        extra = _EXTRA_OF.get((getattr(exc, "name", None) or "").split(".")[0])
+        hint = f" (this needs blenav's '{extra}' extra: pip install 'blenav[{extra}]')" if extra else ""
+        return (f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__) + hint
     return msg or type(exc).__name__
 
 
 def fail(prog: str, exc: BaseException | str) -> None:
     """Print ``PROG: error: MESSAGE`` (one line, :func:`error_message`) to stderr and exit 1."""
     sys.stdout.flush()
-    print(f"{prog}: error: {error_message(exc)}", file=sys.stderr, flush=True)
+    print(f"{display_prog(prog)}: error: {error_message(exc)}", file=sys.stderr, flush=True)
     sys.exit(1)
 
 
@@ -101,7 +127,7 @@ def interrupted(prog: str, exc: BaseException, debug: bool = False) -> None:
         traceback.print_exception(exc)
     notes = [" ".join(str(n).split()) for n in getattr(exc, "__notes__", [])]
     sys.stdout.flush()
-    print("; ".join([f"{prog}: interrupted", *notes]), file=sys.stderr, flush=True)
+    print("; ".join([f"{display_prog(prog)}: interrupted", *notes]), file=sys.stderr, flush=True)
     sys.exit(INTERRUPT_EXIT.get(type(exc), 130))
 
 
@@ -160,11 +186,19 @@ def run_hydra(prog: str, config_name: str, task: Callable, args: list[str], conv
     from blenav.paths import conf_dir
     from blenav.trust import check_targets
 
+    from .hydra_help import flags_to_overrides, hydra_help
+
+    prog = display_prog(prog)
     debug, args = pop_debug(args)
+    args = flags_to_overrides(args, _HYDRA_OPTS)  # --data DIR -> data=DIR, --no-progress -> progress=false
     if convert is not None:
         args = convert(args)
     register_configs()
     overrides, opts = _hydra_args(args)
+    if "--help" in opts:  # a usage line, what the command accepts and the keys a user changes (not a config dump)
+        doc = sys.modules.get(getattr(task, "__module__", ""), None)
+        print(hydra_help(prog, opts.get("--config-name") or config_name, overrides, getattr(doc, "__doc__", None)))
+        return
     try:
         if "--experimental-rerun" in opts:
             raise ValueError("--experimental-rerun is refused: Hydra would unpickle that file, and unpickling runs "

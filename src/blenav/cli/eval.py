@@ -43,8 +43,9 @@ def task(cfg: DictConfig) -> None:
     print(f"wrote {ecfg.out}/results.json")
 
 
-def main() -> None:
-    run_hydra(PROG, "eval", task, sys.argv[1:], convert=partial(cli_overrides, deprecated_model_path=True))
+def main(argv: list[str] | None = None) -> None:
+    args = sys.argv[1:] if argv is None else list(argv)
+    run_hydra(PROG, "eval", task, args, convert=partial(cli_overrides, deprecated_model_path=True))
 
 
 if __name__ == "__main__":

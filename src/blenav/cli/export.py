@@ -49,7 +49,8 @@ def task(cfg: DictConfig) -> None:
     print(f"wrote {export(cfg)}")
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     from blenav.configs import cli_overrides
 
-    run_hydra("export.py", "export", task, sys.argv[1:], convert=cli_overrides)  # data=DIR -> data.path=DIR
+    prog = "export.py" if sys.argv[0].endswith("export.py") else "blenav-export"
+    run_hydra(prog, "export", task, sys.argv[1:] if argv is None else list(argv), convert=cli_overrides)  # data=DIR -> data.path=DIR

@@ -13,14 +13,14 @@ over-counted.
 
 from __future__ import annotations
 
-import argparse
 import sys
 
+from .args import ArgumentParser
 from .common import guarded, pop_debug
 
 
 def _main(argv: list[str] | None) -> int:
-    p = argparse.ArgumentParser(prog="blenav-fixes", description=__doc__.splitlines()[0])
+    p = ArgumentParser(prog="blenav-fixes", description=__doc__.splitlines()[0])
     p.add_argument("dataset")
     p.add_argument("model", help="an ONNX file written by export.py")
     p.add_argument("--source", default="TransNet+LocNet", help="the fixes.csv source name (default %(default)s)")

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 
+from .args import ArgumentParser
 from .common import guarded, pop_debug
 
 
 def _main(argv: list[str] | None) -> int:
     from blenav.importers import KINDS
 
-    p = argparse.ArgumentParser(prog="blenav-import", description=__doc__.splitlines()[0])
+    p = ArgumentParser(prog="blenav-import", description=__doc__.splitlines()[0])
     p.add_argument("kind", choices=KINDS, help="which public data set SRC holds")
     p.add_argument("src", help="folder of the raw data set (e.g. ../shared/data/raw/uji_ble); ilc20: a floor or "
                    "site folder, the challenge layout, or a .tar.gz/.zip of one")

@@ -10,12 +10,12 @@ building's beacons or floor plan differ from its own, saying what differs.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 from blenav.paths import inside
 
+from .args import ArgumentParser
 from .common import guarded, pop_debug
 
 
@@ -58,7 +58,7 @@ def _check_out(out: Path, bundle: Path, session: Path) -> None:
 
 
 def _main(argv: list[str] | None) -> int:
-    p = argparse.ArgumentParser(prog="blenav-localize", description=__doc__.splitlines()[0])
+    p = ArgumentParser(prog="blenav-localize", description=__doc__.splitlines()[0])
     p.add_argument("bundle", help="a bundle folder written by `python export.py bundle=true ...`")
     p.add_argument("session", help="a session folder DATASET/sessions/ID")
     p.add_argument("--out", required=True, help="the CSV to write (t,x,y,std)")

@@ -15,19 +15,19 @@ Settings: ``conf/backend/default.yaml``, node ``mapping`` (``--set min_readings=
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import sys
 from pathlib import Path
 
+from .args import ArgumentParser
 from .common import guarded, pop_debug
 
 PROG = "blenav-map"
 
 
 def _parse(argv):
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    p = ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     p.add_argument("dataset", help="dataset folder (contains dataset.yaml)")
     p.add_argument("--sessions", default=None, help="comma-separated labelled session ids (default: every labelled one)")
     p.add_argument("--out", required=True, help="output dataset folder (must not exist, or be empty)")

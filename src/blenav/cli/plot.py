@@ -7,20 +7,22 @@ their paths. Exit 1 with a message when the dataset breaks a rule of the format.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
+from .args import ArgumentParser
 from .common import guarded, pop_debug
 
 
 def _main(argv: list[str] | None) -> int:
-    p = argparse.ArgumentParser(prog="blenav-plot", description=__doc__.splitlines()[0])
+    p = ArgumentParser(prog="blenav-plot", description=__doc__.splitlines()[0])
     p.add_argument("dataset", type=Path, help="dataset folder (contains dataset.yaml)")
-    p.add_argument("-s", "--session", dest="sessions", metavar="S", action="extend", nargs="+",
-                   help="session id(s) to draw (repeatable; default: all sessions)")
+    p.add_argument("-s", "--sessions", "--session", dest="sessions", metavar="S", action="extend", nargs="+",
+                   help="session id(s) to draw: A,B or A B (repeatable; default: all sessions)")
     p.add_argument("-o", "--out", type=Path, default=None, help="output folder (default: DATASET/plots)")
     args = p.parse_args(argv)
+    if args.sessions:
+        args.sessions = [x for s in args.sessions for x in s.split(",") if x]
 
     from blenav import plotting
     from blenav.data import Dataset

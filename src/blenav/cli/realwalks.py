@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import sys
 
-from .common import guarded, pop_debug
+from .common import display_prog, guarded, pop_debug
 
 PROG = "python -m blenav.cli.realwalks"
 USAGE = (f"usage: {PROG} train-ids DATA | coverage DATA [ROW] [--plot FILE.png] | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README] | "
@@ -64,10 +64,10 @@ def _main(argv: list[str]) -> int:
         if "--plot" in args:
             i = args.index("--plot")
             if i + 1 >= len(args):
-                sys.exit(USAGE)
+                sys.exit(USAGE.replace(PROG, display_prog(PROG)))
             plot, args = args[i + 1], args[:i] + args[i + 2:]
         if len(args) not in (1, 2):
-            sys.exit(USAGE)
+            sys.exit(USAGE.replace(PROG, display_prog(PROG)))
         rep = coverage(experiment_config(f"data={args[0]}"), *args[1:])
         print(f"{rep['row']}: {rep['fixes']} fixes of {rep['test_walks']} test walks, mean error "
               f"{rep['error_mean_m']:.2f} m; by the distance of the true position to the {rep['train_walks']} train walks:")
@@ -115,7 +115,7 @@ def _main(argv: list[str]) -> int:
 
         print(write_priors(args[0], args[1], args[2], args[3], args[4] if len(args) > 4 else None))
     else:
-        sys.exit(USAGE)
+        sys.exit(USAGE.replace(PROG, display_prog(PROG)))
     return 0
 
 

@@ -25,8 +25,8 @@ def _task(cfg: DictConfig) -> None:
     print(f"wrote {run(cfg)}")
 
 
-def main() -> None:
-    run_hydra("blenav-sim", "sim", _task, sys.argv[1:])
+def main(argv: list[str] | None = None) -> None:
+    run_hydra("blenav-sim", "sim", _task, sys.argv[1:] if argv is None else list(argv))
 
 
 if __name__ == "__main__":

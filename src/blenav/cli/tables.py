@@ -19,7 +19,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .common import guarded, pop_debug
+from .common import display_prog, guarded, pop_debug
 
 PROG = "python -m blenav.cli.tables"
 USAGE = (f"usage: {PROG} merge OUT.md TITLE RUN[:PREFIX] [RUN[:PREFIX] ...] | leaderboard OUT.md TITLE RUN [RUN ...] "
@@ -46,7 +46,7 @@ def _main(argv: list[str]) -> int:
         write_page(Path(args[0]), Path(args[1]), args[2] if len(args) > 2 else "")
         print(f"wrote {args[1]}")
     else:
-        print(USAGE, file=sys.stderr)
+        print(USAGE.replace(PROG, display_prog(PROG)), file=sys.stderr)
         return 2
     return 0
 

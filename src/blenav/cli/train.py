@@ -32,7 +32,8 @@ def task(cfg: DictConfig) -> float | None:
     return None
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     from blenav.configs import cli_overrides
 
-    run_hydra("train.py", "train", task, sys.argv[1:], convert=cli_overrides)  # data=DIR -> data.path=DIR
+    prog = "train.py" if sys.argv[0].endswith("train.py") else "blenav-train"
+    run_hydra(prog, "train", task, sys.argv[1:] if argv is None else list(argv), convert=cli_overrides)  # data=DIR -> data.path=DIR

@@ -5,14 +5,14 @@ Exit 0 when there is no violation (warnings are printed), 1 with one line per vi
 
 from __future__ import annotations
 
-import argparse
 import sys
 
+from .args import ArgumentParser
 from .common import guarded, pop_debug
 
 
 def _main(argv: list[str] | None) -> int:
-    p = argparse.ArgumentParser(prog="blenav-validate", description=__doc__.splitlines()[0])
+    p = ArgumentParser(prog="blenav-validate", description=__doc__.splitlines()[0])
     p.add_argument("dataset", help="dataset folder (contains dataset.yaml)")
     p.add_argument("-q", "--quiet", action="store_true", help="print violations only, not warnings")
     args = p.parse_args(argv)

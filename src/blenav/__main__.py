@@ -1,0 +1,7 @@
+"""``python -m blenav COMMAND ...``: the same as the ``blenav`` command (:mod:`blenav.cli.main`)."""
+
+import sys
+
+from blenav.cli.main import main
+
+sys.exit(main())
