@@ -13,7 +13,7 @@ Writes ``OUT/results.json`` (schema below), ``OUT/results.md`` (a table like the
 ``plots=false``, PNG plots. ``results.json``::
 
     {"experiment", "title", "dataset", "runs", "sessions": [...], "init_s", "seed", "calibration",
-     "methods": {NAME: {"rmse_m": {"mean","std","stderr","ci99"}, "error_m": {"mean","median","p75","p90","max"},
+     "methods": {NAME: {"rmse_m": {"mean","std","stderr","ci99","n"}, "error_m": {"mean","median","p75","p90","max"},
                         "ate_m", "ee_m", "init_error_m", "orientation_rmse_deg" (when the method runs an AHRS
                         and the ground truth has orientation), "wall_s", "realtime_factor", "recoveries",
                         "map_notes", "confined": {"bbox", "off_free", "free", "estimates"} (estimates kept on
