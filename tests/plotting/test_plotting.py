@@ -352,3 +352,43 @@ def test_plot_floor_room_labels_off_when_asked_and_unplaced_anchors_not_counted(
     texts = {t.get_text() for t in ax.texts}
     assert not texts & {"west", "east"} and "b1" not in texts
     assert "BLE beacon (3)" in ax.get_legend_handles_labels()[1]
+
+
+# --------------------------------------------------------------------------- pictures that read (issue 33 sec. 3)
+
+
+def test_keep_apart_is_greedy_and_deterministic():
+    from blenav.plotting.common import keep_apart
+
+    xy = np.array([[0.0, 0.0], [0.3, 0.0], [1.0, 0.0], [1.0, 0.9], [np.nan, 5.0], [0.0, 0.5]])
+    np.testing.assert_array_equal(keep_apart(xy, 0.5), [True, False, True, True, False, True])
+    np.testing.assert_array_equal(keep_apart(xy, 0.0), [True, True, True, True, False, True])
+    np.testing.assert_array_equal(keep_apart(xy[::-1], 0.5), [True, False, True, True, True, False])
+
+
+def test_overview_labels_never_overprint_and_the_legend_covers_no_panel(tiny_dataset):
+    """Two beacons 0.2 m apart on a 10 m floor: only the first is labelled (LABEL_SPACING 0.045 * 10 m = 0.45 m); the
+    figure's one legend sits in its own column, its box outside every floor panel; no two label boxes overlap."""
+    from blenav.plotting import figure_overview
+
+    add_building_and_session(tiny_dataset)
+    p = tiny_dataset / "buildings" / "house" / "anchors.csv"
+    a = pd.read_csv(p, dtype={"anchor_id": str})
+    a.loc[a["anchor_id"] == "b2", ["x", "y"]] = [1.2, 1.0]  # next to b1 (1, 1)
+    a.to_csv(p, index=False)
+    ds = Dataset.open(tiny_dataset)
+    fig = figure_overview(ds, ds.session_ids, building_id="house")
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    panels = [ax for ax in fig.axes if ax.get_visible() and ax.get_images()]
+    texts = {t.get_text() for t in panels[0].texts}
+    assert {"b1", "b3", "b4", "ap1", "west", "east"} <= texts and "b2" not in texts
+    legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None] + list(fig.legends)
+    assert len(legends) == 1
+    lb = legends[0].get_window_extent(r)
+    assert all(not lb.overlaps(ax.get_window_extent(r)) for ax in panels)
+    assert "walk0 (test-phone, pedestrian)" in [t.get_text() for t in legends[0].get_texts()]
+    W, H = fig.canvas.get_width_height()
+    assert lb.x1 <= W + 1 and lb.y0 >= 0
+    boxes = [t.get_window_extent(r) for t in panels[0].texts]
+    assert not any(boxes[i].overlaps(boxes[j]) for i in range(len(boxes)) for j in range(i + 1, len(boxes)))
