@@ -77,8 +77,10 @@ def _method_tables(results: dict) -> tuple[str, list[str], str]:
     for n, sk in skipped.items():
         lines += ["", f"{n}: skipped on {len(sk)} session(s) ({', '.join(sorted(sk))[:300]}): "
                   + "; ".join(sorted(set(sk.values())))]
-    return intro, lines, ("Plots: error_cdf.png (median CDF over runs with 5-95 % band), rmse_box.png, "
-                          "error_over_time.png, trajectories.png (first run, first session).")
+    return intro, lines, ("Plots: error_cdf.png (median CDF over runs with 5-95 % band), rmse_box.png (per-run RMSE; "
+                          "a method with fewer than 5 runs as points, each tick with its n), error_over_time.png (one "
+                          "panel per session, at most 12), trajectories.png (first run, first session, one panel per "
+                          "method).")
 
 
 # --------------------------------------------------------------------------- the leaderboard (issue 18 sec. 2)
