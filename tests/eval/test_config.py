@@ -123,6 +123,20 @@ def test_summary_columns_fit_the_longest_name():
     assert lines[2].startswith("X" + " " * len(long)) and lines[2].endswith("skipped on 1 session(s): no IMU")
 
 
+def test_summary_table_of_a_30_character_method_name():
+    """blenav-eval's console table (summary_lines) with a 30-character name beside short ones, a bound and a skipped
+    row: every row's text starts in one column, one space after the longest name, none cut."""
+    long = "PF-PS+MAP+offset+learned-prior"
+    assert len(long) == 30
+    bound = MethodResult(kind="bound", metrics={"rmse_m": {"mean": 0.5}}, per_session={"s": 1}, bound=BoundStats())
+    r = TrajectoryResult("e", "T", "/d", 2, ["s"], 0, {"RW": _traj(), long: _traj(), "PCRLB": bound,
+                                                       "X": MethodResult(skipped={"s": "no IMU"})})
+    lines = summary_lines(r)
+    assert [ln[:31] for ln in lines] == [f"{n:30s} " for n in ("RW", long, "PCRLB", "X")]
+    assert [ln[31:35] for ln in lines] == ["RMSE", "RMSE", "RMSE", "skip"]
+    assert lines[1] == f"{long} RMSE 1.50 +- 0.10 m  p75 2.00 m  (30x real time)"
+
+
 def test_fixes_inputs_raise_missing_stream_with_the_reason():
     rf = RoleFixes(np.arange(3.0), np.zeros((3, 2)), np.full(3, np.nan), "ps-dense", computed=True)
     fx = Fixes({"dense": rf}, {"sparse": "session s has no rssi.csv"})

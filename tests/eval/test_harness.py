@@ -188,6 +188,28 @@ def test_results_md_names_inverted_orderings(tmp_path):
     assert "The ordering holds." in (tmp_path / "r.md").read_text()
 
 
+def test_results_md_prints_the_ci_with_its_n(tmp_path):
+    """The RMSE 99 % CI cell names the number of values it is over; one value gives no interval ("- (n=1)"); a
+    summary without n (an older results.json) prints the interval alone."""
+    from blenav.eval.metrics import summary
+    from blenav.eval.report import CI_NOTE, write_markdown
+
+    def m(r):
+        e = {"mean": 1.0, "median": 1.0, "p75": 1.0, "p90": 1.0, "max": 1.0}
+        return {"rmse_m": r, "error_m": e, "ate_m": 1.0, "ee_m": 1.0, "wall_s": 1.0, "realtime_factor": 10.0,
+                "per_session": {"s": {"rmse_m": r}}}
+
+    two = summary(np.array([2.0, 9.0]))
+    old = {"mean": 1.0, "std": 0.1, "stderr": 0.01, "ci99": [0.97, 1.03]}
+    res = {"experiment": "x", "title": "t", "dataset": "d", "runs": 2, "sessions": ["s"], "init_s": 10,
+           "methods": {"A": m(two), "B": m(summary(np.array([4.0]))), "C": m(old)}}
+    write_markdown(tmp_path / "r.md", res)
+    text = (tmp_path / "r.md").read_text()
+    assert f"| A | 5.50 +- 3.500 | [0.00, {two['ci99'][1]:.2f}] (n=2) |" in text and two['ci99'][1] > 200
+    assert "| B | 4.00 +- 0.000 | - (n=1) |" in text and "| C | 1.00 +- 0.010 | [0.97, 1.03] |" in text
+    assert CI_NOTE in text
+
+
 def test_cli_without_data_says_what_to_give():
     p = subprocess.run([sys.executable, "-m", "blenav.cli.eval", "experiment=frontend_000"], capture_output=True,
                        text=True, timeout=120)

@@ -113,8 +113,8 @@ def test_peak_memory_counts_reused_heap():
 
 
 def test_static_survey_drawn_as_points_and_legend_inside_the_figure(tmp_path):
-    """A static survey jumps between points: drawn as points, not a line through walls; a long legend sits in
-    the figure's margin, inside the saved image."""
+    """A static survey jumps between points: drawn as points, not a line through walls, in every panel of the
+    trajectories' small multiples; the legend sits in the figure's margin, inside the saved image."""
     from blenav.data import Dataset
     from blenav.plotting import figure_trajectories, new_figure, plot_tracks, save_figure
 
@@ -128,7 +128,12 @@ def test_static_survey_drawn_as_points_and_legend_inside_the_figure(tmp_path):
     gt = s.groundtruth
     tracks = {f"method {k}": (gt["t"].to_numpy(), gt[["x", "y"]].to_numpy() + k * 0.1) for k in range(30)}
     fig = figure_trajectories(s, tracks)
-    assert not [ln for ln in fig.axes[0].lines if ln.get_label() == "ground truth"]
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(shown) == 20 and "10 more method(s) not drawn" in fig._suptitle.get_text()  # one panel per method
+    for ax in shown:  # the survey points in every panel, the estimates as points too: no line at all
+        assert not [ln for ln in ax.lines if ln.get_label() in ("ground truth", ax.get_title())]
+        labels = [c.get_label() for c in ax.collections]
+        assert "ground truth (survey points)" in labels and ax.get_title() in labels
     legend = fig.legends[0]
     save_figure(fig, tmp_path / "t.png")
     bb = legend.get_window_extent(fig.canvas.get_renderer())

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from blenav.errors import EvalError
 from blenav.eval.config import SplitConfig
@@ -98,3 +101,37 @@ def test_segment_errors_by_hand():
     assert p["segments"] == 2 and p["mean"] == pytest.approx(np.hypot(1.0, 3.0) / 2)
     assert p["heading_abs_median_deg"] == pytest.approx(22.5)  # both segments >= 2 m
     assert pool_segment_errors([segment_errors(t, pos, gt_t[2:], gt_xy[2:])]) is None  # no segment inside
+
+
+def test_summary_ci99_is_student_t_by_hand_and_clipped_at_zero():
+    """Two runs with RMSE 2 and 9 m (the issue's case): mean 5.5, std 4.95, stderr 3.5; t(0.995, 1) = 63.657 (scipy),
+    so the interval is 5.5 +- 222.8 m, its lower end clipped at 0 m; the normal approximation gave [-3.52, 14.52]."""
+    from scipy import stats
+
+    from blenav.eval.metrics import summary
+
+    s = summary(np.array([2.0, 9.0]))
+    assert s["n"] == 2 and s["mean"] == 5.5 and s["stderr"] == pytest.approx(3.5)
+    t = stats.t.ppf(0.995, 1)
+    assert t == pytest.approx(63.6567, abs=1e-4)
+    assert s["ci99"] == [0.0, pytest.approx(5.5 + t * 3.5)]
+    assert summary(np.array([2.0, 9.0]), lower=None)["ci99"][0] == pytest.approx(5.5 - t * 3.5)
+    # ten runs 1..10 m: mean 5.5, stderr sqrt(55/6)/sqrt(10), t(0.995, 9) = 3.2498; nothing to clip
+    s10 = summary(np.arange(1.0, 11.0))
+    half = stats.t.ppf(0.995, 9) * np.sqrt(55 / 6) / np.sqrt(10)
+    assert stats.t.ppf(0.995, 9) == pytest.approx(3.2498, abs=1e-4)
+    np.testing.assert_allclose(s10["ci99"], [5.5 - half, 5.5 + half])
+    assert summary(np.array([3.0])) == {"mean": 3.0, "std": 0.0, "stderr": 0.0, "ci99": [3.0, 3.0], "n": 1}
+    json.dumps(summary(np.array([3.0])), allow_nan=False)  # one run: still plain JSON
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(0.0, 1e4, allow_nan=False), min_size=0, max_size=30))
+def test_summary_ci99_never_below_zero_and_contains_the_mean(values):
+    from blenav.eval.metrics import summary
+
+    s = summary(np.array(values))
+    assert len(s["ci99"]) == 2 and s["n"] == len(values)
+    if values:
+        lo, hi = s["ci99"]
+        assert 0.0 <= lo <= s["mean"] + 1e-9 * (1 + s["mean"]) and hi >= s["mean"] - 1e-9 * (1 + s["mean"])

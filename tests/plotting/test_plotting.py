@@ -352,3 +352,143 @@ def test_plot_floor_room_labels_off_when_asked_and_unplaced_anchors_not_counted(
     texts = {t.get_text() for t in ax.texts}
     assert not texts & {"west", "east"} and "b1" not in texts
     assert "BLE beacon (3)" in ax.get_legend_handles_labels()[1]
+
+
+# --------------------------------------------------------------------------- pictures that read (issue 33 sec. 3)
+
+
+def test_keep_apart_is_greedy_and_deterministic():
+    from blenav.plotting.common import keep_apart
+
+    xy = np.array([[0.0, 0.0], [0.3, 0.0], [1.0, 0.0], [1.0, 0.9], [np.nan, 5.0], [0.0, 0.5]])
+    np.testing.assert_array_equal(keep_apart(xy, 0.5), [True, False, True, True, False, True])
+    np.testing.assert_array_equal(keep_apart(xy, 0.0), [True, True, True, True, False, True])
+    np.testing.assert_array_equal(keep_apart(xy[::-1], 0.5), [True, False, True, True, True, False])
+
+
+def test_overview_labels_never_overprint_and_the_legend_covers_no_panel(tiny_dataset):
+    """Two beacons 0.2 m apart on a 10 m floor: only the first is labelled (LABEL_SPACING 0.045 * 10 m = 0.45 m); the
+    figure's one legend sits in its own column, its box outside every floor panel; no two label boxes overlap."""
+    from blenav.plotting import figure_overview
+
+    add_building_and_session(tiny_dataset)
+    p = tiny_dataset / "buildings" / "house" / "anchors.csv"
+    a = pd.read_csv(p, dtype={"anchor_id": str})
+    a.loc[a["anchor_id"] == "b2", ["x", "y"]] = [1.2, 1.0]  # next to b1 (1, 1)
+    a.to_csv(p, index=False)
+    ds = Dataset.open(tiny_dataset)
+    fig = figure_overview(ds, ds.session_ids, building_id="house")
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    panels = [ax for ax in fig.axes if ax.get_visible() and ax.get_images()]
+    texts = {t.get_text() for t in panels[0].texts}
+    assert {"b1", "b3", "b4", "ap1", "west", "east"} <= texts and "b2" not in texts
+    legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None] + list(fig.legends)
+    assert len(legends) == 1
+    lb = legends[0].get_window_extent(r)
+    assert all(not lb.overlaps(ax.get_window_extent(r)) for ax in panels)
+    assert "walk0 (test-phone, pedestrian)" in [t.get_text() for t in legends[0].get_texts()]
+    W, H = fig.canvas.get_width_height()
+    assert lb.x1 <= W + 1 and lb.y0 >= 0
+    boxes = [t.get_window_extent(r) for t in panels[0].texts]
+    assert not any(boxes[i].overlaps(boxes[j]) for i in range(len(boxes)) for j in range(i + 1, len(boxes)))
+
+
+def test_rmse_box_names_n_and_draws_points_below_five_runs():
+    """Two and one runs: their values as points (no box), their median as a bar; eight runs: a box with its median
+    4.5 at x = 2; every tick names its n."""
+    from blenav.plotting import figure_rmse_box
+    from blenav.plotting.evaluation import MIN_BOX_VALUES
+
+    assert MIN_BOX_VALUES == 5
+    fig = figure_rmse_box({"PF-PL": np.array([2.0, 9.0]), "KNN": np.arange(1.0, 9.0), "one": np.array([3.0])})
+    ax = fig.axes[0]
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["PF-PL\nn=2", "KNN\nn=8", "one\nn=1"]
+    pts = [np.asarray(c.get_offsets()) for c in ax.collections if type(c).__name__ == "PathCollection"]
+    assert len(pts) == 2  # the two methods with fewer than 5 runs: their points
+    np.testing.assert_allclose(pts[0], [[1 - 0.12, 2.0], [1 + 0.12, 9.0]])  # spread sideways, deterministically
+    np.testing.assert_allclose(pts[1], [[3.0, 3.0]])
+    bars = [np.asarray(c.get_segments()[0]) for c in ax.collections if type(c).__name__ == "LineCollection"]
+    np.testing.assert_allclose(bars, [[[0.78, 5.5], [1.22, 5.5]], [[2.78, 3.0], [3.22, 3.0]]])
+    two = [ln for ln in ax.lines if len(ln.get_xdata()) == 2]
+    medians = [ln for ln in two if np.allclose(ln.get_xdata(), [1.75, 2.25]) and np.allclose(ln.get_ydata(), 4.5)]
+    assert len(medians) == 1  # KNN's box: one box in all
+    xs = [ln.get_xdata() for ln in ax.lines if len(ln.get_xdata())]
+    assert all(1.5 <= min(x) and max(x) <= 2.5 for x in xs)  # the box's lines all at KNN's x = 2
+    assert ax.get_ylim()[0] == 0.0
+
+
+def _err_t(n_sessions: int, methods=("A", "B")) -> dict:
+    t = np.arange(100.0, 160.0, 1.0)  # a clock that does not start at 0
+    return {f"walk{k:02d}": {m: (t + k, np.full((3, t.size), 1.0 + j)) for j, m in enumerate(methods)}
+            for k in range(n_sessions)}
+
+
+def test_error_over_time_draws_every_session_up_to_the_cap():
+    from blenav.plotting import figure_error_over_time
+    from blenav.plotting.evaluation import MAX_SESSION_PANELS
+
+    assert MAX_SESSION_PANELS == 12
+    fig = figure_error_over_time(_err_t(2), 10.0)
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert [ax.get_title() for ax in shown] == ["walk00", "walk01"]
+    assert "2 session(s)" in fig._suptitle.get_text() and "left out" not in fig._suptitle.get_text()
+    assert shown[0].get_shared_x_axes().joined(shown[0], shown[1])
+    assert shown[0].get_shared_y_axes().joined(shown[0], shown[1])
+    for ax in shown:  # time from the session's first estimate; the median of A is 1 m, of B 2 m
+        a, b = ax.lines[:2]
+        assert a.get_xdata()[0] == 0.0 and a.get_xdata()[-1] == 59.0
+        np.testing.assert_allclose(a.get_ydata(), 1.0)
+        np.testing.assert_allclose(b.get_ydata(), 2.0)
+        assert a.get_color() == shown[0].lines[0].get_color() != b.get_color()  # one colour per method
+    fig = figure_error_over_time(_err_t(14), 10.0)
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(shown) == 12 and shown[-1].get_title() == "walk11"
+    assert "12 session(s); 2 more left out (at most 12 panels)" in fig._suptitle.get_text()
+    # a method missing from the first session keeps the colour its place in `methods` gives it
+    e = _err_t(2, ("A", "B"))
+    del e["walk00"]["A"]
+    fig = figure_error_over_time(e, 10.0, methods=["A", "B"])
+    first, second = [ax for ax in fig.axes if ax.get_visible()]
+    assert first.lines[0].get_color() == second.lines[1].get_color()  # B in both
+
+
+def test_track_panels_one_per_method_then_per_family():
+    from blenav.plotting.evaluation import MAX_TRACK_PANELS, track_panels
+
+    assert MAX_TRACK_PANELS == 20
+    tracks = {f"m{k}": None for k in range(25)}
+    panels, left = track_panels({k: None for k in list(tracks)[:6]})
+    assert panels == [(f"m{k}", [f"m{k}"]) for k in range(6)] and left == 0
+    panels, left = track_panels(tracks)
+    assert len(panels) == 20 and left == 5
+    fam = {f"m{k}": ("PF" if k % 2 else "CRF") for k in range(25)}
+    panels, left = track_panels(tracks, fam)
+    assert [p for p, _ in panels] == ["CRF", "PF"] and left == 0
+    assert panels[1][1] == [f"m{k}" for k in range(1, 25, 2)]
+
+
+def test_trajectories_are_small_multiples_with_the_truth_in_every_panel(tiny_dataset):
+    from blenav.plotting import figure_trajectories
+
+    s = Dataset.open(tiny_dataset).session("walk0")
+    gt = s.groundtruth
+    xy = gt[["x", "y"]].to_numpy()
+    tracks = {f"method {k}": (gt["t"].to_numpy(), xy + 0.1 * k) for k in range(7)}
+    fig = figure_trajectories(s, tracks)
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(shown) == 7 and len(fig.axes) == 9  # ceil(sqrt(7)) = 3 columns, 3 rows
+    for k, ax in enumerate(shown):
+        assert ax.get_title() == f"method {k}"
+        labels = [ln.get_label() for ln in ax.lines]
+        assert "ground truth" in labels and labels.count(f"method {k}") == 1
+        assert not [lab for lab in labels if lab.startswith("method ") and lab != f"method {k}"]
+        est = next(ln for ln in ax.lines if ln.get_label() == f"method {k}")
+        np.testing.assert_allclose(est.get_xydata(), xy + 0.1 * k)
+        anchors = [c for c in ax.collections if c.get_label().startswith("BLE beacon")]
+        assert anchors and anchors[0].get_alpha() < 0.5  # faint
+        assert not ax.texts  # no anchor or room label in a panel
+    assert "session walk0 (first run)" in fig._suptitle.get_text()
+    fig = figure_trajectories(s, {f"m{k}": tracks["method 0"] for k in range(23)})
+    assert sum(ax.get_visible() for ax in fig.axes) == 20
+    assert "3 more method(s) not drawn (at most 20 panels)" in fig._suptitle.get_text()

@@ -13,7 +13,7 @@ Writes ``OUT/results.json`` (schema below), ``OUT/results.md`` (a table like the
 ``plots=false``, PNG plots. ``results.json``::
 
     {"experiment", "title", "dataset", "runs", "sessions": [...], "init_s", "seed", "calibration",
-     "methods": {NAME: {"rmse_m": {"mean","std","stderr","ci99"}, "error_m": {"mean","median","p75","p90","max"},
+     "methods": {NAME: {"rmse_m": {"mean","std","stderr","ci99","n"}, "error_m": {"mean","median","p75","p90","max"},
                         "ate_m", "ee_m", "init_error_m", "orientation_rmse_deg" (when the method runs an AHRS
                         and the ground truth has orientation), "wall_s", "realtime_factor", "recoveries",
                         "map_notes", "confined": {"bbox", "off_free", "free", "estimates"} (estimates kept on
@@ -433,19 +433,23 @@ def _plots(out: Path, res: TrajectoryResult, outcomes: dict[str, MethodOutcome],
         more_plots(out, res, outcomes, sessions, grid, {n: c[1] for n, c in cdfs.items()})  # the medians
     if not outcomes:
         return
+    for s in sessions:  # every scored session, with the methods that ran on it
+        per = {name: (oc.metrics[s.id]["_runs"]["t"], oc.metrics[s.id]["_runs"]["err_all"])
+               for name, oc in outcomes.items() if s.id in oc.metrics}
+        if per:
+            err_t[s.id] = per
     sessions = [s for s in sessions if all(s.id in oc.results for oc in outcomes.values())] or sessions
     for name, oc in outcomes.items():
         rmses[name] = np.concatenate([oc.metrics[s]["_runs"]["rmse"] for s in oc.metrics])
-        first = sessions[0].id if sessions[0].id in oc.metrics else next(iter(oc.metrics))
-        err_t[name] = (oc.metrics[first]["_runs"]["t"], oc.metrics[first]["_runs"]["err_all"])
     plotting.save_figure(plotting.figure_error_cdf(grid, cdfs, res.title), out / "error_cdf.png")
     plotting.save_figure(plotting.figure_rmse_box(rmses, res.title), out / "rmse_box.png")
-    plotting.save_figure(plotting.figure_error_over_time(err_t, res.init_s, sessions[0].id),
+    plotting.save_figure(plotting.figure_error_over_time(err_t, res.init_s, methods=list(outcomes)),
                          out / "error_over_time.png")
     s = sessions[0]
     tracks = {name: (oc.results[s.id].t, oc.results[s.id].position[0]) for name, oc in outcomes.items()
               if s.id in oc.results}
-    plotting.save_figure(plotting.figure_trajectories(s, tracks), out / "trajectories.png")
+    families = {n: m.family for n, m in res.methods.items() if n in tracks and m.family}
+    plotting.save_figure(plotting.figure_trajectories(s, tracks, groups=families or None), out / "trajectories.png")
 
 
 class Progress:

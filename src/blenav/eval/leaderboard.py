@@ -127,6 +127,5 @@ def _plot_best_tracks(out: Path, res: TrajectoryResult, outcomes: dict, sessions
         return
     tracks = {f"{n} ({f})": (outcomes[n].results[s.id].t, outcomes[n].results[s.id].position[0])
               for f, n in best.items() if s.id in outcomes[n].results}
-    fig = plotting.figure_trajectories(s, tracks)
-    fig.axes[0].set_title(f"best method per family, session {s.id} (first run)", fontsize=9)
+    fig = plotting.figure_trajectories(s, tracks, title="best method per family")
     plotting.save_figure(fig, out / "leaderboard_trajectories.png")

@@ -15,14 +15,18 @@ filter's first step) is charged for every waypoint instead of skipping the early
 here, at scoring only: the estimates themselves (and fixes made from them) never contain the held values.
 
 Across runs: mean, standard deviation, standard error and a 99 % confidence interval of the mean
-(normal approximation, mean +- 2.576 stderr), and pooled error percentiles.
+(:func:`summary`: Student t with n - 1 degrees of freedom, mean +- t(0.995, n - 1) stderr, the lower bound clipped at
+zero since the quantities summarised are errors; with n = 2 runs t is 63.66, not the normal 2.576), and pooled error
+percentiles.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
 
-Z99 = 2.5758293035489004
+#: the confidence level of ``ci99`` in :func:`summary`
+CI_LEVEL = 0.99
 
 
 def errors_vs_groundtruth(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -33,13 +37,26 @@ def errors_vs_groundtruth(t: np.ndarray, pos: np.ndarray, gt_t: np.ndarray, gt_x
     return np.linalg.norm(pos[:, inside] - ref[None], axis=-1), tt
 
 
-def summary(values: np.ndarray) -> dict:
-    v = np.asarray(values, float)
+def summary(values: np.ndarray, lower: float | None = 0.0) -> dict:
+    """Mean, standard deviation (ddof 1), standard error and the 99 % confidence interval of the mean of ``values``
+    (one per run, e.g. the per-run RMSEs), with their number ``n``.
+
+    ``ci99``: ``mean -+ t * stderr`` with ``t = scipy.stats.t.ppf(0.995, n - 1)`` (Student t: a handful of runs gives a
+    wide interval, not the normal approximation's), the lower bound clipped at ``lower``: summary() is for
+    non-negative quantities (errors, RMSEs; the default ``lower=0.0``), ``lower=None`` for signed ones. With
+    ``n < 2`` no interval can be estimated: ``ci99`` is ``[mean, mean]`` and ``std`` and ``stderr`` are 0, kept as
+    two floats so that results.json stays plain JSON; ``n`` says so, and results.md prints ``- (n=1)`` instead of an
+    interval (:mod:`blenav.eval.report`). With ``n == 0`` the mean and ``ci99`` are NaN."""
+    v = np.asarray(values, float).ravel()
     n = v.size
     mean = float(v.mean()) if n else float("nan")
-    std = float(v.std(ddof=1)) if n > 1 else 0.0
-    se = std / np.sqrt(n) if n > 1 else 0.0
-    return {"mean": mean, "std": std, "stderr": se, "ci99": [mean - Z99 * se, mean + Z99 * se], "n": int(n)}
+    if n < 2:
+        return {"mean": mean, "std": 0.0, "stderr": 0.0, "ci99": [mean, mean], "n": int(n)}
+    std = float(v.std(ddof=1))
+    se = std / float(np.sqrt(n))
+    half = float(stats.t.ppf(0.5 + CI_LEVEL / 2, n - 1)) * se
+    lo = mean - half if lower is None else max(mean - half, float(lower))
+    return {"mean": mean, "std": std, "stderr": se, "ci99": [lo, mean + half], "n": int(n)}
 
 
 def error_stats(err: np.ndarray) -> dict:

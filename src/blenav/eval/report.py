@@ -12,6 +12,21 @@ def _f(v, nd=2) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
 
 
+def _ci(r: dict) -> str:
+    """The 99 % CI cell of a ``rmse_m`` summary (:func:`blenav.eval.metrics.summary`) with the number of values it
+    is over: ``[lo, hi] (n=6)``; ``- (n=1)`` where one value gives no interval."""
+    n = r.get("n")
+    if n is not None and n < 2:
+        return f"- (n={n})"
+    ci = f"[{_f(r['ci99'][0])}, {_f(r['ci99'][1])}]"
+    return ci if n is None else f"{ci} (n={n})"
+
+
+#: what the RMSE 99 % CI column means, printed under the tables that show it
+CI_NOTE = ("RMSE 99% CI: the Student t interval of the mean RMSE over its n values (one per session and run; a bound: "
+           "one per session), mean +- t(0.995, n-1) stderr, its lower end clipped at 0 m; none with n = 1.")
+
+
 def write_markdown(path: Path, results: dict, experiment=None) -> None:
     """results.md of an evaluation. Every experiment prints one frame: the heading and what was evaluated, what
     the methods were given (path-loss calibration, wrong plans, beacon map), the experiment's tables, then the
@@ -50,11 +65,11 @@ def _method_tables(results: dict) -> tuple[str, list[str], str]:
         r, e = m["rmse_m"], m["error_m"]
         init = m.get("init_error_m") or {}
         lines.append(
-            f"| {name} | {_f(r['mean'])} +- {_f(r['stderr'], 3)} | [{_f(r['ci99'][0])}, {_f(r['ci99'][1])}] | "
+            f"| {name} | {_f(r['mean'])} +- {_f(r['stderr'], 3)} | {_ci(r)} | "
             f"{_f(e['median'])} | {_f(e['p75'])} | {_f(e['p90'])} | {_f(e['max'])} | {_f(m['ate_m'])} | {_f(m['ee_m'])} | "
             f"{_f(init.get('mean'))} | {_f(m.get('orientation_rmse_deg'), 1)} | {m.get('recoveries', 0)} | "
             f"{_f(m['wall_s'], 1)} | {_f(m['realtime_factor'], 0)} |")
-    lines += ["", "Per session (RMSE mean over runs, m):", "",
+    lines += ["", CI_NOTE, "", "Per session (RMSE mean over runs, m):", "",
               "| session | " + " | ".join(ms) + " |", "|---|" + "---|" * len(ms)]
     for sid in results["sessions"]:
         cells = [_f(m["per_session"][sid]["rmse_m"]["mean"]) if sid in m["per_session"] else "skipped" for m in ms.values()]
@@ -62,8 +77,10 @@ def _method_tables(results: dict) -> tuple[str, list[str], str]:
     for n, sk in skipped.items():
         lines += ["", f"{n}: skipped on {len(sk)} session(s) ({', '.join(sorted(sk))[:300]}): "
                   + "; ".join(sorted(set(sk.values())))]
-    return intro, lines, ("Plots: error_cdf.png (median CDF over runs with 5-95 % band), rmse_box.png, "
-                          "error_over_time.png, trajectories.png (first run, first session).")
+    return intro, lines, ("Plots: error_cdf.png (median CDF over runs with 5-95 % band), rmse_box.png (per-run RMSE; "
+                          "a method with fewer than 5 runs as points, each tick with its n), error_over_time.png (one "
+                          "panel per session, at most 12), trajectories.png (first run, first session, one panel per "
+                          "method).")
 
 
 # --------------------------------------------------------------------------- the leaderboard (issue 18 sec. 2)
@@ -92,13 +109,14 @@ def _leaderboard_tables(results: dict) -> tuple[str, list[str], str]:
         pm = "-" if pk.get("peak_memory_mb") is None else (
             f"+{pk['peak_memory_mb']:.1f}" + (f" ({pk['peak_rss_mb']:.0f})" if pk.get("peak_rss_mb") is not None else ""))
         lines.append(f"| {i} | {name} | {m.get('family', '-')} | {_f(e['mean'])} | {_f(e['median'])} | {_f(e['p75'])} | "
-                     f"{_f(e['p90'])} | {_f(r['mean'])} +- {_f(r['stderr'], 3)} | [{_f(r['ci99'][0])}, {_f(r['ci99'][1])}] | "
+                     f"{_f(e['p90'])} | {_f(r['mean'])} +- {_f(r['stderr'], 3)} | {_ci(r)} | "
                      f"{_f(m['ate_m'])} | {_f(m['realtime_factor'], 0)} | {pm} |")
     for name, b in scored.items():
         r, e = b["rmse_m"], b["error_m"]
         lines.append(f"| - | {name} | bound | {_f(e['mean'])}* | {_f(e['median'])}* | {_f(e['p75'])}* | {_f(e['p90'])}* | "
-                     f"{_f(r['mean'])} +- {_f(r['stderr'], 3)} | [{_f(r['ci99'][0])}, {_f(r['ci99'][1])}] | "
+                     f"{_f(r['mean'])} +- {_f(r['stderr'], 3)} | {_ci(r)} | "
                      f"{_f(b['ate_m'])} | - | - |")
+    lines += ["", CI_NOTE]
     lines += ["", _bound_text(scored)] if scored else []
     if how:
         lines += ["", f"Peak memory: {how} (MB: +increase, and in brackets the process's peak resident memory while "

@@ -54,6 +54,28 @@ def legend_in_figure(fig: Figure, ax: Axes, n_entries: int, inside: str | None =
                frameon=False)
 
 
+#: labels of anchors and rooms closer than this fraction of the floor's larger side to a label already written are
+#: left out (:func:`keep_apart`): no label overprints another
+LABEL_SPACING = 0.045
+
+
+def keep_apart(xy: np.ndarray, min_dist: float) -> np.ndarray:
+    """Which of the label anchors ``xy`` (N, 2) to label: greedily in the given order, a point is kept when it is at
+    least ``min_dist`` from every point kept before it (deterministic: the same input, the same labels). Non-finite
+    points are never kept. Returns a boolean mask (N,)."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    keep = np.zeros(len(xy), bool)
+    kept: list[np.ndarray] = []
+    for i, p in enumerate(xy):
+        if not np.isfinite(p).all():
+            continue
+        if kept and np.min(np.hypot(*(np.asarray(kept) - p).T)) < min_dist:
+            continue
+        keep[i] = True
+        kept.append(p)
+    return keep
+
+
 def survey_points(x: np.ndarray, y: np.ndarray, decimals: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """The distinct (x, y) positions of a static survey's ground truth (rounded to ``decimals``)."""
     xy = np.unique(np.round(np.column_stack([x, y]), decimals), axis=0)

@@ -5,10 +5,14 @@ fingerprints fail (:func:`figure_coverage`).
 
 from __future__ import annotations
 
+import math
+import textwrap
 from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 
 from blenav.data import Session
 
@@ -49,61 +53,177 @@ def figure_per_device(means: dict[str, dict[str, float]], title: str = "") -> Fi
     return fig
 
 
+#: a method with fewer per-run values than this gets its values drawn as points, not a box (a box of 2-4 values
+#: draws quartiles and whiskers the data cannot give)
+MIN_BOX_VALUES = 5
+
+
 def figure_rmse_box(rmses: dict[str, np.ndarray], title: str = "") -> Figure:
-    """Box plot of per-run RMSE (m) per method."""
-    fig = new_figure(1.4 + 1.2 * len(rmses), 4.4)
+    """Per-run RMSE (m) per method: a box plot where a method has at least :data:`MIN_BOX_VALUES` values, else its
+    values as points (spread sideways, deterministically) with a bar at their median; every tick label names its n
+    ("METHOD\nn=2"). Non-finite values are left out (and not counted)."""
+    names = list(rmses)
+    vals = [np.asarray(rmses[n], float).ravel() for n in names]
+    vals = [v[np.isfinite(v)] for v in vals]
+    width = float(np.clip(1.4 + 0.95 * len(names), 6.0, 16.0))
+    fig = new_figure(width, 4.6)
     ax = fig.subplots()
-    ax.boxplot(list(rmses.values()), tick_labels=list(rmses), showfliers=True)
+    pos = np.arange(1, len(names) + 1, dtype=float)
+    boxed = [i for i, v in enumerate(vals) if v.size >= MIN_BOX_VALUES]
+    if boxed:
+        ax.boxplot([vals[i] for i in boxed], positions=pos[boxed], widths=0.5, showfliers=True, manage_ticks=False)
+    few = [i for i, v in enumerate(vals) if 0 < v.size < MIN_BOX_VALUES]
+    for k, i in enumerate(few):
+        v = vals[i]
+        x = pos[i] + (np.linspace(-0.12, 0.12, v.size) if v.size > 1 else np.zeros(1))
+        ax.scatter(x, v, s=24, color="tab:blue", edgecolors="k", linewidths=0.4, zorder=3,
+                   label=f"per-run RMSE (n < {MIN_BOX_VALUES}: points, no box)" if k == 0 else None)
+        ax.hlines(np.median(v), pos[i] - 0.22, pos[i] + 0.22, color="tab:orange", lw=1.6, zorder=2,
+                  label="median" if k == 0 else None)
+    crowded = len(names) > 8 or max((len(n) for n in names), default=0) > 14
+    ax.set_xticks(pos, [f"{n}\nn={v.size}" for n, v in zip(names, vals)], fontsize=8,
+                  rotation=35 if crowded else 0, ha="right" if crowded else "center",
+                  rotation_mode="anchor" if crowded else "default")
+    ax.set_xlim(0.4, len(names) + 0.6)
+    ax.set_ylim(bottom=0.0)
     ax.set_ylabel("RMSE per run [m]")
     ax.grid(True, axis="y", alpha=0.3)
-    ax.set_title(title or "RMSE per run", fontsize=9)
+    if few:
+        ax.legend(fontsize=7, loc="upper left")
+    ax.set_title(textwrap.fill(title or "RMSE per run", int(width * 14)), fontsize=9)  # ~14 characters per inch
     return fig
 
 
-def figure_error_over_time(err_t: dict[str, tuple[np.ndarray, np.ndarray]], init_s: float, session_id: str) -> Figure:
-    """Error over time per method (median over runs, 5-95 % band); the global-localization period shaded."""
-    fig = new_figure(9.0, 4.0)
-    ax = fig.subplots()
-    t0 = None
-    for (name, (t, err)), c in zip(err_t.items(), session_colors(len(err_t))):
-        q = np.quantile(err, [0.05, 0.5, 0.95], axis=0)
-        ax.fill_between(t, q[0], q[2], color=c, alpha=0.15, linewidth=0)
-        ax.plot(t, q[1], color=c, lw=1.2, label=name)
-        t0 = t[0] if t0 is None else min(t0, t[0])
-    if t0 is not None:
-        ax.axvspan(t0, t0 + init_s, color="0.85", zorder=0, label="global localization")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("position error [m]")
-    ax.set_title(f"error over time, session {session_id}", fontsize=9)
-    ax.grid(True, alpha=0.3)
-    legend_in_figure(fig, ax, len(err_t) + 1, inside="upper right")
+#: error_over_time.png draws at most this many sessions (one panel each, in the evaluation's order); the figure's
+#: title says how many were left out
+MAX_SESSION_PANELS = 12
+
+
+def figure_error_over_time(err_t: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]], init_s: float,
+                           title: str = "", methods: Sequence[str] | None = None) -> Figure:
+    """Error over time, one panel per session (small multiples with shared axes, at most
+    :data:`MAX_SESSION_PANELS`): per method the median over runs with the 5-95 % band, the global-localization period
+    shaded; ``err_t[session][method] = (t (K,), err (R, K))``. Time runs from the session's first estimate (sessions
+    on one axis whatever their clocks); a method keeps its colour in every panel (colours in the order of ``methods``,
+    default: as the methods first appear); one legend for the figure."""
+    sids = list(err_t)[:MAX_SESSION_PANELS]
+    left = len(err_t) - len(sids)
+    n = max(len(sids), 1)
+    ncols = 1 if n <= 3 else (2 if n <= 8 else 3)
+    nrows = math.ceil(n / ncols)
+    drawn = {m for sid in sids for m in err_t[sid]}
+    methods = [m for m in dict.fromkeys([*(methods or []), *(m for sid in sids for m in err_t[sid])]) if m in drawn]
+    colors = dict(zip(methods, session_colors(len(methods))))
+    fig = new_figure({1: 9.0, 2: 12.0, 3: 14.0}[ncols], 4.0 if nrows == 1 else 1.0 + 2.3 * nrows)
+    axes = fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False)
+    for ax, sid in zip(axes.ravel(), sids):
+        starts = [t[0] for t, _ in err_t[sid].values() if len(t)]
+        t0 = min(starts) if starts else 0.0
+        for name, (t, err) in err_t[sid].items():
+            if not len(t):
+                continue
+            q = np.quantile(err, [0.05, 0.5, 0.95], axis=0)
+            ax.fill_between(t - t0, q[0], q[2], color=colors[name], alpha=0.15, linewidth=0)
+            ax.plot(t - t0, q[1], color=colors[name], lw=1.1)
+        ax.axvspan(0.0, init_s, color="0.85", zorder=0)
+        ax.set_title(sid, fontsize=8)
+        ax.grid(True, alpha=0.3)
+    for ax in axes.ravel()[len(sids):]:
+        ax.set_visible(False)
+    for r in range(nrows):
+        axes[r, 0].set_ylabel("position error [m]", fontsize=8)
+    for k, ax in enumerate(axes.ravel()[:len(sids)]):
+        if k + ncols >= len(sids):  # the lowest panel of its column
+            ax.set_xlabel("time since the first estimate [s]", fontsize=8)
+            ax.xaxis.set_tick_params(labelbottom=True)
+    handles = [Line2D([], [], color=colors[m], lw=1.5) for m in methods] + [Patch(color="0.85")]
+    fig.legend(handles, methods + [f"global localization ({init_s:g} s)"], loc="outside right upper", fontsize=7,
+               frameon=False, ncols=max(1, math.ceil((len(methods) + 1) / 30)))
+    head = title or "error over time (median over runs, 5-95 % band)"
+    more = f"; {left} more left out (at most {MAX_SESSION_PANELS} panels)" if left else ""
+    fig.suptitle(f"{head}: {len(sids)} session(s){more}", fontsize=9)
     return fig
 
 
-def figure_trajectories(session: Session, tracks: dict[str, tuple[np.ndarray, np.ndarray]]) -> Figure:
-    """Estimated trajectories (one run per method) over the floor plan with the ground truth."""
+#: trajectories.png draws at most this many panels: one per method, or, with more methods and their families
+#: given, one per family; beyond it the figure's title says how many methods were left out
+MAX_TRACK_PANELS = 20
+
+
+def track_panels(tracks: dict, groups: dict[str, str] | None = None,
+                 max_panels: int = MAX_TRACK_PANELS) -> tuple[list[tuple[str, list[str]]], int]:
+    """Which methods each panel of :func:`figure_trajectories` draws: ``[(panel title, [method, ...]), ...]`` and
+    how many methods were left out. One panel per method while they fit in ``max_panels``; with more and ``groups``
+    (method -> family) one panel per family (families in their first method's order); the first ``max_panels`` panels
+    in either case."""
+    names = list(tracks)
+    if len(names) <= max_panels or not groups:
+        panels = [(n, [n]) for n in names]
+    else:
+        by: dict[str, list[str]] = {}
+        for n in names:
+            by.setdefault(groups.get(n) or "other", []).append(n)
+        panels = list(by.items())
+    shown = panels[:max_panels]
+    return shown, len(names) - sum(len(ms) for _, ms in shown)
+
+
+def figure_trajectories(session: Session, tracks: dict[str, tuple[np.ndarray, np.ndarray]], title: str = "",
+                        groups: dict[str, str] | None = None) -> Figure:
+    """Estimated trajectories (one run per method) on the floor plan as small multiples: one panel per method (per
+    family with more than :data:`MAX_TRACK_PANELS` methods and ``groups``, :func:`track_panels`), in a grid of
+    ceil(sqrt(panels)) columns with shared axes; the ground truth (black) in every panel, the floor's rooms, routes
+    and anchors faint behind. A static survey: points, not lines through walls. ``tracks[name] = (t (K,),
+    xy (K, 2))``; a method keeps its colour of the evaluation's other figures."""
     b = session.building
-    fl = session.floor
-    x0, x1, y0, y1 = fl.extent
-    w = 9.0
-    fig = new_figure(w, max(3.5, w * (y1 - y0) / max(x1 - x0, 1e-9) * 0.85))
-    ax = fig.subplots()
-    plot_floor(ax, b, session.meta.get("floor"), anchor_labels=False)
+    x0, x1, y0, y1 = session.floor.extent
+    panels, left = track_panels(tracks, groups)
+    n = max(len(panels), 1)
+    ncols = math.ceil(math.sqrt(n))
+    nrows = math.ceil(n / ncols)
+    width = 9.0 if ncols == 1 else min(16.0, 4.0 * ncols)
+    aspect = (y1 - y0) / max(x1 - x0, 1e-9)
+    panel_w = (width - 2.4) / ncols  # the legend takes ~1.9 in of the right margin, the y tick labels ~0.5 in
+    fig = new_figure(width, float(np.clip(nrows * (panel_w * aspect + 0.35) + 0.9, 3.5, 24.0)))
+    fig.get_layout_engine().set(wspace=0.06)  # room between panels for their tick labels
+    axes = fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False)
     gt = session.groundtruth
     static = session.carrier == "static"  # a survey: points (the device jumps between them), not lines through walls
-    if static:
-        ax.scatter(*survey_points(gt["x"].to_numpy(), gt["y"].to_numpy()), s=30, marker="s", color="k",
-                   label="ground truth (survey points)", zorder=6)
-    else:
-        ax.plot(gt["x"], gt["y"], color="k", lw=2.0, label="ground truth")
-    for (name, (t, p)), c in zip(tracks.items(), session_colors(len(tracks))):
+    colors = dict(zip(tracks, session_colors(len(tracks))))
+    for ax, (head, names) in zip(axes.ravel(), panels):
+        plot_floor(ax, b, session.meta.get("floor"), faint=True)
         if static:
-            ax.scatter(p[:, 0], p[:, 1], s=6, color=c, alpha=0.7, label=name, zorder=5)
+            ax.scatter(*survey_points(gt["x"].to_numpy(), gt["y"].to_numpy()), s=14, marker="s", color="k",
+                       label="ground truth (survey points)", zorder=6)
         else:
-            ax.plot(p[:, 0], p[:, 1], color=c, lw=1.0, alpha=0.9, label=name)
-    legend_in_figure(fig, ax, len(tracks) + 1)
-    ax.set_anchor("W")  # the equal aspect narrows the axes: keep them (and the y label) at the left, beside the legend
-    ax.set_title(f"trajectories, session {session.id} (first run)", fontsize=9)
+            ax.plot(gt["x"], gt["y"], color="k", lw=1.4, label="ground truth", zorder=5)
+        for name in names:
+            t, p = tracks[name]
+            if static:
+                ax.scatter(p[:, 0], p[:, 1], s=5, color=colors[name], alpha=0.8, label=name, zorder=7)
+            else:
+                ax.plot(p[:, 0], p[:, 1], color=colors[name], lw=0.9, alpha=0.9, label=name, zorder=6)
+        ax.set_title(head, fontsize=8)
+        if len(names) > 1:  # a family's panel: its methods named inside
+            ax.legend(handles=[ln for ln in (ax.lines + ax.collections) if ln.get_label() in names], fontsize=6,
+                      loc="upper right", framealpha=0.7)
+        ax.set_xlabel("")
+        ax.set_ylabel("")
+    for ax in axes.ravel()[len(panels):]:
+        ax.set_visible(False)
+    for r in range(nrows):
+        axes[r, 0].set_ylabel("y (north) [m]", fontsize=8)
+    for k, ax in enumerate(axes.ravel()[:len(panels)]):
+        if k + ncols >= len(panels):
+            ax.set_xlabel("x (east) [m]", fontsize=8)
+            ax.xaxis.set_tick_params(labelbottom=True)
+    if panels:  # the ground truth and the faint floor's entries, once
+        h, lab = axes[0, 0].get_legend_handles_labels()
+        keep = [(hh, ll) for hh, ll in zip(h, lab) if ll not in tracks]
+        fig.legend([hh for hh, _ in keep], [ll for _, ll in keep], loc="outside right upper", fontsize=7,
+                   frameon=False)
+    more = f"; {left} more method(s) not drawn (at most {MAX_TRACK_PANELS} panels)" if left else ""
+    fig.suptitle(f"{title or 'trajectories'}, session {session.id} (first run){more}", fontsize=9)
     return fig
 
 

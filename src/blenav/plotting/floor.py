@@ -22,6 +22,7 @@ from blenav.data.schema import ANCHOR_TRUE_COLUMNS
 from .common import (
     ANCHOR_STYLE,
     FREE_GREY,
+    LABEL_SPACING,
     MAX_LABELLED_ANCHORS,
     MAX_LABELLED_ROOMS,
     MAX_LEGEND_SESSIONS,
@@ -29,6 +30,7 @@ from .common import (
     ROOM_COLOR,
     ROUTE_COLOR,
     UNKNOWN_GREY,
+    keep_apart,
     new_figure,
     session_colors,
     survey_points,
@@ -50,8 +52,12 @@ def _lines(g) -> list[LineString]:
     return []
 
 
+#: how a faint floor (``plot_floor(faint=True)``) draws its rooms, routes and anchors: behind the tracks of a panel
+FAINT_ALPHA = 0.35
+
+
 def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | None = None,
-               room_labels: bool | None = None) -> Axes:
+               room_labels: bool | None = None, faint: bool = False) -> Axes:
     """Draw one floor in world metres: occupancy grid, rooms, navigation graph and radio anchors.
 
     Anchors: BLE beacons as triangles, WiFi RTT access points as squares, at their prior (map) positions;
@@ -59,7 +65,11 @@ def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | 
     ``anchor_labels``: write anchor ids next to them (default: when the floor has at most
     :data:`MAX_LABELLED_ANCHORS`); ``room_labels``: write room ids inside them (default: at most
     :data:`MAX_LABELLED_ROOMS` rooms: a mall's hundreds of shop ids would cover the plan). Anchors without a position
-    are neither drawn nor counted in the legend.
+    are neither drawn nor counted in the legend. Labels never overprint one another: anchor ids first, then room ids,
+    a label whose point is within :data:`LABEL_SPACING` of the floor's larger side of one already written is left
+    out (:func:`~blenav.plotting.common.keep_apart`); an anchor id sits on a light box (readable over walls), to the
+    left of anchors in the floor's right tenth and below those in its top tenth. ``faint``: rooms, routes and anchors
+    drawn small and pale, without labels (the background of a panel of tracks).
     """
     fl = building.floor(floor_id)
     occ = fl.occupancy
@@ -69,6 +79,9 @@ def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | 
     # row 0 of the image is its top (largest y): origin="upper" with the world extent
     ax.imshow(grey, cmap="gray", vmin=0.0, vmax=1.0, extent=fl.extent, origin="upper",
               interpolation="nearest", zorder=0)
+    a = FAINT_ALPHA if faint else 1.0
+    if faint:
+        anchor_labels = room_labels = False
 
     rooms = list(building.rooms_on(fl.id))
     if room_labels is None:
@@ -77,15 +90,12 @@ def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | 
         rings = [ring for poly in _polygons(room.geometry) for ring in (poly.exterior, *poly.interiors)]
         for j, ring in enumerate(rings):
             x, y = ring.xy
-            ax.plot(x, y, color=ROOM_COLOR, lw=0.8, alpha=0.6, zorder=1, label="room" if k == j == 0 else None)
-        if room_labels:
-            p = room.geometry.representative_point()
-            ax.text(p.x, p.y, room.id, fontsize=7, color=ROOM_COLOR, alpha=0.55, ha="center", va="center", zorder=1)
+            ax.plot(x, y, color=ROOM_COLOR, lw=0.8, alpha=0.6 * a, zorder=1, label="room" if k == j == 0 else None)
 
     segments = [np.asarray(line.coords)[:, :2] for r in building.routes_on(fl.id) for line in _lines(r.geometry)]
     if segments:
         ax.add_collection(LineCollection(segments, colors=ROUTE_COLOR, linewidths=1.0, linestyles="--",
-                                         alpha=0.8, zorder=2, label="navigation graph"))
+                                         alpha=0.8 * a, zorder=2, label="navigation graph"))
 
     anchors = building.anchors_of(floor=fl.id)
     anchors = anchors[np.isfinite(anchors["x"].astype(float)) & np.isfinite(anchors["y"].astype(float))]  # placed
@@ -98,21 +108,35 @@ def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | 
             prior = anchors[["x", "y"]].to_numpy(dtype=float)[known]
             true = np.column_stack([xt[known], yt[known]])
             ax.add_collection(LineCollection(np.stack([prior, true], axis=1), colors="0.25", linewidths=0.6,
-                                             zorder=3))
-            ax.scatter(true[:, 0], true[:, 1], marker="x", s=14, linewidths=0.8, color="0.25", zorder=3,
+                                             alpha=a, zorder=3))
+            ax.scatter(true[:, 0], true[:, 1], marker="x", s=14 * a, linewidths=0.8, color="0.25", alpha=a, zorder=3,
                        label="true anchor position")
     for kind, style in ANCHOR_STYLE.items():
         sub = anchors[anchors["kind"] == kind]
         if len(sub):
-            ax.scatter(sub["x"], sub["y"], marker=style["marker"], s=40, color=style["color"], edgecolors="k",
-                       linewidths=0.5, zorder=4, label=f"{style['label']} ({len(sub)})")
-    if anchor_labels is None:
-        anchor_labels = len(anchors) <= MAX_LABELLED_ANCHORS
-    if anchor_labels:
-        for aid, x, y in zip(anchors["anchor_id"], anchors["x"], anchors["y"]):
-            ax.annotate(str(aid), (x, y), xytext=(3, 3), textcoords="offset points", fontsize=6, zorder=5)
+            ax.scatter(sub["x"], sub["y"], marker=style["marker"], s=16 if faint else 40, color=style["color"],
+                       edgecolors="k", linewidths=0.5 * a, alpha=a, zorder=4, label=f"{style['label']} ({len(sub)})")
 
     x0, x1, y0, y1 = fl.extent
+    if anchor_labels is None:
+        anchor_labels = len(anchors) <= MAX_LABELLED_ANCHORS
+    ids = [str(i) for i in anchors["anchor_id"]] if anchor_labels else []
+    axy = anchors[["x", "y"]].to_numpy(dtype=float) if anchor_labels else np.zeros((0, 2))
+    rids = [r.id for r in rooms] if room_labels else []
+    rpts = [r.geometry.representative_point() for r in rooms] if rids else []
+    rxy = np.array([[p.x, p.y] for p in rpts]).reshape(-1, 2)
+    keep = keep_apart(np.vstack([axy, rxy]), LABEL_SPACING * max(x1 - x0, y1 - y0))
+    for aid, (x, y), k in zip(ids, axy, keep[:len(ids)]):
+        if not k:
+            continue
+        right, top = x > x1 - 0.1 * (x1 - x0), y > y1 - 0.1 * (y1 - y0)
+        ax.annotate(aid, (x, y), xytext=(-3 if right else 3, -3 if top else 3), textcoords="offset points",
+                    ha="right" if right else "left", va="top" if top else "bottom", fontsize=6, zorder=5,
+                    bbox={"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.7})
+    for rid, (x, y), k in zip(rids, rxy, keep[len(ids):]):
+        if k:
+            ax.text(x, y, rid, fontsize=7, color=ROOM_COLOR, alpha=0.55, ha="center", va="center", zorder=1)
+
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
     ax.set_aspect("equal")
@@ -167,7 +191,9 @@ def figure_overview(dataset: Dataset, session_ids: Sequence[str] | None = None,
 
     ``session_ids``: the sessions whose ground truth is drawn (default all); only those in the building
     are used. ``building_id``: which building (default: the one building of the sessions, or of the
-    dataset). One panel per floor; legends sit to the right of each panel.
+    dataset). One panel per floor; one legend for the figure (each entry once) in a column of its own right of the
+    panels, so that it covers no anchor or label; anchor and room labels as :func:`plot_floor` writes them (none
+    overprints another).
     """
     sessions = [dataset.session(i) for i in (dataset.session_ids if session_ids is None else session_ids)]
     b = dataset.building(_building_of(dataset, sessions, building_id))
@@ -178,15 +204,33 @@ def figure_overview(dataset: Dataset, session_ids: Sequence[str] | None = None,
     x0, x1, y0, y1 = b.floor(floors[0]).extent
     panel_w = 6.5
     panel_h = float(np.clip(panel_w * (y1 - y0) / max(x1 - x0, 1e-9), 3.0, 9.0))
-    legend_w = 3.2
-    fig = new_figure(ncols * (panel_w + legend_w), nrows * panel_h + 0.5)
-    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    labelled = [s for s in sessions if s.labelled]
+    longest = max([len(f"{s.id} ({s.device_model}, {s.carrier})") for s in labelled[:MAX_LEGEND_SESSIONS]] + [24])
+    legend_w = float(np.clip(0.065 * longest + 0.6, 2.6, 6.0))  # fontsize 7: ~0.065 in per character
+    fig = new_figure(ncols * panel_w + legend_w, nrows * panel_h + 0.9)
+    gs = fig.add_gridspec(nrows, ncols + 1, width_ratios=[panel_w] * ncols + [legend_w])
+    axes = np.array([fig.add_subplot(gs[r, c]) for r in range(nrows) for c in range(ncols)])
+    leg_ax = fig.add_subplot(gs[:, ncols])  # the legend's own column: beside the panels, under the title
+    leg_ax.axis("off")
+    entries: dict[str, object] = {}
+    unnamed = 0  # tracks plot_tracks leaves out of the legend (beyond MAX_LEGEND_SESSIONS on a floor)
     for ax, fid in zip(axes, floors):
         plot_floor(ax, b, fid)
-        plot_tracks(ax, [s for s in sessions if str(s.meta.get("floor")) == str(fid)])
+        on_floor = [s for s in sessions if str(s.meta.get("floor")) == str(fid)]
+        plot_tracks(ax, on_floor, legend=False)
+        unnamed += max(0, sum(1 for s in on_floor if s.labelled and len(s.groundtruth)) - MAX_LEGEND_SESSIONS)
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(lab, h)
     for ax in axes[len(floors):]:
         ax.set_visible(False)
-    n_tracks = sum(1 for s in sessions if s.labelled)
-    fig.suptitle(f"{dataset.name}: {b.name} ({b.id}), {len(sessions)} session(s), {n_tracks} with ground truth",
+    handles, labels = list(entries.values()), list(entries)
+    if unnamed:
+        handles.append(Line2D([], [], color="none"))
+        labels.append(f"+ {unnamed} more sessions")
+    if handles:
+        leg_ax.legend(handles, labels, loc="upper left", fontsize=7, frameon=False, borderaxespad=0.0,
+                      ncols=max(1, math.ceil(len(handles) / 40)))
+    n_gt = sum(1 for s in sessions if s.labelled)
+    fig.suptitle(f"{dataset.name}: {b.name} ({b.id}), {len(sessions)} session(s), {n_gt} with ground truth",
                  fontsize=11)
     return fig
