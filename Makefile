@@ -29,22 +29,23 @@ DEMO_DURATION ?= 150
 DEMO_STEPS    ?= 300
 DEMO_RUNS     ?= 3
 demo: $(STAMP)
-	$(BIN)/blenav-sim sim=office_45x55 seed=0 out=$(DEMO)/dataset duration_s=$(DEMO_DURATION) sessions=$(DEMO_SESSIONS) \
+	$(BIN)/blenav sim sim=office_45x55 seed=0 out=$(DEMO)/dataset duration_s=$(DEMO_DURATION) sessions=$(DEMO_SESSIONS) \
 	    'sim.carriers=[pedestrian]' overwrite=true
-	$(BIN)/blenav-validate $(DEMO)/dataset
-	$(BIN)/blenav-plot $(DEMO)/dataset --out $(DEMO)/report
+	$(BIN)/blenav validate $(DEMO)/dataset
+	$(BIN)/blenav plot $(DEMO)/dataset --out $(DEMO)/report
 	set -e; S="$$(ls $(DEMO)/dataset/sessions)"; N=$$(echo $$S | wc -w); K=$$((N - $(DEMO_TEST))); \
 	TRAIN=$$(echo $$S | cut -d' ' -f1-$$K | tr ' ' ,); TEST=$$(echo $$S | cut -d' ' -f$$((K + 1))-$$N | tr ' ' ,); \
 	rm -rf $(DEMO)/run $(DEMO)/bundle; \
-	$(BIN)/python train.py model=transnet_locnet data=$(DEMO)/dataset out=$(DEMO)/run "data.sessions=[$$TRAIN]" \
+	$(BIN)/blenav train model=transnet_locnet data=$(DEMO)/dataset out=$(DEMO)/run "data.sessions=[$$TRAIN]" \
 	    trainer.budget.max_steps=$(DEMO_STEPS); \
-	$(BIN)/python export.py bundle=true ckpt=$(DEMO)/run/last.ckpt out=$(DEMO)/bundle eval_sessions=1; \
-	$(BIN)/blenav-localize $(DEMO)/bundle $(DEMO)/dataset/sessions/$${TEST%%,*} --out $(DEMO)/report/bundle_$${TEST%%,*}.csv; \
-	$(BIN)/blenav-fixes $(DEMO)/dataset $(DEMO)/bundle/localizer.onnx --sessions $$TEST; \
-	$(BIN)/blenav-eval overwrite=true experiment=leaderboard data=$(DEMO)/dataset runs=$(DEMO_RUNS) "sessions=[$$TEST]" \
+	$(BIN)/blenav export bundle=true ckpt=$(DEMO)/run/last.ckpt out=$(DEMO)/bundle eval_sessions=1; \
+	$(BIN)/blenav localize $(DEMO)/bundle $(DEMO)/dataset/sessions/$${TEST%%,*} --out $(DEMO)/report/bundle_$${TEST%%,*}.csv; \
+	$(BIN)/blenav fixes $(DEMO)/dataset $(DEMO)/bundle/localizer.onnx --sessions $$TEST; \
+	$(BIN)/blenav eval overwrite=true experiment=leaderboard data=$(DEMO)/dataset runs=$(DEMO_RUNS) "sessions=[$$TEST]" \
 	    "split={train: [$$TRAIN]}" out=$(DEMO)/report/leaderboard
 	@echo "demo report: $(DEMO)/report (dataset plots; run/: training report and learning curves; bundle/: the app's"
 	@echo "  models; bundle_*.csv: the torch-free track; leaderboard/: results.md, leaderboard_cdf.png, trajectories)"
+	@echo "open in a browser (works offline): $(DEMO)/report/leaderboard/report.html"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

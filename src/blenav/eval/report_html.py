@@ -1,0 +1,139 @@
+"""``OUT/report.html``: one self-contained page of an evaluation (issue 33, section 3), written at the end of every
+evaluation with plots (``plots=true``) and by ``blenav report OUT``.
+
+What the page shows comes from the evaluation's own files, read back as a stranger's (sizes bounded):
+``results.json`` (the leaderboard, the skipped methods and why), the per-session TUM trajectories
+``OUT/<session>/trajectories/<method>.tum`` (run 0 of each method, and ``groundtruth.tum``) and the dataset's floor
+plan (``results.json``'s ``dataset``, when it is still there). The page itself is drawn by
+:func:`blenav.plotting.html.render_report` (plotly, inlined: it works offline).
+
+Errors for the CDFs are those of run 0 against the ground truth interpolated at each estimate's time (the same
+definition as :func:`blenav.eval.metrics.errors_vs_groundtruth`), over every session; the tables are results.json's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from blenav.limits import check_file_size, max_member_bytes, read_json
+
+from .common import output_name, write_text
+from .metrics import errors_vs_groundtruth
+
+#: the most sessions drawn as trajectory panels (the tables cover every session)
+MAX_SESSIONS = 12
+#: the floor plan is drawn at most this many cells along its longer side
+MAX_PLAN_CELLS = 400
+
+
+@dataclass
+class SessionView:
+    """One session's tracks: ``tracks[method] = (t (K,), xy (K, 2))`` of run 0; ``gt`` the ground truth; ``plan``:
+    (occupied (H, W) bool, row 0 at the top, extent (x0, x1, y0, y1) in m) or None."""
+
+    id: str
+    gt: tuple[np.ndarray, np.ndarray] | None
+    tracks: dict[str, tuple[np.ndarray, np.ndarray]]
+    plan: tuple[np.ndarray, tuple[float, float, float, float]] | None = None
+
+
+@dataclass
+class ReportData:
+    title: str
+    experiment: str
+    results: dict
+    sessions: list[SessionView] = field(default_factory=list)
+    errors: dict[str, np.ndarray] = field(default_factory=dict)  #: method -> errors of run 0 over all sessions (m)
+    skipped: dict[str, dict[str, str]] = field(default_factory=dict)  #: method -> session -> why
+    notes: list[str] = field(default_factory=list)
+
+
+def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(t (K,), xy (K, 2)) of a TUM file (``t x y z qx qy qz qw``), its size bounded (``BLENAV_MAX_MEMBER_MB``);
+    ValueError naming the file when it is not numeric or has fewer than 3 columns; rows with a non-finite value
+    dropped."""
+    check_file_size(path, "trajectory file", max_member_bytes(), "BLENAV_MAX_MEMBER_MB")
+    try:
+        a = np.loadtxt(path, dtype=float, ndmin=2, comments="#")
+    except ValueError as exc:
+        raise ValueError(f"{path}: not a TUM trajectory (t x y z qx qy qz qw): {exc}") from None
+    if a.size == 0:
+        return np.zeros(0), np.zeros((0, 2))
+    if a.shape[1] < 3:
+        raise ValueError(f"{path}: {a.shape[1]} column(s); a TUM trajectory has t x y z qx qy qz qw")
+    a = a[np.isfinite(a[:, :3]).all(axis=1)]
+    order = np.argsort(a[:, 0], kind="stable")
+    return a[order, 0], a[order, 1:3]
+
+
+def _plan(session) -> tuple[np.ndarray, tuple[float, float, float, float]] | None:
+    """The session's floor as occupied cells, subsampled to at most :data:`MAX_PLAN_CELLS` along its longer side."""
+    try:
+        fl = session.floor
+        occ = fl.occupancy
+    except Exception:  # noqa: BLE001 -- a plan that cannot be read: the page draws the tracks without it
+        return None
+    step = max(1, int(np.ceil(max(occ.shape) / MAX_PLAN_CELLS)))
+    return occ[::step, ::step] == 1, fl.extent
+
+
+def report_data(out: Path, title: str | None = None) -> ReportData:
+    """Everything the page draws, read from the evaluation folder ``out`` (see the module docstring)."""
+    out = Path(out)
+    if not (out / "results.json").is_file():
+        raise FileNotFoundError(f"{out} has no results.json: not the output folder of an evaluation (blenav eval)")
+    res = read_json(out / "results.json", "results.json")
+    if not isinstance(res, dict) or not isinstance(res.get("methods"), dict):
+        raise ValueError(f"{out / 'results.json'}: no 'methods' table (not written by blenav eval?)")
+    data = ReportData(title=title or str(res.get("title") or res.get("experiment") or out.name),
+                      experiment=str(res.get("experiment", "")), results=res)
+    for name, m in res["methods"].items():
+        if isinstance(m, dict) and m.get("skipped"):
+            data.skipped[name] = {str(k): str(v) for k, v in m["skipped"].items()}
+    dataset = None
+    if res.get("dataset"):
+        try:
+            from blenav.data import Dataset
+
+            dataset = Dataset.open(res["dataset"])
+        except Exception as exc:  # noqa: BLE001 -- moved or deleted since: tracks without the plan
+            data.notes.append(f"floor plans not drawn: the dataset {res['dataset']} cannot be opened "
+                              f"({' '.join(str(exc).split())[:160]})")
+    errs: dict[str, list[np.ndarray]] = {}
+    ids = [str(s) for s in res.get("sessions", [])] or sorted(p.name for p in out.iterdir() if (p / "trajectories").is_dir())
+    for sid in ids:
+        d = out / output_name(sid) / "trajectories"
+        if not d.is_dir():
+            continue
+        gt_path = d / "groundtruth.tum"
+        gt = read_tum(gt_path) if gt_path.is_file() else None
+        tracks = {}
+        for name in res["methods"]:
+            p = d / f"{output_name(name)}.tum"
+            if p.is_file():
+                t, xy = read_tum(p)
+                if len(t):
+                    tracks[name] = (t, xy)
+                    if gt is not None and len(gt[0]) > 1:
+                        e, _ = errors_vs_groundtruth(t, xy[None], gt[0], gt[1])
+                        errs.setdefault(name, []).append(e[0])
+        if len(data.sessions) < MAX_SESSIONS and (tracks or gt is not None):
+            plan = None
+            if dataset is not None and sid in dataset.session_ids:
+                plan = _plan(dataset.session(sid))
+            data.sessions.append(SessionView(sid, gt, tracks, plan))
+    if len(ids) > MAX_SESSIONS:
+        data.notes.append(f"trajectories of the first {MAX_SESSIONS} of {len(ids)} sessions drawn")
+    data.errors = {k: np.concatenate(v) for k, v in errs.items()}
+    return data
+
+
+def write_report(out: Path, page: Path | None = None, title: str | None = None) -> Path:
+    """Write the page of the evaluation folder ``out`` to ``page`` (default ``out/report.html``), atomically."""
+    from blenav.plotting.html import render_report
+
+    page = Path(page) if page is not None else Path(out) / "report.html"
+    return write_text(page, render_report(report_data(out, title)))
