@@ -22,11 +22,11 @@ install: $(STAMP)
 # phones; train TransNet+LocNet from its Hydra config with Lightning on all walks but the last DEMO_TEST; export the
 # runtime bundle (ONNX, ORT, int8); run it torch-free on the first held-out walk (a phone it never saw); write the
 # network's fixes for the held-out walks; the leaderboard of learned vs classical methods on them, with the PCRLB.
-# Full size: make demo DEMO_SESSIONS=16 DEMO_DURATION=384 DEMO_STEPS=3000 DEMO_RUNS=20
+# Full size: make demo DEMO_SESSIONS=16 DEMO_DURATION=384 DEMO_STEPS=6000 DEMO_RUNS=20
 DEMO_SESSIONS ?= 8
 DEMO_TEST     ?= 2
 DEMO_DURATION ?= 150
-DEMO_STEPS    ?= 300
+DEMO_STEPS    ?= 3000
 DEMO_RUNS     ?= 3
 demo: $(STAMP)
 	$(BIN)/blenav sim sim=office_45x55 seed=0 out=$(DEMO)/dataset duration_s=$(DEMO_DURATION) sessions=$(DEMO_SESSIONS) \

@@ -125,3 +125,21 @@ def test_page_renders_in_headless_chromium_without_console_errors(evaluated, tmp
     assert "LIO" in skipped and "no io_model given" in skipped
     rows = re.search(r'<table class="sortable" id="leaderboard">.*?</table>', dom, re.S).group(0)
     assert all(f">{m}<" in rows for m in methods)
+
+
+def test_learned_rows_beside_their_simplest_baseline():
+    from blenav.eval.report_html import learned_vs_baseline
+
+    tr = {"floors": {"f": {"training": {"steps": 500, "stop_reason": "max_steps", "converged": False,
+                                        "best_val_error_m": 1.82, "knn_val_error_m": 1.44}}}}
+    methods = {"KNN-BLE": {"family": "fingerprint", "rmse_m": {"mean": 4.88}},
+               "KNN-WiFi": {"family": "fingerprint", "rmse_m": {"mean": 3.0}},
+               "LocNet-BLE": {"family": "fingerprint", "rmse_m": {"mean": 11.72}, "training": tr},
+               "PF-FIX+MAP": {"family": "learned", "rmse_m": {"mean": 2.5}},
+               "PDR (rotation vector)": {"error_m": {"mean": 3.3}}, "PDR+map": {"error_m": {"mean": 3.1}},
+               "LIO+map": {"error_m": {"mean": 2.9}}, "IO+map": {"family": "learned", "skipped": {"s": "no model"}}}
+    assert learned_vs_baseline(methods) == [
+        "LocNet-BLE 11.72 m (RMSE) is behind KNN-BLE 4.88 m on these walks; its training: 500 steps (stopped: "
+        "max_steps, not converged), validation 1.82 m vs KNN 1.44 m.",
+        "PF-FIX+MAP 2.50 m (RMSE) is ahead of KNN-WiFi 3.00 m on these walks.",
+        "LIO+map 2.90 m (mean error) is ahead of PDR+map 3.10 m on these walks."]

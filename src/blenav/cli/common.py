@@ -152,6 +152,13 @@ def guarded(prog: str, body: Callable[[], int | None], debug: bool) -> int:
     return 1
 
 
+def run_main(prog: str, body: Callable[[list[str]], int | None], argv: list[str] | None) -> int:
+    """An argparse command's ``main(argv)``: ``body(args)`` on ``argv`` (default ``sys.argv[1:]``) without ``--debug``,
+    :func:`guarded`."""
+    debug, args = pop_debug(sys.argv[1:] if argv is None else list(argv))
+    return guarded(prog, lambda: body(args), debug)
+
+
 def interrupt_behind(exc: BaseException) -> BaseException | None:
     """The ``KeyboardInterrupt`` or :class:`Terminated` that ``exc`` was raised from or while handling, if any. A
     signal handler raises between two bytecodes; when those run inside a C function that calls back into Python (a

@@ -34,6 +34,8 @@ COMMANDS: dict[str, Command] = {
     "train": Command("train", "train a network from its config (experiment=NAME data=DIR out=RUN)", "train"),
     "export": Command("export", "a trained network to ONNX, or a runtime bundle (ckpt=RUN/last.ckpt out=...)",
                       "train"),
+    "merge": Command("merge", "the jobs of a fan-out over methods (-m only=A,B) as one evaluation (OUT JOB...)",
+                     "eval"),
     "report": Command("report", "the HTML page of an evaluation: leaderboard, CDFs, tracks on the plan (OUT)", "eval"),
     "localize": Command("localize", "run a runtime bundle on a session, torch-free (BUNDLE SESSION --out CSV)"),
     "fixes": Command("fixes", "write an ONNX localizer's fixes into a dataset (DATASET MODEL.onnx)", "eval"),
@@ -45,7 +47,7 @@ COMMANDS: dict[str, Command] = {
                          "eval"),
 }
 #: the console scripts kept as aliases (pyproject.toml [project.scripts])
-ALIASES = {f"blenav-{name}": name for name in COMMANDS if name not in ("tables", "realwalks", "report")}
+ALIASES = {f"blenav-{name}": name for name in COMMANDS if name not in ("tables", "realwalks", "report", "merge")}
 
 
 def usage() -> str:

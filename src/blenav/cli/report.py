@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from .args import ArgumentParser
-from .common import display_prog, guarded, pop_debug
+from .common import run_main
 
 PROG = "blenav-report"
 
@@ -35,8 +35,7 @@ def _main(argv: list[str] | None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``blenav report``: errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
-    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
-    return guarded(display_prog(PROG), lambda: _main(argv), debug)
+    return run_main(PROG, _main, argv)
 
 
 if __name__ == "__main__":

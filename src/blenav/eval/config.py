@@ -198,6 +198,7 @@ class EvalConfig:
     trainer: dict | None = None
     sim_devices: dict | None = None
     fix_sources: dict | None = None
+    only: Any = None  # run only these methods (labels or config keys): one job of a fan-out over methods
 
     def __post_init__(self):
         if isinstance(self.sessions, (int, float)) and not isinstance(self.sessions, bool):
@@ -262,9 +263,30 @@ def parse_eval_config(cfg, require_data: bool = True) -> EvalConfig:
     if node.get("experiment") is None or not node["experiment"].get("name"):
         raise EvalError("the experiment has no name (experiment.name)")
     out = parse_node(EvalConfig, node, "")
+    out.methods = select_methods(out.methods, out.only)
     for key, schema in (("filter", FilterConfig), ("attitude", AttitudeConfig)):  # checked now, used by each localizer
         parse_node(schema, getattr(out, key) or {}, key)
     return out
+
+
+def select_methods(methods: dict | None, only) -> dict | None:
+    """``methods`` restricted to ``only`` (labels or config keys: a list, or one name; ``A,B`` in one string for the
+    command line), in their order; None: all. A name that matches no method is an EvalError listing the names. The
+    methods run as they would among all the others (each method's runs depend on the seed and the session only), so
+    jobs of ``-m only=A,B`` merged (``blenav merge``) give the serial run's numbers."""
+    if only is None or not methods:
+        return methods
+    names = [str(n).strip() for n in (only.split(",") if isinstance(only, str) else only) if str(n).strip()]
+    if not names:
+        raise EvalError("only=: name at least one method (a label or a config key)")
+    live = {k: v for k, v in methods.items() if v is not None}
+    label = {k: str(v.get("label", k)) if isinstance(v, dict) else k for k, v in live.items()}
+    known = set(live) | set(label.values())
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise EvalError(f"only={','.join(unknown)}: no such method in this experiment; its methods are "
+                        f"{', '.join(label.values())} (labels) or {', '.join(live)} (keys)")
+    return {k: v for k, v in live.items() if k in names or label[k] in names}
 
 
 def parse_node(schema, node, path: str):

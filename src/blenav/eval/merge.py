@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-__all__ = ["load_columns", "result_folders", "merge_leaderboard"]
+__all__ = ["load_columns", "result_folders", "merge_leaderboard", "merge_runs"]
 
 
 def load_columns(runs: list[tuple[Path, str]]) -> tuple[dict[str, dict[str, float]], list[str]]:
@@ -73,3 +73,57 @@ def merge_leaderboard(folders: list[Path]) -> dict:
         row["pooled_rmse_m"] = float(sum(ps) / len(ps)) if ps else None
         row["sessions"], row["datasets"] = len(ps), len(row["rmse_m"])
     return {"datasets": datasets, "methods": methods, "best": best}
+
+
+#: what the jobs of one fan-out share; results of jobs that differ in any of them are not one evaluation
+SAME_KEYS = ("experiment", "dataset", "runs", "sessions", "init_s", "seed", "calibration", "split")
+
+
+def merge_runs(folders: list[Path], out: Path) -> dict:
+    """The jobs of a fan-out over methods (``blenav eval -m only=A,B ... 'out=FAN/${hydra:job.num}'``) as the one
+    evaluation they split: ``out/results.json`` with every job's methods (in the jobs' order), each session's TUM
+    trajectories beside it (``out/<session>/trajectories``) and ``out/report.html``. The jobs must share
+    :data:`SAME_KEYS` (ValueError naming the key and the folders) and no method may come from two jobs. Returns the
+    merged results."""
+    import shutil
+
+    from blenav.limits import read_json
+
+    from .common import write_json
+
+    folders = result_folders(folders)
+    if len(folders) < 1:
+        raise ValueError("name the output folders of the jobs to merge")
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(f"{out} exists and is not empty: merge into a new folder")
+    results = [read_json(f / "results.json", "results.json") for f in folders]
+    for f, r in zip(folders, results):
+        if not isinstance(r, dict) or not isinstance(r.get("methods"), dict):
+            raise ValueError(f"{f / 'results.json'}: no 'methods' table (not written by blenav eval?)")
+    first = results[0]
+    for key in SAME_KEYS:
+        for f, r in zip(folders[1:], results[1:]):
+            if r.get(key) != first.get(key):
+                raise ValueError(f"{key} differs: {first.get(key)!r} in {folders[0]}, {r.get(key)!r} in {f}: these "
+                                 "are not jobs of one evaluation")
+    merged = dict(first)
+    merged["methods"] = {}
+    owner: dict[str, Path] = {}
+    for f, r in zip(folders, results):
+        for name, m in r["methods"].items():
+            if name in merged["methods"]:
+                raise ValueError(f"method {name} is in {owner[name]} and in {f}: each job of a fan-out over methods "
+                                 "runs its own (only=...)")
+            merged["methods"][name], owner[name] = m, f
+    merged["merged_from"] = [str(f) for f in folders]
+    out.mkdir(parents=True, exist_ok=True)
+    for f in folders:
+        for traj in sorted(f.glob("*/trajectories")):
+            dest = out / traj.parent.name / "trajectories"
+            dest.mkdir(parents=True, exist_ok=True)
+            for tum in traj.glob("*.tum"):
+                if not (dest / tum.name).exists():
+                    shutil.copyfile(tum, dest / tum.name)
+    write_json(out / "results.json", merged)
+    return merged

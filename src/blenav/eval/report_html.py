@@ -49,6 +49,7 @@ class ReportData:
     errors: dict[str, np.ndarray] = field(default_factory=dict)  #: method -> errors of run 0 over all sessions (m)
     skipped: dict[str, dict[str, str]] = field(default_factory=dict)  #: method -> session -> why
     notes: list[str] = field(default_factory=list)
+    versus: list[str] = field(default_factory=list)  #: each learned row beside its simplest baseline (one sentence)
 
 
 def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -128,7 +129,69 @@ def report_data(out: Path, title: str | None = None) -> ReportData:
     if len(ids) > MAX_SESSIONS:
         data.notes.append(f"trajectories of the first {MAX_SESSIONS} of {len(ids)} sessions drawn")
     data.errors = {k: np.concatenate(v) for k, v in errs.items()}
+    data.versus = learned_vs_baseline(res["methods"])
     return data
+
+
+def _score(m) -> tuple[str, float] | None:
+    """(what, value) a row is ranked by: its RMSE, else its mean error (waypoint walks)."""
+    for key in ("rmse_m", "error_m"):
+        v = m.get(key) if isinstance(m, dict) else None
+        if isinstance(v, dict) and isinstance(v.get("mean"), (int, float)) and np.isfinite(v["mean"]):
+            return ("RMSE" if key == "rmse_m" else "mean error"), float(v["mean"])
+    return None
+
+
+def _is_learned(name: str, m: dict) -> bool:
+    return (m.get("family") == "learned" or name.startswith(("LocNet", "TransNet", "LIO", "Net-"))
+            or (m.get("family") == "fingerprint" and not name.startswith("KNN")))
+
+
+def _is_baseline(name: str) -> bool:
+    return name.startswith(("KNN", "PDR")) and "learned" not in name
+
+
+def _training_note(m: dict) -> str:
+    """What a learned row's results.json says of its training (steps, why it stopped, validation vs KNN)."""
+    tr = m.get("training")
+    runs = [f.get("training") for f in (tr.get("floors") or {}).values()] if isinstance(tr, dict) else []
+    runs = [r for r in runs if isinstance(r, dict)]
+    if not runs:
+        return ""
+    r = runs[0]
+    bits = [f"{r.get('steps')} steps (stopped: {r.get('stop_reason')}, "
+            f"{'converged' if r.get('converged') else 'not converged'})"]
+    if r.get("best_val_error_m") is not None and r.get("knn_val_error_m") is not None:
+        bits.append(f"validation {r['best_val_error_m']:.2f} m vs KNN {r['knn_val_error_m']:.2f} m")
+    more = f" (and {len(runs) - 1} more floor(s))" if len(runs) > 1 else ""
+    return "; its training: " + ", ".join(bits) + more
+
+
+def learned_vs_baseline(methods: dict) -> list[str]:
+    """One sentence per learned row that ran: its error beside its simplest baseline's on the same walks (the KNN of
+    the same features, ``LocNet-BLE`` -> ``KNN-BLE``; else the best KNN / PDR row), whether it is ahead or behind,
+    and what its training report says (a model that trails says why, as far as results.json knows)."""
+    rows = {n: m for n, m in methods.items() if isinstance(m, dict) and _score(m) is not None}
+    base = {n: _score(m) for n, m in rows.items() if _is_baseline(n)}
+    out = []
+    for name, m in rows.items():
+        if not _is_learned(name, m) or not base:
+            continue
+        if name.startswith("LIO"):  # learned odometry: beside PDR (with the same map where there is one)
+            pool = {b: v for b, v in base.items() if b.startswith("PDR")}
+            same = [b for b in pool if b == name.replace("LIO", "PDR", 1)]
+        else:
+            pool = base
+            suffix = name.split("-", 1)[1] if "-" in name else None
+            same = [b for b in base if suffix and b.endswith("-" + suffix)]
+        if not pool:
+            continue
+        ref = same[0] if same else min(pool, key=lambda b: pool[b][1])
+        what, v = _score(m)
+        _, bv = base[ref]
+        verdict = "ahead of" if v < bv else "behind"
+        out.append(f"{name} {v:.2f} m ({what}) is {verdict} {ref} {bv:.2f} m on these walks{_training_note(m)}.")
+    return out
 
 
 def write_report(out: Path, page: Path | None = None, title: str | None = None) -> Path:

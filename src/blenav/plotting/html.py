@@ -197,6 +197,9 @@ def render_report(data, max_points: int | None = None) -> str:
              f'{html.escape(str(data.results.get("dataset", "")))}; {data.results.get("runs", "?")} run(s) per '
              f'session; {len(data.results.get("sessions", []))} session(s). Click a column to sort.</p>',
              "<h2>Leaderboard</h2>", leaderboard_table(methods)]
+    if data.versus:
+        parts.append("<h2>Learned models beside the simplest baseline</h2><ul id=\"versus\">"
+                     + "".join(f"<li>{html.escape(v)}</li>" for v in data.versus) + "</ul>")
     figs = []
     if data.errors:
         figs.append(("<h2>Error CDF</h2>", cdf_figure(data.errors, colors)))
