@@ -118,6 +118,20 @@ def test_base_install_localizes_without_torch(wheel, bundle, tmp_path):
     assert r.returncode == 0, r.stderr[-3000:]
     assert pd.read_csv(work / "b.csv").equals(df)
 
+    # a plan without rooms.geojson / navgraph.geojson (most importers write neither): the filter derives them, and
+    # the AHRS of the inertial motion models, with the base install's modules
+    derive = tmp_path / "derive"
+    shutil.copytree(bundle["data"], derive)
+    for f in derive.rglob("*.geojson"):
+        f.unlink()
+    code = ("import sys, numpy as np; from blenav.data import Dataset; from blenav.filters.map.geometry import "
+            "MapGeometry; from blenav.filters.attitude import estimate_attitude; s = Dataset.open(sys.argv[1])."
+            "session(Dataset.open(sys.argv[1]).session_ids[0]); g = MapGeometry.from_building(s.building, "
+            "s.meta.get('floor'), derive_missing=True); imu = s.imu; q = estimate_attitude(imu['t'].to_numpy(), "
+            "imu[['ax','ay','az']].to_numpy(), imu[['gx','gy','gz']].to_numpy()); print(len(g.rooms), len(q))")
+    r = run([py, "-c", code, str(derive)], cwd=work, timeout=300, env=clean_env())
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert int(r.stdout.split()[0]) > 0
     r = run([str(bin_ / "blenav"), "validate", str(bundle["data"])], cwd=work, timeout=300, env=clean_env())
     assert r.returncode == 0, r.stderr[-3000:]
     r = run([str(bin_ / "blenav"), "eval", "experiment=leaderboard"], cwd=work, timeout=120, env=clean_env())

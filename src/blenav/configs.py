@@ -114,13 +114,17 @@ def cli_overrides(args: list[str], deprecated_model_path: bool = False) -> list[
     - ``data=DIR`` -> ``data.path=DIR``: ``data`` is a node (the dataset path plus its device split,
       ``data.train_devices=[...]`` etc.), and the short form names the dataset;
     - ``sessions=a,b`` -> ``sessions=[a,b]`` (also ``data.sessions=a,b``, train.py's window data): Hydra
-      would read a bare comma list as a sweep;
+      would read a bare comma list as a sweep; ``only=a,b`` too, unless the command line sweeps (``-m``: one job
+      per method);
     - ``model=`` names a ``conf/model`` network config everywhere; a trained model to evaluate is
       ``model_path=PATH``. With ``deprecated_model_path`` (blenav-eval, for one release) the old spelling
       ``model=PATH`` is still read as ``model_path=PATH``, with a FutureWarning.
     """
     out = []
+    sweep = any(a in ("-m", "--multirun") for a in args)
     for a in args:
+        if not sweep and re.match(r"^only=[^\[].*,", a):  # one run of several methods; with -m: one job per method
+            a = f"only=[{a.split('=', 1)[1]}]"
         if a.startswith("data=") and not a.startswith("data=["):
             a = "data.path=" + a.split("=", 1)[1]
         elif deprecated_model_path and a.startswith("model="):

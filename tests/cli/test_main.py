@@ -64,7 +64,10 @@ def test_flags_become_overrides_and_hydra_options_stay():
     assert f("--overwrite", "runs=1") == ["overwrite=true", "runs=1"]  # a switch before an override
     assert f("-m", "--cfg", "job", "--config-dir", "/c", "--info", "x=1") == ["-m", "--cfg", "job", "--config-dir",
                                                                                "/c", "--info", "x=1"]
-    assert f("--config-d=/c", "--help") == ["--config-d=/c", "--help"]  # a prefix of Hydra's own option
+    assert f("--experiment", "x", "--help") == ["experiment=x", "--help"]  # not Hydra's --experimental-rerun
+    assert f("--seed", "-1", "--init-s", "-0.5", "--out", "a=b") == ["seed=-1", "init_s=-0.5", "out=true", "a=b"]
+    assert f("--out=a=b") == ["out=a=b"]
+    assert f("--config-d", "/c", "--hydra-h") == ["--config-d", "/c", "--hydra-h"]  # abbreviations of Hydra's own
     assert f("a=1", "--", "--b") == ["a=1", "--b"]
 
 

@@ -66,3 +66,24 @@ def test_only_selects_by_label_or_key_and_names_the_rest():
     assert select_methods(methods, None) is methods
     with pytest.raises(EvalError, match=r"only=PF-Z: no such method.*PF-A, PF-B, d \(labels\)"):
         select_methods(methods, "PF-Z")
+
+
+def test_merge_keeps_one_bound_recomputes_its_best_and_takes_the_fitted_calibration(tmp_path):
+    from pathlib import Path
+
+    from blenav.eval.merge import merge_results
+
+    head = {"experiment": "leaderboard", "dataset": "d", "runs": 1, "sessions": ["s"], "init_s": 10.0, "seed": 0,
+            "split": None}
+    bound = {"kind": "bound", "rmse_m": {"mean": 0.5}, "best": {"method": "A", "rmse_m": 3.0, "ratio": 6.0}}
+    a = {**head, "calibration": None, "fixes": {"used": {"wifi": "x"}},
+         "methods": {"A": {"rmse_m": {"mean": 3.0}}, "PCRLB": bound}}
+    b = {**head, "calibration": {"a_x": -60.0}, "fixes": {"used": {"ble": "y"}},
+         "methods": {"B": {"rmse_m": {"mean": 2.0}}, "PCRLB": dict(bound)}}
+    m = merge_results([Path("ja"), Path("jb")], [a, b])
+    assert list(m["methods"]) == ["A", "PCRLB", "B"] and m["calibration"] == {"a_x": -60.0}
+    assert m["methods"]["PCRLB"]["best"] == {"method": "B", "rmse_m": 2.0, "ratio": 4.0}
+    assert m["fixes"] == {"used": {"wifi": "x", "ble": "y"}}
+    c = {**b, "calibration": {"a_x": -70.0}}
+    with pytest.raises(ValueError, match="calibration differs"):
+        merge_results([Path("jb"), Path("jc")], [b, c])

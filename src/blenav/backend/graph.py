@@ -83,14 +83,17 @@ class RadioInertialGraph:
 
     def __init__(self, cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors,
                  beacon_init: np.ndarray | None = None, pims: list | None = None, offset_prior_db: float = 0.0,
-                 offset_init_db: float | None = None):
+                 offset_init_db: float | None = None, cloud: Keyframes | None = None):
         """``beacon_init`` (A, 3) world m: initial beacon positions, also used by the range gate (default: the
         prior means; a second pass gives the first pass's estimate); ``pims``: the preintegrated IMU of these
         keyframe times, when already computed (a second pass); ``offset_prior_db`` / ``offset_init_db``: prior
-        mean and initial value of the receiver offset (``range.estimate_offset``)."""
+        mean and initial value of the receiver offset (``range.estimate_offset``); ``cloud``: the keyframes whose
+        positions and ``cov`` are the front-end's (``priors.front_end_cloud``; default ``kf``; a second pass gives
+        the first pass's input, so the prior stays the filter's, not the previous solution's)."""
         gtsam = load_gtsam()
         self.gtsam = gtsam
         self.cfg, self.kf, self.beacons = cfg, kf, beacons
+        self.cloud = kf if cloud is None else cloud
         self.beacon_init = np.asarray(beacons.xyz if beacon_init is None else beacon_init, float)
         self.offset_prior_db = float(offset_prior_db)
         self.offset_init_db = self.offset_prior_db if offset_init_db is None else float(offset_init_db)
@@ -114,6 +117,15 @@ class RadioInertialGraph:
         z_sigma = 1e3 if pr.height_sigma_m is None else pr.height_sigma_m
         self.height_noise = (None if pr.height_sigma_m is None and pr.front_end_sigma_m is None
                              else nm.Diagonal.Sigmas(np.array([xy_sigma, xy_sigma, z_sigma])))  # m
+        # the filter's own uncertainty as the x, y prior (priors.front_end_cloud): its covariance per keyframe,
+        # floored, scaled and inflated for the correlation of its errors over front_end_corr_s (as the attitude's)
+        self.cloud_cov = None
+        if pr.front_end_cloud and self.cloud.cov is not None:
+            c = self.cloud.cov * (pr.front_end_cloud_scale * max(pr.front_end_corr_s / dt_kf, 1.0))
+            c = 0.5 * (c + np.swapaxes(c, 1, 2)) + np.eye(2) * (pr.front_end_min_sigma_m ** 2)
+            self.cloud_cov = np.zeros((K, 3, 3))
+            self.cloud_cov[:, :2, :2] = c
+            self.cloud_cov[:, 2, 2] = z_sigma ** 2
         self.start_pose_noise = nm.Diagonal.Sigmas(np.r_[np.full(3, np.deg2rad(pr.attitude_sigma_deg)),
                                                          np.full(3, pr.start_position_sigma_m)])  # rad, m
         self.start_velocity_noise = nm.Isotropic.Sigma(3, pr.start_velocity_sigma_mps)  # m/s
@@ -202,8 +214,12 @@ class RadioInertialGraph:
         else:
             g.add(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self.pims[k - 1]))
             g.add(gtsam.PoseRotationPrior3D(X(k), self.rots[k], self.attitude_noise))
-        if self.height_noise is not None:
-            target = np.array([kf.position[k, 0], kf.position[k, 1], cfg.range.device_z])
+        target = np.array([kf.position[k, 0], kf.position[k, 1], cfg.range.device_z])
+        if self.cloud_cov is not None and np.isfinite(self.cloud_cov[k]).all():  # the filter's cloud (and height)
+            mean = np.array([self.cloud.position[k, 0], self.cloud.position[k, 1], cfg.range.device_z])
+            g.add(gtsam.PoseTranslationPrior3D(X(k), gtsam.Point3(mean),
+                                               gtsam.noiseModel.Gaussian.Covariance(self.cloud_cov[k])))
+        elif self.height_noise is not None:
             g.add(gtsam.PoseTranslationPrior3D(X(k), gtsam.Point3(target), self.height_noise))
         lo, hi = self._bounds[k], self._bounds[k + 1]
         for j, r in zip(self._range_j[lo:hi].tolist(), self._range_r[lo:hi].tolist()):
@@ -469,7 +485,7 @@ def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs,
         init = res.beacon_map[["x", "y", "z"]].to_numpy(float)
         off0 = res.offset_db if np.isfinite(res.offset_db) else None
         graph = RadioInertialGraph(cfg, again, imu, ranges, beacons, beacon_init=init, pims=graph.pims,
-                                   offset_prior_db=offset_prior_db, offset_init_db=off0)
+                                   offset_prior_db=offset_prior_db, offset_init_db=off0, cloud=kf)
         notes = res.notes
         res = graph.solve()
         res.notes = notes + [f"pass {p + 2}: " + n for n in res.notes]

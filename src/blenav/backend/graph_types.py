@@ -19,17 +19,21 @@ class Keyframes:
     """Keyframe times and initial values. t (K,) s increasing; position (K, 3) world m; velocity (K, 3) world
     m/s; q (K, 4) w-first device -> world (ENU) quaternions (the AHRS at t); bias (K, 6) accelerometer m/s^2,
     gyroscope rad/s (default 0; the prior on B(0) is centred on bias[0]: 0 unless a caller carries an earlier
-    estimate over, as the closed loop's windows do)."""
+    estimate over, as the closed loop's windows do); cov (K, 2, 2) world m^2: the front-end's own x, y covariance
+    (``priors.front_end_cloud``), or None."""
 
     t: np.ndarray
     position: np.ndarray
     velocity: np.ndarray
     q: np.ndarray
     bias: np.ndarray | None = None
+    cov: np.ndarray | None = None  #: (K, 2, 2) world m^2: the front-end's x, y covariance at each keyframe, or None
 
     def __post_init__(self):
         self.t = np.asarray(self.t, float)
         K = len(self.t)
+        if self.cov is not None:
+            self.cov = np.asarray(self.cov, float).reshape(K, 2, 2)
         self.position = np.asarray(self.position, float).reshape(K, 3)
         self.velocity = np.asarray(self.velocity, float).reshape(K, 3)
         self.q = np.asarray(self.q, float).reshape(K, 4)

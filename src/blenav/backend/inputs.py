@@ -25,7 +25,7 @@ from blenav.filters.measurement import AnchorTable, PathLossRange
 from .config import BackendConfig, InitFrom
 from .graph_types import BeaconPriors, ImuSamples, Keyframes, RangeObs
 
-__all__ = ["keyframes_from_front_end", "beacon_priors", "session_ranges", "session_imu", "session_attitude",
+__all__ = ["keyframes_from_front_end", "front_end_covariance", "beacon_priors", "session_ranges", "session_imu", "session_attitude",
            "path_loss_model", "front_end_velocity", "moving_average"]
 
 
@@ -57,17 +57,36 @@ def moving_average(t: np.ndarray, xy: np.ndarray, window_s: float) -> np.ndarray
     return (c[hi] - c[lo]) / (hi - lo)[:, None]
 
 
+def front_end_covariance(position: np.ndarray, cov: np.ndarray | None, from_mean: bool) -> np.ndarray | None:
+    """(K, 2, 2) m^2: the front-end's x, y covariance at each step from its runs' positions (R, K, 2) and cloud
+    covariances (R, K, 2, 2): for the mean over runs the law of total variance (mean cloud covariance plus the
+    covariance of the runs' means), for run 0 its own cloud. None without a cloud; non-finite entries -> NaN."""
+    if cov is None:
+        return None
+    pos, cov = np.asarray(position, float), np.asarray(cov, float)
+    if pos.ndim == 2:
+        return cov if cov.ndim == 3 else cov[0]
+    if not from_mean:
+        return cov[0]
+    d = pos - pos.mean(axis=0, keepdims=True)
+    return cov.mean(axis=0) + np.einsum("rki,rkj->kij", d, d) / pos.shape[0]
+
+
 def keyframes_from_front_end(t: np.ndarray, position: np.ndarray, q_t: np.ndarray, q: np.ndarray,
-                             cfg: BackendConfig) -> tuple[Keyframes, list[str]]:
+                             cfg: BackendConfig, cov: np.ndarray | None = None) -> tuple[Keyframes, list[str]]:
     """Keyframes from front-end estimates: t (K,) s, position (R, K, 2) or (K, 2) world m; the AHRS q (T, 4)
-    at times q_t (T,). Returns (keyframes, notes)."""
+    at times q_t (T,); ``cov`` (R, K, 2, 2) the front-end's cloud covariances (kept only with
+    ``priors.front_end_cloud``). Returns (keyframes, notes)."""
     t = np.asarray(t, float)
     pos = np.asarray(position, float)
+    kcov = front_end_covariance(pos, cov, InitFrom(cfg.init.from_runs) == InitFrom.mean) \
+        if cfg.priors.front_end_cloud else None
     if pos.ndim == 3:
         pos = pos.mean(axis=0) if InitFrom(cfg.init.from_runs) == InitFrom.mean else pos[0]
     every = max(int(cfg.solver.keyframe_every), 1)
     sel = np.arange(0, len(t), every)
     t, pos = t[sel], pos[sel]
+    kcov = None if kcov is None else kcov[sel]
     notes = []
     bad = ~np.isfinite(pos).all(1)
     if bad.all():
@@ -85,7 +104,11 @@ def keyframes_from_front_end(t: np.ndarray, position: np.ndarray, q_t: np.ndarra
     p3 = np.column_stack([pos, np.full(K, cfg.range.device_z)])
     v3 = np.column_stack([vel2, np.zeros(K)])
     i = np.clip(np.searchsorted(q_t, t, side="right") - 1, 0, len(q_t) - 1)
-    return Keyframes(t, p3, v3, np.asarray(q, float)[i]), notes
+    if kcov is not None and not np.isfinite(kcov).all():
+        bad = ~np.isfinite(kcov).all(axis=(1, 2))
+        kcov[bad] = np.nan  # the graph leaves those keyframes without the cloud prior
+        notes.append(f"{np.count_nonzero(bad)} keyframe(s) without a finite front-end covariance: no cloud prior")
+    return Keyframes(t, p3, v3, np.asarray(q, float)[i], cov=kcov), notes
 
 
 def beacon_priors(anchors: pd.DataFrame, sigma_m: float, sigma_z_m: float) -> BeaconPriors:

@@ -147,7 +147,7 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
     smoothed = None
     t1 = time.perf_counter()
     try:
-        kf, kf_notes = keyframes_from_front_end(front.t, front.position, q_t, q, cfg)
+        kf, kf_notes = keyframes_from_front_end(front.t, front.position, q_t, q, cfg, cov=front.cov)
         smoothed = smooth(cfg, kf, _corrected(run, imu), ranges, beacons)
         notes += kf_notes + smoothed.notes
         failures += [str(f) for f in smoothed.failures]
@@ -175,7 +175,8 @@ def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeO
     sel = res.t > w0
     if np.count_nonzero(sel) < 2:
         return None, prior
-    kf, _ = keyframes_from_front_end(res.t[sel], res.position[:, sel], *_attitude(run, attitude), cfg)
+    kf, _ = keyframes_from_front_end(res.t[sel], res.position[:, sel], *_attitude(run, attitude), cfg,
+                                     cov=None if res.cov is None else res.cov[:, sel])
     if len(kf.t) < 2:
         return None, prior
     w_imu, w_ranges = window_inputs(_corrected(run, imu), ranges, float(kf.t[0]), float(kf.t[-1]))

@@ -47,14 +47,19 @@ class ArgumentParser(argparse.ArgumentParser):
         return super().parse_args(self.key_values(list(args) if args is not None else None), namespace)
 
     def key_values(self, args: list[str] | None) -> list[str] | None:
-        """``args`` with ``key=value`` words turned into the flags they name (see the class)."""
+        """``args`` with ``key=value`` words turned into the flags they name (see the class); a positional given as
+        ``name=value`` (``data=DIR`` for ``dataset``, ``out=OUT`` for an ``out`` positional) goes where argparse
+        expects it: before the bare words when it and every positional before it are given so, after them when it
+        and every positional after it are."""
         if args is None:
             return None
         flags = {o.lstrip("-").replace("-", "_"): (o, a) for a in self._actions for o in a.option_strings
                  if o.startswith("--")}
         positional = [a.dest for a in self._actions if not a.option_strings]
+        single = [a.dest for a in self._actions if not a.option_strings and a.nargs is None]
+        alias = {"data": "dataset"}
         out: list[str] = []
-        front: list[str] = []
+        given: dict[str, str] = {}
         for i, w in enumerate(args):
             if w == "--":
                 out.extend(args[i:])
@@ -72,11 +77,26 @@ class ArgumentParser(argparse.ArgumentParser):
             elif key == "progress" and "no_progress" in flags:
                 if not _truth(key, value):
                     out.append(flags["no_progress"][0])
-            elif key == "data" and "dataset" in positional:
-                front.append(value)
+            elif alias.get(key, key) in single and alias.get(key, key) not in given:
+                given[alias.get(key, key)] = value
             else:
                 out.append(w)
-        return front + out
+        if not given:
+            return out
+        front = []
+        for d in positional:  # the leading positionals given as name=value
+            if d not in given:
+                break
+            front.append(given.pop(d))
+        back = []
+        for d in reversed(positional):  # the trailing ones
+            if d not in given:
+                break
+            back.insert(0, given.pop(d))
+        if given:
+            raise ValueError(f"{', '.join(f'{k}=' for k in given)}: give it as a positional argument "
+                             f"({' '.join(d.upper() for d in positional)})")
+        return front + out + back
 
 
 def _truth(key: str, value: str) -> bool:

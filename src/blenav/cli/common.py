@@ -96,7 +96,7 @@ def pop_debug(args: list[str]) -> tuple[bool, list[str]]:
 
 #: the install extra (pyproject.toml) that brings a module the base install lacks
 _EXTRA_OF = {**dict.fromkeys(("torch", "lightning"), "train"), "gtsam": "backend",
-             **dict.fromkeys(("hydra", "omegaconf", "matplotlib", "sklearn", "skimage", "ahrs"), "eval")}
+             **dict.fromkeys(("hydra", "omegaconf", "matplotlib", "plotly", "sklearn"), "eval")}
 
 
 def error_message(exc: BaseException | str) -> str:
@@ -150,6 +150,16 @@ def guarded(prog: str, body: Callable[[], int | None], debug: bool) -> int:
             raise
         fail(prog, exc)
     return 1
+
+
+def subcommand_args(prog: str, usage: str, argv: list[str]) -> list[str] | None:
+    """The words of a command with sub-commands and positional paths (``tables``, ``realwalks``) in blenav's
+    dialect: ``-h`` / ``--help`` prints ``usage`` (as the command was called) and gives None (exit 0);
+    ``data=DIR`` / ``out=OUT`` name a positional path as the word itself."""
+    if any(a in ("-h", "--help") for a in argv):
+        print(usage.replace(prog, display_prog(prog)))
+        return None
+    return [a.split("=", 1)[1] if a.startswith(("data=", "out=")) else a for a in argv]
 
 
 def run_main(prog: str, body: Callable[[list[str]], int | None], argv: list[str] | None) -> int:

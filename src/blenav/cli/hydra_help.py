@@ -3,14 +3,18 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 
 def flags_to_overrides(args: list[str], hydra_options: dict[str, str | None]) -> list[str]:
     """``--key value`` / ``--key=value`` -> ``key=value``; ``--no-key`` -> ``key=false``; a ``--key`` with no value
-    (last, or before another option or override) -> ``key=true``; dashes in a key become underscores. Hydra's own
-    options (``hydra_options``: long name -> short name), their unambiguous prefixes and their values stay as
-    they are, so does everything after ``--``."""
+    (last, or before another option or an override) -> ``key=true``; dashes in a key become underscores. Hydra's
+    own options (``hydra_options``: long name -> short name), spelt in full or, for those of several words, as an
+    unambiguous abbreviation (``--config-pa``; ``--experiment`` is a key, not ``--experimental-rerun``), and their
+    values stay as they are, so does everything after ``--``. A value may start
+    with ``-`` when it is a number (``--seed -1``); a word that looks like an override (``runs=2``) is never taken
+    as a value (write ``--out=a=b`` for a value holding ``=``)."""
     short = {v for v in hydra_options.values() if v}
     out: list[str] = []
     i = 0
@@ -24,10 +28,12 @@ def flags_to_overrides(args: list[str], hydra_options: dict[str, str | None]) ->
             out.append(a)
             continue
         name, eq, value = a.partition("=")
-        if name in hydra_options or sum(o.startswith(name) for o in hydra_options) == 1:
+        if name not in hydra_options and "-" in name[2:]:  # an abbreviation of a multi-word option: --config-pa
+            hits = [o for o in hydra_options if o.startswith(name)]
+            name = hits[0] if len(hits) == 1 else name
+        if name in hydra_options:
             out.append(a)
-            if not eq and i < len(args) and not args[i].startswith("-") and "=" not in args[i] and \
-                    _takes_value(name, hydra_options):
+            if not eq and i < len(args) and _is_value(args[i]) and name in _VALUED_OPTIONS:
                 out.append(args[i])
                 i += 1
             continue
@@ -38,7 +44,7 @@ def flags_to_overrides(args: list[str], hydra_options: dict[str, str | None]) ->
         if not eq:
             if key.startswith("no_") and len(key) > 3:
                 key, value = key[3:], "false"
-            elif i < len(args) and not args[i].startswith("-") and "=" not in args[i]:
+            elif i < len(args) and _is_value(args[i]):
                 value, i = args[i], i + 1
             else:
                 value = "true"
@@ -46,10 +52,19 @@ def flags_to_overrides(args: list[str], hydra_options: dict[str, str | None]) ->
     return out
 
 
-def _takes_value(name: str, hydra_options: dict[str, str | None]) -> bool:
-    full = name if name in hydra_options else next(o for o in hydra_options if o.startswith(name))
-    return full in {"--cfg", "--package", "--config-path", "--config-name", "--config-dir", "--experimental-rerun",
-                    "--info"}
+#: Hydra's options that take a value
+_VALUED_OPTIONS = {"--cfg", "--package", "--config-path", "--config-name", "--config-dir", "--experimental-rerun",
+                   "--info"}
+_OVERRIDE = re.compile(r"^[+~]*[A-Za-z_][\w.@/-]*=")
+_NUMBER = re.compile(r"^-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
+def _is_value(word: str) -> bool:
+    """Whether ``word``, after a ``--key`` without ``=``, is that key's value: not an option (a negative number
+    is a value), not an override."""
+    if word.startswith("-") and not _NUMBER.match(word):
+        return False
+    return not _OVERRIDE.match(word)
 
 
 def hydra_help(prog: str, config_name: str, overrides: list[str], doc: str | None) -> str:

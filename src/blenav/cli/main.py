@@ -46,6 +46,8 @@ COMMANDS: dict[str, Command] = {
     "realwalks": Command("realwalks", "real-walk helpers: train ids, fix coverage, tables (train-ids DATA | ...)",
                          "eval"),
 }
+#: the modules only an extra installs (a command whose import misses one of them names the extra)
+EXTRA_MODULES = {"torch", "lightning", "hydra", "omegaconf", "matplotlib", "plotly", "sklearn", "gtsam"}
 #: the console scripts kept as aliases (pyproject.toml [project.scripts])
 ALIASES = {f"blenav-{name}": name for name in COMMANDS if name not in ("tables", "realwalks", "report", "merge")}
 
@@ -65,6 +67,8 @@ def usage() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else list(argv)
+    debug = [a for a in args[:1] if a == "--debug"]  # blenav --debug COMMAND ...: the command's --debug
+    args = args[len(debug):]
     if not args or args[0] in ("-h", "--help", "help"):
         print(usage())
         return 0
@@ -82,10 +86,12 @@ def main(argv: list[str] | None = None) -> int:
     cmd = COMMANDS[name]
     try:
         module = importlib.import_module(f"blenav.cli.{cmd.module}")
-    except ImportError as exc:  # a command of an extra the install lacks
+    except ImportError as exc:  # a command of an extra the install lacks (else a bug: its traceback)
+        if (exc.name or "").split(".")[0] not in EXTRA_MODULES or debug:
+            raise
         fail(f"blenav {name}", f"{exc} -- `blenav {name}` needs pip install 'blenav[{cmd.needs or 'all'}]'")
     with called_as(f"blenav {name}"):
-        return int(module.main(rest) or 0)
+        return int(module.main(rest + debug) or 0)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from .args import ArgumentParser
-from .common import run_main
+from .common import display_prog, run_main
 
 PROG = "blenav-merge"
 
@@ -31,11 +31,17 @@ def _main(argv: list[str] | None) -> int:
     from blenav.eval.report_html import write_report
 
     merged = merge_runs(args.jobs, args.out)
+    width = max(map(len, merged["methods"]), default=0)
     for name, m in merged["methods"].items():
         r = m.get("rmse_m") if isinstance(m, dict) else None
-        print(f"{name}: RMSE {r['mean']:.2f} m" if isinstance(r, dict) and "mean" in r else f"{name}: skipped")
+        print(f"{name:<{width}}  RMSE {r['mean']:.2f} m" if isinstance(r, dict) and "mean" in r
+              else f"{name:<{width}}  skipped")
     print(f"wrote {args.out}/results.json ({len(merged['methods'])} methods from {len(merged['merged_from'])} jobs)")
-    print(f"wrote {write_report(args.out)}")
+    try:
+        print(f"wrote {write_report(args.out)}")
+    except Exception as exc:  # noqa: BLE001 -- the merged results stand; the page is a view of them
+        print(f"{display_prog(PROG)}: warning: report.html not written: {type(exc).__name__}: "
+              f"{' '.join(str(exc).split())[:300]}", file=sys.stderr)
     return 0
 
 

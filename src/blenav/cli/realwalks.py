@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import sys
 
-from .common import display_prog, guarded, pop_debug
+from .common import display_prog, guarded, pop_debug, subcommand_args
 
 PROG = "python -m blenav.cli.realwalks"
 USAGE = (f"usage: {PROG} train-ids DATA | coverage DATA [ROW] [--plot FILE.png] | tables OUT_ROOT SUMMARY.md [FLOORS_DIR] [README] | "
@@ -122,7 +122,8 @@ def _main(argv: list[str]) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
     debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
-    return guarded(PROG, lambda: _main(argv), debug)
+    argv = subcommand_args(PROG, USAGE, argv)
+    return 0 if argv is None else guarded(PROG, lambda: _main(argv), debug)
 
 
 if __name__ == "__main__":

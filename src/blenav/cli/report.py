@@ -3,7 +3,7 @@
 One self-contained file that works offline (plotly inlined): the leaderboard as a sortable table, the error CDFs,
 per session the trajectories on the floor plan with a toggle per method and a time slider, and the skipped methods
 with their reasons (:mod:`blenav.eval.report_html`). ``blenav eval`` writes it as ``OUT/report.html`` at the end
-of every evaluation with plots; this command draws it again, e.g. for an OUT written before it existed.
+of every evaluation (unless ``report=false``); this command draws it again, e.g. for an OUT written before it existed.
 """
 
 from __future__ import annotations

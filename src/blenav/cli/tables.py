@@ -19,7 +19,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .common import display_prog, guarded, pop_debug
+from .common import display_prog, guarded, pop_debug, subcommand_args
 
 PROG = "python -m blenav.cli.tables"
 USAGE = (f"usage: {PROG} merge OUT.md TITLE RUN[:PREFIX] [RUN[:PREFIX] ...] | leaderboard OUT.md TITLE RUN [RUN ...] "
@@ -60,7 +60,8 @@ def _checked(argv: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
-    return guarded(PROG, lambda: _checked(argv), debug)
+    argv = subcommand_args(PROG, USAGE, argv)
+    return 0 if argv is None else guarded(PROG, lambda: _checked(argv), debug)
 
 
 if __name__ == "__main__":

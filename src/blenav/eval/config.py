@@ -190,6 +190,7 @@ class EvalConfig:
     calibration: Any = "auto"
     init_s: float = 10.0
     plots: bool = True
+    report: bool = True  # OUT/report.html (blenav.eval.report_html), with or without the PNG plots
     progress: bool = False
     peak_memory: str = "none"
     plan_error: PlanErrorConfig = field(default_factory=PlanErrorConfig)

@@ -76,54 +76,112 @@ def merge_leaderboard(folders: list[Path]) -> dict:
 
 
 #: what the jobs of one fan-out share; results of jobs that differ in any of them are not one evaluation
-SAME_KEYS = ("experiment", "dataset", "runs", "sessions", "init_s", "seed", "calibration", "split")
+SAME_KEYS = ("experiment", "dataset", "runs", "sessions", "init_s", "seed", "split")
 
 
-def merge_runs(folders: list[Path], out: Path) -> dict:
-    """The jobs of a fan-out over methods (``blenav eval -m only=A,B ... 'out=FAN/${hydra:job.num}'``) as the one
-    evaluation they split: ``out/results.json`` with every job's methods (in the jobs' order), each session's TUM
-    trajectories beside it (``out/<session>/trajectories``) and ``out/report.html``. The jobs must share
-    :data:`SAME_KEYS` (ValueError naming the key and the folders) and no method may come from two jobs. Returns the
-    merged results."""
-    import shutil
+def _is_bound(m) -> bool:
+    return isinstance(m, dict) and m.get("kind") == "bound"
 
-    from blenav.limits import read_json
 
-    from .common import write_json
-
-    folders = result_folders(folders)
-    if len(folders) < 1:
-        raise ValueError("name the output folders of the jobs to merge")
-    out = Path(out)
-    if out.exists() and any(out.iterdir()):
-        raise ValueError(f"{out} exists and is not empty: merge into a new folder")
-    results = [read_json(f / "results.json", "results.json") for f in folders]
-    for f, r in zip(folders, results):
-        if not isinstance(r, dict) or not isinstance(r.get("methods"), dict):
-            raise ValueError(f"{f / 'results.json'}: no 'methods' table (not written by blenav eval?)")
+def merge_results(folders: list[Path], results: list[dict]) -> dict:
+    """The results.json of the jobs (``results[i]`` read from ``folders[i]``) as one: every job's methods in the jobs'
+    order; the rows every job computes alike (the leaderboard's PCRLB bounds, ``kind: bound``) once, their
+    ``best`` recomputed over the merged methods; the other top-level keys from the first job, dictionaries joined
+    over the jobs (``fixes``, ``model``: what each job's methods used) and ``calibration`` from the job that
+    fitted one (a job whose methods fit none has None). ValueError when a key of :data:`SAME_KEYS` or a fitted
+    calibration differs, or a method comes from two jobs."""
     first = results[0]
     for key in SAME_KEYS:
         for f, r in zip(folders[1:], results[1:]):
             if r.get(key) != first.get(key):
                 raise ValueError(f"{key} differs: {first.get(key)!r} in {folders[0]}, {r.get(key)!r} in {f}: these "
                                  "are not jobs of one evaluation")
+    cals = [(f, r.get("calibration")) for f, r in zip(folders, results) if r.get("calibration") is not None]
+    for f, c in cals[1:]:
+        if c != cals[0][1]:
+            raise ValueError(f"calibration differs: {cals[0][1]!r} in {cals[0][0]}, {c!r} in {f}: these are not "
+                             "jobs of one evaluation")
     merged = dict(first)
+    for f, r in zip(folders[1:], results[1:]):
+        for k, v in r.items():
+            if k == "methods" or k in SAME_KEYS:
+                continue
+            if isinstance(v, dict) and isinstance(merged.get(k), dict):
+                merged[k] = _join(merged[k], v)
+            elif k not in merged or merged[k] is None:
+                merged[k] = v
+    merged["calibration"] = cals[0][1] if cals else None
     merged["methods"] = {}
     owner: dict[str, Path] = {}
     for f, r in zip(folders, results):
         for name, m in r["methods"].items():
             if name in merged["methods"]:
+                if _is_bound(m) and _is_bound(merged["methods"][name]):
+                    continue  # a bound does not depend on the methods: every job computed the same
                 raise ValueError(f"method {name} is in {owner[name]} and in {f}: each job of a fan-out over methods "
                                  "runs its own (only=...)")
             merged["methods"][name], owner[name] = m, f
+    ran = {n: m["rmse_m"]["mean"] for n, m in merged["methods"].items()
+           if not _is_bound(m) and isinstance(m.get("rmse_m"), dict) and "mean" in m["rmse_m"]}
+    for m in merged["methods"].values():  # how far the best of the merged methods is from each bound
+        if _is_bound(m) and isinstance(m.get("rmse_m"), dict) and ran:
+            best = min(ran, key=ran.get)
+            m["best"] = {"method": best, "rmse_m": ran[best], "ratio": ran[best] / max(m["rmse_m"]["mean"], 1e-12)}
     merged["merged_from"] = [str(f) for f in folders]
-    out.mkdir(parents=True, exist_ok=True)
-    for f in folders:
-        for traj in sorted(f.glob("*/trajectories")):
-            dest = out / traj.parent.name / "trajectories"
-            dest.mkdir(parents=True, exist_ok=True)
-            for tum in traj.glob("*.tum"):
-                if not (dest / tum.name).exists():
-                    shutil.copyfile(tum, dest / tum.name)
-    write_json(out / "results.json", merged)
+    return merged
+
+
+def _join(a: dict, b: dict) -> dict:
+    """``a`` with what ``b`` adds: keys only ``b`` has, dictionaries under one key joined the same way."""
+    out = dict(a)
+    for k, v in b.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _join(out[k], v)
+        elif k not in out or out[k] is None:
+            out[k] = v
+    return out
+
+
+def merge_runs(folders: list[Path], out: Path) -> dict:
+    """The jobs of a fan-out over methods (``blenav eval -m only=A,B ... 'out=FAN/${hydra:job.num}'``) as the one
+    evaluation they split (:func:`merge_results`), written to ``out``: ``results.json``, each session's TUM
+    trajectories (``out/<session>/trajectories``; the jobs' ground truth must agree) and nothing else; the
+    caller adds the page. ``out`` must not exist: it is written beside itself and renamed at the end (an error
+    leaves nothing). Returns the merged results."""
+    import filecmp
+    import os
+    import shutil
+
+    from blenav.limits import read_json
+
+    from .common import check_output_names, write_json
+
+    folders = result_folders(folders)
+    out = Path(out)
+    if out.exists():
+        raise ValueError(f"{out} exists: merge into a new folder")
+    results = [read_json(f / "results.json", "results.json") for f in folders]
+    for f, r in zip(folders, results):
+        if not isinstance(r, dict) or not isinstance(r.get("methods"), dict):
+            raise ValueError(f"{f / 'results.json'}: no 'methods' table (not written by blenav eval?)")
+    merged = merge_results(folders, results)
+    check_output_names(merged["methods"], "method")
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        for f in folders:
+            for traj in sorted(f.glob("*/trajectories")):
+                dest = tmp / traj.parent.name / "trajectories"
+                dest.mkdir(parents=True, exist_ok=True)
+                for tum in traj.glob("*.tum"):
+                    if not (dest / tum.name).exists():
+                        shutil.copyfile(tum, dest / tum.name)
+                    elif tum.name == "groundtruth.tum" and not filecmp.cmp(tum, dest / tum.name, shallow=False):
+                        raise ValueError(f"{tum} differs from another job's ground truth of session "
+                                         f"{traj.parent.name}: these are not jobs of one evaluation")
+        tmp.mkdir(parents=True, exist_ok=True)
+        write_json(tmp / "results.json", merged)
+        os.replace(tmp, out)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     return merged

@@ -1,5 +1,5 @@
 """``OUT/report.html``: one self-contained page of an evaluation (issue 33, section 3), written at the end of every
-evaluation with plots (``plots=true``) and by ``blenav report OUT``.
+``blenav eval`` (unless ``report=false``) and by ``blenav report OUT``.
 
 What the page shows comes from the evaluation's own files, read back as a stranger's (sizes bounded):
 ``results.json`` (the leaderboard, the skipped methods and why), the per-session TUM trajectories
@@ -53,10 +53,10 @@ class ReportData:
 
 
 def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(t (K,), xy (K, 2)) of a TUM file (``t x y z qx qy qz qw``), its size bounded (``BLENAV_MAX_MEMBER_MB``);
+    """(t (K,), xy (K, 2)) of a TUM file (``t x y z qx qy qz qw``), its size bounded (``BLENAV_MAX_ARCHIVE_MEMBER_MB``);
     ValueError naming the file when it is not numeric or has fewer than 3 columns; rows with a non-finite value
     dropped."""
-    check_file_size(path, "trajectory file", max_member_bytes(), "BLENAV_MAX_MEMBER_MB")
+    check_file_size(path, "trajectory", max_member_bytes(), "BLENAV_MAX_ARCHIVE_MEMBER_MB")
     try:
         a = np.loadtxt(path, dtype=float, ndmin=2, comments="#")
     except ValueError as exc:
@@ -68,6 +68,16 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
     a = a[np.isfinite(a[:, :3]).all(axis=1)]
     order = np.argsort(a[:, 0], kind="stable")
     return a[order, 0], a[order, 1:3]
+
+
+def track_errors(t: np.ndarray, xy: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray, sparse: bool) -> np.ndarray:
+    """Errors (m) of a track against the ground truth as the evaluation scores them: dense ground truth interpolated
+    at the estimate times (:func:`blenav.eval.metrics.errors_vs_groundtruth`); sparse surveyed waypoints: the
+    estimate interpolated at each waypoint time, held at its ends (``scoring.hold_ends``)."""
+    if not sparse:
+        return errors_vs_groundtruth(t, xy[None], gt_t, gt_xy)[0][0]
+    est = np.stack([np.interp(gt_t, t, xy[:, 0]), np.interp(gt_t, t, xy[:, 1])], axis=-1)
+    return np.linalg.norm(est - gt_xy, axis=-1)
 
 
 def _plan(session) -> tuple[np.ndarray, tuple[float, float, float, float]] | None:
@@ -111,6 +121,8 @@ def report_data(out: Path, title: str | None = None) -> ReportData:
             continue
         gt_path = d / "groundtruth.tum"
         gt = read_tum(gt_path) if gt_path.is_file() else None
+        session = dataset.session(sid) if dataset is not None and sid in dataset.session_ids else None
+        sparse = bool(getattr(session, "groundtruth_sparse", False))
         tracks = {}
         for name in res["methods"]:
             p = d / f"{output_name(name)}.tum"
@@ -119,13 +131,9 @@ def report_data(out: Path, title: str | None = None) -> ReportData:
                 if len(t):
                     tracks[name] = (t, xy)
                     if gt is not None and len(gt[0]) > 1:
-                        e, _ = errors_vs_groundtruth(t, xy[None], gt[0], gt[1])
-                        errs.setdefault(name, []).append(e[0])
+                        errs.setdefault(name, []).append(track_errors(t, xy, gt[0], gt[1], sparse))
         if len(data.sessions) < MAX_SESSIONS and (tracks or gt is not None):
-            plan = None
-            if dataset is not None and sid in dataset.session_ids:
-                plan = _plan(dataset.session(sid))
-            data.sessions.append(SessionView(sid, gt, tracks, plan))
+            data.sessions.append(SessionView(sid, gt, tracks, _plan(session) if session is not None else None))
     if len(ids) > MAX_SESSIONS:
         data.notes.append(f"trajectories of the first {MAX_SESSIONS} of {len(ids)} sessions drawn")
     data.errors = {k: np.concatenate(v) for k, v in errs.items()}

@@ -16,6 +16,8 @@ import numpy as np
 
 #: the most points of one track drawn on the page (longer tracks are thinned evenly; the errors use all points)
 MAX_TRACK_POINTS = 3000
+#: the most track points of the whole page (each track thinned to its share; the page stays a few MB)
+MAX_PAGE_POINTS = 150_000
 #: slider steps of a session's time slider
 SLIDER_STEPS = 60
 #: points of a CDF curve
@@ -74,7 +76,9 @@ def _cell(key: str, sub: str | None, m: dict) -> tuple[str, str]:
     if v is None:
         return "", ""
     if sub == "ci99" and isinstance(v, (list, tuple)) and len(v) == 2:
-        n = (m.get(key) or {}).get("n", "")
+        n = html.escape(str((m.get(key) or {}).get("n", "")))
+        if not all(isinstance(x, (int, float)) for x in v):
+            return html.escape(str(v)), ""
         if v[0] == v[1]:
             return f"- (n={n})", str(v[1])
         return f"[{v[0]:.2f}, {v[1]:.2f}] (n={n})", str(v[1])
@@ -104,7 +108,8 @@ def leaderboard_table(methods: dict) -> str:
     head = "".join(f"<th>{html.escape(c[2])}</th>" for c in cols)
     rows = []
     for name, m in sorted(ran.items(), key=key):
-        cells = [f'<td data-v="{html.escape(name)}">{html.escape(name)}</td>']
+        label = html.escape(name) + (" <i>(bound)</i>" if m.get("kind") == "bound" else "")
+        cells = [f'<td data-v="{html.escape(name)}">{label}</td>']
         for k, s, _ in cols:
             text, v = _cell(k, s, m)
             cells.append(f'<td data-v="{v}">{text}</td>')
@@ -148,10 +153,10 @@ def session_figure(view, colors: dict[str, str], max_points: int):
     if view.plan is not None:
         occ, (x0, x1, y0, y1) = view.plan
         h, w = occ.shape
-        z = np.where(occ[::-1], 1.0, np.nan)  # row 0 of the grid is its top: plotly's y grows upwards
+        z = occ[::-1].astype(np.uint8)  # row 0 of the grid is its top: plotly's y grows upwards; 0 drawn clear
         fig.add_trace(go.Heatmap(z=z, x0=x0 + (x1 - x0) / w / 2, dx=(x1 - x0) / w, y0=y0 + (y1 - y0) / h / 2,
-                                 dy=(y1 - y0) / h, colorscale=[[0, "#9a9a9a"], [1, "#9a9a9a"]], showscale=False,
-                                 hoverinfo="skip", name="floor plan"))
+                                 dy=(y1 - y0) / h, colorscale=[[0, "rgba(0,0,0,0)"], [1, "#9a9a9a"]], zmin=0, zmax=1,
+                                 showscale=False, hoverinfo="skip", name="floor plan"))
     lines = []
     if view.gt is not None and len(view.gt[0]):
         lines.append(("ground truth", *_thin(*view.gt, max_points), "#000000"))
@@ -189,13 +194,15 @@ def render_report(data, max_points: int | None = None) -> str:
     """The whole page (a string of HTML) of a :class:`blenav.eval.report_html.ReportData`."""
     import plotly.offline
 
-    max_points = max_points or MAX_TRACK_POINTS
+    n_tracks = sum(len(v.tracks) + (v.gt is not None) for v in data.sessions)
+    max_points = max_points or max(50, min(MAX_TRACK_POINTS, MAX_PAGE_POINTS // max(n_tracks, 1)))
     methods = data.results.get("methods", {})
     colors = _colors(methods)
     parts = [f"<h1>{html.escape(data.title)}</h1>",
              f'<p class="note">experiment {html.escape(data.experiment)}; dataset '
-             f'{html.escape(str(data.results.get("dataset", "")))}; {data.results.get("runs", "?")} run(s) per '
-             f'session; {len(data.results.get("sessions", []))} session(s). Click a column to sort.</p>',
+             f'{html.escape(str(data.results.get("dataset", "")))}; {html.escape(str(data.results.get("runs", "?")))} '
+             f'run(s) per session; {len(data.results.get("sessions", []) or [])} session(s). Click a column to sort; '
+             'bounds (PCRLB) are not methods: no estimator can beat them.</p>',
              "<h2>Leaderboard</h2>", leaderboard_table(methods)]
     if data.versus:
         parts.append("<h2>Learned models beside the simplest baseline</h2><ul id=\"versus\">"
@@ -216,8 +223,9 @@ def render_report(data, max_points: int | None = None) -> str:
     for note in data.notes:
         parts.append(f'<p class="note">{html.escape(note)}</p>')
     meta = json.dumps({"methods": list(methods), "skipped": list(data.skipped)})
+    meta = meta.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")  # inert inside <script>
     return ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">"
             f"<title>{html.escape(data.title)}</title><style>{_CSS}</style>"
             f"<script type=\"text/javascript\">{plotly.offline.get_plotlyjs()}</script>"
-            f"<script type=\"application/json\" id=\"blenav-report\">{html.escape(meta, quote=False)}</script>"
+            f"<script type=\"application/json\" id=\"blenav-report\">{meta}</script>"
             "</head><body>\n" + "\n".join(parts) + f"\n<script>{_SORT_JS}</script>\n</body></html>\n")
