@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables crossphone-sweep mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables mapping-curve realwalks-tables inertial-tables regression-check clean-demo
+.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables crossphone-sweep mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables backend-robust mapping-curve realwalks-tables inertial-tables regression-check clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -350,6 +350,38 @@ leaderboard: $(STAMP)
 	    hydra.sweep.dir=$(LB_OUT)/.multirun progress=false $(LB_ARGS)
 	$(BIN)/python -m blenav.cli.tables leaderboard $(LB_OUT)/fleet.md "Leaderboard over the fleet (make leaderboard)" \
 	    $(LB_OUT)
+
+# Issue 32: the back-end on buildings and channels it was not tuned to. Three simulated buildings, each with a BLE
+# channel other than the presets' (stronger walls and body shadowing, other exponents and shadowing), 2 walks of
+# 240 s, plus the 384 s office of backend-tables; on each backend_000 (true map) and mapnoise_000 (every beacon moved
+# by N(0, 3^2) m), BR_RUNS runs, the IMU filter, F-end and B-end; docs/results/backend_robust.md.
+BR_RUNS ?= 5
+BR_ARGS ?=
+BR_DATA ?= data/sim/backend_robust
+BR_OUT  ?= data/results/backend_robust
+BR_EVAL  = $(BIN)/blenav eval overwrite=true runs=$(BR_RUNS) only=IMU,F-end,B-end progress=false plots=false report=false
+backend-robust: $(STAMP)
+	test -e $(BR_DATA)/office_ch/dataset.yaml || $(BIN)/blenav sim sim=office_45x55 seed=5 out=$(BR_DATA)/office_ch \
+	    duration_s=240 sessions=2 progress=false 'sim.carriers=[pedestrian]' sim.ble.wall_db=7 sim.ble.body_db=10 \
+	    sim.ble.path_loss_exponent=2.6 sim.ble.shadow_std_db=5
+	test -e $(BR_DATA)/campus_ch/dataset.yaml || $(BIN)/blenav sim sim=campus_floor seed=6 out=$(BR_DATA)/campus_ch \
+	    duration_s=240 sessions=2 progress=false 'sim.carriers=[pedestrian]' sim.ble.wall_db=6 sim.ble.body_db=8 \
+	    sim.ble.path_loss_exponent=2.4
+	test -e $(BR_DATA)/proc_ch/dataset.yaml || $(BIN)/blenav sim sim=procedural seed=7 out=$(BR_DATA)/proc_ch \
+	    duration_s=240 sessions=2 progress=false 'sim.carriers=[pedestrian]' sim.ble.wall_db=5 sim.ble.shadow_std_db=6 \
+	    sim.ble.path_loss_exponent=2.0
+	test -e $(BACKEND_DATA)/dataset.yaml || $(BIN)/blenav sim sim=office_45x55 seed=0 out=$(BACKEND_DATA) \
+	    duration_s=384 sessions=1 progress=false
+	set -e; for d in office_ch campus_ch proc_ch office; do \
+	    src=$(BR_DATA)/$$d; [ $$d = office ] && src=$(BACKEND_DATA); \
+	    $(BR_EVAL) experiment=backend_000 data=$$src out=$(BR_OUT)/$$d $(BR_ARGS); \
+	    $(BR_EVAL) experiment=mapnoise_000 data=$$src out=$(BR_OUT)/$${d}_noise $(BR_ARGS); done
+	$(BIN)/blenav tables backend docs/results/backend_robust.md \
+	    "The back-end on buildings and channels it was not tuned to (make backend-robust, $(BR_RUNS) runs)" \
+	    "office 45x55, walls 7 dB, body 10 dB, exponent 2.6, shadowing 5 dB=$(BR_OUT)/office_ch,$(BR_OUT)/office_ch_noise" \
+	    "campus floor, walls 6 dB, body 8 dB, exponent 2.4=$(BR_OUT)/campus_ch,$(BR_OUT)/campus_ch_noise" \
+	    "procedural building, walls 5 dB, shadowing 6 dB, exponent 2.0=$(BR_OUT)/proc_ch,$(BR_OUT)/proc_ch_noise" \
+	    "office 45x55 of backend-tables (preset channel)=$(BR_OUT)/office,$(BR_OUT)/office_noise"
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md

@@ -118,10 +118,11 @@ class PriorConfig:
     #   estimate; None (000): the front-end only initialises the graph. The front-end saw the same ranges, so
     #   this counts them twice: a regulariser for sparse radio data, not a measurement
     front_end_corr_s: float = 5.0  # s: correlation time of the front-end's error (sigma inflated as the attitude's)
-    front_end_cloud: bool = False  # x, y prior per keyframe with the front-end's own covariance (its particle cloud,
+    front_end_cloud: bool = True  # x, y prior per keyframe with the front-end's own covariance (its particle cloud,
     #   and the spread of its runs), inflated by sqrt(front_end_corr_s / interval) and front_end_cloud_scale: the
     #   smoother keeps what the filter knew where its ranges add nothing better (issue 32)
-    front_end_cloud_scale: float = 1.0  # the cloud's covariance times this (its std times the square root)
+    front_end_cloud_scale: float = 4.0  # the cloud's covariance times this (its std times the square root); 4 chosen
+    #   on four simulated buildings and channels (docs/results-000-002.md, make backend-robust)
     front_end_min_sigma_m: float = 0.5  # m: the cloud's std floored here (a collapsed cloud is not certainty)
 
 

@@ -23,7 +23,8 @@ from .common import display_prog, guarded, pop_debug, subcommand_args
 
 PROG = "python -m blenav.cli.tables"
 USAGE = (f"usage: {PROG} merge OUT.md TITLE RUN[:PREFIX] [RUN[:PREFIX] ...] | leaderboard OUT.md TITLE RUN [RUN ...] "
-         f"| crf TABLE1_OUT FIG12_OUT OUT.md | feng RESULTS.json OUT.md [COMMAND]")
+         f"| crf TABLE1_OUT FIG12_OUT OUT.md | feng RESULTS.json OUT.md [COMMAND] "
+         f"| backend OUT.md TITLE LABEL=TRUE_RUN[,NOISE_RUN] [...]")
 
 
 def _main(argv: list[str]) -> int:
@@ -45,6 +46,10 @@ def _main(argv: list[str]) -> int:
 
         write_page(Path(args[0]), Path(args[1]), args[2] if len(args) > 2 else "")
         print(f"wrote {args[1]}")
+    elif cmd == "backend" and len(args) >= 3:
+        from blenav.reporting.backend_robust import write_backend_table
+
+        print(write_backend_table(Path(args[0]), args[1], args[2:], command="make backend-robust"))
     else:
         print(USAGE.replace(PROG, display_prog(PROG)), file=sys.stderr)
         return 2

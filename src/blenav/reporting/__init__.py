@@ -8,7 +8,8 @@ the README keeps a generated block between hand-written text, through the one sp
 * :mod:`~blenav.reporting.realwalks_priors`: the learned map prior with two priors on the real walks;
 * :mod:`~blenav.reporting.merge`: several evaluations in one table, and the leaderboard over a fleet;
 * :mod:`~blenav.reporting.feng_rtt`: the Feng et al. real-RTT page;
-* :mod:`~blenav.reporting.crf_tables`: the CRF experiments' Table I / Fig. 12.
+* :mod:`~blenav.reporting.crf_tables`: the CRF experiments' Table I / Fig. 12;
+* :mod:`~blenav.reporting.backend_robust`: the back-end on buildings and channels it was not tuned to.
 
 Layer: above :mod:`blenav.eval` (it reads the evaluations' results and uses their helpers), below the command lines
 (:mod:`blenav.cli.realwalks`, :mod:`blenav.cli.tables`), which parse the arguments and compose configs.

@@ -1,0 +1,75 @@
+"""The back-end on buildings and channels it was not tuned to (issue 32): one row per simulated building, the IMU
+filter, the closed-loop filter (F-end) and the smoother (B-end) with the true beacon map (``experiment=backend_000``)
+and with every beacon moved by N(0, 3^2) m (``experiment=mapnoise_000``), from the two evaluations' results.json.
+
+    blenav tables backend OUT.md LABEL=TRUE_RUN[,NOISE_RUN] [...]     (make backend-robust)
+
+Columns: RMSE mean over runs (m); B-end / best filter: B-end over the better of IMU and F-end (the issue's aim: at
+most 0.95); with the perturbed map: B-end and its change against the true map (aim: within 20 %), the beacons'
+error given -> optimized and how much closer (aim: 25 %).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from blenav.eval.common import write_text
+from blenav.limits import read_json
+
+__all__ = ["backend_rows", "markdown", "write_backend_table"]
+
+
+def _rmse(res: dict, name: str) -> float | None:
+    m = res["methods"].get(name) or {}
+    r = m.get("rmse_m")
+    return float(r["mean"]) if isinstance(r, dict) and "mean" in r else None
+
+
+def backend_rows(specs: list[str]) -> list[dict]:
+    """One dict per ``LABEL=TRUE_RUN[,NOISE_RUN]``: the numbers of the table (None where a run lacks them)."""
+    rows = []
+    for spec in specs:
+        label, _, runs = spec.partition("=")
+        if not runs:
+            raise ValueError(f"{spec!r}: expected LABEL=TRUE_RUN[,NOISE_RUN]")
+        true_dir, _, noise_dir = runs.partition(",")
+        t = read_json(Path(true_dir) / "results.json", "results.json")
+        row = {"label": label, "runs": t.get("runs"), "IMU": _rmse(t, "IMU"), "F-end": _rmse(t, "F-end"),
+               "B-end": _rmse(t, "B-end"), "source": true_dir}
+        best = min(v for v in (row["IMU"], row["F-end"]) if v is not None) if (row["IMU"] or row["F-end"]) else None
+        row["ratio"] = row["B-end"] / best if row["B-end"] is not None and best else None
+        if noise_dir:
+            n = read_json(Path(noise_dir) / "results.json", "results.json")
+            row["noise_B-end"] = _rmse(n, "B-end")
+            row["noise_F-end"] = _rmse(n, "F-end")
+            be = (n["methods"].get("B-end") or {}).get("beacon_error_m") or {}
+            row["beacons"] = (be.get("prior"), be.get("optimized"))
+        rows.append(row)
+    return rows
+
+
+def _f(v, fmt="{:.2f}") -> str:
+    return "-" if v is None else fmt.format(v)
+
+
+def markdown(title: str, rows: list[dict], command: str = "") -> str:
+    lines = [f"# {title}", "", f"RMSE mean over runs (m); made by `{command or 'blenav tables backend'}`.", "",
+             "| building, channel | IMU | F-end | B-end | B-end / best filter | 3 m map: F-end | 3 m map: B-end (vs true map) "
+             "| beacons given -> optimized (closer) |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        ratio = _f(r["ratio"]) + (" ok" if r["ratio"] is not None and r["ratio"] <= 0.95 else "")
+        nb, ch = r.get("noise_B-end"), None
+        if nb is not None and r["B-end"]:
+            ch = 100.0 * (nb / r["B-end"] - 1.0)
+        b = r.get("beacons") or (None, None)
+        closer = 100.0 * (1.0 - b[1] / b[0]) if b[0] and b[1] is not None else None
+        lines.append(f"| {r['label']} | {_f(r['IMU'])} | {_f(r['F-end'])} | {_f(r['B-end'])} | {ratio} | "
+                     f"{_f(r.get('noise_F-end'))} | {_f(nb)} ({_f(ch, '{:+.0f} %')}) | "
+                     f"{_f(b[0])} -> {_f(b[1])} ({_f(closer, '{:.0f} %')}) |")
+    return "\n".join(lines) + "\n"
+
+
+def write_backend_table(out: Path, title: str, specs: list[str], command: str = "") -> Path:
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return write_text(out, markdown(title, backend_rows(specs), command))
