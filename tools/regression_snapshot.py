@@ -4,7 +4,7 @@ shown to leave every number bit-identical (issue 27).
 
     python tools/regression_snapshot.py run   --work DIR --out SNAP.json [--only NAME,...] [--ilc-raw DIR]
     python tools/regression_snapshot.py check --work DIR --ref SNAP.json [--only NAME,...] [--ilc-raw DIR]
-    make regression-check     # check against tests/regression/snapshot_302d488.json in data/regression
+    make regression-check     # check against the reference the Makefile names (tests/regression/) in data/regression
 
 What it covers (5 min on a shared 2-core machine). Inputs, built in DIR with fixed seeds and non-default
 building names: simulated datasets (``blenav-sim``: an office, a one-walk office, a CRF hall, a small
