@@ -20,7 +20,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["MissingStream", "DatasetError", "ImportError_", "EvalError", "ConfigError"]
+__all__ = ["MissingStream", "DatasetError", "ImportError_", "EvalError", "ConfigError", "EXTRA_OF", "missing_extra"]
+
+#: the install extra (pyproject.toml) that brings a module the base install lacks
+EXTRA_OF = {"torch": "train", "lightning": "train", "gtsam": "backend", "hydra": "eval", "omegaconf": "eval",
+            "matplotlib": "eval", "plotly": "eval", "sklearn": "eval"}
+
+
+def missing_extra(exc: BaseException) -> str | None:
+    """The extra whose module ``exc`` (an ImportError) could not import, or None: a module of no extra (a bug)."""
+    if not isinstance(exc, ImportError):
+        return None
+    return EXTRA_OF.get((getattr(exc, "name", None) or "").split(".")[0])
 
 
 class MissingStream(ValueError):

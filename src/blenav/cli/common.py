@@ -94,18 +94,15 @@ def pop_debug(args: list[str]) -> tuple[bool, list[str]]:
     return debug, [a for a in args if a != "--debug"]
 
 
-#: the install extra (pyproject.toml) that brings a module the base install lacks
-_EXTRA_OF = {**dict.fromkeys(("torch", "lightning"), "train"), "gtsam": "backend",
-             **dict.fromkeys(("hydra", "omegaconf", "matplotlib", "plotly", "sklearn"), "eval")}
-
-
 def error_message(exc: BaseException | str) -> str:
     """The one-line message of a known error: its text, said as what it means for a memory or import error."""
     msg = " ".join(str(exc).split())
     if isinstance(exc, MemoryError):  # numpy says how much; a bare MemoryError says nothing
         return f"out of memory{': ' + msg if msg else ''} (a size in a setting or file is too large for this machine)"
     if isinstance(exc, ImportError):
-        extra = _EXTRA_OF.get((getattr(exc, "name", None) or "").split(".")[0])
+        from blenav.errors import missing_extra
+
+        extra = missing_extra(exc)
         hint = f" (this needs blenav's '{extra}' extra: pip install 'blenav[{extra}]')" if extra else ""
         return (f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__) + hint
     return msg or type(exc).__name__

@@ -14,6 +14,8 @@ import importlib
 import sys
 from dataclasses import dataclass
 
+from blenav.errors import missing_extra
+
 from .common import called_as, fail
 
 
@@ -46,8 +48,6 @@ COMMANDS: dict[str, Command] = {
     "realwalks": Command("realwalks", "real-walk helpers: train ids, fix coverage, tables (train-ids DATA | ...)",
                          "eval"),
 }
-#: the modules only an extra installs (a command whose import misses one of them names the extra)
-EXTRA_MODULES = {"torch", "lightning", "hydra", "omegaconf", "matplotlib", "plotly", "sklearn", "gtsam"}
 #: the console scripts kept as aliases (pyproject.toml [project.scripts])
 ALIASES = {f"blenav-{name}": name for name in COMMANDS if name not in ("tables", "realwalks", "report", "merge")}
 
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         module = importlib.import_module(f"blenav.cli.{cmd.module}")
     except ImportError as exc:  # a command of an extra the install lacks (else a bug: its traceback)
-        if (exc.name or "").split(".")[0] not in EXTRA_MODULES or debug:
+        if missing_extra(exc) is None or debug:
             raise
         fail(f"blenav {name}", f"{exc} -- `blenav {name}` needs pip install 'blenav[{cmd.needs or 'all'}]'")
     with called_as(f"blenav {name}"):

@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from blenav.data import Dataset
-from blenav.errors import DatasetError, EvalError, MissingStream
+from blenav.errors import DatasetError, EvalError, MissingStream, missing_extra
 from blenav.filters.attitude import misalignment_deg
 from blenav.filters.calibration import fit_sessions
 from blenav.localizers import (Estimate, FixConsumer, InertialModelConsumer, Localizer, ModelConsumer,
@@ -177,6 +177,11 @@ def fit_trained(methods: dict[str, Localizer], train: list, inputs: RunInputs) -
             except MissingStream as exc:
                 reports[name] = {"unavailable": str(exc)}
                 log.warning("%s cannot be trained: %s", name, exc)
+            except ImportError as exc:  # training needs an extra this install lacks (torch): say which
+                if missing_extra(exc) is None:
+                    raise
+                reports[name] = {"unavailable": f"{exc}: training it needs pip install 'blenav[{missing_extra(exc)}]'"}
+                log.warning("%s cannot be trained: %s", name, reports[name]["unavailable"])
             except ValueError as exc:
                 raise EvalError(f"method {name}, training: {exc}") from exc
     return reports
@@ -282,6 +287,14 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
         except MissingStream as exc:  # e.g. no IMU in a fixed-receiver recording: skip, and say so
             oc.skipped[s.id] = str(exc)
             log.warning("skipping %s on %s: %s", name, s.id, exc)
+            progress(f"{name} / {s.id} (skipped)")
+            continue
+        except ImportError as exc:  # a method of an extra this install lacks (gtsam, torch): skip it, say which
+            extra = missing_extra(exc)
+            if extra is None:
+                raise
+            oc.skipped[s.id] = f"{exc}: this method needs pip install 'blenav[{extra}]'"
+            log.warning("skipping %s on %s: %s", name, s.id, oc.skipped[s.id])
             progress(f"{name} / {s.id} (skipped)")
             continue
         except (ValueError, DatasetError) as exc:
