@@ -353,7 +353,8 @@ leaderboard: $(STAMP)
 
 # Issue 32: the back-end on buildings and channels it was not tuned to. Three simulated buildings, each with a BLE
 # channel other than the presets' (stronger walls and body shadowing, other exponents and shadowing), 2 walks of
-# 240 s, plus the 384 s office of backend-tables; on each backend_000 (true map) and mapnoise_000 (every beacon moved
+# 240 s; an office annex walked 7 x 240 s by six phones of brands the other sets do not use, on another channel
+# (like the check from outside of issue 32); and the 384 s office of backend-tables; on each backend_000 (true map) and mapnoise_000 (every beacon moved
 # by N(0, 3^2) m), BR_RUNS runs, the IMU filter, F-end and B-end; docs/results/backend_robust.md.
 BR_RUNS ?= 5
 BR_ARGS ?=
@@ -370,9 +371,13 @@ backend-robust: $(STAMP)
 	test -e $(BR_DATA)/proc_ch/dataset.yaml || $(BIN)/blenav sim sim=procedural seed=7 out=$(BR_DATA)/proc_ch \
 	    duration_s=240 sessions=2 progress=false 'sim.carriers=[pedestrian]' sim.ble.wall_db=5 sim.ble.shadow_std_db=6 \
 	    sim.ble.path_loss_exponent=2.0
+	test -e $(BR_DATA)/annex/dataset.yaml || $(BIN)/blenav sim sim=office_45x55 sim.name=annex_offices seed=21 \
+	    out=$(BR_DATA)/annex duration_s=240 sessions=7 progress=false 'sim.carriers=[pedestrian]' \
+	    'sim.receivers=[mi-9,mi-9t-pro,mate-20-pro,honor-20-pro,honor-view-20,pixel-3axl]' sim.ble.wall_db=6 \
+	    sim.ble.body_db=9 sim.ble.path_loss_exponent=2.4 sim.ble.shadow_std_db=4.5
 	test -e $(BACKEND_DATA)/dataset.yaml || $(BIN)/blenav sim sim=office_45x55 seed=0 out=$(BACKEND_DATA) \
 	    duration_s=384 sessions=1 progress=false
-	set -e; for d in office_ch campus_ch proc_ch office; do \
+	set -e; for d in office_ch campus_ch proc_ch annex office; do \
 	    src=$(BR_DATA)/$$d; [ $$d = office ] && src=$(BACKEND_DATA); \
 	    $(BR_EVAL) experiment=backend_000 data=$$src out=$(BR_OUT)/$$d $(BR_ARGS); \
 	    $(BR_EVAL) experiment=mapnoise_000 data=$$src out=$(BR_OUT)/$${d}_noise $(BR_ARGS); done
@@ -381,6 +386,7 @@ backend-robust: $(STAMP)
 	    "office 45x55, walls 7 dB, body 10 dB, exponent 2.6, shadowing 5 dB=$(BR_OUT)/office_ch,$(BR_OUT)/office_ch_noise" \
 	    "campus floor, walls 6 dB, body 8 dB, exponent 2.4=$(BR_OUT)/campus_ch,$(BR_OUT)/campus_ch_noise" \
 	    "procedural building, walls 5 dB, shadowing 6 dB, exponent 2.0=$(BR_OUT)/proc_ch,$(BR_OUT)/proc_ch_noise" \
+	    "office annex, 7 walks by six phones of other brands, walls 6 dB, body 9 dB, exponent 2.4, shadowing 4.5 dB=$(BR_OUT)/annex,$(BR_OUT)/annex_noise" \
 	    "office 45x55 of backend-tables (preset channel)=$(BR_OUT)/office,$(BR_OUT)/office_noise"
 
 realism: $(STAMP)
