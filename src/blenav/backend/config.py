@@ -121,8 +121,10 @@ class PriorConfig:
     front_end_cloud: bool = True  # x, y prior per keyframe with the front-end's own covariance (its particle cloud,
     #   and the spread of its runs), inflated by sqrt(front_end_corr_s / interval) and front_end_cloud_scale: the
     #   smoother keeps what the filter knew where its ranges add nothing better (issue 32)
-    front_end_cloud_scale: float = 4.0  # the cloud's covariance times this (its std times the square root); 4 chosen
-    #   on four simulated buildings and channels (docs/results-000-002.md, make backend-robust)
+    front_end_cloud_scale: float = 0.25  # the cloud's covariance times this (its std times the square root): 0.25
+    #   keeps B-end under 0.95x its better filter on five simulated buildings (make backend-robust) and no worse than
+    #   F-end on the real ILC F1 walks it was chosen on and on F2 (docs/results-000-002.md); 4 gained more on the
+    #   simulations and drifted where the filter is lost on real walks
     front_end_min_sigma_m: float = 0.5  # m: the cloud's std floored here (a collapsed cloud is not certainty)
 
 
