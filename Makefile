@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-# The whole loop, CPU-sized (2 min 32 s from a fresh clone; README "Quick start"): simulate an office walked by DEMO_SESSIONS
+# The whole loop, CPU-sized (2 min 24 s from a fresh clone; README "Quick start"): simulate an office walked by DEMO_SESSIONS
 # phones; train TransNet+LocNet from its Hydra config with Lightning on all walks but the last DEMO_TEST; export the
 # runtime bundle (ONNX, ORT, int8); run it torch-free on the first held-out walk (a phone it never saw); write the
 # network's fixes for the held-out walks; the leaderboard of learned vs classical methods on them, with the PCRLB.
