@@ -45,12 +45,13 @@ def residuals(session, cfg) -> dict:
             out["bins"][f"{lo}-{hi}"] = (int(m.sum()), float(np.median(res[m])))
     gate = d <= float(cfg.range.gate_m or np.inf)
     out["gate"] = (float(gate.mean()), float(np.median(res[gate])) if gate.any() else float("nan"))
-    per_beacon = [float(np.median(res[gate & (ranges.anchor == j)])) for j in np.unique(ranges.anchor[gate])
-                  if np.count_nonzero(gate & (ranges.anchor == j)) >= 10]
+    by_beacon = [gate & (ranges.anchor == j) for j in np.unique(ranges.anchor[gate])]
+    per_beacon = [float(np.median(res[m])) for m in by_beacon if np.count_nonzero(m) >= 10]
     out["per_beacon"] = (len(per_beacon), *np.percentile(per_beacon, [10, 50, 90]).tolist()) if per_beacon else None
     t0 = float(ranges.t.min()) if len(ranges.t) else 0.0
     win = np.floor((ranges.t - t0) / 30.0).astype(int)
-    out["over_time"] = [float(np.median(res[gate & (win == w)])) for w in np.unique(win) if (gate & (win == w)).any()]
+    by_window = [gate & (win == w) for w in np.unique(win)]
+    out["over_time"] = [float(np.median(res[m])) for m in by_window if m.any()]
     return out
 
 

@@ -159,6 +159,17 @@ def max_model_bytes() -> float:
     return _env_float("BLENAV_MAX_MODEL_MB", DEFAULT_MAX_MODEL_MB) * MIB
 
 
+def read_bounded(path, what: str, limit: float, var: str) -> bytes:
+    """The bytes of ``path`` (a file from a stranger), at most ``limit``: the size of the file opened is checked and
+    the read itself bounded, so a file that grows after the check, or one whose size says nothing (/dev/zero, a
+    FIFO), stops there (:class:`LimitError` naming ``var``, the environment variable that raises the limit)."""
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        data = f.read(int(limit) + 1) if size <= limit else b""
+    _check_size(path, max(size, len(data)), what, limit, var)
+    return data
+
+
 def read_json(path, what: str = "metadata"):
     """The JSON document of ``path`` (a file from a stranger: a bundle's or an export's metadata), its size
     checked before it is read (``BLENAV_MAX_JSON_MB``, default :data:`DEFAULT_MAX_JSON_MB`) and its syntax
@@ -167,11 +178,7 @@ def read_json(path, what: str = "metadata"):
     from pathlib import Path
 
     path = Path(path)
-    limit = _env_float("BLENAV_MAX_JSON_MB", DEFAULT_MAX_JSON_MB) * MIB
-    with open(path, "rb") as f:  # the size of the file opened, and the read itself bounded: a file that grows after
-        size = os.fstat(f.fileno()).st_size  # the check, or one whose size says nothing (/dev/zero), stops there
-        data = f.read(int(limit) + 1) if size <= limit else b""
-    _check_size(path, max(size, len(data)), what, limit, "BLENAV_MAX_JSON_MB")
+    data = read_bounded(path, what, _env_float("BLENAV_MAX_JSON_MB", DEFAULT_MAX_JSON_MB) * MIB, "BLENAV_MAX_JSON_MB")
     try:
         return json.loads(data.decode("utf-8"))
     except UnicodeDecodeError as exc:

@@ -89,6 +89,10 @@ def test_bad_trajectory_is_named(tmp_path):
     p.write_text("0.1 1.0 oops\n")
     with pytest.raises(ValueError, match=r"x.tum: not a TUM trajectory"):
         read_tum(p)
+    z = tmp_path / "zero.tum"  # a file whose size says nothing: the read itself is bounded
+    z.symlink_to("/dev/zero")
+    with pytest.raises(ValueError, match=r"zero.tum: trajectory file of .* above the limit"):
+        read_tum(z)
     write_tum(p, np.array([2.0, 1.0]), np.array([[0.0, 1.0], [2.0, 3.0]]))
     t, xy = read_tum(p)
     np.testing.assert_array_equal(t, [1.0, 2.0]) and np.testing.assert_array_equal(xy, [[2.0, 3.0], [0.0, 1.0]])

@@ -191,7 +191,7 @@ class RadioInertialGraph:
         """(NonlinearFactorGraph, Values): the factors that keyframe k adds (priors, IMU from k-1, its
         ranges, beacons that became determined) and initial values of its new variables."""
         gtsam = self.gtsam
-        from gtsam.symbol_shorthand import B, L, V, X
+        from gtsam.symbol_shorthand import B, V, X
 
         cfg, kf = self.cfg, self.kf
         g = gtsam.NonlinearFactorGraph()
@@ -214,12 +214,12 @@ class RadioInertialGraph:
         else:
             g.add(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self.pims[k - 1]))
             g.add(gtsam.PoseRotationPrior3D(X(k), self.rots[k], self.attitude_noise))
-        target = np.array([kf.position[k, 0], kf.position[k, 1], cfg.range.device_z])
         if self.cloud_cov is not None and np.isfinite(self.cloud_cov[k]).all():  # the filter's cloud (and height)
             mean = np.array([self.cloud.position[k, 0], self.cloud.position[k, 1], cfg.range.device_z])
             g.add(gtsam.PoseTranslationPrior3D(X(k), gtsam.Point3(mean),
                                                gtsam.noiseModel.Gaussian.Covariance(self.cloud_cov[k])))
         elif self.height_noise is not None:
+            target = np.array([kf.position[k, 0], kf.position[k, 1], cfg.range.device_z])
             g.add(gtsam.PoseTranslationPrior3D(X(k), gtsam.Point3(target), self.height_noise))
         lo, hi = self._bounds[k], self._bounds[k + 1]
         for j, r in zip(self._range_j[lo:hi].tolist(), self._range_r[lo:hi].tolist()):

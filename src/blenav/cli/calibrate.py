@@ -12,7 +12,7 @@ import sys
 from blenav.paths import inside
 
 from .args import ArgumentParser
-from .common import guarded, pop_debug
+from .common import run_main
 
 
 def _main(argv: list[str] | None) -> int:
@@ -54,8 +54,7 @@ def _main(argv: list[str] | None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``blenav-calibrate``: errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
-    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
-    return guarded("blenav-calibrate", lambda: _main(argv), debug)
+    return run_main("blenav-calibrate", _main, argv)
 
 
 if __name__ == "__main__":

@@ -26,6 +26,8 @@ import threading
 from contextlib import contextmanager
 from typing import Callable
 
+from .hydra_help import _HYDRA_OPTS, _INFO_CHOICES, _PRINT_ONLY, _VALUED, flags_to_overrides, hydra_help
+
 KNOWN_ERRORS = (ValueError, OSError, MemoryError, ImportError)
 
 #: the name the running command was called by (``blenav eval``), set by the ``blenav`` dispatcher
@@ -159,6 +161,19 @@ def subcommand_args(prog: str, usage: str, argv: list[str]) -> list[str] | None:
     return [a.split("=", 1)[1] if a.startswith(("data=", "out=")) else a for a in argv]
 
 
+def write_page(prog: str, out) -> str | None:
+    """Write OUT/report.html (:func:`blenav.eval.report_html.write_report`) and say its size; a page that cannot be
+    drawn costs the command nothing: a warning names why, the results stand (None)."""
+    from blenav.eval.report_html import write_report
+
+    try:
+        return f"{write_report(out).stat().st_size:,} bytes, opens offline"
+    except Exception as exc:  # noqa: BLE001 -- the results are written; the page is a view of them
+        print(f"{display_prog(prog)}: warning: report.html not written: {type(exc).__name__}: "
+              f"{error_message(exc)[:300]}", file=sys.stderr)
+        return None
+
+
 def run_main(prog: str, body: Callable[[list[str]], int | None], argv: list[str] | None) -> int:
     """An argparse command's ``main(argv)``: ``body(args)`` on ``argv`` (default ``sys.argv[1:]``) without ``--debug``,
     :func:`guarded`."""
@@ -199,8 +214,6 @@ def run_hydra(prog: str, config_name: str, task: Callable, args: list[str], conv
     from blenav.configs import check_overrides, register_configs
     from blenav.paths import conf_dir
     from blenav.trust import check_targets
-
-    from .hydra_help import flags_to_overrides, hydra_help
 
     prog = display_prog(prog)
     debug, args = pop_debug(args)
@@ -257,14 +270,6 @@ def run_hydra(prog: str, config_name: str, task: Callable, args: list[str], conv
         interrupted(prog, exc, debug)
 
 
-#: Hydra's options (hydra/_internal/utils.py get_args_parser); those that take a value; those that only print
-_HYDRA_OPTS = {"--help": "-h", "--hydra-help": None, "--version": None, "--cfg": "-c", "--resolve": None,
-               "--package": "-p", "--run": "-r", "--multirun": "-m", "--shell-completion": "-sc",
-               "--config-path": "-cp", "--config-name": "-cn", "--config-dir": "-cd", "--experimental-rerun": None,
-               "--info": "-i"}
-_VALUED = {"--cfg", "--package", "--config-path", "--config-name", "--config-dir", "--experimental-rerun"}
-_PRINT_ONLY = {"--help", "--hydra-help", "--version", "--cfg", "--shell-completion", "--info"}
-_INFO_CHOICES = {"all", "config", "defaults", "defaults-tree", "plugins", "searchpath"}
 
 
 def _hydra_args(args: list[str]) -> tuple[list[str], dict[str, str | None]]:

@@ -21,7 +21,7 @@ from omegaconf import DictConfig
 from blenav.configs import cli_overrides
 from blenav.eval.result import summary_lines
 
-from .common import display_prog, run_hydra
+from .common import run_hydra, write_page
 from .outdir import fresh_output
 
 PROG = "blenav-eval"
@@ -38,25 +38,12 @@ def task(cfg: DictConfig) -> None:
     inputs = [ecfg.data.path, ecfg.model_path, ecfg.io_model]  # never inside an OUT that overwrite=true deletes
     with fresh_output(ecfg.out, ecfg.overwrite, inputs) as tmp:
         res = evaluator.run(dataclasses.replace(ecfg, out=str(tmp)))
-        report = _report(tmp) if ecfg.report else None
+        report = write_page(PROG, tmp) if ecfg.report else None
     for line in summary_lines(res):
         print(line)
     print(f"wrote {ecfg.out}/results.json")
     if report:
         print(f"wrote {ecfg.out}/report.html ({report})")
-
-
-def _report(out) -> str | None:
-    """Write OUT/report.html (:func:`blenav.eval.report_html.write_report`); a page that cannot be drawn costs the
-    evaluation nothing: a warning says why, the results stand."""
-    from blenav.eval.report_html import write_report
-
-    try:
-        return write_report(out).stat().st_size.__format__(",") + " bytes, opens offline"
-    except Exception as exc:  # noqa: BLE001 -- the evaluation's results are written; the page is a view of them
-        print(f"{display_prog(PROG)}: warning: report.html not written: {type(exc).__name__}: {' '.join(str(exc).split())[:300]}",
-              file=sys.stderr)
-        return None
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -52,9 +52,16 @@ def flags_to_overrides(args: list[str], hydra_options: dict[str, str | None]) ->
     return out
 
 
-#: Hydra's options that take a value
-_VALUED_OPTIONS = {"--cfg", "--package", "--config-path", "--config-name", "--config-dir", "--experimental-rerun",
-                   "--info"}
+#: Hydra's options (hydra/_internal/utils.py get_args_parser); those that take a value; those that only print
+_HYDRA_OPTS = {"--help": "-h", "--hydra-help": None, "--version": None, "--cfg": "-c", "--resolve": None,
+               "--package": "-p", "--run": "-r", "--multirun": "-m", "--shell-completion": "-sc",
+               "--config-path": "-cp", "--config-name": "-cn", "--config-dir": "-cd", "--experimental-rerun": None,
+               "--info": "-i"}
+_VALUED = {"--cfg", "--package", "--config-path", "--config-name", "--config-dir", "--experimental-rerun"}
+_PRINT_ONLY = {"--help", "--hydra-help", "--version", "--cfg", "--shell-completion", "--info"}
+_INFO_CHOICES = {"all", "config", "defaults", "defaults-tree", "plugins", "searchpath"}
+#: Hydra's options that take a value here (``--info`` takes one of _INFO_CHOICES when one follows)
+_VALUED_OPTIONS = _VALUED | {"--info"}
 _OVERRIDE = re.compile(r"^[+~]*[A-Za-z_][\w.@/-]*=")
 _NUMBER = re.compile(r"^-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 

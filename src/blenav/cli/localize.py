@@ -16,7 +16,7 @@ from pathlib import Path
 from blenav.paths import inside
 
 from .args import ArgumentParser
-from .common import guarded, pop_debug
+from .common import run_main
 
 
 def _open_session(path: Path):
@@ -106,8 +106,7 @@ def _main(argv: list[str] | None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``blenav-localize``: errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
-    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
-    return guarded("blenav-localize", lambda: _main(argv), debug)
+    return run_main("blenav-localize", _main, argv)
 
 
 if __name__ == "__main__":

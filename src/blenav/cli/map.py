@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 from .args import ArgumentParser
-from .common import guarded, pop_debug
+from .common import run_main
 
 PROG = "blenav-map"
 
@@ -168,8 +168,7 @@ def _anchors_table(anchors, beacons, keep_unplaced: bool):
 
 def main(argv: list[str] | None = None) -> int:
     """``blenav-map``: errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
-    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
-    return guarded(PROG, lambda: _main(argv), debug)
+    return run_main(PROG, _main, argv)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from .args import ArgumentParser
-from .common import display_prog, run_main
+from .common import run_main, write_page
 
 PROG = "blenav-merge"
 
@@ -28,7 +28,6 @@ def _main(argv: list[str] | None) -> int:
     args = p.parse_args(argv)
 
     from blenav.eval.merge import merge_runs
-    from blenav.eval.report_html import write_report
 
     merged = merge_runs(args.jobs, args.out)
     width = max(map(len, merged["methods"]), default=0)
@@ -37,11 +36,9 @@ def _main(argv: list[str] | None) -> int:
         print(f"{name:<{width}}  RMSE {r['mean']:.2f} m" if isinstance(r, dict) and "mean" in r
               else f"{name:<{width}}  skipped")
     print(f"wrote {args.out}/results.json ({len(merged['methods'])} methods from {len(merged['merged_from'])} jobs)")
-    try:
-        print(f"wrote {write_report(args.out)}")
-    except Exception as exc:  # noqa: BLE001 -- the merged results stand; the page is a view of them
-        print(f"{display_prog(PROG)}: warning: report.html not written: {type(exc).__name__}: "
-              f"{' '.join(str(exc).split())[:300]}", file=sys.stderr)
+    page = write_page(PROG, args.out)
+    if page:
+        print(f"wrote {args.out}/report.html ({page})")
     return 0
 
 

@@ -1,4 +1,4 @@
-"""``blenav report OUT [--out FILE.html] [--title TEXT]``: the HTML page of an evaluation's output folder.
+"""``blenav report OUT [--out FILE.html] [--title TEXT] [--data DIR | --no-plan]``: the HTML page of an evaluation's output folder.
 
 One self-contained file that works offline (plotly inlined): the leaderboard as a sortable table, the error CDFs,
 per session the trajectories on the floor plan with a toggle per method and a time slider, and the skipped methods
@@ -22,13 +22,16 @@ def _main(argv: list[str] | None) -> int:
     p.add_argument("evaluation", type=Path, help="an output folder of blenav eval (it holds results.json)")
     p.add_argument("--out", type=Path, default=None, help="the page to write (default: EVALUATION/report.html)")
     p.add_argument("--title", default=None, help="the page's title (default: the experiment's)")
+    p.add_argument("--data", default=None, help="the dataset whose floor plans are drawn (default: the one "
+                   "results.json names)")
+    p.add_argument("--no-plan", action="store_true", help="draw no floor plan (open no dataset)")
     args = p.parse_args(argv)
 
     from blenav.eval.report_html import write_report
 
     if args.out is not None and args.out.is_dir():
         raise ValueError(f"--out {args.out} is a folder; give the .html file to write")
-    page = write_report(args.evaluation, args.out, args.title)
+    page = write_report(args.evaluation, args.out, args.title, "" if args.no_plan else args.data)
     print(f"wrote {page} ({page.stat().st_size:,} bytes; open it in a browser, it needs no network)")
     return 0
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import sys
 
 from .args import ArgumentParser
-from .common import guarded, pop_debug
+from .common import run_main
 
 
 def _main(argv: list[str] | None) -> int:
@@ -34,8 +34,7 @@ def _main(argv: list[str] | None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``blenav-validate``: errors the user can fix print one line and exit 1 (``--debug``: with the traceback)."""
-    debug, argv = pop_debug(sys.argv[1:] if argv is None else list(argv))
-    return guarded("blenav-validate", lambda: _main(argv), debug)
+    return run_main("blenav-validate", _main, argv)
 
 
 if __name__ == "__main__":

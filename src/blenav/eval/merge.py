@@ -7,8 +7,9 @@ The tables are written by :mod:`blenav.reporting.merge` (``python -m blenav.cli.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+
+from blenav.limits import read_json
 
 __all__ = ["load_columns", "result_folders", "merge_leaderboard", "merge_runs"]
 
@@ -18,7 +19,7 @@ def load_columns(runs: list[tuple[Path, str]]) -> tuple[dict[str, dict[str, floa
     cols: dict[str, dict[str, float]] = {}
     sessions: list[str] = []
     for folder, prefix in runs:
-        res = json.loads((Path(folder) / "results.json").read_text(encoding="utf-8"))
+        res = read_json(Path(folder) / "results.json", "results.json")
         for name, m in res["methods"].items():
             for sid, v in (m.get("per_session") or {}).items():
                 cols.setdefault(prefix + name, {})[sid] = float(v["rmse_m"]["mean"])
@@ -50,7 +51,7 @@ def merge_leaderboard(folders: list[Path]) -> dict:
     datasets, methods, best = [], {}, {}
     names: dict[str, int] = {}
     for f in folders:
-        res = json.loads((Path(f) / "results.json").read_text(encoding="utf-8"))
+        res = read_json(Path(f) / "results.json", "results.json")
         base = Path(str(res.get("dataset", f))).name or str(f)
         names[base] = names.get(base, 0) + 1
         name = base if names[base] == 1 else f"{base} ({names[base]})"
@@ -102,14 +103,8 @@ def merge_results(folders: list[Path], results: list[dict]) -> dict:
             raise ValueError(f"calibration differs: {cals[0][1]!r} in {cals[0][0]}, {c!r} in {f}: these are not "
                              "jobs of one evaluation")
     merged = dict(first)
-    for f, r in zip(folders[1:], results[1:]):
-        for k, v in r.items():
-            if k == "methods" or k in SAME_KEYS:
-                continue
-            if isinstance(v, dict) and isinstance(merged.get(k), dict):
-                merged[k] = _join(merged[k], v)
-            elif k not in merged or merged[k] is None:
-                merged[k] = v
+    for r in results[1:]:
+        merged = _join(merged, {k: v for k, v in r.items() if k != "methods" and k not in SAME_KEYS})
     merged["calibration"] = cals[0][1] if cals else None
     merged["methods"] = {}
     owner: dict[str, Path] = {}
@@ -123,9 +118,9 @@ def merge_results(folders: list[Path], results: list[dict]) -> dict:
             merged["methods"][name], owner[name] = m, f
     ran = {n: m["rmse_m"]["mean"] for n, m in merged["methods"].items()
            if not _is_bound(m) and isinstance(m.get("rmse_m"), dict) and "mean" in m["rmse_m"]}
+    best = min(ran, key=ran.get) if ran else None
     for m in merged["methods"].values():  # how far the best of the merged methods is from each bound
         if _is_bound(m) and isinstance(m.get("rmse_m"), dict) and ran:
-            best = min(ran, key=ran.get)
             m["best"] = {"method": best, "rmse_m": ran[best], "ratio": ran[best] / max(m["rmse_m"]["mean"], 1e-12)}
     merged["merged_from"] = [str(f) for f in folders]
     return merged
@@ -151,8 +146,6 @@ def merge_runs(folders: list[Path], out: Path) -> dict:
     import filecmp
     import os
     import shutil
-
-    from blenav.limits import read_json
 
     from .common import check_output_names, write_json
 

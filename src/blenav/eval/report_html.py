@@ -13,12 +13,13 @@ definition as :func:`blenav.eval.metrics.errors_vs_groundtruth`), over every ses
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from blenav.limits import check_file_size, max_member_bytes, read_json
+from blenav.limits import check_memory, max_member_bytes, read_bounded, read_json
 
 from .common import output_name, write_text
 from .metrics import errors_vs_groundtruth
@@ -56,9 +57,9 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(t (K,), xy (K, 2)) of a TUM file (``t x y z qx qy qz qw``), its size bounded (``BLENAV_MAX_ARCHIVE_MEMBER_MB``);
     ValueError naming the file when it is not numeric or has fewer than 3 columns; rows with a non-finite value
     dropped."""
-    check_file_size(path, "trajectory", max_member_bytes(), "BLENAV_MAX_ARCHIVE_MEMBER_MB")
+    data = read_bounded(path, "trajectory", max_member_bytes(), "BLENAV_MAX_ARCHIVE_MEMBER_MB")
     try:
-        a = np.loadtxt(path, dtype=float, ndmin=2, comments="#")
+        a = np.loadtxt(io.BytesIO(data), dtype=float, ndmin=2, comments="#")
     except ValueError as exc:
         raise ValueError(f"{path}: not a TUM trajectory (t x y z qx qy qz qw): {exc}") from None
     if a.size == 0:
@@ -91,35 +92,41 @@ def _plan(session) -> tuple[np.ndarray, tuple[float, float, float, float]] | Non
     return occ[::step, ::step] == 1, fl.extent
 
 
-def report_data(out: Path, title: str | None = None) -> ReportData:
-    """Everything the page draws, read from the evaluation folder ``out`` (see the module docstring)."""
+def report_data(out: Path, title: str | None = None, data: str | None = None) -> ReportData:
+    """Everything the page draws, read from the evaluation folder ``out`` (see the module docstring). ``data``: the
+    dataset whose floor plans are drawn (default: results.json's ``dataset``; ``""``: none). The trajectory files
+    read are bounded each (``BLENAV_MAX_ARCHIVE_MEMBER_MB``) and together (``BLENAV_MAX_MEMORY_GB``)."""
     out = Path(out)
     if not (out / "results.json").is_file():
         raise FileNotFoundError(f"{out} has no results.json: not the output folder of an evaluation (blenav eval)")
     res = read_json(out / "results.json", "results.json")
     if not isinstance(res, dict) or not isinstance(res.get("methods"), dict):
         raise ValueError(f"{out / 'results.json'}: no 'methods' table (not written by blenav eval?)")
-    data = ReportData(title=title or str(res.get("title") or res.get("experiment") or out.name),
+    page = ReportData(title=title or str(res.get("title") or res.get("experiment") or out.name),
                       experiment=str(res.get("experiment", "")), results=res)
     for name, m in res["methods"].items():
         if isinstance(m, dict) and m.get("skipped"):
-            data.skipped[name] = {str(k): str(v) for k, v in m["skipped"].items()}
-    dataset = None
-    if res.get("dataset"):
+            page.skipped[name] = {str(k): str(v) for k, v in m["skipped"].items()}
+    dataset, where = None, res.get("dataset") if data is None else data
+    if where:
         try:
             from blenav.data import Dataset
 
-            dataset = Dataset.open(res["dataset"])
+            dataset = Dataset.open(where)
         except Exception as exc:  # noqa: BLE001 -- moved or deleted since: tracks without the plan
-            data.notes.append(f"floor plans not drawn: the dataset {res['dataset']} cannot be opened "
+            page.notes.append(f"floor plans not drawn: the dataset {where} cannot be opened "
                               f"({' '.join(str(exc).split())[:160]})")
     errs: dict[str, list[np.ndarray]] = {}
+    total = 0
     ids = [str(s) for s in res.get("sessions", [])] or sorted(p.name for p in out.iterdir() if (p / "trajectories").is_dir())
     for sid in ids:
         d = out / output_name(sid) / "trajectories"
         if not d.is_dir():
             continue
         gt_path = d / "groundtruth.tum"
+        files = [gt_path, *(d / f"{output_name(n)}.tum" for n in res["methods"])]
+        total += sum(f.stat().st_size for f in files if f.is_file())
+        check_memory(3 * total, f"the trajectory files read so far ({total:,} bytes of text)", str(out))
         gt = read_tum(gt_path) if gt_path.is_file() else None
         session = dataset.session(sid) if dataset is not None and sid in dataset.session_ids else None
         sparse = bool(getattr(session, "groundtruth_sparse", False))
@@ -132,13 +139,13 @@ def report_data(out: Path, title: str | None = None) -> ReportData:
                     tracks[name] = (t, xy)
                     if gt is not None and len(gt[0]) > 1:
                         errs.setdefault(name, []).append(track_errors(t, xy, gt[0], gt[1], sparse))
-        if len(data.sessions) < MAX_SESSIONS and (tracks or gt is not None):
-            data.sessions.append(SessionView(sid, gt, tracks, _plan(session) if session is not None else None))
+        if len(page.sessions) < MAX_SESSIONS and (tracks or gt is not None):
+            page.sessions.append(SessionView(sid, gt, tracks, _plan(session) if session is not None else None))
     if len(ids) > MAX_SESSIONS:
-        data.notes.append(f"trajectories of the first {MAX_SESSIONS} of {len(ids)} sessions drawn")
-    data.errors = {k: np.concatenate(v) for k, v in errs.items()}
-    data.versus = learned_vs_baseline(res["methods"])
-    return data
+        page.notes.append(f"trajectories of the first {MAX_SESSIONS} of {len(ids)} sessions drawn")
+    page.errors = {k: np.concatenate(v) for k, v in errs.items()}
+    page.versus = learned_vs_baseline(res["methods"])
+    return page
 
 
 def _score(m) -> tuple[str, float] | None:
@@ -202,9 +209,10 @@ def learned_vs_baseline(methods: dict) -> list[str]:
     return out
 
 
-def write_report(out: Path, page: Path | None = None, title: str | None = None) -> Path:
-    """Write the page of the evaluation folder ``out`` to ``page`` (default ``out/report.html``), atomically."""
+def write_report(out: Path, page: Path | None = None, title: str | None = None, data: str | None = None) -> Path:
+    """Write the page of the evaluation folder ``out`` to ``page`` (default ``out/report.html``), atomically;
+    ``data``: see :func:`report_data`."""
     from blenav.plotting.html import render_report
 
     page = Path(page) if page is not None else Path(out) / "report.html"
-    return write_text(page, render_report(report_data(out, title)))
+    return write_text(page, render_report(report_data(out, title, data)))
