@@ -1,10 +1,12 @@
-"""The receiver's RSSI offset as a variable of the back-end's graph (issue 14 sec. 4, ``range.estimate_offset``).
+"""The receiver's RSSI offset in the back-end (issue 14 sec. 4, issue 32): as a variable of the graph
+(``range.estimate_offset``) or refitted between LM passes (``range.refit_channel``: level, or level and exponent).
 
 One simulated 384 s office walk and a copy whose RSSI reads 10 dB low (every row of rssi.csv shifted); the path
 loss fitted on the normal walk, the IMU front-end run on each, then the back-end (LM) on the first
-``--window`` seconds with and without the offset variable. Printed: the offset estimate and its std, the
-smoothed RMSE against the ground truth, and the solve time (the offset's range factors are GTSAM CustomFactors
-with a Python error function: several times slower than RangeFactor3D).
+``--window`` seconds: plain, with the offset variable, with the channel refit (level; line). Printed: the offset
+estimate (the variable's with its std; the refit's level and exponent), the smoothed RMSE against the ground
+truth, and the solve time (the offset variable's range factors are GTSAM CustomFactors with a Python error
+function: several times slower than RangeFactor3D; the refit is a second LM pass on plain range factors).
 
     .venv/bin/python benchmarks/backend_offset.py [--window 60]
 """
@@ -52,15 +54,16 @@ def main() -> None:
         fit = fit_sessions([Dataset.open(normal).session(sid)])
         print(f"path loss fitted on the normal receiver: a_X {fit.a_x:.1f} dBm, gamma {fit.gamma:.2f}; the copy reads "
               f"{args.low_db:g} dB low; back-end (LM) on the first {args.window:g} s")
-        print(f"{'receiver':10s} {'offset variable':>15s} {'offset [dB]':>14s} {'RMSE [m]':>9s} {'solve [s]':>9s}")
+        print(f"{'receiver':10s} {'offset':>15s} {'offset [dB]':>24s} {'RMSE [m]':>9s} {'solve [s]':>9s}")
         for root, name in ((normal, "normal"), (low, f"-{args.low_db:g} dB")):
             s = Dataset.open(root).session(sid)
             m = build_methods(compose("eval", "experiment=frontend_000", "data=x", "filter.n_particles=300"))["IMU"].method
             apply_fit(m.measurements, fit)
             front = run_session(m, s, 1, seed=0)
             att = session_attitude(s)
-            for est in (False, True):
-                cfg = load_backend_config(overrides=["solver.method=lm", f"range.estimate_offset={str(est).lower()}",
+            for mode in ("none", "variable", "refit level", "refit line"):
+                cfg = load_backend_config(overrides=["solver.method=lm", f"range.estimate_offset={mode == 'variable'}",
+                                                     f"range.refit_channel={mode.split()[-1] if 'refit' in mode else 'none'}",
                                                      f"range.a_x={fit.a_x}", f"range.gamma={fit.gamma}",
                                                      f"range.d0={fit.d0}"])
                 a = s.building.anchors_of("ble")
@@ -73,8 +76,12 @@ def main() -> None:
                 dt = time.perf_counter() - t0
                 gt = s.positions_at(kf.t)
                 rmse = float(np.sqrt(np.mean(np.sum((res.position[:, :2] - gt) ** 2, -1))))
-                off = f"{res.offset_db:+.2f} +- {res.offset_std_db:.2f}" if est else "-"
-                print(f"{name:10s} {str(est):>15s} {off:>14s} {rmse:9.2f} {dt:9.2f}")
+                off = "-"
+                if mode == "variable":
+                    off = f"{res.offset_db:+.2f} +- {res.offset_std_db:.2f}"
+                elif np.isfinite(res.channel_offset_db):
+                    off = f"{res.channel_offset_db:+.2f} (exponent {res.channel_exponent:.2f})"
+                print(f"{name:10s} {mode:>15s} {off:>24s} {rmse:9.2f} {dt:9.2f}")
         print(f"load average {os.getloadavg()[0]:.2f}")
 
 

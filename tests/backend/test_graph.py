@@ -289,6 +289,26 @@ def test_the_graph_recovers_a_receiver_reading_10_db_low():
     assert np.linalg.norm(res.position - kf.position, axis=-1).max() < 0.3
 
 
+def test_the_toy_graph_recovers_the_channel_and_keeps_the_track():
+    """Exact trajectory (keyframes at the truth, their cloud 0.3 m), beacons known, every range read through a channel
+    with exponent 2.6 and a receiver 6 dB hot against the model (1.72): with ``range.refit_channel=line`` (3 LM passes)
+    the smoother's fit recovers both; the smoothed track stays on the truth."""
+    true = np.array([[6.0, 4.0, 2.5], [14.0, 4.0, 2.5], [10.0, 13.0, 2.5], [10.0, 3.0, 2.5]])
+    kf, imu, ranges, bp = _scene(true, true, 0.05, range_sigma=0.0)
+    gamma_c, offset = 2.6, 6.0  # r = d0 (d / d0)^(gamma_c / gamma) 10^(-offset / (10 gamma))
+    x = np.log10(ranges.range_m / 1.78)
+    r = 1.78 * 10 ** ((gamma_c / 1.72) * x - offset / (10 * 1.72))
+    kf = Keyframes(kf.t, kf.position, kf.velocity, kf.q, cov=np.tile(np.eye(2) * 0.3 ** 2, (len(kf.t), 1, 1)))
+    cfg = load_backend_config(overrides=["solver.method=lm", "solver.passes=3", "range.gate_m=null",
+                                         "range.refit_channel=line", f"range.d0={1.78}", "range.max_range_m=100"])
+    res = smooth(cfg, kf, imu, RangeObs(ranges.t, ranges.anchor, r, 1.72), bp)
+    assert res.ok, [str(f) for f in res.failures]
+    print(res.channel_exponent, res.channel_offset_db)
+    assert res.channel_exponent == pytest.approx(gamma_c, abs=0.1)
+    assert res.channel_offset_db == pytest.approx(offset, abs=1.0)
+    assert np.linalg.norm(res.position[:, :2] - kf.position[:, :2], axis=-1).max() < 0.3
+
+
 # --------------------------------------------------------------------------------------------- the filter's cloud
 def test_the_filter_cloud_keeps_a_right_filter_against_biased_ranges():
     """Issue 32: the filter's estimate is right (its cloud 0.3 m) and every range reads 40 % short (a channel the

@@ -159,6 +159,33 @@ def test_odometry_increment_rotates_by_particle_frame():
     np.testing.assert_allclose(np.diag(cov)[:2], 0.1, rtol=0.03)
 
 
+def test_odometry_increment_takes_the_odometrys_own_variance():
+    """Issue 31: with odo_var_scale the step's noise is scale x the track's variance growth (per axis); a step whose
+    track states none (0) keeps Roy's 0.1 dt; without odo_var_scale the stated variance is ignored."""
+    x0 = OdometryIncrement(theta0=0.0).init_state(np.zeros((1, 1, 2)), np.random.default_rng(0))[0, 0]
+    for scale, g, want in ((2.0, 0.04, 0.08), (2.0, 0.0, 0.05), (None, 0.04, 0.05)):
+        m = OdometryIncrement(sigma2_per_s=0.1, sigma_theta=0.0, theta0=0.0, odo_var_scale=scale)
+        mean, cov = _moments(m, {"odo": np.array([1.0, 0.0]), "odo_var": g}, 0.5, x0)
+        np.testing.assert_allclose(mean[:2], [1.0, 0.0], atol=3e-3)
+        np.testing.assert_allclose(np.diag(cov)[:2], want, rtol=0.03)
+    with pytest.raises(ValueError, match="odo_var_scale"):
+        OdometryIncrement(odo_var_scale=0.0)
+
+
+def test_batch_steps_carry_the_tracks_variance_growth():
+    """The batch path's control odo_var is the growth of the odometry's column var between the step times."""
+    import pandas as pd
+
+    from blenav.filters.steps import _var_growth
+
+    t = np.array([0.0, 0.5, 1.0, 1.5, 2.0])
+    var = np.array([0.0, 0.01, 0.03, 0.06, 0.10])
+    assert _var_growth(t, var, 0.0, 1.0) == pytest.approx(0.03)
+    assert _var_growth(t, var, 1.0, 1.9) == pytest.approx(0.03)  # last sample at or before 1.9: t = 1.5
+    assert _var_growth(t, None, 0.0, 1.0) == 0.0
+    assert pd.api.types.is_float(_var_growth(t, var, -1.0, 0.0))
+
+
 def test_pdr_moves_one_step_length_per_step():
     m = Pdr(step_length=0.7, sigma_length=0.0, sigma_heading=0.0, sigma_p=0.0, heading_offset_rw=0.0)
     x = np.zeros((1, 3, 5))

@@ -24,11 +24,16 @@ class Solver(StrEnum):
 
 
 class RobustKernel(StrEnum):
-    """``range.robust``: the M-estimator of the range factors (GTSAM ``noiseModel.mEstimator``)."""
+    """``range.robust``: the M-estimator of the range factors (GTSAM ``noiseModel.mEstimator``), its width ``robust_k``
+    in sigmas: Huber, Cauchy, Geman-McClure, or dynamic covariance scaling (DCS, Agarwal et al. 2013: the
+    switchable constraints' closed form; GTSAM's parameter Phi = ``robust_k`` squared). The mapping mode takes none,
+    huber and cauchy."""
 
     none = "none"
     huber = "huber"
     cauchy = "cauchy"
+    geman_mcclure = "geman_mcclure"
+    dcs = "dcs"
 
 
 class Combine(StrEnum):
@@ -37,6 +42,15 @@ class Combine(StrEnum):
 
     all = "all"
     median = "median"
+
+
+class ChannelRefit(StrEnum):
+    """``range.refit_channel``: between LM passes, every range through the channel refitted on the previous pass's
+    distances (:mod:`blenav.backend.channel`): not at all, its level (the receiver offset), or level and exponent."""
+
+    none = "none"
+    level = "level"
+    line = "line"
 
 
 class Factorization(StrEnum):
@@ -100,6 +114,8 @@ class RangeConfig:
     estimate_offset: bool = False  # the receiver's RSSI offset delta (dB) as a variable O(0): range factors
     #   ||p - l|| 10^(-delta / (10 gamma)) - r (a receiver reading delta dB high sees every range shortened)
     offset_sigma_db: float = 10.0  # dB, prior std of delta (prior mean 0, or the previous window's estimate)
+    refit_channel: ChannelRefit = ChannelRefit.none  # LM passes after the first: every range through the channel
+    #   refitted on the previous pass's distances (blenav.backend.channel, a line in log range: none | level | line)
 
 
 @dataclass

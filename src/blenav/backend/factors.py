@@ -105,8 +105,10 @@ def robust_noise(kind: RobustKernel, k: float, sigma: float, dim: int = 1):
     if kind == RobustKernel.none:
         return base
     est = gtsam.noiseModel.mEstimator
-    m = est.Huber.Create(float(k)) if kind == RobustKernel.huber else est.Cauchy.Create(float(k))
-    return gtsam.noiseModel.Robust.Create(m, base)
+    make = {RobustKernel.huber: lambda: est.Huber.Create(float(k)), RobustKernel.cauchy: lambda: est.Cauchy.Create(float(k)),
+            RobustKernel.geman_mcclure: lambda: est.GemanMcClure.Create(float(k)),
+            RobustKernel.dcs: lambda: est.DCS.Create(float(k) ** 2)}  # DCS: Phi in squared whitened units
+    return gtsam.noiseModel.Robust.Create(make[kind](), base)
 
 
 def offset_range_error(r: float, gamma: float, this, values, H) -> np.ndarray:

@@ -67,9 +67,10 @@ from functools import partial
 import numpy as np
 import pandas as pd
 
-from .config import BackendConfig, Solver
+from .config import BackendConfig, ChannelRefit, Solver
 from .factors import (load_gtsam, nearest_keyframe, offset_range_error, preintegrate, preintegration_params,
                       robust_noise, select_ranges)
+from .channel import channel_of, refit_ranges
 from .graph_types import BackendFailure, BackendResult, BeaconPriors, ImuSamples, Keyframes, RangeObs, describe_key
 
 __all__ = ["RadioInertialGraph", "smooth"]
@@ -477,17 +478,23 @@ def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs,
     graph = RadioInertialGraph(cfg, kf, imu, ranges, beacons, offset_prior_db=offset_prior_db)
     res = graph.solve()
     passes = int(cfg.solver.passes) if Solver(cfg.solver.method) == Solver.lm else 1  # iSAM2 is online: one pass
+    ranges0, channel = ranges, None  # range.refit_channel: the ranges as measured, the channel fitted so far
     for p in range(passes - 1):
         if not res.ok:
             break
         # again, from this solution: its keyframes and beacons re-gate the ranges and initialise the graph
         again = Keyframes(kf.t, res.position, res.velocity, res.q, res.bias)
         init = res.beacon_map[["x", "y", "z"]].to_numpy(float)
+        if ChannelRefit(cfg.range.refit_channel) != ChannelRefit.none:  # the channel from this solution
+            ranges, channel, note = refit_ranges(cfg, (graph._range_k, graph._range_j, graph._range_r), res.position,
+                                                 init, ranges0, channel)
+            res.notes.append(note)
         off0 = res.offset_db if np.isfinite(res.offset_db) else None
         graph = RadioInertialGraph(cfg, again, imu, ranges, beacons, beacon_init=init, pims=graph.pims,
                                    offset_prior_db=offset_prior_db, offset_init_db=off0, cloud=kf)
-        notes = res.notes
-        res = graph.solve()
+        res, notes = graph.solve(), res.notes
         res.notes = notes + [f"pass {p + 2}: " + n for n in res.notes]
+        if channel is not None:  # the fit of the measured ranges: the channel's exponent and level
+            res.channel_exponent, res.channel_offset_db = channel_of(channel, ranges0.gamma or cfg.range.gamma)
     res.wall_s = time.perf_counter() - t0
     return res

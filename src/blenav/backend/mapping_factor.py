@@ -24,6 +24,9 @@ def robust_sqrt(u: np.ndarray, kernel: RobustKernel, k: float) -> tuple[np.ndarr
     kernel = RobustKernel(kernel)
     if kernel == RobustKernel.none:
         return u.copy(), np.ones_like(u)
+    if kernel not in (RobustKernel.huber, RobustKernel.cauchy):
+        raise ValueError(f"mapping.robust: {kernel.value} is a kernel of the range factors; the mapping mode takes "
+                         f"none, huber or cauchy")
     a = np.abs(u)
     if kernel == RobustKernel.huber:
         rho = np.where(a <= k, 0.5 * u * u, k * a - 0.5 * k * k)

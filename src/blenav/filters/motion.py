@@ -160,12 +160,21 @@ class OdometryIncrement(MotionModel):
     starts uniform in [-pi, pi) (or at ``theta0`` when the alignment is known) and random-walks with
     ``sigma_theta`` rad per step. Roy writes Sigma = 0.1 I "m" at 1 Hz; we read 0.1 as the covariance
     in m^2 per 1 s step and scale it with the step length (sigma = sqrt(0.1 dt)).
+
+    ``odo_var_scale`` (issue 31): Sigma = odo_var_scale x the odometry's own variance growth over the step (control
+    ``odo_var``, m^2 per axis: the learned inertial odometry's covariance head, TLIO-style) where the track states one,
+    Roy's 0.1 dt elsewhere (a track without variance, a step where it did not grow); None: always Roy's.
     """
 
     sigma2_per_s: float = 0.1
     sigma_theta: float = 0.01
     theta0: float | None = None
+    odo_var_scale: float | None = None
     state_dim = 5
+
+    def __post_init__(self):
+        if self.odo_var_scale is not None and not (np.isfinite(self.odo_var_scale) and self.odo_var_scale > 0):
+            raise ValueError(f"motion.odo_var_scale must be a positive number or null, got {self.odo_var_scale!r}")
     needs = ("odo",)
     #: state column of the odometry-to-world frame angle (read by the map prior's heading bins and set by an
     #: oracle start, see :class:`blenav.filters.method.MapSpec` ``heading``)
@@ -181,7 +190,12 @@ class OdometryIncrement(MotionModel):
         th = x[..., 4] + self.sigma_theta * rng.standard_normal(x.shape[:-1])
         c, s = np.cos(th), np.sin(th)
         step = np.stack([c * d[0] - s * d[1], s * d[0] + c * d[1]], axis=-1)
-        eta = np.sqrt(self.sigma2_per_s * dt) * rng.standard_normal(x.shape[:-1] + (2,))
+        var = self.sigma2_per_s * dt
+        if self.odo_var_scale is not None:
+            g = float(ctrl.get("odo_var", 0.0))
+            if np.isfinite(g) and g > 0.0:
+                var = self.odo_var_scale * g
+        eta = np.sqrt(var) * rng.standard_normal(x.shape[:-1] + (2,))
         return _moved(x, step + eta, dt, th)
 
 

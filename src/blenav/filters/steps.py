@@ -13,6 +13,8 @@ window (t_{k-1}, t_k], t_k = t_start + k / rate_hz. Per window (all causal, so t
 * ``steps``: PDR steps detected in the window (:class:`StepDetector`, causal);
 * ``odo`` (2,): inertial-odometry displacement between the last odometry samples at or before
   t_{k-1} and t_k (odometry frame, m);
+* ``odo_var`` (float, m^2): the growth of the odometry's own position variance (per axis) over the same interval,
+  where the track states one (the learned inertial odometry's column ``var``, issue 31); 0 otherwise;
 * ``rssi_idx`` (M,), ``rssi`` (M,): the window's BLE packets (anchor row in the model's
   :class:`~blenav.filters.measurement.AnchorTable`, dBm); packets of anchors that are not BLE anchors
   of the building are left out (the reader already dropped unknown ids and reported them);
@@ -168,15 +170,16 @@ def _window_controls_numpy(win_acc: np.ndarray, win_q: np.ndarray, median_window
 
 def window_step(win_acc: np.ndarray, win_q: np.ndarray, steps: int, odo_prev: np.ndarray, odo_now: np.ndarray,
                 rssi_idx: np.ndarray, rssi: np.ndarray, last_heading: float, median_window: int = 5,
-                fixes: dict | None = None, t: float = float("nan")) -> tuple[dict, dict, float]:
+                fixes: dict | None = None, t: float = float("nan"), odo_var: float = 0.0) -> tuple[dict, dict, float]:
     """Controls and observations of one window (both paths call this).
 
-    ``fixes``: the window's fixes as :func:`pack_fixes` returns them (None: no fixes); ``t``: the step time (s)."""
+    ``fixes``: the window's fixes as :func:`pack_fixes` returns them (None: no fixes); ``t``: the step time (s);
+    ``odo_var``: the odometry's variance growth over the window (m^2 per axis, 0 when the track states none)."""
     if len(win_acc):
         acc_w, heading = _window_controls(win_acc, win_q, median_window)
     else:
         acc_w, heading = np.zeros(2), last_heading
-    ctrl = {"acc_w": acc_w, "heading": heading, "steps": steps, "odo": odo_now - odo_prev}
+    ctrl = {"acc_w": acc_w, "heading": heading, "steps": steps, "odo": odo_now - odo_prev, "odo_var": float(odo_var)}
     obs = {"rssi_idx": rssi_idx, "rssi": rssi, **(fixes if fixes is not None else pack_fixes([], [], [])),
            "t": float(t), "odo_xy": np.array(odo_now, dtype=float)}
     return ctrl, obs, heading
@@ -211,6 +214,7 @@ class SessionArrays:
     fix_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     fix_std: np.ndarray = field(default_factory=lambda: np.zeros(0))
     fix_source: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=str))
+    odo_var: np.ndarray | None = None  # (n,) m^2 per axis: the odometry's cumulative position variance (column var)
 
     @classmethod
     def from_session(cls, session, anchors: AnchorTable, extra_fixes=None, odometry=None) -> "SessionArrays":
@@ -245,7 +249,8 @@ class SessionArrays:
             c(odo["t"].to_numpy(float)), c(odo[["x", "y"]].to_numpy(float)),
             float(min(t[0] for t in ts)), float(max(t[-1] for t in ts)),
             c(fx["t"].to_numpy(float)), c(fx[["x", "y"]].to_numpy(float)), c(fx["std"].to_numpy(float)),
-            fx["source"].fillna("").astype(str).str.strip().to_numpy(dtype=str))
+            fx["source"].fillna("").astype(str).str.strip().to_numpy(dtype=str),
+            c(odo["var"].to_numpy(float)) if "var" in odo and len(odo) else None)
 
 
 def step_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
@@ -256,6 +261,14 @@ def step_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
 def _odo_at(odo_t: np.ndarray, odo: np.ndarray, t: float) -> np.ndarray:
     i = np.searchsorted(odo_t, t, side="right") - 1
     return odo[i] if i >= 0 else (odo[0] if len(odo) else np.zeros(2))
+
+
+def _var_growth(odo_t: np.ndarray, var: np.ndarray | None, t0: float, t1: float) -> float:
+    """The odometry's variance growth (m^2) between its last samples at or before t0 and t1 (0 without ``var``)."""
+    if var is None or not len(var):
+        return 0.0
+    i0, i1 = np.searchsorted(odo_t, [t0, t1], side="right") - 1
+    return float(var[max(i1, 0)] - var[max(i0, 0)])
 
 
 class OdometryTrack:
@@ -323,7 +336,8 @@ def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det
         f = slice(bounds_fix[k], bounds_fix[k + 1])
         fixes = pack_fixes(a.fix_xy[f], a.fix_std[f], a.fix_source[f]) if f.stop > f.start else None
         ctrl, obs, heading = window_step(wa, wq, n_steps, _odo_at(a.odo_t, a.odo, prev_t), _odo_at(a.odo_t, a.odo, t),
-                                         a.rssi_idx[r], a.rssi[r], heading, att_cfg.median_window, fixes, float(t))
+                                         a.rssi_idx[r], a.rssi[r], heading, att_cfg.median_window, fixes, float(t),
+                                         _var_growth(a.odo_t, a.odo_var, prev_t, t))
         out.append((float(t), ctrl, obs))
         prev_t = t
     return out, q
