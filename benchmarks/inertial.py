@@ -8,9 +8,12 @@ Given an export directory (``python export.py ckpt=RUN/last.ckpt out=IO_DIR``) a
   frame, cut the window, turn it into its heading frame, one onnxruntime call on one window, turn the velocity back and
   add it to the track; median and p99 over every stride of the walks, against the 5 ms target (ratio <= 1: met);
 * batch throughput: the whole walk's windows in one call (what the evaluation does), ms per walk-minute;
-* training time: ``RUN/training.json``'s ``fit_wall_s`` and steps, when ``--ckpt`` is given.
+* training time: ``RUN/training.json``'s ``fit_wall_s`` and steps, when ``--ckpt`` is given;
+* ``--int8``: the graph dynamically quantised to int8 weights (onnxruntime.quantization, as the bundle's localizer):
+  its size, one window's latency, the largest velocity difference, and the segment error (|(p(b) - p(a)) -
+  (g(b) - g(a))| over each waypoint segment, the challenge's measure) of the float and int8 tracks on the walks.
 
-    .venv/bin/python benchmarks/inertial.py IO_DIR DATA [--walks 5] [--ckpt RUN/last.ckpt]
+    .venv/bin/python benchmarks/inertial.py IO_DIR DATA [--walks 5] [--ckpt RUN/last.ckpt] [--int8]
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ def main() -> None:
     ap.add_argument("data", help="a dataset with IMU walks")
     ap.add_argument("--walks", type=int, default=5)
     ap.add_argument("--ckpt", default=None, help="the run's last.ckpt: parity measured here and its training time")
+    ap.add_argument("--int8", action="store_true", help="also the int8-quantised graph: size, latency, accuracy")
     args = ap.parse_args()
     model = InertialModel(args.io_model)
     g = model.grid
@@ -80,6 +84,8 @@ def main() -> None:
     print(f"streaming step ({len(st)} strides of {len(walks)} walks): median {med:.2f} ms, p99 {p99:.2f} ms; target "
           f"{TARGET_MS:g} ms: ratio {p99 / TARGET_MS:.2f} (p99)")
     print(f"batch (the evaluation): {batch_ms / max(minutes, 1e-9):.1f} ms per walk-minute over {minutes:.1f} min")
+    if args.int8:
+        int8(model, walks)
     if args.ckpt:
         import torch
 
@@ -106,6 +112,59 @@ def main() -> None:
                   f"wall on {d.get('walks')} walks / {d.get('segment_s', 0) / 60:.0f} min of supervised segments; best "
                   f"validation segment error {info.get('best_val_error_m') or float('nan'):.3f} m vs PDR "
                   f"{info.get('baseline_val_error_m') or float('nan'):.3f} m")
+
+
+def int8(model: InertialModel, walks: list) -> None:
+    """The int8 graph against the float one on ``walks`` (see the module docstring)."""
+    import tempfile
+
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    from blenav.eval.metrics import segment_errors
+    from blenav.features.inertial import integrate
+    from blenav.onnx_io import session
+
+    g = model.grid
+    src = Path(model.root) / "inertial.onnx"
+    with tempfile.TemporaryDirectory() as tmp:
+        dst = Path(tmp) / "inertial.int8.onnx"
+        import contextlib
+        import io
+        import logging
+
+        logging.disable(logging.WARNING)  # the quantiser's progress lines and graph dumps
+        with contextlib.redirect_stdout(io.StringIO()):
+            quantize_dynamic(str(src), str(dst), weight_type=QuantType.QInt8)
+        logging.disable(logging.NOTSET)
+        q = session(dst, 1)
+        dv, seg = 0.0, {"float": [], "int8": []}
+        lat = {"float": [], "int8": []}
+        for s in walks:
+            imu = s.imu
+            q_t, qa = attitude_track(s, "auto")
+            _, X = world_frame_imu(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float),
+                                   imu[["gx", "gy", "gz"]].to_numpy(float), q_t, qa, g.rate_hz)
+            W = windows(X, g)
+            W, psi = heading_frame(W) if model.frame == "heading" else (W, None)
+            out = {"float": model.predict(W), "int8": tuple(q.run(["velocity", "log_var"], {"imu": W}))}
+            dv = max(dv, float(np.abs(out["float"][0] - out["int8"][0]).max()))
+            gt = s.groundtruth
+            for name, (v, lv) in out.items():
+                if psi is not None:
+                    v, lv = rotate_velocity(v, lv, psi)
+                tt, xy, _ = integrate(float(imu["t"].iloc[0]), g, v, lv)
+                seg[name].append(segment_errors(tt, xy[None], gt["t"].to_numpy(float),
+                                                gt[["x", "y"]].to_numpy(float))["err"][0])
+            for name, run in (("float", lambda w: model.predict(w)), ("int8", lambda w: q.run(None, {"imu": w}))):
+                for _ in range(20):
+                    a = time.perf_counter()
+                    run(W[-1:])
+                    lat[name].append(1e3 * (time.perf_counter() - a))
+        e = {k: np.concatenate(v) for k, v in seg.items()}
+        print(f"int8: {dst.stat().st_size / 1e3:.0f} kB vs float {src.stat().st_size / 1e3:.0f} kB; one window "
+              f"{np.median(lat['int8']):.3f} ms vs {np.median(lat['float']):.3f} ms; largest velocity difference "
+              f"{dv:.4f} m/s; segment error ({len(e['float'])} segments) mean {e['int8'].mean():.3f} m vs float "
+              f"{e['float'].mean():.3f} m (median {np.median(e['int8']):.3f} vs {np.median(e['float']):.3f})")
 
 
 if __name__ == "__main__":

@@ -291,3 +291,52 @@ def test_cli_refuses_an_out_that_overwrites_what_it_reads(tmp_path, capsys, wher
     assert (session / "rssi.csv").read_text() == "t,anchor_id,rssi\n"
     assert (tmp_path / "bundle" / "localizer.onnx").read_bytes() == b"graph"
     assert not (tmp_path / "data" / "new.csv").exists()
+
+
+def test_bundle_carries_the_learned_inertial_odometry(made, tmp_path):
+    """Issue 31: ``export.py bundle=true io_model=IO_DIR`` puts the learned odometry in the bundle (``inertial/``, in the
+    manifest); replaying a session (``blenav-localize``) runs it on the session's IMU, torch-free, instead of reading
+    odometry.csv: the same track as the bundle without it on a copy of the session whose odometry.csv is that track."""
+    from blenav.runtime.inertial import InertialModel
+
+    train(compose("train", "experiment=inertial", f"data.path={made['data']}", f"out={tmp_path / 'iorun'}",
+                  "plots=false", "trainer.budget.max_steps=20", "trainer.budget.val_every_steps=10",
+                  "trainer.enable_progress_bar=false", "data.val_fraction=0.34"))
+    io = export(compose("export", f"ckpt={tmp_path / 'iorun' / 'last.ckpt'}", f"out={tmp_path / 'io'}"))
+    common = ["bundle=true", f"ckpt={made['loc']}", f"data={made['data']}", "variants=false"]
+    export_bundle(compose("export", *common, f"out={tmp_path / 'LIO'}", f"io_model={io}"))
+    export_bundle(compose("export", *common, f"out={tmp_path / 'PLAIN'}"))
+    b = Bundle.open(tmp_path / "LIO")
+    assert b.inertial is not None and {"inertial/inertial.onnx", "inertial/meta.json"} <= set(b.manifest["files"])
+    assert b.manifest["models"]["inertial"]["source"] == str(Path(io).resolve())
+    sid = Dataset.open(made["data"]).session_ids[0]
+    s = Dataset.open(made["data"]).session(sid)
+    est = b.run_session(s, seed=0)
+    assert b.last_odometry.startswith("learned inertial odometry")
+    # the reference: the bundle without the model, on a copy whose odometry.csv is the learned track
+    copy = shutil.copytree(made["data"], tmp_path / "copy")
+    track = InertialModel(io).odometry(s)
+    track[["t", "x", "y"]].to_csv(copy / "sessions" / sid / "odometry.csv", index=False, float_format="%.17g")
+    plain = Bundle.open(tmp_path / "PLAIN")
+    ref = plain.run_session(Dataset.open(copy).session(sid), seed=0)
+    assert plain.last_odometry == "the session's odometry.csv"
+    a = np.array([[e.t, e.x, e.y] for e in est])
+    r = np.array([[e.t, e.x, e.y] for e in ref])
+    assert a.shape == r.shape and len(a) > 30
+    np.testing.assert_allclose(a, r, atol=1e-6)
+    # the CLI on it loads no torch
+    out = tmp_path / "est.csv"
+    code = f"""
+import json, sys
+from blenav.cli.localize import main
+rc = main([{str(tmp_path / 'LIO')!r}, {str(made['data'] / 'sessions' / sid)!r}, "--out", {str(out)!r}, "--no-progress"])
+print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "hydra") if m in sys.modules)}}))
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert json.loads(res.stdout.strip().splitlines()[-1]) == {"rc": 0, "heavy": []}
+    assert "odometry: learned inertial odometry" in res.stdout
+    np.testing.assert_allclose(pd.read_csv(out)[["t", "x", "y"]].to_numpy(), a, atol=1e-4)  # the CSV: 0.1 mm
+    with pytest.raises(FileNotFoundError, match="io_model="):
+        export_bundle(compose("export", *common, f"out={tmp_path / 'X'}", f"io_model={tmp_path / 'nope'}"))
+    assert not (tmp_path / "X").exists()

@@ -1,7 +1,8 @@
 """``blenav-localize BUNDLE SESSION_DIR --out FILE.csv``: run a runtime bundle on a recorded session, torch-free.
 
 Replays the session's samples (rssi.csv, odometry.csv, imu.csv, mag.csv; its fixes.csv is not read: the bundle's
-localizer makes its own fixes) in time order through the bundle's push API (:class:`blenav.runtime.BundleLocalizer`)
+localizer makes its own fixes; a bundle with a learned inertial odometry, ``inertial/``, makes the odometry from
+imu.csv instead of reading odometry.csv) in time order through the bundle's push API (:class:`blenav.runtime.BundleLocalizer`)
 and writes one row per filter step as it is made: ``t,x,y,std`` (s; m in the building's world frame; m, the RMS of
 the particle cloud's per-axis standard deviations), flushed per row, so the file can be followed while it grows.
 ``SESSION_DIR`` is a session folder of a dataset (``DATASET/sessions/ID``). The bundle refuses a session whose
@@ -100,7 +101,7 @@ def _main(argv: list[str] | None) -> int:
         bar.close()
     fixes = len(getattr(bundle, "last_fixes", []))
     print(f"wrote {n} estimates (t,x,y,std) to {out}; {fixes} fixes from the bundle's localizer "
-          f"({bundle.variant} models)")
+          f"({bundle.variant} models); odometry: {getattr(bundle, 'last_odometry', 'none')}")
     return 0 if est is not None else 1
 
 

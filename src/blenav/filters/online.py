@@ -78,14 +78,17 @@ class OnlineLocalizer:
         return self._run(self.stream.close(t_end))
 
 
-def replay(session: Session):
+def replay(session: Session, odometry=None):
     """The session's samples as one time-ordered event list (kind, t, payload...).
 
     Kinds: ('mag', t, m), ('odo', t, xy), ('rssi', t, anchor_id, rssi), ('fix', t, x, y, std | None,
-    source | None), ('imu', t, acc, gyr); :meth:`OnlineLocalizer.push_event` dispatches them.
+    source | None), ('imu', t, acc, gyr); :meth:`OnlineLocalizer.push_event` dispatches them. ``odometry``
+    (DataFrame t, x, y): the odometry events' track in place of the session's odometry.csv (e.g. the learned inertial
+    odometry of a bundle).
     """
     ev = []
-    imu, mag, r, odo, fx = session.imu, session.mag, session.rssi, session.odometry, session.fixes
+    imu, mag, r, fx = session.imu, session.mag, session.rssi, session.fixes
+    odo = session.odometry if odometry is None else odometry
     order = {"mag": 0, "odo": 1, "rssi": 2, "fix": 3, "imu": 4}
     for row in mag.itertuples(index=False):
         ev.append(("mag", row.t, np.array([row.mx, row.my, row.mz])))

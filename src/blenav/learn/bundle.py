@@ -14,7 +14,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from blenav.data import Dataset
 from blenav.data.yaml_file import load_yaml
-from blenav.runtime.bundle import LOCALIZER, MANIFEST, MAP_DIR, variant_name
+from blenav.runtime.bundle import INERTIAL_DIR, LOCALIZER, MANIFEST, MAP_DIR, variant_name
 from blenav.runtime.bundle.write import finish_bundle
 from blenav.runtime.map_prior import MapPrior
 from blenav.runtime.signature import BuildingMismatch, building_signature, compare
@@ -73,8 +73,10 @@ def export_bundle(cfg: DictConfig) -> Path:
         mine = [s for s in ds.sessions(labelled=True) if s.meta.get("building") == building.id
                 and len(s.rssi) and len(s.groundtruth)]
         needs = _motion_needs(cfg.runtime.motion)  # the streams the bundle's motion model reads
-        if "odo" in needs:
+        if "odo" in needs and not cfg.get("io_model"):
             mine = [s for s in mine if len(s.odometry)]
+        if "odo" in needs and cfg.get("io_model"):  # the bundle's inertial odometry runs on the IMU
+            mine = [s for s in mine if len(s.imu)]
         if any(n in needs for n in ("acc_w", "heading", "steps")):
             mine = [s for s in mine if len(s.imu)]
         unseen = [s for s in mine if s.id not in trained]
@@ -109,6 +111,8 @@ def export_bundle(cfg: DictConfig) -> Path:
             else:
                 raise FileNotFoundError(f"mapprior={mp} does not exist (a last.ckpt or an export directory)")
             models["map_prior"] = {"source": str(mp.resolve())}
+        if cfg.get("io_model"):
+            models["inertial"] = _copy_inertial(Path(cfg.io_model), tmp / INERTIAL_DIR)
         settings = OmegaConf.to_container(cfg.runtime, resolve=True)
         check_targets(settings, "export config", prefix="runtime")  # settings.json may name only blenav's classes
         finish_bundle(tmp, sig, settings, variants=bool(cfg.variants), sessions=sessions,
@@ -119,6 +123,22 @@ def export_bundle(cfg: DictConfig) -> Path:
         shutil.rmtree(tmp, ignore_errors=True)  # never leave half a bundle
         raise
     return out
+
+
+def _copy_inertial(io: Path, dest: Path) -> dict:
+    """The learned inertial odometry export ``io`` (``export.py`` on a ``train.py experiment=inertial`` run), checked
+    (its hashes, grid, channels: :class:`blenav.runtime.inertial.InertialModel`) and copied to ``dest``: its graph
+    and meta.json only. Returns its manifest entry."""
+    from blenav.runtime.inertial import INERTIAL_ONNX, META_JSON, InertialModel
+
+    if not io.exists():
+        raise FileNotFoundError(f"io_model={io} does not exist (an export directory of `python export.py "
+                                "ckpt=RUN/last.ckpt out=IO_DIR` on a train.py experiment=inertial run)")
+    model = InertialModel(io)
+    dest.mkdir(parents=True)
+    for name in (INERTIAL_ONNX, META_JSON):
+        shutil.copy(io / name, dest / name)
+    return {"source": str(io.resolve()), "rate_hz": model.grid.rate_hz, "attitude": model.attitude}
 
 
 def _motion_needs(motion) -> tuple[str, ...]:

@@ -1,6 +1,6 @@
 """A runtime bundle: one folder an app embeds, run without PyTorch (onnxruntime + numpy).
 
-``python export.py bundle=true ckpt=RUN/last.ckpt out=BUNDLE [mapprior=RUN2/last.ckpt]`` writes one;
+``python export.py bundle=true ckpt=RUN/last.ckpt out=BUNDLE [mapprior=RUN2/last.ckpt] [io_model=IO_DIR]`` writes one;
 ``Bundle.open(BUNDLE).localizer(building)`` runs it live. The package, one idea a module:
 
 - :mod:`.format`: the file layout, the format's name, the graphs' variants (float, ORT, int8, both), sha256;
@@ -16,11 +16,11 @@ This module is the interface: the bundle, its push API and the format's names. I
 blenav.data) and onnxruntime; never torch, lightning or hydra.
 """
 
-from .format import (BUILDING, FIX_SOURCE, FORMAT, LOCALIZER, MANIFEST, MAP_DIR, MAP_GRAPHS, SETTINGS, VARIANTS,
-                     variant_name)
+from .format import (BUILDING, FIX_SOURCE, FORMAT, INERTIAL_DIR, LOCALIZER, MANIFEST, MAP_DIR, MAP_GRAPHS, SETTINGS,
+                     VARIANTS, variant_name)
 from .live import BundleLocalizer, TrackPoint
 from .read import Bundle
 from .settings import DEFAULT_SETTINGS
 
-__all__ = ["BUILDING", "DEFAULT_SETTINGS", "FIX_SOURCE", "FORMAT", "LOCALIZER", "MANIFEST", "MAP_DIR", "MAP_GRAPHS",
+__all__ = ["BUILDING", "DEFAULT_SETTINGS", "FIX_SOURCE", "FORMAT", "INERTIAL_DIR", "LOCALIZER", "MANIFEST", "MAP_DIR", "MAP_GRAPHS",
            "SETTINGS", "VARIANTS", "Bundle", "BundleLocalizer", "TrackPoint", "variant_name"]

@@ -11,6 +11,8 @@ Layout (``python export.py bundle=true ckpt=RUN/last.ckpt out=BUNDLE [mapprior=R
     BUNDLE/localizer.int8.onnx    ... dynamically quantised to int8 weights (onnxruntime.quantization)
     BUNDLE/localizer.int8.ort     ... both
     BUNDLE/map_prior/             optional: map_encoder.*, trajectory_encoder.* (same four variants), meta.json
+    BUNDLE/inertial/              optional (``io_model=IO_DIR``): the learned inertial odometry, inertial.onnx and its
+                                  meta.json as ``export.py`` wrote them (issue 31): the bundle's odometry
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ BUILDING = "building.json"
 LOCALIZER = "localizer"
 MAP_DIR = "map_prior"
 MAP_GRAPHS = ("map_encoder", "trajectory_encoder")
+INERTIAL_DIR = "inertial"
 VARIANTS = ("float", "ort", "int8", "int8_ort")
 #: the source name of the fixes the bundle's localizer makes (the filter's fix likelihood weighs these)
 FIX_SOURCE = "bundle"

@@ -17,7 +17,7 @@ from blenav.limits import read_json
 from blenav.onnx_io import check_weights, read_metadata, session
 
 from ..signature import BuildingMismatch, check_building
-from .format import BUILDING, FORMAT, LOCALIZER, MANIFEST, MAP_DIR, MAP_GRAPHS, SETTINGS, variant_name
+from .format import BUILDING, FORMAT, INERTIAL_DIR, LOCALIZER, MANIFEST, MAP_DIR, MAP_GRAPHS, SETTINGS, variant_name
 from .graphs import LocalizerGraph, MapBackend
 from .live import BundleLocalizer, TrackPoint
 from .settings import build_method, check_settings, check_targets_of
@@ -35,6 +35,7 @@ class Bundle:
     variant: str
     graph: LocalizerGraph
     prior: object | None
+    inertial: object | None = None  # the learned inertial odometry (blenav.runtime.inertial.InertialModel) or None
 
     @classmethod
     def open(cls, root: str | Path, variant: str = "float", threads: int = 1, verify: bool = True) -> "Bundle":
@@ -78,7 +79,12 @@ class Bundle:
             digest = manifest["files"].get(f"{MAP_DIR}/{variant_name(MAP_GRAPHS[0], variant)}", {}).get("sha256", "")
             backend = MapBackend(root / MAP_DIR, variant, threads, digest)
             prior = MapPrior(root / MAP_DIR / variant_name(MAP_GRAPHS[0], variant), loader=lambda _p: backend)
-        return cls(root, manifest, settings, signature, variant, graph, prior)
+        inertial = None
+        if (root / INERTIAL_DIR / "meta.json").is_file():  # its own hashes checked too (InertialModel)
+            from ..inertial import InertialModel
+
+            inertial = InertialModel(root / INERTIAL_DIR, threads=threads)
+        return cls(root, manifest, settings, signature, variant, graph, prior, inertial)
 
     @property
     def beacons(self) -> list[str]:
@@ -108,18 +114,24 @@ class Bundle:
                     on_total: Callable[[int], None] | None = None) -> list[TrackPoint]:
         """Replay a recorded session through :meth:`localizer` (its own fixes, fixes.csv is not read); calls
         ``on_total(n)`` once with the number of samples to replay, ``on_estimate`` with each estimate as it is made
-        and ``on_event(n)`` after every n samples (progress)."""
+        and ``on_event(n)`` after every n samples (progress). A bundle with a learned inertial odometry
+        (``inertial/``) runs it on the session's IMU and replays its track as the odometry (odometry.csv is not
+        read); :attr:`last_odometry` says which was used."""
         from blenav.filters.online import replay
 
         self.check_session(session)
-        firsts = [float(f["t"].iloc[0]) for f in (session.imu, session.rssi, session.odometry) if len(f)]
+        odometry = self.inertial.odometry(session) if self.inertial is not None else None
+        self.last_odometry = (f"learned inertial odometry ({INERTIAL_DIR}/, {len(odometry)} points)"
+                              if odometry is not None else "the session's odometry.csv")
+        odo = session.odometry if odometry is None else odometry
+        firsts = [float(f["t"].iloc[0]) for f in (session.imu, session.rssi, odo) if len(f)]
         # the batch filter's start: the first IMU, RSSI or odometry sample (even when the motion model reads no IMU)
         loc = self.localizer(session.building, floor=session.meta.get("floor"), seed=seed,
                              t_start=min(firsts) if firsts else None, keep_fixes=None)
         need_imu = loc.method.needs_imu
         out: list[TrackPoint] = []
         t_end = None
-        events = [e for e in replay(session) if e[0] != "fix" and (need_imu or e[0] not in ("imu", "mag"))]
+        events = [e for e in replay(session, odometry) if e[0] != "fix" and (need_imu or e[0] not in ("imu", "mag"))]
         every = max(1, len(events) // 200)
         if on_total is not None:
             on_total(len(events))
