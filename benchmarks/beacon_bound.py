@@ -14,7 +14,7 @@ the receiver's positions **pinned at the ground truth**, from the perturbed map 
   perturbed map as its prior (``mapping.use_map_prior``, std 1.5 or 3 m, every beacon with 10 readings kept).
 
 Each row: the given map's mean horizontal error and the estimate's (m) over every beacon of the building, and the
-share by which it is closer; then, for the best row, the same by how many readings each beacon had. The draws of
+share by which it is closer; then every row's error by how many readings (rssi.csv rows) each beacon had. The draws of
 the perturbation are those of ``experiment=mapnoise_000`` (:func:`blenav.eval.beacon_map.perturb`, runs 0..R-1).
 
     .venv/bin/python benchmarks/beacon_bound.py DATASET [DATASET ...] [--runs 2] [--out docs/results/beacon_bound.md]
@@ -53,8 +53,8 @@ def _errors(bmap: pd.DataFrame, truth: pd.DataFrame) -> pd.Series:
 def pinned_range_graph(session, building, sigma_m: float, overrides: list[str]) -> pd.DataFrame:
     """The back-end's graph on ``session`` with ``building``'s (perturbed) map as prior (std ``sigma_m``) and every
     keyframe (1 s) held at the ground truth: its beacon map (anchor_id, x, y, z, n_heard, ...)."""
-    cfg = load_backend_config(overrides=["solver.method=lm", f"priors.front_end_min_sigma_m={PIN_M}",
-                                         "priors.front_end_cloud_scale=1.0", *overrides])
+    cfg = load_backend_config(overrides=["solver.method=lm", f"priors.front_end_min_sigma_m={PIN_M}",  # not inflated:
+                                         "priors.front_end_cloud_scale=1.0", "priors.front_end_corr_s=1.0", *overrides])
     anchors = building.anchors_of("ble")
     bp = beacon_priors(anchors, sigma_m, cfg.priors.beacon_sigma_z_m)
     ranges = session_ranges(session, bp, path_loss_model(cfg), anchors)

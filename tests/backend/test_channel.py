@@ -5,7 +5,7 @@ distances; the toy graph is in test_graph.py) and the robust kernels of ``range.
 import numpy as np
 import pytest
 
-from blenav.backend.channel import LogRangeFit, apply_log_fit, channel_of, compose, fit_log_ranges
+from blenav.backend.channel import LogRangeFit, apply_log_fit, channel_of, fit_log_ranges, measured_ranges
 
 D0, A_X, GAMMA = 1.78, -64.53, 1.72
 
@@ -61,19 +61,12 @@ def test_a_bound_slope_keeps_the_level_consistent():
     assert np.isfinite(apply_log_fit(r, fit)).all()
 
 
-def test_compose_is_the_fit_of_the_original_ranges():
-    """A second pass fits ranges already turned by the first: the composed line maps the measured ranges to the
-    distances as one fit would."""
+def test_measured_ranges_undo_the_fit():
+    """A later pass takes the ranges it used (turned by the previous fit) back to their measured values."""
     rng = np.random.default_rng(5)
-    d = rng.uniform(0.5, 5.0, 200)
-    r, d = _ranges(d, 2.4, 3.0, 0.0, rng, clamp=np.inf)
-    first = LogRangeFit(0.05, 1.1, D0, len(r))  # a first pass's (wrong) channel
-    turned = apply_log_fit(r, first)
-    then = fit_log_ranges(turned, d, D0, slope=True)
-    both = compose(first, then)
-    np.testing.assert_allclose(apply_log_fit(r, both), d, rtol=1e-6)
-    assert channel_of(both, GAMMA) == pytest.approx((2.4, 3.0), abs=1e-6)
-
+    r = rng.uniform(0.3, 10.0, 50)
+    fit = LogRangeFit(0.05, 1.3, D0, len(r))
+    np.testing.assert_allclose(measured_ranges(apply_log_fit(r, fit), fit), r, rtol=1e-12)
 
 
 @pytest.mark.parametrize("kind", ["huber", "cauchy", "geman_mcclure", "dcs"])
@@ -91,11 +84,14 @@ def test_range_kernels_weigh_small_residuals_fully_and_outliers_little(kind):
         assert w(20.0) < 0.01 * robust_noise("huber", 1.345, 5.0).robust().weight(20.0) + 1e-3
 
 
-def test_the_mapping_mode_refuses_a_range_only_kernel():
-    pytest.importorskip("gtsam")
+def test_settings_that_cannot_work_together_are_refused():
     from blenav.backend.config import load_backend_config
-    from blenav.backend.mapping import map_beacons
 
-    cfg = load_backend_config(overrides=["mapping.robust=dcs"]).mapping
-    with pytest.raises(ValueError, match="mapping.robust: dcs"):
-        map_beacons([object()], None, cfg)
+    with pytest.raises(ValueError, match="refit_channel=line refits between LM passes"):
+        load_backend_config(overrides=["range.refit_channel=line", "solver.method=isam2"])
+    with pytest.raises(ValueError, match="passes >= 2"):
+        load_backend_config(overrides=["range.refit_channel=level", "solver.method=lm", "solver.passes=1"])
+    with pytest.raises(ValueError, match="choose one"):
+        load_backend_config(overrides=["range.refit_channel=level", "solver.method=lm", "range.estimate_offset=true"])
+    with pytest.raises(ValueError, match="mapping.robust=dcs"):
+        load_backend_config(overrides=["mapping.robust=dcs"])

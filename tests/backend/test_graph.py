@@ -303,7 +303,6 @@ def test_the_toy_graph_recovers_the_channel_and_keeps_the_track():
                                          "range.refit_channel=line", f"range.d0={1.78}", "range.max_range_m=100"])
     res = smooth(cfg, kf, imu, RangeObs(ranges.t, ranges.anchor, r, 1.72), bp)
     assert res.ok, [str(f) for f in res.failures]
-    print(res.channel_exponent, res.channel_offset_db)
     assert res.channel_exponent == pytest.approx(gamma_c, abs=0.1)
     assert res.channel_offset_db == pytest.approx(offset, abs=1.0)
     assert np.linalg.norm(res.position[:, :2] - kf.position[:, :2], axis=-1).max() < 0.3

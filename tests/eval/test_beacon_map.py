@@ -147,3 +147,23 @@ def test_harness_perturbs_per_run_scores_beacons_and_writes_the_files(tmp_path):
     assert (d / "trajectories" / "mapper.tum").exists() and (d / "trajectories" / "PF-PL.tum").exists()
     assert np.loadtxt(d / "trajectories" / "groundtruth.tum").shape[1] == 8
     assert json.loads((out / "results.json").read_text())["methods"]["mapper"]["beacon_error_m"]
+    # by how often each beacon was heard: every beacon of every run in one of the bins, the mapper's 1 m in each
+    bh = m["beacon_error_m"]["by_heard"]
+    n_beacons = len(pd.read_csv(path).query("kind == 'ble'"))
+    assert sum(b["beacons"] for b in bh) == 3 * n_beacons
+    assert all(b["optimized_m"] == pytest.approx(1.0) for b in bh)
+    assert all("_rows" not in v.get("beacon_error_m", {}) for v in m["per_session"].values())
+
+
+def test_beacon_errors_by_how_often_heard():
+    truth = pd.DataFrame({"x": [0.0, 0.0, 0.0, 0.0], "y": [0.0, 0.0, 0.0, 0.0]}, index=["a", "b", "c", "d"])
+    given = pd.DataFrame({"anchor_id": ["a", "b", "c", "d"], "x": [3.0, 4.0, 0.0, 1.0], "y": [0.0, 0.0, 2.0, 0.0]})
+    opt = pd.DataFrame({"anchor_id": ["a", "b", "c"], "x": [1.0, 2.0, 0.0], "y": [0.0, 0.0, 1.0]})  # d left out
+    heard = pd.Series({"a": 5, "b": 60, "c": 250})  # d never heard
+    rows = BM.beacon_rows(given, opt, truth, heard)
+    assert rows["heard"].tolist() == [5, 60, 250, 0]
+    np.testing.assert_allclose(rows["given_m"], [3, 4, 2, 1])
+    assert rows["optimized_m"].iloc[:3].tolist() == [1, 2, 1] and np.isnan(rows["optimized_m"].iloc[3])
+    bins = BM.by_heard([rows.iloc[:2], rows.iloc[2:]])  # pooled from two sessions
+    assert [(b["from"], b["to"], b["beacons"]) for b in bins] == [(0, 10, 2), (50, 200, 1), (200, None, 1)]
+    assert bins[0]["given_m"] == pytest.approx(2.0) and bins[0]["optimized_m"] == pytest.approx(1.0)  # d: no estimate

@@ -339,4 +339,12 @@ print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "
     np.testing.assert_allclose(pd.read_csv(out)[["t", "x", "y"]].to_numpy(), a, atol=1e-4)  # the CSV: 0.1 mm
     with pytest.raises(FileNotFoundError, match="io_model="):
         export_bundle(compose("export", *common, f"out={tmp_path / 'X'}", f"io_model={tmp_path / 'nope'}"))
+    with pytest.raises(ValueError, match="reads no odometry"):
+        export_bundle(compose("export", *common, f"out={tmp_path / 'X'}", f"io_model={io}",
+                              "runtime.motion={_target_: blenav.filters.motion.RandomWalk}"))
     assert not (tmp_path / "X").exists()
+    # a bundle's odometry carries no variance: a settings.json asking for it is refused by name
+    from blenav.runtime.bundle.settings import check_settings
+
+    with pytest.raises(ValueError, match="motion.odo_var_scale"):
+        check_settings({**b.settings, "motion": {**b.settings["motion"], "odo_var_scale": 1.0}}, "settings.json")

@@ -23,7 +23,7 @@ import numpy as np
 
 from .graph_types import RangeObs
 
-__all__ = ["LogRangeFit", "fit_log_ranges", "apply_log_fit", "compose", "channel_of", "refit_ranges"]
+__all__ = ["LogRangeFit", "fit_log_ranges", "apply_log_fit", "measured_ranges", "channel_of", "refit_ranges"]
 
 
 @dataclass(frozen=True)
@@ -87,12 +87,10 @@ def apply_log_fit(r: np.ndarray, fit: LogRangeFit) -> np.ndarray:
     return fit.d0 * 10.0 ** ((np.log10(np.maximum(r, 1e-6) / fit.d0) - fit.a) / fit.b)
 
 
-def compose(first: LogRangeFit | None, then: LogRangeFit) -> LogRangeFit:
-    """The fit of the original ranges when ``then`` was fitted to ranges already turned by ``first`` (a later pass):
-    log r = a1 + b1 log r', log r' = a2 + b2 log d  ->  a = a1 + b1 a2, b = b1 b2 (same d0)."""
-    if first is None:
-        return then
-    return LogRangeFit(first.a + first.b * then.a, first.b * then.b, then.d0, then.n)
+def measured_ranges(r: np.ndarray, fit: LogRangeFit) -> np.ndarray:
+    """The inverse of :func:`apply_log_fit`: the measured ranges (m) that ``fit`` turned into r (m)."""
+    r = np.asarray(r, float)
+    return fit.d0 * 10.0 ** (fit.a + fit.b * np.log10(np.maximum(r, 1e-6) / fit.d0))
 
 
 def channel_of(fit: LogRangeFit, gamma: float) -> tuple[float, float]:
@@ -103,24 +101,25 @@ def channel_of(fit: LogRangeFit, gamma: float) -> tuple[float, float]:
 def refit_ranges(cfg, used: tuple[np.ndarray, np.ndarray, np.ndarray], position: np.ndarray, beacon_xyz: np.ndarray,
                  ranges0: RangeObs, done: LogRangeFit | None) -> tuple[RangeObs, LogRangeFit | None, str]:
     """A back-end pass's channel refit (``cfg``: :class:`~blenav.backend.config.BackendConfig`, its
-    ``range.refit_channel``): the session's ranges ``ranges0`` (as measured) through the channel fitted on the ranges a
-    pass used, ``used`` = (keyframe (M,), beacon (M,), range (M,) m, already turned by ``done``, the earlier passes'
-    fit, or as measured), against its distances from ``position`` (K, 3) to ``beacon_xyz`` (A, 3) (m), composed with
-    ``done``. Returns (ranges, the fit so far, a note); the ranges of ``done`` (and a note) when no fit is possible."""
+    ``range.refit_channel``): the line fitted to the ranges a pass used, ``used`` = (keyframe (M,), beacon (M,), range
+    (M,) m, as the pass saw them: turned by ``done``, the previous pass's fit, or as measured), taken back to their
+    measured values (the transform is monotone, so a keyframe's median maps to the median), against the distances
+    from ``position`` (K, 3) to ``beacon_xyz`` (A, 3) (m); the session's measured ranges ``ranges0`` through it. Every
+    pass fits the measured ranges afresh, so the slope's bounds hold for the result. Returns (ranges, the fit, a note);
+    the ranges of ``done`` (and a note) when no fit is possible."""
     from .config import ChannelRefit
 
     k, j, r = used
+    r = np.asarray(r, float) if done is None else measured_ranges(r, done)
     d = np.linalg.norm(position[k] - beacon_xyz[j], axis=-1)
     rc = cfg.range
-    clamp = rc.max_range_m if done is None else float(apply_log_fit(np.array([rc.max_range_m]), done)[0])
-    fit = fit_log_ranges(r, d, rc.d0, slope=ChannelRefit(rc.refit_channel) == ChannelRefit.line, max_r=clamp)
-    keep = ranges0 if done is None else RangeObs(ranges0.t, ranges0.anchor, apply_log_fit(ranges0.range_m, done),
-                                                 ranges0.gamma)
+    fit = fit_log_ranges(r, d, rc.d0, slope=ChannelRefit(rc.refit_channel) == ChannelRefit.line, max_r=rc.max_range_m)
     if fit is None:
+        keep = ranges0 if done is None else RangeObs(ranges0.t, ranges0.anchor, apply_log_fit(ranges0.range_m, done),
+                                                     ranges0.gamma)
         return keep, done, f"channel not refitted: {len(r)} range(s) in the graph"
-    total = compose(done, fit)
     gamma = ranges0.gamma if ranges0.gamma is not None else rc.gamma
-    gc, off = channel_of(total, gamma)
-    out = RangeObs(ranges0.t, ranges0.anchor, apply_log_fit(ranges0.range_m, total), ranges0.gamma)
-    return out, total, (f"channel refitted on {fit.n} ranges: exponent {gc:.2f} (ranges made with {gamma:.2f}), "
-                        f"level {off:+.1f} dB against the model's")
+    gc, off = channel_of(fit, gamma)
+    out = RangeObs(ranges0.t, ranges0.anchor, apply_log_fit(ranges0.range_m, fit), ranges0.gamma)
+    return out, fit, (f"channel refitted on {fit.n} ranges: exponent {gc:.2f} (ranges made with {gamma:.2f}), "
+                      f"level {off:+.1f} dB against the model's")

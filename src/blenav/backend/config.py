@@ -268,6 +268,23 @@ def load_backend_config(path: str | Path | None = None, overrides: list[str] | N
         doc.pop("defaults", None)
         merged = OmegaConf.merge(OmegaConf.structured(BackendConfig), doc, node or {},
                                  OmegaConf.from_dotlist(list(overrides or [])))
-        return OmegaConf.to_object(merged)
+        cfg = OmegaConf.to_object(merged)
     except OmegaConfBaseException as exc:
         raise ValueError(f"backend config {path}: {' '.join(str(exc).split())}") from exc
+    check_combinations(cfg)
+    return cfg
+
+
+def check_combinations(cfg: BackendConfig) -> None:
+    """ValueError for settings that load but cannot work together (each named)."""
+    rc = cfg.range
+    if ChannelRefit(rc.refit_channel) != ChannelRefit.none:
+        if Solver(cfg.solver.method) != Solver.lm or int(cfg.solver.passes) < 2:
+            raise ValueError(f"backend: range.refit_channel={rc.refit_channel} refits between LM passes: it needs "
+                             f"solver.method=lm and solver.passes >= 2 (got {cfg.solver.method}, {cfg.solver.passes})")
+        if rc.estimate_offset:
+            raise ValueError("backend: range.refit_channel and range.estimate_offset both estimate the receiver's "
+                             "offset; choose one")
+    if RobustKernel(cfg.mapping.robust) not in (RobustKernel.none, RobustKernel.huber, RobustKernel.cauchy):
+        raise ValueError(f"backend: mapping.robust={cfg.mapping.robust} is a kernel of the range factors; the mapping "
+                         f"mode takes none, huber or cauchy")

@@ -16,7 +16,9 @@ run r of session i gets the same map for every method (paired comparison).
 Metrics: for a method whose estimate has ``outputs['beacon_map']``, ``beacon_error_m = {prior, optimized}``: the
 mean horizontal distance over beacons and runs between the true positions (``x_true, y_true`` when the dataset
 has them, else anchors.csv) and the map the method was given / the map it returned. Beacons the method did not
-optimize count with their prior position (its map holds them there).
+optimize count with their prior position (its map holds them there). ``beacon_error_m.by_heard``: the same per bin
+of how often a beacon was heard in the session (its rssi.csv rows; bins :data:`HEARD_BINS`), pooled over sessions
+and runs (issue 32: "the error per beacon against how often it was heard").
 """
 
 from __future__ import annotations
@@ -84,6 +86,49 @@ def with_source(sessions: list, cfg: BeaconMapConfig) -> tuple[list, dict]:
     return [s.with_building(new[s.building.id]) for s in sessions], info
 
 
+#: bins of rssi.csv rows per beacon for ``beacon_error_m.by_heard``: [0, 10), [10, 50), [50, 200), [200, inf)
+HEARD_BINS = (0, 10, 50, 200)
+
+
+def heard_counts(session) -> pd.Series:
+    """anchor_id -> rssi.csv rows of the session (0 for a beacon never heard)."""
+    r = session.rssi
+    return r["anchor_id"].astype(str).value_counts() if len(r) else pd.Series(dtype=int)
+
+
+def beacon_rows(given: pd.DataFrame, optimized: pd.DataFrame | None, truth: pd.DataFrame,
+                heard: pd.Series) -> pd.DataFrame:
+    """One row per beacon of ``truth`` in ``given``: heard (rssi.csv rows), given_m and optimized_m (horizontal
+    error of the given map and of ``optimized``, m; NaN where that map lacks the beacon)."""
+    def err(m):
+        if m is None or not len(m):
+            return pd.Series(np.nan, index=truth.index)
+        m = m.assign(anchor_id=m["anchor_id"].astype(str)).drop_duplicates("anchor_id").set_index("anchor_id")
+        xy = m.reindex(truth.index)[["x", "y"]].to_numpy(float)
+        return pd.Series(np.hypot(*(xy - truth[["x", "y"]].to_numpy(float)).T), index=truth.index)
+
+    g = err(given)
+    keep = g.notna()
+    return pd.DataFrame({"anchor_id": truth.index[keep], "heard": heard.reindex(truth.index[keep]).fillna(0).astype(int)
+                         .to_numpy(), "given_m": g[keep].to_numpy(), "optimized_m": err(optimized)[keep].to_numpy()})
+
+
+def by_heard(rows: pd.DataFrame | list[pd.DataFrame]) -> list[dict]:
+    """Per :data:`HEARD_BINS` bin of ``rows`` (:func:`beacon_rows`, or a list of them, pooled): from / to (rssi rows; to
+    None for the last), beacons, given_m and optimized_m (mean horizontal errors, m); empty bins left out."""
+    if isinstance(rows, list):
+        rows = pd.concat(rows, ignore_index=True)
+    out = []
+    edges = list(HEARD_BINS) + [None]
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (rows["heard"] >= lo) & ((rows["heard"] < hi) if hi is not None else True)
+        if m.any():
+            opt = rows.loc[m, "optimized_m"]
+            out.append({"from": lo, "to": hi, "beacons": int(m.sum()), "given_m": float(rows.loc[m, "given_m"].mean()),
+                        "optimized_m": float(opt.mean()) if opt.notna().any() else None})
+    return out
+
+
 def perturb(building, cfg: BeaconMapConfig, session_index: int, run: int):
     """``building`` with every BLE anchor moved by N(0, noise_m^2) per axis (z too when ``vertical``), seeded by
     (seed, session, run); the stated ``std_m`` is kept."""
@@ -120,7 +165,8 @@ def run_per_run_maps(method, session, si: int, runs: int, seed: int, inputs_for,
     (``outputs['beacon_error']`` holds the per-run prior / optimized errors). ``inputs_for(session)``: the run's
     :class:`~blenav.localizers.inputs.RunInputs` for the session with that run's map (its fixes resolved on it)."""
     truth = true_xy(session.building.anchors)
-    ests, prior_err, opt_err = [], [], []
+    heard = heard_counts(session)
+    ests, prior_err, opt_err, rows = [], [], [], []
     seeds = np.random.SeedSequence(int(seed)).generate_state(runs)
     for r in range(runs):
         b = perturb(session.building, cfg, si, r)
@@ -128,9 +174,13 @@ def run_per_run_maps(method, session, si: int, runs: int, seed: int, inputs_for,
         est = method.run(s, 1, int(seeds[r]), inputs_for(s))
         prior_err.append(map_error(given_map(b), truth))
         opt_err.append(map_error(est.outputs.get("beacon_map"), truth))
+        if est.outputs.get("beacon_map") is not None:
+            rows.append(beacon_rows(given_map(b), est.outputs["beacon_map"], truth, heard))
         ests.append(est)
     out = stack_runs(ests)
     out.outputs["beacon_error"] = {"prior": prior_err, "optimized": opt_err}
+    if rows:
+        out.outputs["beacon_rows"] = pd.concat(rows, ignore_index=True)
     return out
 
 
@@ -172,4 +222,4 @@ def optimized_anchors(building, bmap: pd.DataFrame) -> pd.DataFrame:
 
 
 __all__ = ["BeaconMapConfig", "with_source", "perturb", "map_error", "run_per_run_maps", "stack_runs", "mean_map",
-           "optimized_anchors", "true_xy", "given_map"]
+           "optimized_anchors", "true_xy", "given_map", "HEARD_BINS", "heard_counts", "beacon_rows", "by_heard"]

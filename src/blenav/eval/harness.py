@@ -64,7 +64,7 @@ from .config import EvalConfig, parse_eval_config
 from .evaluators import evaluate
 from .fixes import FixProvider
 from .metrics import (cdf_band, convergence_times, fix_coverage_counts, pool, pool_convergence, pool_fix_coverage,
-                      pool_segment_errors, segment_errors, session_metrics, waypoint_metrics)
+                      pool_segment_errors, public, segment_errors, session_metrics, waypoint_metrics)
 from .result import MethodResult, TrajectoryResult, write_results
 from .sessions import select_sessions
 
@@ -339,10 +339,14 @@ def beacon_errors(est: Estimate, session) -> dict | None:
     per_run = est.outputs.get("beacon_error")
     if per_run is not None:
         vals = {k: [x for x in v if x is not None] for k, v in per_run.items()}
-        return {k: float(np.mean(v)) if v else None for k, v in vals.items()}
+        out = {k: float(np.mean(v)) if v else None for k, v in vals.items()}
+        if est.outputs.get("beacon_rows") is not None:
+            out["_rows"] = est.outputs["beacon_rows"]  # per beacon and run, pooled by aggregate() into by_heard
+        return out
     truth = BM.true_xy(session.building.anchors)
-    return {"prior": BM.map_error(BM.given_map(session.building), truth),
-            "optimized": BM.map_error(est.outputs["beacon_map"], truth)}
+    given = BM.given_map(session.building)
+    return {"prior": BM.map_error(given, truth), "optimized": BM.map_error(est.outputs["beacon_map"], truth),
+            "_rows": BM.beacon_rows(given, est.outputs["beacon_map"], truth, BM.heard_counts(session))}
 
 
 # ------------------------------------------------------------------------------------------ aggregate
@@ -364,13 +368,16 @@ def aggregate(oc: MethodOutcome, runs: int) -> MethodResult:
     if errs:
         res.beacon_error_m = {k: float(np.mean([e[k] for e in errs if e[k] is not None]))
                               if any(e[k] is not None for e in errs) else None for k in ("prior", "optimized")}
+        rows = [e["_rows"] for e in errs if e.get("_rows") is not None]
+        if rows:
+            res.beacon_error_m["by_heard"] = BM.by_heard(rows)
     res.fix_coverage = pool_fix_coverage([m["fix_coverage"] for m in oc.metrics.values() if "fix_coverage" in m])
     res.segment_error_m = pool_segment_errors([m["_segment_err"] for m in oc.metrics.values() if "_segment_err" in m])
     res.convergence = pool_convergence([m["_convergence_s"] for m in oc.metrics.values() if "_convergence_s" in m])
     orient = [m["orientation_rmse_deg"] for m in oc.metrics.values() if "orientation_rmse_deg" in m]
     if orient:
         res.orientation_rmse_deg = float(np.mean(orient))
-    res.per_session = {k: {kk: vv for kk, vv in v.items() if not kk.startswith("_")} for k, v in oc.metrics.items()}
+    res.per_session = {k: {kk: public(vv) for kk, vv in v.items() if not kk.startswith("_")} for k, v in oc.metrics.items()}
     return res
 
 

@@ -215,6 +215,12 @@ def pool_fix_coverage(per_session: list[dict]) -> dict | None:
 WALK_THRESHOLDS_M = (2.0, 5.0)
 
 
+def public(value):
+    """A metric as results.json shows it: a dict without its private (``_``) keys (e.g. beacon_error_m's per-beacon
+    rows); anything else as it is."""
+    return {k: v for k, v in value.items() if not str(k).startswith("_")} if isinstance(value, dict) else value
+
+
 def pool(per_session: dict[str, dict]) -> dict:
     """Aggregate session metrics: RMSE stats over all (session, run) pairs, pooled error percentiles."""
     rmse = np.concatenate([m["_runs"]["rmse"] for m in per_session.values()])

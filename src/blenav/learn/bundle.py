@@ -53,6 +53,11 @@ def export_bundle(cfg: DictConfig) -> Path:
     if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / MANIFEST).is_file())):
         raise ValueError(f"out={out} exists and is not a bundle: choose a new folder")
     check_run_folder(out, "a bundle")  # not /, not inside the dataset it was trained on
+    if cfg.get("io_model"):  # before anything is exported: the model, and a motion model that reads odometry
+        if "odo" not in _motion_needs(cfg.runtime.motion):
+            raise ValueError(f"io_model={cfg.io_model}: the bundle's motion model ({cfg.runtime.motion.get('_target_')}) "
+                             "reads no odometry; the learned odometry would not be used")
+        _check_inertial(Path(cfg.io_model))
     if not Path(cfg.ckpt).is_file():
         raise FileNotFoundError(f"checkpoint {cfg.ckpt} does not exist")
     meta = read_meta(cfg.ckpt)
@@ -125,16 +130,23 @@ def export_bundle(cfg: DictConfig) -> Path:
     return out
 
 
-def _copy_inertial(io: Path, dest: Path) -> dict:
-    """The learned inertial odometry export ``io`` (``export.py`` on a ``train.py experiment=inertial`` run), checked
-    (its hashes, grid, channels: :class:`blenav.runtime.inertial.InertialModel`) and copied to ``dest``: its graph
-    and meta.json only. Returns its manifest entry."""
-    from blenav.runtime.inertial import INERTIAL_ONNX, META_JSON, InertialModel
+def _check_inertial(io: Path):
+    """The learned inertial odometry export ``io`` (``export.py`` on a ``train.py experiment=inertial`` run), checked:
+    its hashes, grid, channels (:class:`blenav.runtime.inertial.InertialModel`, returned)."""
+    from blenav.runtime.inertial import InertialModel
 
     if not io.exists():
         raise FileNotFoundError(f"io_model={io} does not exist (an export directory of `python export.py "
                                 "ckpt=RUN/last.ckpt out=IO_DIR` on a train.py experiment=inertial run)")
-    model = InertialModel(io)
+    return InertialModel(io)
+
+
+def _copy_inertial(io: Path, dest: Path) -> dict:
+    """The export ``io`` checked (:func:`_check_inertial`) and copied to ``dest``: its graph and meta.json only.
+    Returns its manifest entry."""
+    from blenav.runtime.inertial import INERTIAL_ONNX, META_JSON
+
+    model = _check_inertial(io)
     dest.mkdir(parents=True)
     for name in (INERTIAL_ONNX, META_JSON):
         shutil.copy(io / name, dest / name)

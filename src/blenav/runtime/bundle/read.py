@@ -120,9 +120,10 @@ class Bundle:
         from blenav.filters.online import replay
 
         self.check_session(session)
-        odometry = self.inertial.odometry(session) if self.inertial is not None else None
+        uses_odo = self.method().needs_odometry
+        odometry = self.inertial.odometry(session) if self.inertial is not None and uses_odo else None
         self.last_odometry = (f"learned inertial odometry ({INERTIAL_DIR}/, {len(odometry)} points)"
-                              if odometry is not None else "the session's odometry.csv")
+                              if odometry is not None else "the session's odometry.csv" if uses_odo else "none")
         odo = session.odometry if odometry is None else odometry
         firsts = [float(f["t"].iloc[0]) for f in (session.imu, session.rssi, odo) if len(f)]
         # the batch filter's start: the first IMU, RSSI or odometry sample (even when the motion model reads no IMU)

@@ -1,0 +1,29 @@
+"""The back-end robustness table (blenav tables backend, issue 32) from two evaluations' results.json."""
+
+import json
+
+import pytest
+
+from blenav.reporting.backend_robust import backend_rows, markdown
+
+
+def _results(path, rmse, beacons=None):
+    path.mkdir()
+    methods = {k: {"rmse_m": {"mean": v}} for k, v in rmse.items()}
+    if beacons:
+        methods["B-end"]["beacon_error_m"] = beacons
+    (path / "results.json").write_text(json.dumps({"runs": 5, "methods": methods}))
+
+
+def test_table_ratios_changes_and_beacons_by_how_often_heard(tmp_path):
+    _results(tmp_path / "t", {"IMU": 4.0, "F-end": 3.5, "B-end": 3.0})
+    bh = [{"from": 0, "to": 10, "beacons": 4, "given_m": 3.0, "optimized_m": 3.0},
+          {"from": 200, "to": None, "beacons": 6, "given_m": 4.0, "optimized_m": 2.0}]
+    _results(tmp_path / "n", {"IMU": 4.4, "F-end": 4.0, "B-end": 3.6},
+             {"prior": 3.6, "optimized": 2.4, "by_heard": bh})
+    rows = backend_rows([f"office=" + f"{tmp_path / 't'},{tmp_path / 'n'}"])
+    assert rows[0]["ratio"] == pytest.approx(3.0 / 3.5)
+    md = markdown("T", rows)
+    assert "| office | 4.00 | 3.50 | 3.00 | 0.86 ok | 4.00 | 3.60 (+20 %) | 3.60 -> 2.40 (33 %) |" in md
+    assert "| building, channel | 0-9 | 200+ |" in md
+    assert "| office | 3.00 -> 3.00 (4) | 4.00 -> 2.00 (6) |" in md
