@@ -488,10 +488,10 @@ inertial-tables: $(STAMP)
 	$(BIN)/python -m blenav.cli.realwalks runs-json $(IO_OUT)/runs.json $(foreach F,$(RW_FLOORS),$(IO_RUNS)_$(IO_MODEL)_not_$(F)) $(IO_RUNS)_$(IO_MODEL)_sim
 	$(BIN)/python -m blenav.cli.realwalks inertial $(IO_OUT) docs/results-inertial.md
 
-# Issue 27: twelve experiments, shrunk (5 min), rerun and compared bit for bit with the numbers of 302d488 (exit 1 on
+# Issue 27: twelve experiments, shrunk (5 min), rerun and compared bit for bit with the reference snapshot (exit 1 on
 # a difference); what it covers and how to refresh the reference: tools/regression_snapshot.py
 regression-check: $(STAMP)
-	$(BIN)/python tools/regression_snapshot.py check --work data/regression --ref tests/regression/snapshot_c3893dc.json
+	$(BIN)/python tools/regression_snapshot.py check --work data/regression --ref tests/regression/snapshot_e3efb34.json
 
 clean-demo:
 	rm -rf $(DEMO)
