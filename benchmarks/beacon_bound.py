@@ -39,15 +39,6 @@ from blenav.data import Dataset
 from blenav.eval import beacon_map as BM
 
 PIN_M = 0.05  # m: the keyframes' x, y prior around the ground truth
-READ_BINS = [(0, 10), (10, 50), (50, 200), (200, 10 ** 9)]
-
-
-def _errors(bmap: pd.DataFrame, truth: pd.DataFrame) -> pd.Series:
-    """anchor_id -> horizontal error (m) of ``bmap`` against ``truth`` (anchor_id -> x, y)."""
-    m = bmap.assign(anchor_id=bmap["anchor_id"].astype(str)).set_index("anchor_id")
-    common = truth.index.intersection(m.index)
-    d = m.loc[common, ["x", "y"]].to_numpy(float) - truth.loc[common, ["x", "y"]].to_numpy(float)
-    return pd.Series(np.hypot(d[:, 0], d[:, 1]), index=common)
 
 
 def pinned_range_graph(session, building, sigma_m: float, overrides: list[str]) -> pd.DataFrame:
@@ -91,16 +82,15 @@ def bound(root: Path, runs: int) -> tuple[dict, pd.DataFrame]:
     sessions, _ = BM.with_source([ds.session(sid) for sid in ds.session_ids], bm)
     per_beacon = []
     for si, s in enumerate(sessions):
-        truth = BM.true_xy(s.building.anchors)
-        heard = s.stream("rssi")["anchor_id"].astype(str).value_counts() if s.has("rssi") else pd.Series(dtype=int)
+        truth, heard = BM.true_xy(s.building.anchors), BM.heard_counts(s)
         for run in range(runs):
             b = BM.perturb(s.building, bm, si, run)
-            given = _errors(BM.given_map(b), truth)
-            cols = {"session": s.id, "run": run, "given": given}
-            for name, est in ROWS.items():
-                cols[name] = _errors(est(s, b), truth).reindex(given.index)
-            df = pd.DataFrame(cols)
-            df["readings"] = heard.reindex(given.index).fillna(0).astype(int).to_numpy()
+            given = BM.given_map(b)
+            rows = {name: BM.beacon_rows(given, est(s, b), truth, heard) for name, est in ROWS.items()}
+            df = next(iter(rows.values()))[["anchor_id", "heard", "given_m"]].rename(
+                columns={"heard": "readings", "given_m": "given"}).assign(session=s.id, run=run)
+            for name, r in rows.items():
+                df[name] = r["optimized_m"].to_numpy()
             per_beacon.append(df)
     pb = pd.concat(per_beacon)
     summary = {name: (float(pb["given"].mean()), float(pb[name].mean())) for name in ROWS}
@@ -119,12 +109,13 @@ def markdown(results: list[tuple[str, dict, pd.DataFrame]], runs: int, wall_s: f
     lines += ["", "By readings per beacon (rssi.csv rows of the session; all datasets pooled), mean error (m):", "",
               "| readings | beacons | given | " + " | ".join(ROWS) + " |", "|---|---|---|" + "---|" * len(ROWS)]
     pb = pd.concat([r[2] for r in results])
-    for lo, hi in READ_BINS:
-        m = (pb["readings"] >= lo) & (pb["readings"] < hi)
+    edges = list(BM.HEARD_BINS) + [None]
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (pb["readings"] >= lo) & ((pb["readings"] < hi) if hi is not None else True)
         if not m.any():
             continue
         cells = [f"{pb.loc[m, k].mean():.2f}" for k in ROWS]
-        label = f"{lo}-{hi - 1}" if hi < 10 ** 9 else f"{lo}+"
+        label = f"{lo}-{hi - 1}" if hi is not None else f"{lo}+"
         lines.append(f"| {label} | {int(m.sum())} | {pb.loc[m, 'given'].mean():.2f} | " + " | ".join(cells) + " |")
     lines += ["", f"Wall time {wall_s:.0f} s."]
     return "\n".join(lines) + "\n"

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .config import ChannelRefit
 from .graph_types import RangeObs
 
 __all__ = ["LogRangeFit", "fit_log_ranges", "apply_log_fit", "measured_ranges", "channel_of", "refit_ranges"]
@@ -107,8 +108,6 @@ def refit_ranges(cfg, used: tuple[np.ndarray, np.ndarray, np.ndarray], position:
     from ``position`` (K, 3) to ``beacon_xyz`` (A, 3) (m); the session's measured ranges ``ranges0`` through it. Every
     pass fits the measured ranges afresh, so the slope's bounds hold for the result. Returns (ranges, the fit, a note);
     the ranges of ``done`` (and a note) when no fit is possible."""
-    from .config import ChannelRefit
-
     k, j, r = used
     r = np.asarray(r, float) if done is None else measured_ranges(r, done)
     d = np.linalg.norm(position[k] - beacon_xyz[j], axis=-1)

@@ -28,13 +28,13 @@ def _main(argv: list[str] | None) -> int:
     args = p.parse_args(argv)
 
     from blenav.eval.merge import merge_runs
+    from blenav.eval.metrics import rmse_mean
 
     merged = merge_runs(args.jobs, args.out)
     width = max(map(len, merged["methods"]), default=0)
     for name, m in merged["methods"].items():
-        r = m.get("rmse_m") if isinstance(m, dict) else None
-        print(f"{name:<{width}}  RMSE {r['mean']:.2f} m" if isinstance(r, dict) and "mean" in r
-              else f"{name:<{width}}  skipped")
+        r = rmse_mean(m)
+        print(f"{name:<{width}}  RMSE {r:.2f} m" if r is not None else f"{name:<{width}}  skipped")
     print(f"wrote {args.out}/results.json ({len(merged['methods'])} methods from {len(merged['merged_from'])} jobs)")
     page = write_page(PROG, args.out)
     if page:

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .metrics import best_against_bound
 from .pcrlb import BoundSettings, bound_entries
 from .result import BoundStats, MethodResult, TrajectoryResult
 from .trajectory import TrajectoryEvaluator
@@ -76,9 +77,7 @@ class LeaderboardEvaluator(TrajectoryEvaluator):
         for name in variants:  # how far the best method is from what any estimator could do
             m = res.methods[name]
             if m.ran and ran:
-                best = min(ran, key=ran.get)
-                m.best = {"method": best, "rmse_m": ran[best],
-                          "ratio": ran[best] / max(m.metrics["rmse_m"]["mean"], 1e-12)}
+                m.best = best_against_bound(ran, m.metrics["rmse_m"]["mean"])
         return {"curves": curves, "errors": errors}
 
     def figures(self, bounds: dict):

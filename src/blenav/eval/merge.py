@@ -11,6 +11,8 @@ from pathlib import Path
 
 from blenav.limits import read_json
 
+from .metrics import best_against_bound, rmse_mean
+
 __all__ = ["load_columns", "result_folders", "merge_leaderboard", "merge_runs"]
 
 
@@ -116,12 +118,10 @@ def merge_results(folders: list[Path], results: list[dict]) -> dict:
                 raise ValueError(f"method {name} is in {owner[name]} and in {f}: each job of a fan-out over methods "
                                  "runs its own (only=...)")
             merged["methods"][name], owner[name] = m, f
-    ran = {n: m["rmse_m"]["mean"] for n, m in merged["methods"].items()
-           if not _is_bound(m) and isinstance(m.get("rmse_m"), dict) and "mean" in m["rmse_m"]}
-    best = min(ran, key=ran.get) if ran else None
+    ran = {n: rmse_mean(m) for n, m in merged["methods"].items() if not _is_bound(m) and rmse_mean(m) is not None}
     for m in merged["methods"].values():  # how far the best of the merged methods is from each bound
-        if _is_bound(m) and isinstance(m.get("rmse_m"), dict) and ran:
-            m["best"] = {"method": best, "rmse_m": ran[best], "ratio": ran[best] / max(m["rmse_m"]["mean"], 1e-12)}
+        if _is_bound(m) and rmse_mean(m) is not None and ran:
+            m["best"] = best_against_bound(ran, rmse_mean(m))
     merged["merged_from"] = [str(f) for f in folders]
     return merged
 

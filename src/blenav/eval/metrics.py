@@ -215,6 +215,19 @@ def pool_fix_coverage(per_session: list[dict]) -> dict | None:
 WALK_THRESHOLDS_M = (2.0, 5.0)
 
 
+def best_against_bound(ran: dict[str, float], bound_rmse: float) -> dict:
+    """The best of ``ran`` (method -> RMSE mean, m; not empty) against a bound's RMSE: {method, rmse_m, ratio}."""
+    best = min(ran, key=ran.get)
+    return {"method": best, "rmse_m": ran[best], "ratio": ran[best] / max(bound_rmse, 1e-12)}
+
+
+def rmse_mean(m) -> float | None:
+    """A results.json row's RMSE mean when it is a finite number (a stranger's file may hold anything), else None."""
+    r = m.get("rmse_m") if isinstance(m, dict) else None
+    v = r.get("mean") if isinstance(r, dict) else None
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) else None
+
+
 def public(value):
     """A metric as results.json shows it: a dict without its private (``_``) keys (e.g. beacon_error_m's per-beacon
     rows); anything else as it is."""

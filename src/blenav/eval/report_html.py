@@ -22,7 +22,7 @@ import numpy as np
 from blenav.limits import check_memory, max_member_bytes, read_bounded, read_json
 
 from .common import output_name, write_text
-from .metrics import errors_vs_groundtruth
+from .metrics import errors_at_waypoints, errors_vs_groundtruth
 
 #: the most sessions drawn as trajectory panels (the tables cover every session)
 MAX_SESSIONS = 12
@@ -72,13 +72,13 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def track_errors(t: np.ndarray, xy: np.ndarray, gt_t: np.ndarray, gt_xy: np.ndarray, sparse: bool) -> np.ndarray:
-    """Errors (m) of a track against the ground truth as the evaluation scores them: dense ground truth interpolated
-    at the estimate times (:func:`blenav.eval.metrics.errors_vs_groundtruth`); sparse surveyed waypoints: the
-    estimate interpolated at each waypoint time, held at its ends (``scoring.hold_ends``)."""
+    """Errors (m) of a track against the ground truth: dense ground truth interpolated at the estimate times
+    (:func:`blenav.eval.metrics.errors_vs_groundtruth`); sparse surveyed waypoints: the estimate interpolated at
+    every waypoint time, held at its ends (:func:`blenav.eval.metrics.errors_at_waypoints` with ``hold_ends``, as the
+    experiments on waypoint walks score them, ``scoring.hold_ends: true``)."""
     if not sparse:
         return errors_vs_groundtruth(t, xy[None], gt_t, gt_xy)[0][0]
-    est = np.stack([np.interp(gt_t, t, xy[:, 0]), np.interp(gt_t, t, xy[:, 1])], axis=-1)
-    return np.linalg.norm(est - gt_xy, axis=-1)
+    return errors_at_waypoints(t, xy[None], gt_t, gt_xy, hold_ends=True)[0][0]
 
 
 def _plan(session) -> tuple[np.ndarray, tuple[float, float, float, float]] | None:
@@ -129,7 +129,10 @@ def report_data(out: Path, title: str | None = None, data: str | None = None) ->
         check_memory(3 * total, f"the trajectory files read so far ({total:,} bytes of text)", str(out))
         gt = read_tum(gt_path) if gt_path.is_file() else None
         session = dataset.session(sid) if dataset is not None and sid in dataset.session_ids else None
-        sparse = bool(getattr(session, "groundtruth_sparse", False))
+        # waypoint walks: results.json says so (the evaluation scored them at their waypoints), the dataset or not
+        sparse = any("waypoints" in (((m.get("per_session") or {}).get(sid)) or {}) for m in res["methods"].values()
+                     if isinstance(m, dict) and isinstance(m.get("per_session"), dict)) \
+            or bool(getattr(session, "groundtruth_sparse", False))
         tracks = {}
         for name in res["methods"]:
             p = d / f"{output_name(name)}.tum"
