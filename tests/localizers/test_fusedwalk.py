@@ -110,17 +110,26 @@ def test_settings_are_checked(bad, match):
         FusedWalk("x", **bad)
 
 
-def test_offline_estimates_mode_and_viterbi_are_cells_of_the_grid(walks):
+def _offline_rows(walks, rows: dict) -> dict:
+    """Each of ``rows`` (label -> FusedWalk settings) fitted on the first two walks and run on the third with the KNN's
+    fixes: label -> Estimate."""
     train, test = walks[:2], walks[2]
     knn = FingerprintLocalizer("KNN", features="ble", fix_std="calibrated")
     knn.fit(train)
     fx = _fixes(knn, test)
     inputs = RunInputs(cache={})
     out = {}
-    for est in ("mean", "mode", "viterbi"):
-        m = FusedWalk(est, estimate=est)
+    for label, kw in rows.items():
+        m = FusedWalk(label, **kw)
         m.fit(train, inputs)
-        out[est] = m.run(test, 1, 0, inputs.with_fixes(fx))
+        out[label] = m.run(test, 1, 0, inputs.with_fixes(fx))
+    return out
+
+
+def test_offline_estimates_mode_and_viterbi_are_cells_of_the_grid(walks):
+    test = walks[2]
+    out = _offline_rows(walks, {est: {"estimate": est} for est in ("mean", "mode", "viterbi")})
+    for est in out:
         assert np.isfinite(out[est].position).all() and np.isfinite(out[est].cov).all()
     g = build_grid(test.floor, cell_m=1.0, max_step_m=3.0)
     for est in ("mode", "viterbi"):
@@ -155,3 +164,18 @@ def test_the_radio_map_option_scores_the_scans_too(walks):
 def test_more_settings_are_checked(bad, match):
     with pytest.raises(ValueError, match=match):
         FusedWalk("x", **bad)
+
+
+def test_the_graph_estimate_refines_the_marginal_means(walks):
+    """estimate: graph: a finite track with SPD covariances on the same nodes as the marginal mean; with a prior a
+    million times tighter than the marginals it is those means (to 1 cm), and its settings are checked."""
+    out = _offline_rows(walks, {"mean": {}, "graph": {"estimate": "graph"},
+                                "tight": {"estimate": "graph", "graph": {"prior_scale": 1e-6}}})
+    g = out["graph"]
+    assert np.isfinite(g.position).all() and np.allclose(g.t, out["mean"].t)
+    assert (np.linalg.eigvalsh(g.cov[0]) > 0).all() and "estimate graph" in g.notes[0]
+    assert np.abs(g.position - out["mean"].position).max() > 0.05  # the refinement moves the track
+    np.testing.assert_allclose(out["tight"].position, out["mean"].position, atol=0.01)
+    for bad in ({"kernel": "tukey"}, {"kernel_k": 0.0}, {"odo_sigma_scale": -1.0}, {"prior": 1.0}):
+        with pytest.raises(ValueError, match="graph"):
+            FusedWalk("x", estimate="graph", graph=bad)

@@ -32,7 +32,11 @@ to ``grid.max_step_m`` that do not cross a wall, :func:`blenav.crf.grid.build_gr
 A walk without IMU data (or without the heading source asked for) is not skipped: its fixes are smoothed under a
 random walk of ``motion.no_odometry_sigma_m`` per node (the notes say so).
 
-Estimates: (R identical runs) the marginal mean and covariance per node. numba via the smoother; the grid per floor
+Estimates: (R identical runs) the marginal mean and covariance per node; offline with ``estimate: graph`` (the
+realwalks experiment's ``fused-offline``) those means refined as a factor graph (:mod:`blenav.crf.walk_graph`): continuous
+positions under the odometry's between-factors turned by the walk's most probable layer, the fixes under a robust
+kernel, each node's marginal (covariance x ``graph.prior_scale``) as its prior; measured on the train walks against the
+mean, the mode and the Viterbi path (docs/results-ilc20.md). numba via the smoother; the grid per floor
 and the walk's odometry are cached.
 """
 
@@ -47,6 +51,7 @@ import numpy as np
 
 from blenav.crf.grid import build_grid
 from blenav.crf.smoother import Layers, forward_backward, viterbi
+from blenav.crf.walk_graph import KERNELS, refine_walk
 from blenav.errors import MissingStream
 from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADING_SOURCES, fitted_step_length, pdr_odometry, resolve_heading
 
@@ -59,7 +64,10 @@ __all__ = ["FusedWalk", "MODES", "path_prior"]
 MODES = ("online", "offline")
 #: what an offline row reports per node: the smoothed marginal's mean (default) or its most probable cell, or the most
 #: probable joint path (Viterbi); measured on the train walks (docs/results-ilc20.md)
-ESTIMATES = ("mean", "mode", "viterbi")
+ESTIMATES = ("mean", "mode", "viterbi", "graph")
+#: ``estimate: graph``: the grid's marginals refined as a factor graph (:mod:`blenav.crf.walk_graph`; GTSAM's factors
+#: give the same optimum)
+GRAPH_DEFAULTS = {"prior_scale": 64.0, "kernel": "cauchy", "kernel_k": 1.0, "odo_sigma_scale": 1.0}
 
 
 def _block(name: str, what: str, given, defaults: dict) -> dict:
@@ -106,7 +114,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                  odometry: dict | None = None, grid: dict | None = None, dt_s: float = 1.0,
                  motion: dict | None = None, layers: dict | None = None, fix_outlier: float = 0.01,
                  fix_std_scale: float = 1.0, fix_weight: float = 1.0, radio_map: dict | None = None,
-                 path_prior: dict | None = None, prune: float = 1e-6):
+                 path_prior: dict | None = None, prune: float = 1e-6, graph: dict | None = None):
         super().__init__(name, shared)
         if mode not in MODES:
             raise ValueError(f"method {name!r}: mode must be one of {MODES}, got {mode!r}")
@@ -114,6 +122,11 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         if estimate not in ESTIMATES or (mode == "online" and estimate != "mean"):
             raise ValueError(f"method {name!r}: estimate must be one of {ESTIMATES} (online: mean), got {estimate!r}")
         self.estimate = estimate
+        gr = _block(name, "graph", graph, GRAPH_DEFAULTS)
+        self.graph = (float(gr["prior_scale"]), str(gr["kernel"]), float(gr["kernel_k"]), float(gr["odo_sigma_scale"]))
+        if self.graph[1] not in KERNELS or not (self.graph[2] > 0 and self.graph[3] > 0):
+            raise ValueError(f"method {name!r}: graph.kernel must be one of {KERNELS} and graph.kernel_k, "
+                             f"graph.odo_sigma_scale > 0, got {self.graph[1]!r}, {self.graph[2]}, {self.graph[3]}")
         self.lag_s = float(lag_s)
         if not 0.0 <= self.lag_s <= 60.0:
             raise ValueError(f"method {name!r}: lag_s must be in [0, 60] s, got {lag_s}")
@@ -261,6 +274,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                self.max_step_m,
                self.dt_s, self.sigma0, self.sigma_per, self.no_odometry_sigma, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
                self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", self.fix_weight,
+               self.graph if self.estimate == "graph" else None,
                self.radio_map, self.radio_weight, self._lag_nodes(), tuple(s.id for s in self.train))
         if key in inputs.cache:
             return inputs.cache[key]
@@ -303,6 +317,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             disp = np.zeros((len(T) - 1, 2))
             sigma = np.full(len(T) - 1, self.no_odometry_sigma)
         node = np.clip(np.round((ft - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
+        fix_node = node
         unary: list = [None] * len(T)
         lo_out, lo_in = math.log(self.fix_outlier / grid.n_cells), math.log1p(-self.fix_outlier)
 
@@ -326,9 +341,15 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         if self.estimate == "viterbi":
             path = grid.xy[viterbi(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers,
                                    prune=self.prune)[0]]
+        elif self.estimate == "graph":  # the marginals refined as a factor graph under the walk's most probable layer
+            c, s = (a[int(np.argmax(res.layer_post))] for a in self.layers.arrays())
+            turned = np.column_stack([c * disp[:, 0] - s * disp[:, 1], s * disp[:, 0] + c * disp[:, 1]])
+            path = refine_walk(res.smoothed_mean, res.smoothed_cov, turned, self.graph[3] * sigma, fix_node, fxy, fsd,
+                               prior_scale=self.graph[0], cell_m=self.cell_m, kernel=self.graph[1],
+                               kernel_k=self.graph[2])[:2]
         out = {"t": T, "res": res, "first_fix": int(node.min()), "role": role, "n_fixes": int(len(ft)), "heading": heading,
                "radio_scans": int(len(st)),
-               "prior_walks": n_prior, "wall_s": time.perf_counter() - t0, "viterbi": path, "grid_xy": grid.xy}
+               "prior_walks": n_prior, "wall_s": time.perf_counter() - t0, "path": path, "grid_xy": grid.xy}
         inputs.cache[key] = out
         return out
 
@@ -342,8 +363,10 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             t, pos, cov = T[k0:], r.filtered_mean[k0:], r.filtered_cov[k0:]
         elif self.estimate == "mean":
             t, pos, cov = T, r.smoothed_mean, r.smoothed_cov
+        elif self.estimate == "graph":  # positions and covariances of the refined graph
+            t, (pos, cov) = T, sm["path"]
         else:  # the smoothed marginal's mode, or the Viterbi path; the marginal's covariance about it
-            pos = sm["grid_xy"][r.smoothed_mode] if self.estimate == "mode" else sm["viterbi"]
+            pos = sm["grid_xy"][r.smoothed_mode] if self.estimate == "mode" else sm["path"]
             d = pos - r.smoothed_mean
             t, cov = T, r.smoothed_cov + np.einsum("ki,kj->kij", d, d)
         if not np.isfinite(pos).all():
@@ -358,5 +381,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                                + (f" + learned inertial odometry ({sm['heading']})" if sm['heading'].startswith("learned")
                                   else f" + PDR odometry (heading {sm['heading']}, step {self._step():.3f} m)")
                                + f" + plan + train-walk prior ({sm['prior_walks']} walks), "
-                               f"uniform start; grid {self.cell_m:g} m, {self.layers.n} heading/scale layers"],
+                               f"uniform start; grid {self.cell_m:g} m, {self.layers.n} heading/scale layers"
+                               + (f"; estimate {self.estimate}" if self.mode == "offline" and self.estimate != "mean"
+                                  else "")],
                         outputs={"layer": {"heading_offset_deg": math.degrees(th), "step_scale": sc}})

@@ -1,0 +1,128 @@
+"""A walk's track as a factor graph, refined from the grid smoother's marginals (issue 30's second smoother:
+``fused-offline`` with ``estimate: graph``, :class:`blenav.localizers.fusedwalk.FusedWalk`).
+
+Variables: the position x_k (m, the building's world frame) of each of the K nodes of a walk. Factors (GTSAM's
+``PriorFactorPoint2`` / ``BetweenFactorPoint2`` with the same noise models give the same optimum:
+tests/crf/test_walk_graph.py):
+
+* odometry: x_{k+1} - x_k = d_k + N(0, sigma_k^2 I), d_k the odometry's displacement over the interval already turned
+  and scaled by the walk's heading offset and step scale (the grid's most probable layer);
+* fixes: x_{n_j} = f_j + N(0, s_j^2 I) under a robust kernel rho (Cauchy by default: a fix 20 m off costs a bounded
+  amount, as the grid's heavy tail);
+* the grid's smoothed marginal at every node as a prior, N(m_k, ``prior_scale`` (P_k + c^2/12 I)) (c the cell size,
+  the spread of a marginal on one cell): it holds the graph in the mode the grid found (a uniform start has no other
+  anchor) and near the walkable cells the grid weighed (the graph knows no walls).
+
+Every factor is linear in x but for the kernel: iteratively reweighted least squares (IRLS), each pass the exact
+solution of the block-tridiagonal normal equations for the current weights w_j = rho'(e_j) / e_j (e_j the fix's
+whitened residual; Cauchy k^2 / (k^2 + e^2), Huber min(1, k / e)) by block elimination along the walk, and the
+marginal covariances from the same factorisation (the RTS recursion). numba; O(K) per pass.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["refine_walk", "KERNELS"]
+
+KERNELS = ("cauchy", "huber", "none")
+
+
+@njit(cache=True, nogil=True)
+def _inv2(a):
+    det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    out = np.empty((2, 2))
+    out[0, 0], out[1, 1] = a[1, 1] / det, a[0, 0] / det
+    out[0, 1], out[1, 0] = -a[0, 1] / det, -a[1, 0] / det
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _solve(Hd, g, q, with_cov):
+    """Block-tridiagonal H (diagonal blocks Hd (K, 2, 2), off-diagonal -q_k I between k and k+1, q (K-1,)) x = g (K, 2):
+    x (K, 2) and, with ``with_cov``, the diagonal blocks of H^-1 (K, 2, 2)."""
+    K = Hd.shape[0]
+    Dinv = np.empty((K, 2, 2))
+    z = np.empty((K, 2))
+    Dinv[0] = _inv2(Hd[0])
+    z[0] = g[0]
+    for k in range(1, K):
+        qq = q[k - 1]
+        Dinv[k] = _inv2(Hd[k] - qq * qq * Dinv[k - 1])
+        z[k] = g[k] + qq * (Dinv[k - 1] @ z[k - 1])
+    x = np.empty((K, 2))
+    x[K - 1] = Dinv[K - 1] @ z[K - 1]
+    for k in range(K - 2, -1, -1):
+        x[k] = Dinv[k] @ (z[k] + q[k] * x[k + 1])
+    cov = np.empty((K, 2, 2))
+    if with_cov:
+        cov[K - 1] = Dinv[K - 1]
+        for k in range(K - 2, -1, -1):
+            G = q[k] * Dinv[k]
+            cov[k] = Dinv[k] + G @ cov[k + 1] @ G.T
+    return x, cov
+
+
+def _weights(e: np.ndarray, kernel: str, k: float) -> np.ndarray:
+    if kernel == "cauchy":
+        return k * k / (k * k + e * e)
+    if kernel == "huber":
+        return np.minimum(1.0, k / np.maximum(e, 1e-300))
+    return np.ones_like(e)
+
+
+def refine_walk(init: np.ndarray, prior_cov: np.ndarray, disp: np.ndarray, sigma: np.ndarray, fix_node: np.ndarray,
+                fix_xy: np.ndarray, fix_std: np.ndarray, prior_scale: float = 64.0, cell_m: float = 1.0,
+                kernel: str = "cauchy", kernel_k: float = 1.0, tol_m: float = 1e-7,
+                max_iterations: int = 200) -> tuple[np.ndarray, np.ndarray, int]:
+    """The walk's refined track (module doc).
+
+    ``init`` (K, 2) m the grid's smoothed means (the start of IRLS, and the priors' means), ``prior_cov`` (K, 2, 2) m^2
+    their covariances (``prior_scale`` <= 0: no prior), ``disp`` (K-1, 2) m the odometry displacement per interval
+    (turned by the walk's layer), ``sigma`` (K-1,) m its std; ``fix_node`` (F,) node of each fix, ``fix_xy`` (F, 2)
+    m, ``fix_std`` (F,) m; ``kernel`` the fixes' robust kernel, ``kernel_k`` in units of the fix's std. Returns
+    (positions (K, 2) m, marginal covariances (K, 2, 2) m^2 at the solution's weights, IRLS passes)."""
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
+    init = np.ascontiguousarray(init, float)
+    K = len(init)
+    disp, sigma = np.asarray(disp, float).reshape(-1, 2), np.asarray(sigma, float).ravel()
+    if K < 1 or disp.shape != (K - 1, 2) or sigma.shape != (K - 1,) or not (sigma > 0).all():
+        raise ValueError(f"refine_walk: {K} nodes need disp (K-1, 2) and sigma (K-1,) > 0, got {disp.shape}, "
+                         f"{sigma.shape}")
+    node = np.asarray(fix_node, np.int64).ravel()
+    fxy, fsd = np.asarray(fix_xy, float).reshape(-1, 2), np.asarray(fix_std, float).ravel()
+    if len(node) != len(fxy) or len(node) != len(fsd) or (len(node) and (node.min() < 0 or node.max() >= K)) \
+            or not (fsd > 0).all():
+        raise ValueError("refine_walk: fix_node, fix_xy and fix_std must have one row per fix, nodes in [0, K) and "
+                         "stds > 0")
+    if prior_scale <= 0 and not len(node):
+        raise ValueError("refine_walk: no prior and no fix: the track has no anchor")
+    q = 1.0 / sigma ** 2
+    H0 = np.zeros((K, 2, 2))
+    g0 = np.zeros((K, 2))
+    if prior_scale > 0:  # the grid's marginals
+        lam = np.linalg.inv(prior_scale * (np.asarray(prior_cov, float) + (cell_m ** 2 / 12.0) * np.eye(2)))
+        H0 += lam
+        g0 += np.einsum("kij,kj->ki", lam, init)
+    H0[:-1, 0, 0] += q
+    H0[:-1, 1, 1] += q
+    H0[1:, 0, 0] += q
+    H0[1:, 1, 1] += q
+    g0[:-1] -= q[:, None] * disp
+    g0[1:] += q[:, None] * disp
+    x, it = init, 0
+    for it in range(1, max_iterations + 1):
+        w = _weights(np.hypot(*(x[node] - fxy).T) / fsd, kernel, kernel_k) / fsd ** 2
+        H, g = H0.copy(), g0.copy()
+        np.add.at(H[:, 0, 0], node, w)
+        np.add.at(H[:, 1, 1], node, w)
+        np.add.at(g, node, w[:, None] * fxy)
+        x_new, _ = _solve(H, g, q, False)
+        step = float(np.abs(x_new - x).max())
+        x = x_new
+        if step < tol_m or kernel == "none":
+            break
+    _, cov = _solve(H, g, q, True)
+    return x, cov, it
