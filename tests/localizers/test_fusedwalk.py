@@ -179,3 +179,31 @@ def test_the_graph_estimate_refines_the_marginal_means(walks):
     for bad in ({"kernel": "tukey"}, {"kernel_k": 0.0}, {"odo_sigma_scale": -1.0}, {"prior": 1.0}):
         with pytest.raises(ValueError, match="graph"):
             FusedWalk("x", estimate="graph", graph=bad)
+
+
+def test_the_online_graph_is_causal_and_bounded_by_its_window(walks):
+    """fused-online with estimate: graph: changing every fix after a time leaves every estimate before it unchanged
+    (to 1e-9 m: nothing later is read), and a window shorter than the walk changes the estimates (it bounds the
+    graph); a lag with it is refused."""
+    train, test = walks[:2], walks[2]
+    knn = FingerprintLocalizer("KNN", features="ble", fix_std="calibrated")
+    knn.fit(train)
+    fx = _fixes(knn, test)
+    rf = fx.roles["both"]
+    t_cut = float(rf.t[len(rf.t) // 2])
+    moved = np.where((rf.t > t_cut + 1.0)[:, None], rf.xy + [7.0, -4.0], rf.xy)
+    fx2 = Fixes(roles={"both": RoleFixes(rf.t, moved, rf.std, "fix-both", computed=True)})
+    out = {}
+    for label, kw, f in (("a", {}, fx), ("b", {}, fx2), ("short", {"graph": {"window_s": 5.0}}, fx)):
+        m = FusedWalk(label, mode="online", estimate="graph", **kw)
+        inputs = RunInputs(cache={})
+        m.fit(train, inputs)
+        out[label] = m.run(test, 1, 0, inputs.with_fixes(f))
+    a, b = out["a"], out["b"]
+    before = a.t < t_cut
+    assert before.sum() > 5 and np.isfinite(a.position).all()
+    np.testing.assert_allclose(a.position[0][before], b.position[0][before], atol=1e-9)
+    assert np.abs(a.position[0][~before] - b.position[0][~before]).max() > 0.5  # the later fixes do move it
+    assert np.abs(out["short"].position - a.position).max() > 1e-3
+    with pytest.raises(ValueError, match="lag_s 0"):
+        FusedWalk("x", mode="online", estimate="graph", lag_s=1.0)

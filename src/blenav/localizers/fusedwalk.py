@@ -36,7 +36,9 @@ Estimates: (R identical runs) the marginal mean and covariance per node; offline
 realwalks experiment's ``fused-offline``) those means refined as a factor graph (:mod:`blenav.crf.walk_graph`): continuous
 positions under the odometry's between-factors turned by the walk's most probable layer, the fixes under a robust
 kernel, each node's marginal (covariance x ``graph.prior_scale``) as its prior; measured on the train walks against the
-mean, the mode and the Viterbi path (docs/results-ilc20.md). numba via the smoother; the grid per floor
+mean, the mode and the Viterbi path (docs/results-ilc20.md); online with ``estimate: graph`` (the experiment's
+``fused-online``), at every node the graph over the filtered marginals of the last ``graph.window_s`` (the odometry as
+measured: the layers' posterior is the whole walk's), its last node: causal, a phone's step adds one small graph. numba via the smoother; the grid per floor
 and the walk's odometry are cached.
 """
 
@@ -67,7 +69,7 @@ MODES = ("online", "offline")
 ESTIMATES = ("mean", "mode", "viterbi", "graph")
 #: ``estimate: graph``: the grid's marginals refined as a factor graph (:mod:`blenav.crf.walk_graph`; GTSAM's factors
 #: give the same optimum)
-GRAPH_DEFAULTS = {"prior_scale": 64.0, "kernel": "cauchy", "kernel_k": 1.0, "odo_sigma_scale": 1.0}
+GRAPH_DEFAULTS = {"prior_scale": 64.0, "kernel": "cauchy", "kernel_k": 1.0, "odo_sigma_scale": 1.0, "window_s": 60.0}
 
 
 def _block(name: str, what: str, given, defaults: dict) -> dict:
@@ -119,15 +121,19 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         if mode not in MODES:
             raise ValueError(f"method {name!r}: mode must be one of {MODES}, got {mode!r}")
         self.mode = mode
-        if estimate not in ESTIMATES or (mode == "online" and estimate != "mean"):
-            raise ValueError(f"method {name!r}: estimate must be one of {ESTIMATES} (online: mean), got {estimate!r}")
+        if estimate not in ESTIMATES or (mode == "online" and estimate not in ("mean", "graph")):
+            raise ValueError(f"method {name!r}: estimate must be one of {ESTIMATES} (online: mean or graph), got {estimate!r}")
         self.estimate = estimate
         gr = _block(name, "graph", graph, GRAPH_DEFAULTS)
         self.graph = (float(gr["prior_scale"]), str(gr["kernel"]), float(gr["kernel_k"]), float(gr["odo_sigma_scale"]))
-        if self.graph[1] not in KERNELS or not (self.graph[2] > 0 and self.graph[3] > 0):
+        self.graph_window_s = float(gr["window_s"])
+        if self.graph[1] not in KERNELS or not (self.graph[2] > 0 and self.graph[3] > 0 and self.graph_window_s > 0):
             raise ValueError(f"method {name!r}: graph.kernel must be one of {KERNELS} and graph.kernel_k, "
-                             f"graph.odo_sigma_scale > 0, got {self.graph[1]!r}, {self.graph[2]}, {self.graph[3]}")
+                             f"graph.odo_sigma_scale, graph.window_s > 0, got {self.graph[1]!r}, {self.graph[2]}, "
+                             f"{self.graph[3]}, {self.graph_window_s}")
         self.lag_s = float(lag_s)
+        if self.estimate == "graph" and self.mode == "online" and self.lag_s > 0:
+            raise ValueError(f"method {name!r}: the online graph (estimate: graph) reads the filter, not a lag: lag_s 0")
         if not 0.0 <= self.lag_s <= 60.0:
             raise ValueError(f"method {name!r}: lag_s must be in [0, 60] s, got {lag_s}")
         self.roles = [str(r) for r in (fix_roles or [])]
@@ -274,7 +280,6 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                self.max_step_m,
                self.dt_s, self.sigma0, self.sigma_per, self.no_odometry_sigma, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
                self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", self.fix_weight,
-               self.graph if self.estimate == "graph" else None,
                self.radio_map, self.radio_weight, self._lag_nodes(), tuple(s.id for s in self.train))
         if key in inputs.cache:
             return inputs.cache[key]
@@ -341,30 +346,60 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         if self.estimate == "viterbi":
             path = grid.xy[viterbi(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers,
                                    prune=self.prune)[0]]
-        elif self.estimate == "graph":  # the marginals refined as a factor graph under the walk's most probable layer
-            c, s = (a[int(np.argmax(res.layer_post))] for a in self.layers.arrays())
-            turned = np.column_stack([c * disp[:, 0] - s * disp[:, 1], s * disp[:, 0] + c * disp[:, 1]])
-            path = refine_walk(res.smoothed_mean, res.smoothed_cov, turned, self.graph[3] * sigma, fix_node, fxy, fsd,
-                               prior_scale=self.graph[0], cell_m=self.cell_m, kernel=self.graph[1],
-                               kernel_k=self.graph[2])[:2]
         out = {"t": T, "res": res, "first_fix": int(node.min()), "role": role, "n_fixes": int(len(ft)), "heading": heading,
                "radio_scans": int(len(st)),
-               "prior_walks": n_prior, "wall_s": time.perf_counter() - t0, "path": path, "grid_xy": grid.xy}
+               "prior_walks": n_prior, "wall_s": time.perf_counter() - t0, "path": path, "grid_xy": grid.xy,
+               "graph_inputs": (disp, sigma, fix_node, fxy, fsd), "graphs": {}}
         inputs.cache[key] = out
         return out
+
+    def _graph(self, sm: dict) -> tuple[np.ndarray, np.ndarray]:
+        """``estimate: graph``: the walk's smoothed marginals refined as a factor graph (:mod:`blenav.crf.walk_graph`)
+        under its most probable layer; (positions (K, 2), covariances (K, 2, 2)), cached with the pass per setting."""
+        if self.graph not in sm["graphs"]:
+            r = sm["res"]
+            disp, sigma, fix_node, fxy, fsd = sm["graph_inputs"]
+            c, s = (a[int(np.argmax(r.layer_post))] for a in self.layers.arrays())
+            turned = np.column_stack([c * disp[:, 0] - s * disp[:, 1], s * disp[:, 0] + c * disp[:, 1]])
+            sm["graphs"][self.graph] = refine_walk(
+                r.smoothed_mean, r.smoothed_cov, turned, self.graph[3] * sigma, fix_node, fxy, fsd,
+                prior_scale=self.graph[0], cell_m=self.cell_m, kernel=self.graph[1], kernel_k=self.graph[2])[:2]
+        return sm["graphs"][self.graph]
+
+    def _graph_online(self, sm: dict, k0: int) -> tuple[np.ndarray, np.ndarray]:
+        """Online ``estimate: graph``: at every node k >= ``k0`` the factor graph over nodes (k - W, k] (W =
+        ``graph.window_s`` / ``dt_s``) with their filtered marginals as priors, the fixes of those nodes and the odometry
+        as measured (the layers' posterior is the whole walk's: not causal); its node k. Causal: node k reads nothing
+        after it. (positions (K - k0, 2), covariances (K - k0, 2, 2))."""
+        r = sm["res"]
+        disp, sigma, fix_node, fxy, fsd = sm["graph_inputs"]
+        K = len(sm["t"])
+        pos, cov = np.empty((K - k0, 2)), np.empty((K - k0, 2, 2))
+        W = max(1, int(round(self.graph_window_s / self.dt_s)))
+        for k in range(k0, K):  # one small graph per node, as a phone's step would solve it
+            a = max(0, k + 1 - W)
+            m = (fix_node <= k) & (fix_node >= a)
+            p, c = refine_walk(r.filtered_mean[a:k + 1], r.filtered_cov[a:k + 1], disp[a:k], self.graph[3] * sigma[a:k],
+                               fix_node[m] - a, fxy[m], fsd[m], prior_scale=self.graph[0], cell_m=self.cell_m,
+                               kernel=self.graph[1], kernel_k=self.graph[2])[:2]
+            pos[k - k0], cov[k - k0] = p[-1], c[-1]
+        return pos, cov
 
     def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         t0 = time.perf_counter()
         inputs = inputs or RunInputs()
         sm = self.smooth(session, inputs)
         r, T = sm["res"], sm["t"]
-        if self.mode == "online":
+        if self.mode == "online" and self.estimate == "graph":
+            k0 = sm["first_fix"]
+            t, (pos, cov) = T[k0:], self._graph_online(sm, k0)
+        elif self.mode == "online":
             k0 = sm["first_fix"]
             t, pos, cov = T[k0:], r.filtered_mean[k0:], r.filtered_cov[k0:]
         elif self.estimate == "mean":
             t, pos, cov = T, r.smoothed_mean, r.smoothed_cov
         elif self.estimate == "graph":  # positions and covariances of the refined graph
-            t, (pos, cov) = T, sm["path"]
+            t, (pos, cov) = T, self._graph(sm)
         else:  # the smoothed marginal's mode, or the Viterbi path; the marginal's covariance about it
             pos = sm["grid_xy"][r.smoothed_mode] if self.estimate == "mode" else sm["path"]
             d = pos - r.smoothed_mean
@@ -382,6 +417,5 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                                   else f" + PDR odometry (heading {sm['heading']}, step {self._step():.3f} m)")
                                + f" + plan + train-walk prior ({sm['prior_walks']} walks), "
                                f"uniform start; grid {self.cell_m:g} m, {self.layers.n} heading/scale layers"
-                               + (f"; estimate {self.estimate}" if self.mode == "offline" and self.estimate != "mean"
-                                  else "")],
+                               + (f"; estimate {self.estimate}" if self.estimate != "mean" else "")],
                         outputs={"layer": {"heading_offset_deg": math.degrees(th), "step_scale": sc}})
