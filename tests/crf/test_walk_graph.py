@@ -115,3 +115,7 @@ def test_bad_inputs_are_refused():
         refine_walk(init, P, disp, sigma, np.full(len(fxy), 9), fxy, fsd)
     with pytest.raises(ValueError, match="no anchor"):
         refine_walk(init, P, disp, sigma, node[:0], fxy[:0], fsd[:0], prior_scale=0)
+    with pytest.raises(ValueError, match="finite"):
+        refine_walk(init, P, disp, np.r_[sigma[:-1], np.inf], node, fxy, fsd, prior_scale=0)
+    with pytest.raises(ValueError, match="finite"):
+        refine_walk(init, P, disp, sigma, node, np.where(np.arange(len(fxy))[:, None] == 0, np.nan, fxy), fsd)

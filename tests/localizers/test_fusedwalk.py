@@ -176,9 +176,14 @@ def test_the_graph_estimate_refines_the_marginal_means(walks):
     assert (np.linalg.eigvalsh(g.cov[0]) > 0).all() and "estimate graph" in g.notes[0]
     assert np.abs(g.position - out["mean"].position).max() > 0.05  # the refinement moves the track
     np.testing.assert_allclose(out["tight"].position, out["mean"].position, atol=0.01)
-    for bad in ({"kernel": "tukey"}, {"kernel_k": 0.0}, {"odo_sigma_scale": -1.0}, {"prior": 1.0}):
+    for bad in ({"kernel": "tukey"}, {"kernel_k": 0.0}, {"odo_sigma_scale": -1.0}, {"prior": 1.0},
+                {"prior_scale": float("nan")}, {"prior_scale": -1.0}, {"window_s": 0.0}):
         with pytest.raises(ValueError, match="graph"):
             FusedWalk("x", estimate="graph", graph=bad)
+    with pytest.raises(ValueError, match="online: > 0"):
+        FusedWalk("x", mode="online", estimate="graph", graph={"prior_scale": 0.0})
+    with pytest.raises(ValueError, match="fix_weight 1"):
+        FusedWalk("x", estimate="graph", fix_weight=0.5, radio_map={"bandwidth_m": 3.0})
 
 
 def test_the_online_graph_is_causal_and_bounded_by_its_window(walks):

@@ -13,16 +13,23 @@ tests/crf/test_walk_graph.py):
   the spread of a marginal on one cell): it holds the graph in the mode the grid found (a uniform start has no other
   anchor) and near the walkable cells the grid weighed (the graph knows no walls).
 
-Every factor is linear in x but for the kernel: iteratively reweighted least squares (IRLS), each pass the exact
-solution of the block-tridiagonal normal equations for the current weights w_j = rho'(e_j) / e_j (e_j the fix's
-whitened residual; Cauchy k^2 / (k^2 + e^2), Huber min(1, k / e)) by block elimination along the walk, and the
-marginal covariances from the same factorisation (the RTS recursion). numba; O(K) per pass.
+Every factor is linear in x but for the kernel: iteratively reweighted least squares (IRLS; the M-estimator weights
+of Huber 1964 and Zhang 1997, as GTSAM's ``noiseModel.Robust`` applies them to the whitened residual's norm), each
+pass the exact solution of the block-tridiagonal normal equations for the current weights w_j = rho'(e_j) / e_j (e_j
+the fix's whitened residual; Cauchy k^2 / (k^2 + e^2), Huber min(1, k / e)) by block elimination along the walk, and
+the marginal covariances from the same factorisation (the backward recursion of Rauch, Tung and Striebel 1965 in
+information form). A factor graph in the sense of Dellaert and Kaess, "Factor Graphs for Robot Perception" (2017);
+this one is a chain, so its normal equations need no sparse solver. numba; O(K) per pass.
 """
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 from numba import njit
+
+log = logging.getLogger("blenav.crf.walk_graph")
 
 __all__ = ["refine_walk", "KERNELS"]
 
@@ -32,6 +39,8 @@ KERNELS = ("cauchy", "huber", "none")
 @njit(cache=True, nogil=True)
 def _inv2(a):
     det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    if not det > 0.0:  # a positive-definite block has det > 0; anything else: no anchor reaches this node
+        raise ValueError("refine_walk: singular normal equations (a stretch of the walk with no prior and no fix)")
     out = np.empty((2, 2))
     out[0, 0], out[1, 1] = a[1, 1] / det, a[0, 0] / det
     out[0, 1], out[1, 0] = -a[0, 1] / det, -a[1, 0] / det
@@ -88,15 +97,17 @@ def refine_walk(init: np.ndarray, prior_cov: np.ndarray, disp: np.ndarray, sigma
     init = np.ascontiguousarray(init, float)
     K = len(init)
     disp, sigma = np.asarray(disp, float).reshape(-1, 2), np.asarray(sigma, float).ravel()
-    if K < 1 or disp.shape != (K - 1, 2) or sigma.shape != (K - 1,) or not (sigma > 0).all():
-        raise ValueError(f"refine_walk: {K} nodes need disp (K-1, 2) and sigma (K-1,) > 0, got {disp.shape}, "
-                         f"{sigma.shape}")
+    if K < 1 or disp.shape != (K - 1, 2) or sigma.shape != (K - 1,) or not (np.isfinite(sigma) & (sigma > 0)).all():
+        raise ValueError(f"refine_walk: {K} nodes need disp (K-1, 2) and sigma (K-1,) finite and > 0, got "
+                         f"{disp.shape}, {sigma.shape}")
     node = np.asarray(fix_node, np.int64).ravel()
     fxy, fsd = np.asarray(fix_xy, float).reshape(-1, 2), np.asarray(fix_std, float).ravel()
     if len(node) != len(fxy) or len(node) != len(fsd) or (len(node) and (node.min() < 0 or node.max() >= K)) \
-            or not (fsd > 0).all():
-        raise ValueError("refine_walk: fix_node, fix_xy and fix_std must have one row per fix, nodes in [0, K) and "
-                         "stds > 0")
+            or not (np.isfinite(fsd) & (fsd > 0)).all() or not np.isfinite(fxy).all():
+        raise ValueError("refine_walk: fix_node, fix_xy and fix_std must have one row per fix, nodes in [0, K), "
+                         "finite positions and finite stds > 0")
+    if not np.isfinite(prior_scale) or not np.isfinite(init).all():
+        raise ValueError(f"refine_walk: prior_scale ({prior_scale}) and init must be finite")
     if prior_scale <= 0 and not len(node):
         raise ValueError("refine_walk: no prior and no fix: the track has no anchor")
     q = 1.0 / sigma ** 2
@@ -112,17 +123,23 @@ def refine_walk(init: np.ndarray, prior_cov: np.ndarray, disp: np.ndarray, sigma
     H0[1:, 1, 1] += q
     g0[:-1] -= q[:, None] * disp
     g0[1:] += q[:, None] * disp
-    x, it = init, 0
-    for it in range(1, max_iterations + 1):
+    def system(x):  # the normal equations with the fixes' weights at x
         w = _weights(np.hypot(*(x[node] - fxy).T) / fsd, kernel, kernel_k) / fsd ** 2
         H, g = H0.copy(), g0.copy()
         np.add.at(H[:, 0, 0], node, w)
         np.add.at(H[:, 1, 1], node, w)
         np.add.at(g, node, w[:, None] * fxy)
-        x_new, _ = _solve(H, g, q, False)
+        return H, g
+
+    x, it = init, 0
+    for it in range(1, max_iterations + 1):
+        x_new, _ = _solve(*system(x), q, False)
         step = float(np.abs(x_new - x).max())
         x = x_new
         if step < tol_m or kernel == "none":
             break
-    _, cov = _solve(H, g, q, True)
+    else:
+        log.warning("refine_walk: %d IRLS passes without converging (last step %.2g m > %.2g m)", max_iterations,
+                    step, tol_m)
+    _, cov = _solve(*system(x), q, True)  # the covariances at the solution's own weights
     return x, cov, it

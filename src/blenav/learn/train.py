@@ -29,12 +29,23 @@ def train(cfg: DictConfig, callbacks: list | None = None,
         raise ValueError(f"task={task!r} is not one of {TASKS}")
     if cfg.get("threads"):  # e.g. threads=1 on a shared machine: oversubscribed cores slow torch down a lot
         torch.set_num_threads(int(cfg.threads))
-    if task == "mapprior":
-        from .mapprior.train import train_mapprior  # only this task needs the map prior's data stack
+    try:
+        if task == "mapprior":
+            from .mapprior.train import train_mapprior  # only this task needs the map prior's data stack
 
-        return train_mapprior(cfg, callbacks=callbacks)
-    if task == "inertial":
-        from .inertial.train import train_inertial  # the learned inertial odometry (issue 31)
+            return train_mapprior(cfg, callbacks=callbacks)
+        if task == "inertial":
+            from .inertial.train import train_inertial  # the learned inertial odometry (issue 31)
 
-        return train_inertial(cfg, callbacks=callbacks)
-    return train_crossphone(cfg, callbacks=callbacks, datamodule=datamodule)
+            return train_inertial(cfg, callbacks=callbacks)
+        return train_crossphone(cfg, callbacks=callbacks, datamodule=datamodule)
+    finally:
+        release_process_group()
+
+
+def release_process_group() -> None:
+    """A multi-process run's (``trainer.strategy=ddp``) process group destroyed when its training ends, in every
+    rank: left to the interpreter's exit, gloo's threads could abort a finished run ("terminate called without an
+    active exception", exit status -6, seen once in tests/learn/test_scaleout.py). Nothing for a single process."""
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        torch.distributed.destroy_process_group()

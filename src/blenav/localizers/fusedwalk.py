@@ -131,6 +131,9 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             raise ValueError(f"method {name!r}: graph.kernel must be one of {KERNELS} and graph.kernel_k, "
                              f"graph.odo_sigma_scale, graph.window_s > 0, got {self.graph[1]!r}, {self.graph[2]}, "
                              f"{self.graph[3]}, {self.graph_window_s}")
+        if not (math.isfinite(self.graph[0]) and self.graph[0] >= 0 and (mode == "offline" or self.graph[0] > 0)):
+            raise ValueError(f"method {name!r}: graph.prior_scale must be finite and >= 0 (online: > 0, a window "
+                             f"without a fix has no other anchor), got {self.graph[0]}")
         self.lag_s = float(lag_s)
         if self.estimate == "graph" and self.mode == "online" and self.lag_s > 0:
             raise ValueError(f"method {name!r}: the online graph (estimate: graph) reads the filter, not a lag: lag_s 0")
@@ -184,6 +187,9 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                              f"{self.prior_floor}, {self.prior_weight}, {self.prior_blur})")
         if not self.sigma_per >= 0:
             raise ValueError(f"method {name!r}: motion.sigma_per_m must be >= 0, got {self.sigma_per}")
+        if self.estimate == "graph" and (self.fix_weight != 1.0 or self.radio_map is not None):
+            raise ValueError(f"method {name!r}: estimate: graph weighs each fix at full weight and no radio-map scan: "
+                             f"fix_weight 1 and no radio_map (got {self.fix_weight:g}, {self.radio_map})")
         if self.fix_weight == 0 and self.radio_map is None:
             raise ValueError(f"method {name!r}: fix_weight 0 without a radio_map leaves nothing to observe")
         for what, v, lo in (("dt_s", self.dt_s, 1e-3), ("grid.cell_m", self.cell_m, 0.05),
@@ -369,8 +375,8 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
     def _graph_online(self, sm: dict, k0: int) -> tuple[np.ndarray, np.ndarray]:
         """Online ``estimate: graph``: at every node k >= ``k0`` the factor graph over nodes (k - W, k] (W =
         ``graph.window_s`` / ``dt_s``) with their filtered marginals as priors, the fixes of those nodes and the odometry
-        as measured (the layers' posterior is the whole walk's: not causal); its node k. Causal: node k reads nothing
-        after it. (positions (K - k0, 2), covariances (K - k0, 2, 2))."""
+        as measured (the layers' posterior is the whole walk's: not causal); its node k. Causal as the filter is: node k
+        reads nothing after it, i.e. no fix later than T[k] + dt/2 (fixes go to their nearest node). (positions (K - k0, 2), covariances (K - k0, 2, 2))."""
         r = sm["res"]
         disp, sigma, fix_node, fxy, fsd = sm["graph_inputs"]
         K = len(sm["t"])
