@@ -83,7 +83,7 @@ def main() -> None:
         print(f"walks of 60 s or more ({len(long)}): per 90 s mean {long.mean():.3f} s, worst {long.max():.3f} s -> ratio "
               f"{long.max() / TARGET_S_PER_90S:.2f}")
     node_ms = np.asarray(node_ms)
-    print(f"fused-online's causal graph per node (window {online.graph_window_s:g} s): mean {node_ms.mean():.2f} ms, "
+    print(f"fused-online's causal graph per node (window {online.graph.window_s:g} s): mean {node_ms.mean():.2f} ms, "
           f"worst walk {node_ms.max():.2f} ms")
     print(f"load average {os.getloadavg()[0]:.2f} (2 cores)")
 

@@ -65,6 +65,13 @@ class Layers:
         th, sc = th.ravel(), sc.ravel()
         return sc * np.cos(th), sc * np.sin(th)
 
+    def turn(self, i: int, disp: np.ndarray) -> np.ndarray:
+        """Displacements ``disp`` (..., 2) m under layer ``i``'s rotation-scale s_l R(theta_l) (the transition
+        kernel's :func:`_predicted`, vectorised)."""
+        c, s = (a[i] for a in self.arrays())
+        d = np.asarray(disp, float)
+        return np.stack([c * d[..., 0] - s * d[..., 1], s * d[..., 0] + c * d[..., 1]], axis=-1)
+
     @property
     def n(self) -> int:
         return len(self.heading_offsets_rad) * len(self.scales)

@@ -25,15 +25,46 @@ this one is a chain, so its normal equations need no sparse solver. numba; O(K) 
 from __future__ import annotations
 
 import logging
+import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
 log = logging.getLogger("blenav.crf.walk_graph")
 
-__all__ = ["refine_walk", "KERNELS"]
+__all__ = ["refine_walk", "GraphSettings", "KERNELS"]
 
 KERNELS = ("cauchy", "huber", "none")
+
+
+@dataclass(frozen=True)
+class GraphSettings:
+    """The graph's settings (a method's ``graph:`` block; a key not here is refused by the constructor):
+    ``prior_scale`` the marginals' covariance factor (0: no prior), ``kernel`` / ``kernel_k`` the fixes' robust kernel
+    (k in fix stds), ``odo_sigma_scale`` the odometry's std factor, ``window_s`` the span of an online graph (s)."""
+
+    prior_scale: float = 64.0
+    kernel: str = "cauchy"
+    kernel_k: float = 1.0
+    odo_sigma_scale: float = 1.0
+    window_s: float = 60.0
+
+    def __post_init__(self):
+        if self.kernel not in KERNELS:
+            raise ValueError(f"kernel must be one of {KERNELS}, got {self.kernel!r}")
+        for key in ("kernel_k", "odo_sigma_scale", "window_s"):
+            if not float(getattr(self, key)) > 0:
+                raise ValueError(f"{key} must be > 0, got {getattr(self, key)}")
+        if not (math.isfinite(self.prior_scale) and self.prior_scale >= 0):
+            raise ValueError(f"prior_scale must be finite and >= 0, got {self.prior_scale}")
+
+    def refine(self, init, prior_cov, disp, sigma, fix_node, fix_xy, fix_std, cell_m: float):
+        """:func:`refine_walk` with these settings (the odometry's std times ``odo_sigma_scale``): (positions,
+        covariances)."""
+        return refine_walk(init, prior_cov, disp, self.odo_sigma_scale * np.asarray(sigma, float), fix_node, fix_xy,
+                           fix_std, prior_scale=self.prior_scale, cell_m=cell_m, kernel=self.kernel,
+                           kernel_k=self.kernel_k)[:2]
 
 
 @njit(cache=True, nogil=True)

@@ -38,8 +38,8 @@ positions under the odometry's between-factors turned by the walk's most probabl
 kernel, each node's marginal (covariance x ``graph.prior_scale``) as its prior; measured on the train walks against the
 mean, the mode and the Viterbi path (docs/results-ilc20.md); online with ``estimate: graph`` (the experiment's
 ``fused-online``), at every node the graph over the filtered marginals of the last ``graph.window_s`` (the odometry as
-measured: the layers' posterior is the whole walk's), its last node: causal, a phone's step adds one small graph. numba via the smoother; the grid per floor
-and the walk's odometry are cached.
+measured: the layers' posterior is the whole walk's), its last node: causal, a phone's step adds one small graph.
+numba via the smoother; the grid per floor and the walk's odometry are cached.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ import numpy as np
 
 from blenav.crf.grid import build_grid
 from blenav.crf.smoother import Layers, forward_backward, viterbi
-from blenav.crf.walk_graph import KERNELS, refine_walk
+from blenav.crf.walk_graph import GraphSettings
 from blenav.errors import MissingStream
 from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADING_SOURCES, fitted_step_length, pdr_odometry, resolve_heading
 
@@ -67,9 +67,6 @@ MODES = ("online", "offline")
 #: what an offline row reports per node: the smoothed marginal's mean (default) or its most probable cell, or the most
 #: probable joint path (Viterbi); measured on the train walks (docs/results-ilc20.md)
 ESTIMATES = ("mean", "mode", "viterbi", "graph")
-#: ``estimate: graph``: the grid's marginals refined as a factor graph (:mod:`blenav.crf.walk_graph`; GTSAM's factors
-#: give the same optimum)
-GRAPH_DEFAULTS = {"prior_scale": 64.0, "kernel": "cauchy", "kernel_k": 1.0, "odo_sigma_scale": 1.0, "window_s": 60.0}
 
 
 def _block(name: str, what: str, given, defaults: dict) -> dict:
@@ -122,18 +119,18 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             raise ValueError(f"method {name!r}: mode must be one of {MODES}, got {mode!r}")
         self.mode = mode
         if estimate not in ESTIMATES or (mode == "online" and estimate not in ("mean", "graph")):
-            raise ValueError(f"method {name!r}: estimate must be one of {ESTIMATES} (online: mean or graph), got {estimate!r}")
+            raise ValueError(f"method {name!r}: estimate must be one of {ESTIMATES} (online: mean or graph), got "
+                             f"{estimate!r}")
         self.estimate = estimate
-        gr = _block(name, "graph", graph, GRAPH_DEFAULTS)
-        self.graph = (float(gr["prior_scale"]), str(gr["kernel"]), float(gr["kernel_k"]), float(gr["odo_sigma_scale"]))
-        self.graph_window_s = float(gr["window_s"])
-        if self.graph[1] not in KERNELS or not (self.graph[2] > 0 and self.graph[3] > 0 and self.graph_window_s > 0):
-            raise ValueError(f"method {name!r}: graph.kernel must be one of {KERNELS} and graph.kernel_k, "
-                             f"graph.odo_sigma_scale, graph.window_s > 0, got {self.graph[1]!r}, {self.graph[2]}, "
-                             f"{self.graph[3]}, {self.graph_window_s}")
-        if not (math.isfinite(self.graph[0]) and self.graph[0] >= 0 and (mode == "offline" or self.graph[0] > 0)):
+        #: ``estimate: graph``: the grid's marginals refined as a factor graph (:mod:`blenav.crf.walk_graph`)
+        graph = _block(name, "graph", graph, asdict(GraphSettings()))
+        try:
+            self.graph = GraphSettings(**graph)
+        except ValueError as exc:
+            raise ValueError(f"method {name!r}: graph.{exc}") from None
+        if mode == "online" and not self.graph.prior_scale > 0:
             raise ValueError(f"method {name!r}: graph.prior_scale must be finite and >= 0 (online: > 0, a window "
-                             f"without a fix has no other anchor), got {self.graph[0]}")
+                             f"without a fix has no other anchor), got {self.graph.prior_scale}")
         self.lag_s = float(lag_s)
         if self.estimate == "graph" and self.mode == "online" and self.lag_s > 0:
             raise ValueError(f"method {name!r}: the online graph (estimate: graph) reads the filter, not a lag: lag_s 0")
@@ -365,29 +362,27 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         if self.graph not in sm["graphs"]:
             r = sm["res"]
             disp, sigma, fix_node, fxy, fsd = sm["graph_inputs"]
-            c, s = (a[int(np.argmax(r.layer_post))] for a in self.layers.arrays())
-            turned = np.column_stack([c * disp[:, 0] - s * disp[:, 1], s * disp[:, 0] + c * disp[:, 1]])
-            sm["graphs"][self.graph] = refine_walk(
-                r.smoothed_mean, r.smoothed_cov, turned, self.graph[3] * sigma, fix_node, fxy, fsd,
-                prior_scale=self.graph[0], cell_m=self.cell_m, kernel=self.graph[1], kernel_k=self.graph[2])[:2]
+            turned = self.layers.turn(int(np.argmax(r.layer_post)), disp)
+            sm["graphs"][self.graph] = self.graph.refine(r.smoothed_mean, r.smoothed_cov, turned, sigma, fix_node, fxy,
+                                                         fsd, self.cell_m)
         return sm["graphs"][self.graph]
 
     def _graph_online(self, sm: dict, k0: int) -> tuple[np.ndarray, np.ndarray]:
         """Online ``estimate: graph``: at every node k >= ``k0`` the factor graph over nodes (k - W, k] (W =
         ``graph.window_s`` / ``dt_s``) with their filtered marginals as priors, the fixes of those nodes and the odometry
         as measured (the layers' posterior is the whole walk's: not causal); its node k. Causal as the filter is: node k
-        reads nothing after it, i.e. no fix later than T[k] + dt/2 (fixes go to their nearest node). (positions (K - k0, 2), covariances (K - k0, 2, 2))."""
+        reads nothing after it, i.e. no fix later than T[k] + dt/2 (fixes go to their nearest node). (positions
+        (K - k0, 2), covariances (K - k0, 2, 2))."""
         r = sm["res"]
         disp, sigma, fix_node, fxy, fsd = sm["graph_inputs"]
         K = len(sm["t"])
         pos, cov = np.empty((K - k0, 2)), np.empty((K - k0, 2, 2))
-        W = max(1, int(round(self.graph_window_s / self.dt_s)))
+        W = max(1, int(round(self.graph.window_s / self.dt_s)))
         for k in range(k0, K):  # one small graph per node, as a phone's step would solve it
             a = max(0, k + 1 - W)
             m = (fix_node <= k) & (fix_node >= a)
-            p, c = refine_walk(r.filtered_mean[a:k + 1], r.filtered_cov[a:k + 1], disp[a:k], self.graph[3] * sigma[a:k],
-                               fix_node[m] - a, fxy[m], fsd[m], prior_scale=self.graph[0], cell_m=self.cell_m,
-                               kernel=self.graph[1], kernel_k=self.graph[2])[:2]
+            p, c = self.graph.refine(r.filtered_mean[a:k + 1], r.filtered_cov[a:k + 1], disp[a:k], sigma[a:k],
+                                     fix_node[m] - a, fxy[m], fsd[m], self.cell_m)
             pos[k - k0], cov[k - k0] = p[-1], c[-1]
         return pos, cov
 
