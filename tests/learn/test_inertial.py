@@ -182,6 +182,21 @@ def test_changed_export_refused(trained, tmp_path):
         InertialModel(bad2)
 
 
+def test_an_export_naming_a_training_only_attitude_is_refused(trained, tmp_path):
+    """meta.json chooses the attitude source the odometry reads: one a phone does not have at run time
+    (groundtruth, the simulated walks' training source) is refused when the model opens, naming the file."""
+    from blenav.runtime.inertial import InertialModel
+
+    import json
+
+    bad = shutil.copytree(trained["io"], tmp_path / "io")
+    meta = json.loads((bad / "meta.json").read_text())
+    meta["attitude"] = {"attitude": "groundtruth"}
+    (bad / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="meta.json: attitude 'groundtruth'"):
+        InertialModel(bad)
+
+
 def test_foreign_target_in_checkpoint_refused(trained, tmp_path):
     from blenav.learn.inertial.checkpoint import load_inertial
     from blenav.trust import UntrustedTargetError

@@ -53,11 +53,12 @@ def export_bundle(cfg: DictConfig) -> Path:
     if out.exists() and not (out.is_dir() and (not any(out.iterdir()) or (out / MANIFEST).is_file())):
         raise ValueError(f"out={out} exists and is not a bundle: choose a new folder")
     check_run_folder(out, "a bundle")  # not /, not inside the dataset it was trained on
+    inertial = None
     if cfg.get("io_model"):  # before anything is exported: the model, and a motion model that reads odometry
         if "odo" not in _motion_needs(cfg.runtime.motion):
             raise ValueError(f"io_model={cfg.io_model}: the bundle's motion model ({cfg.runtime.motion.get('_target_')}) "
                              "reads no odometry; the learned odometry would not be used")
-        _check_inertial(Path(cfg.io_model))
+        inertial = _check_inertial(Path(cfg.io_model))
     if not Path(cfg.ckpt).is_file():
         raise FileNotFoundError(f"checkpoint {cfg.ckpt} does not exist")
     meta = read_meta(cfg.ckpt)
@@ -116,8 +117,8 @@ def export_bundle(cfg: DictConfig) -> Path:
             else:
                 raise FileNotFoundError(f"mapprior={mp} does not exist (a last.ckpt or an export directory)")
             models["map_prior"] = {"source": str(mp.resolve())}
-        if cfg.get("io_model"):
-            models["inertial"] = _copy_inertial(Path(cfg.io_model), tmp / INERTIAL_DIR)
+        if inertial is not None:
+            models["inertial"] = _copy_inertial(inertial, tmp / INERTIAL_DIR)
         settings = OmegaConf.to_container(cfg.runtime, resolve=True)
         check_targets(settings, "export config", prefix="runtime")  # settings.json may name only blenav's classes
         finish_bundle(tmp, sig, settings, variants=bool(cfg.variants), sessions=sessions,
@@ -141,12 +142,12 @@ def _check_inertial(io: Path):
     return InertialModel(io)
 
 
-def _copy_inertial(io: Path, dest: Path) -> dict:
-    """The export ``io`` checked (:func:`_check_inertial`) and copied to ``dest``: its graph and meta.json only.
-    Returns its manifest entry."""
+def _copy_inertial(model, dest: Path) -> dict:
+    """The export of ``model`` (checked by :func:`_check_inertial`, before anything was exported) copied to ``dest``:
+    its graph and meta.json only (the bundle's manifest hashes the copies). Returns its manifest entry."""
     from blenav.runtime.inertial import INERTIAL_ONNX, META_JSON
 
-    model = _check_inertial(io)
+    io = Path(model.root)
     dest.mkdir(parents=True)
     for name in (INERTIAL_ONNX, META_JSON):
         shutil.copy(io / name, dest / name)

@@ -60,8 +60,15 @@ class InertialModel:
         check_export_files(root, meta, (INERTIAL_ONNX,), META_JSON)
         self.meta, self.root = meta, root
         self.key = "onnx:" + str((meta.get("sha256") or {}).get(INERTIAL_ONNX) or root.resolve())  # cache key part
-        #: the attitude source the network was trained in (the default of :meth:`odometry`)
-        self.attitude = str((meta.get("attitude") or {}).get("attitude") or "auto")
+        #: the attitude source the network was trained in (the default of :meth:`odometry`): one a deployed phone has
+        #: (never ``groundtruth``, the simulated walks' training-only source), checked here, before any session
+        from blenav.filters.pdr_odometry import HEADING_SOURCES  # what odometry() will read
+
+        att = meta.get("attitude") or {}
+        self.attitude = str((att.get("attitude") if isinstance(att, dict) else None) or "auto")
+        if self.attitude not in HEADING_SOURCES:
+            raise ValueError(f"{where}: attitude {self.attitude!r}, not one a phone has at run time "
+                             f"({', '.join(HEADING_SOURCES)})")
         self.sess = session(paths[0], threads)
         props = read_metadata(self.sess)  # the contract the graph was exported with: meta.json must say the same
         for key in ("grid", "channels", "input_frame"):

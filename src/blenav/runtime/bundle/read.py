@@ -80,7 +80,7 @@ class Bundle:
             backend = MapBackend(root / MAP_DIR, variant, threads, digest)
             prior = MapPrior(root / MAP_DIR / variant_name(MAP_GRAPHS[0], variant), loader=lambda _p: backend)
         inertial = None
-        if (root / INERTIAL_DIR / "meta.json").is_file():  # its own hashes checked too (InertialModel)
+        if (root / INERTIAL_DIR).exists():  # its own files and hashes checked too: InertialModel names what is missing
             from ..inertial import InertialModel
 
             inertial = InertialModel(root / INERTIAL_DIR, threads=threads)
