@@ -109,13 +109,11 @@ def markdown(results: list[tuple[str, dict, pd.DataFrame]], runs: int, wall_s: f
     lines += ["", "By readings per beacon (rssi.csv rows of the session; all datasets pooled), mean error (m):", "",
               "| readings | beacons | given | " + " | ".join(ROWS) + " |", "|---|---|---|" + "---|" * len(ROWS)]
     pb = pd.concat([r[2] for r in results])
-    edges = list(BM.HEARD_BINS) + [None]
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi, label in BM.heard_bins():
         m = (pb["readings"] >= lo) & ((pb["readings"] < hi) if hi is not None else True)
         if not m.any():
             continue
         cells = [f"{pb.loc[m, k].mean():.2f}" for k in ROWS]
-        label = f"{lo}-{hi - 1}" if hi is not None else f"{lo}+"
         lines.append(f"| {label} | {int(m.sum())} | {pb.loc[m, 'given'].mean():.2f} | " + " | ".join(cells) + " |")
     lines += ["", f"Wall time {wall_s:.0f} s."]
     return "\n".join(lines) + "\n"

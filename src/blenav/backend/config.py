@@ -36,6 +36,19 @@ class RobustKernel(StrEnum):
     dcs = "dcs"
 
 
+#: the kernels the mapping mode's residuals take (its own square-root form, blenav.backend.mapping_factor)
+MAPPING_KERNELS = (RobustKernel.none, RobustKernel.huber, RobustKernel.cauchy)
+
+
+def mapping_kernel(kernel, where: str = "mapping.robust") -> RobustKernel:
+    """``kernel`` as a :class:`RobustKernel` the mapping mode takes; ValueError naming ``where`` for a range-only one."""
+    k = RobustKernel(kernel)
+    if k not in MAPPING_KERNELS:
+        raise ValueError(f"{where}={k.value} is a kernel of the range factors; the mapping mode takes "
+                         f"{', '.join(m.value for m in MAPPING_KERNELS)}")
+    return k
+
+
 class Combine(StrEnum):
     """``range.combine``: every range its own factor (000: "does not discard any measurements"), or one factor
     per beacon and keyframe with the median of its ranges in the keyframe interval."""
@@ -285,6 +298,4 @@ def check_combinations(cfg: BackendConfig) -> None:
         if rc.estimate_offset:
             raise ValueError("backend: range.refit_channel and range.estimate_offset both estimate the receiver's "
                              "offset; choose one")
-    if RobustKernel(cfg.mapping.robust) not in (RobustKernel.none, RobustKernel.huber, RobustKernel.cauchy):
-        raise ValueError(f"backend: mapping.robust={cfg.mapping.robust} is a kernel of the range factors; the mapping "
-                         f"mode takes none, huber or cauchy")
+    mapping_kernel(cfg.mapping.robust, "backend: mapping.robust")

@@ -64,7 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .config import MappingConfig, RobustKernel
+from .config import MappingConfig, mapping_kernel
 from .mapping_readings import collect_readings
 from .mapping_report import beacon_table, fit_notes, intra_cell_correlation, residuals
 from .mapping_solve import fit_values, priors, screen, solve
@@ -104,9 +104,7 @@ def map_beacons(sessions, anchors: pd.DataFrame, cfg: MappingConfig) -> MappingR
     anchors.csv rows are ``anchors``). Never invents a beacon: see the module docstring for the checks."""
     import gtsam  # noqa: F401  (without GTSAM this fails here, before any check)
 
-    if RobustKernel(cfg.robust) not in (RobustKernel.none, RobustKernel.huber, RobustKernel.cauchy):
-        raise ValueError(f"mapping.robust: {cfg.robust} is a kernel of the range factors; the mapping mode takes "
-                         f"none, huber or cauchy")
+    mapping_kernel(cfg.robust)
     t0 = time.perf_counter()
     sessions = list(sessions)
     if not sessions:

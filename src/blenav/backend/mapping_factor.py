@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .config import RobustKernel
+from .config import RobustKernel, mapping_kernel
 from .mapping_readings import Readings
 
 __all__ = ["LN10", "D_MIN", "robust_sqrt", "rssi_error", "residual_db"]
@@ -21,12 +21,9 @@ def robust_sqrt(u: np.ndarray, kernel: RobustKernel, k: float) -> tuple[np.ndarr
     """(r, dr/du) with r = sign(u) sqrt(2 rho(u)) for GTSAM's M-estimators (``noiseModel.mEstimator``):
     Huber rho = u^2/2 (|u| <= k), k|u| - k^2/2; Cauchy rho = k^2/2 log(1 + u^2/k^2); none: r = u."""
     u = np.asarray(u, float)
-    kernel = RobustKernel(kernel)
+    kernel = mapping_kernel(kernel)
     if kernel == RobustKernel.none:
         return u.copy(), np.ones_like(u)
-    if kernel not in (RobustKernel.huber, RobustKernel.cauchy):
-        raise ValueError(f"mapping.robust: {kernel.value} is a kernel of the range factors; the mapping mode takes "
-                         f"none, huber or cauchy")
     a = np.abs(u)
     if kernel == RobustKernel.huber:
         rho = np.where(a <= k, 0.5 * u * u, k * a - 0.5 * k * k)

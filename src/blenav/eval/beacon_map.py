@@ -90,6 +90,30 @@ def with_source(sessions: list, cfg: BeaconMapConfig) -> tuple[list, dict]:
 HEARD_BINS = (0, 10, 50, 200)
 
 
+def heard_bins() -> list[tuple[int, int | None, str]]:
+    """(from, to, label) of each :data:`HEARD_BINS` bin: rssi.csv rows in [from, to) (to None: no upper end), label
+    ``"from-(to-1)"`` or ``"from+"`` as the tables print it."""
+    edges = list(HEARD_BINS) + [None]
+    return [(lo, hi, f"{lo}-{hi - 1}" if hi is not None else f"{lo}+") for lo, hi in zip(edges[:-1], edges[1:])]
+
+
+def checked_by_heard(entries) -> dict[str, dict]:
+    """label -> entry of a results.json's ``by_heard`` list (maybe a stranger's): only entries whose from / to are one
+    of :func:`heard_bins`' bins, with an int ``beacons`` and finite (or null optimized) errors; anything else is left
+    out, so what a file holds cannot add columns or break a table."""
+    known = {(lo, hi): label for lo, hi, label in heard_bins()}
+    out: dict[str, dict] = {}
+    finite = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)  # noqa: E731
+    for e in entries if isinstance(entries, list) else []:
+        if not isinstance(e, dict):
+            continue
+        label = known.get((e.get("from"), e.get("to")))
+        if label and isinstance(e.get("beacons"), int) and finite(e.get("given_m")) \
+                and (e.get("optimized_m") is None or finite(e.get("optimized_m"))):
+            out[label] = e
+    return out
+
+
 def heard_counts(session) -> pd.Series:
     """anchor_id -> rssi.csv rows of the session (0 for a beacon never heard)."""
     r = session.rssi
@@ -119,8 +143,7 @@ def by_heard(rows: pd.DataFrame | list[pd.DataFrame]) -> list[dict]:
     if isinstance(rows, list):
         rows = pd.concat(rows, ignore_index=True)
     out = []
-    edges = list(HEARD_BINS) + [None]
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi, _ in heard_bins():
         m = (rows["heard"] >= lo) & ((rows["heard"] < hi) if hi is not None else True)
         if m.any():
             opt = rows.loc[m, "optimized_m"]
@@ -222,4 +245,4 @@ def optimized_anchors(building, bmap: pd.DataFrame) -> pd.DataFrame:
 
 
 __all__ = ["BeaconMapConfig", "with_source", "perturb", "map_error", "run_per_run_maps", "stack_runs", "mean_map",
-           "optimized_anchors", "true_xy", "given_map", "HEARD_BINS", "heard_counts", "beacon_rows", "by_heard"]
+           "optimized_anchors", "true_xy", "given_map", "HEARD_BINS", "heard_bins", "checked_by_heard", "heard_counts", "beacon_rows", "by_heard"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .beacon_map import checked_by_heard
 from .common import write_text
 
 
@@ -228,8 +229,8 @@ def _beacon_map_lines(results: dict) -> list[str]:
         lines.append(f"Beacon map (beacon_map): source {bm['source']}{noise}{f' ({where})' if where else ''}.")
     errs = {n: m["beacon_error_m"] for n, m in results["methods"].items() if m.get("beacon_error_m")}
     for n, e in errs.items():
-        heard = "; ".join(f"{b['from']}{'-' + str(b['to'] - 1) if b['to'] is not None else '+'}: {_f(b['given_m'])} -> "
-                          f"{_f(b['optimized_m'])} m ({b['beacons']})" for b in e.get("by_heard") or [])
+        heard = "; ".join(f"{label}: {_f(b['given_m'])} -> {_f(b['optimized_m'])} m ({b['beacons']})"
+                          for label, b in checked_by_heard(e.get("by_heard")).items())
         lines.append(f"Beacon error of {n} (mean horizontal distance to the true positions, over beacons and runs): "
                      f"given map {_f(e.get('prior'))} m, optimized {_f(e.get('optimized'))} m"
                      + (f"; by rssi.csv rows per beacon, given -> optimized (beacons): {heard}." if heard else "."))

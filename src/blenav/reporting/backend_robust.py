@@ -14,16 +14,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from blenav.eval.beacon_map import checked_by_heard, heard_bins
 from blenav.eval.common import write_text
+from blenav.eval.metrics import rmse_mean
 from blenav.limits import read_json
 
 __all__ = ["backend_rows", "markdown", "write_backend_table"]
 
 
 def _rmse(res: dict, name: str) -> float | None:
-    m = res["methods"].get(name) or {}
-    r = m.get("rmse_m")
-    return float(r["mean"]) if isinstance(r, dict) and "mean" in r else None
+    return rmse_mean(res["methods"].get(name))
 
 
 def backend_rows(specs: list[str]) -> list[dict]:
@@ -70,16 +70,15 @@ def markdown(title: str, rows: list[dict], command: str = "") -> str:
                      f"{_f(b[0])} -> {_f(b[1])} ({_f(closer, '{:.0f} %')}) |")
     heard = [r for r in rows if r.get("by_heard")]
     if heard:
-        bins = sorted({(b["from"], b["to"]) for r in heard for b in r["by_heard"]}, key=lambda x: x[0])
-        names = [f"{lo}-{hi - 1}" if hi is not None else f"{lo}+" for lo, hi in bins]
+        cells = [checked_by_heard(r["by_heard"]) for r in heard]
+        names = [label for _, _, label in heard_bins() if any(label in c for c in cells)]
         lines += ["", "3 m map, beacons by how often they were heard (rssi.csv rows per session; pooled over sessions "
                   "and runs): error given -> optimized (m), beacons in brackets", "",
-                  "| building, channel | " + " | ".join(names) + " |", "|---|" + "---|" * len(bins)]
-        for r in heard:
-            cell = {(b["from"], b["to"]): b for b in r["by_heard"]}
+                  "| building, channel | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+        for r, cell in zip(heard, cells):
             lines.append(f"| {r['label']} | " + " | ".join(
                 f"{_f(cell[k]['given_m'])} -> {_f(cell[k]['optimized_m'])} ({cell[k]['beacons']})" if k in cell else "-"
-                for k in bins) + " |")
+                for k in names) + " |")
     return "\n".join(lines) + "\n"
 
 
