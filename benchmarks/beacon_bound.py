@@ -97,9 +97,10 @@ def bound(root: Path, runs: int) -> tuple[dict, pd.DataFrame]:
     return summary, pb
 
 
-def markdown(results: list[tuple[str, dict, pd.DataFrame]], runs: int, wall_s: float) -> str:
+def markdown(results: list[tuple[str, dict, pd.DataFrame]], runs: int, wall_s: float, command: str = "") -> str:
     lines = ["# How far one walk can correct a 3 m beacon map, the trajectory known (issue 32)", "",
-             "Made by `.venv/bin/python benchmarks/beacon_bound.py` (its docstring says how); every beacon moved by "
+             f"Made by `{command or '.venv/bin/python benchmarks/beacon_bound.py'}` (its docstring says how; the "
+             "simulated datasets are those `make backend-robust` makes); every beacon moved by "
              f"N(0, 3^2) m per axis as in `experiment=mapnoise_000`, {runs} draw(s) per session, the receiver's "
              "positions pinned at the ground truth. Mean horizontal beacon error (m), given -> estimated (closer by).",
              "", "| dataset | " + " | ".join(ROWS) + " |", "|---|" + "---|" * len(ROWS)]
@@ -131,7 +132,9 @@ def main() -> None:
         summary, pb = bound(root, args.runs)
         results.append((root.name, summary, pb))
         print(root.name, {k: f"{g:.2f} -> {e:.2f}" for k, (g, e) in summary.items()}, flush=True)
-    text = markdown(results, args.runs, time.perf_counter() - t0)
+    command = " ".join([".venv/bin/python benchmarks/beacon_bound.py", *map(str, args.datasets), "--runs",
+                        str(args.runs)] + (["--out", str(args.out)] if args.out else []))
+    text = markdown(results, args.runs, time.perf_counter() - t0, command)
     print(text)
     if args.out:
         from blenav.eval.common import write_text

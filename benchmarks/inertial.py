@@ -8,6 +8,9 @@ Given an export directory (``python export.py ckpt=RUN/last.ckpt out=IO_DIR``) a
   frame, cut the window, turn it into its heading frame, one onnxruntime call on one window, turn the velocity back and
   add it to the track; median and p99 over every stride of the walks, against the 5 ms target (ratio <= 1: met);
 * batch throughput: the whole walk's windows in one call (what the evaluation does), ms per walk-minute;
+* the stated uncertainty: the growth of the track's variance per axis (``var`` of
+  :func:`blenav.filters.inertial_odometry.lio_odometry`, m^2 per s of walk: what ``motion.odo_var_scale`` scales),
+  median and 10-90 % over every step of the walks, beside Roy's fixed 0.1 m^2/s;
 * training time: ``RUN/training.json``'s ``fit_wall_s`` and steps, when ``--ckpt`` is given;
 * ``--int8``: the graph dynamically quantised to int8 weights (onnxruntime.quantization, as the bundle's localizer):
   its size, one window's latency, the largest velocity difference, and the segment error (|(p(b) - p(a)) -
@@ -49,8 +52,10 @@ def main() -> None:
           f"{g.rate_hz:g} Hz, window {g.window_s:g} s, stride {g.stride_s:g} s, frame {model.frame}")
     print(f"parity at export: {model.meta['parity']}")
     walks = [s for s in Dataset.open(args.data).sessions() if (s.root / "imu.csv").is_file()][: args.walks]
-    step_ms, batch_ms, minutes = [], 0.0, 0.0
+    step_ms, batch_ms, minutes, growth = [], 0.0, 0.0, []
     for s in walks:
+        odo = model.odometry(s)
+        growth.append(np.diff(odo["var"].to_numpy(float)) / np.diff(odo["t"].to_numpy(float)))
         imu = s.imu
         t, acc, gyr = imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), imu[["gx", "gy", "gz"]].to_numpy(float)
         q_t, q = attitude_track(s, "auto")
@@ -84,6 +89,11 @@ def main() -> None:
     print(f"streaming step ({len(st)} strides of {len(walks)} walks): median {med:.2f} ms, p99 {p99:.2f} ms; target "
           f"{TARGET_MS:g} ms: ratio {p99 / TARGET_MS:.2f} (p99)")
     print(f"batch (the evaluation): {batch_ms / max(minutes, 1e-9):.1f} ms per walk-minute over {minutes:.1f} min")
+    gr = np.concatenate(growth) if growth else np.zeros(0)
+    if len(gr):
+        lo, med_g, hi = np.percentile(gr, [10, 50, 90])
+        print(f"stated variance growth per axis: median {med_g:.3f} m^2/s (10-90 %: {lo:.3f}-{hi:.3f}) over {len(gr)} "
+              f"steps; Roy's fixed noise 0.1 m^2/s")
     if args.int8:
         int8(model, walks)
     if args.ckpt:
