@@ -99,9 +99,9 @@ def _main(argv: list[str] | None) -> int:
                                  on_total=_set_total(bar))
     if bar is not None:
         bar.close()
-    fixes = len(getattr(bundle, "last_fixes", []))
+    fixes = len(bundle.last_fixes)
     print(f"wrote {n} estimates (t,x,y,std) to {out}; {fixes} fixes from the bundle's localizer "
-          f"({bundle.variant} models); odometry: {getattr(bundle, 'last_odometry', 'none')}")
+          f"({bundle.variant} models); odometry: {bundle.last_odometry}")
     return 0 if est is not None else 1
 
 

@@ -15,6 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 from blenav.data import Dataset
 from blenav.data.yaml_file import load_yaml
 from blenav.runtime.bundle import INERTIAL_DIR, LOCALIZER, MANIFEST, MAP_DIR, variant_name
+from blenav.runtime.bundle.settings import motion_needs
 from blenav.runtime.bundle.write import finish_bundle
 from blenav.runtime.map_prior import MapPrior
 from blenav.runtime.signature import BuildingMismatch, building_signature, compare
@@ -155,12 +156,9 @@ def _copy_inertial(model, dest: Path) -> dict:
 
 
 def _motion_needs(motion) -> tuple[str, ...]:
-    """The ``needs`` of the motion model class the runtime settings name (checked against blenav.trust first: the
-    class is imported, not built)."""
-    target = str((motion or {}).get("_target_", ""))
-    if not target:
+    """The ``needs`` of the motion model class the runtime settings name (:func:`blenav.runtime.bundle.settings.
+    motion_needs`, the bundle reader's own check: one of blenav's motion models, imported, not built)."""
+    motion = OmegaConf.to_container(motion, resolve=True) if isinstance(motion, DictConfig) else dict(motion or {})
+    if not motion.get("_target_"):
         return ()
-    check_targets({"_target_": target}, "export config", prefix="runtime.motion")
-    from hydra.utils import get_class
-
-    return tuple(getattr(get_class(target), "needs", ()))
+    return motion_needs(motion, "export config runtime")

@@ -9,7 +9,7 @@ out of range (:mod:`blenav.runtime.bundle.settings`), all before anything is bui
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -36,6 +36,9 @@ class Bundle:
     graph: LocalizerGraph
     prior: object | None
     inertial: object | None = None  # the learned inertial odometry (blenav.runtime.inertial.InertialModel) or None
+    #: what the last :meth:`run_session` made: its fixes (t, x, y) and which odometry it read
+    last_fixes: list = field(default_factory=list)
+    last_odometry: str = "none"
 
     @classmethod
     def open(cls, root: str | Path, variant: str = "float", threads: int = 1, verify: bool = True) -> "Bundle":

@@ -51,16 +51,28 @@ def check_targets_of(settings: dict, where: str) -> None:
     check_targets(settings, where)
 
 
+def _motion_class(node: dict, where: str = SETTINGS):
+    """The class ``node['_target_']`` names (one of :data:`MOTION_TARGETS`, checked by name before it is imported)."""
+    check_targets_of({"motion": node}, where)
+    mod, _, name = str(node["_target_"]).rpartition(".")
+    return getattr(importlib.import_module(mod), name)
+
+
+def motion_needs(node: dict, where: str = SETTINGS) -> tuple[str, ...]:
+    """The streams the motion model of ``node`` (a settings' ``motion``) reads, its class's ``needs`` (``odo``,
+    ``imu``, ...): the class is imported, not built."""
+    return tuple(getattr(_motion_class(node, where), "needs", ()))
+
+
 def _instantiate(node: dict, where: str = SETTINGS):
     """An object of ``node['_target_']`` (one of :data:`MOTION_TARGETS`, checked by name before anything is
     imported: :func:`check_targets_of`) with the other keys as arguments; ``where``: the settings file, named in a
     refusal (ValueError also for arguments the class does not take)."""
-    check_targets_of({"motion": node}, where)
+    cls = _motion_class(node, where)
     node = dict(node)
-    target = node.pop("_target_")
-    mod, _, name = target.rpartition(".")
+    name = node.pop("_target_").rpartition(".")[2]
     try:
-        return getattr(importlib.import_module(mod), name)(**node)
+        return cls(**node)
     except TypeError as exc:  # an argument the class does not take
         raise ValueError(f"{where}: motion ({name}): {exc}") from None
 
