@@ -11,7 +11,7 @@ from blenav.crf.grid import build_grid
 from blenav.data import Dataset
 from blenav.data.session import Session
 from blenav.localizers.fingerprint import FingerprintLocalizer
-from blenav.localizers.fusedwalk import FusedWalk, path_prior
+from blenav.localizers.fusedwalk import FusedWalk, fix_log_likelihood, path_prior, survey_distance
 from blenav.localizers.inputs import Fixes, RoleFixes, RunInputs
 
 
@@ -80,6 +80,57 @@ def test_path_prior_is_a_density_where_the_walks_went(walks):
     assert np.isclose(p.sum(), 1.0) and (p >= 0).all()
     on = g.cell_of(walks[0].positions_at(walks[0].groundtruth["t"].to_numpy(float))[:, :2])
     assert p[on].mean() > 5 * p.mean()
+
+
+def test_survey_distance_is_the_distance_to_the_nearest_surveyed_cell(walks):
+    """Every cell's distance to the cells the train walk passed (its positions every 0.5 s) equals brute force, and the
+    cell it names is one of them at that distance; without a walk every cell is its own (distance 0)."""
+    g = build_grid(walks[0].floor, cell_m=1.0, max_step_m=3.0)
+    gt = walks[0].groundtruth
+    t = np.arange(float(gt["t"].iloc[0]), float(gt["t"].iloc[-1]) + 1e-9, 0.5)
+    on = np.unique(g.cell_of(walks[0].positions_at(t)[:, :2]))
+    d, near = survey_distance(g, walks[:1])
+    brute = np.sqrt(((g.xy[:, None, :] - g.xy[on][None]) ** 2).sum(-1)).min(axis=1)
+    np.testing.assert_allclose(d, brute, atol=1e-9)
+    assert np.isin(near, on).all() and (d[on] == 0).all() and d.max() > 3.0
+    np.testing.assert_allclose(np.linalg.norm(g.xy - g.xy[near], axis=1), d, atol=1e-9)
+    d0, near0 = survey_distance(g, [])
+    assert (d0 == 0).all() and np.array_equal(near0, np.arange(g.n_cells))
+
+
+def test_the_fix_likelihood_is_the_heavy_tailed_gaussian_at_the_expected_cell():
+    """log((1 - eps) N(fix; expected_i, (std^2 + extra_i) I) + eps / N) against scipy's density, cell by cell."""
+    from scipy.stats import multivariate_normal
+
+    rng = np.random.default_rng(3)
+    expected, extra = rng.normal(0.0, 6.0, (40, 2)), rng.uniform(0.0, 25.0, 40)
+    fix, sd, eps = np.array([1.5, -2.0]), 2.5, 0.01
+    ref = [np.log((1 - eps) * multivariate_normal(e, (sd * sd + v) * np.eye(2)).pdf(fix) + eps / 40)
+           for e, v in zip(expected, extra)]
+    np.testing.assert_allclose(fix_log_likelihood(expected, extra, fix, sd, eps, 40), ref, rtol=1e-10)
+
+
+def test_off_the_survey_moves_the_track_only_where_the_walker_can_be_off_it(walks):
+    """off_survey (the default) against the plain likelihood (std_per_m 0, project false): with the train walks the
+    tracks differ; fitted on no train walk (every cell its own surveyed cell, distance 0) they are identical; bad
+    settings are refused."""
+    plain = {"off_survey": {"std_per_m": 0.0, "project": False}}
+    out = _offline_rows(walks, {"default": {}, "plain": plain})
+    assert np.isfinite(out["default"].position).all()
+    assert np.abs(out["default"].position - out["plain"].position).max() > 0.05
+    test = walks[2]
+    knn = FingerprintLocalizer("KNN", features="ble", fix_std="calibrated")
+    knn.fit(walks[:2])
+    fx = _fixes(knn, test)
+    pos = []
+    for kw in ({}, plain):
+        m = FusedWalk("x", odometry={"step_length": 0.7}, **kw)
+        m.fit([], RunInputs(cache={}))
+        pos.append(m.run(test, 1, 0, RunInputs(cache={}).with_fixes(fx)).position)
+    np.testing.assert_array_equal(pos[0], pos[1])
+    for bad, match in (({"std_per_m": -1.0}, "std_per_m"), ({"per_m": 1.0}, "off_survey: unknown key")):
+        with pytest.raises(ValueError, match=match):
+            FusedWalk("x", off_survey=bad)
 
 
 def test_a_walk_without_imu_is_smoothed_under_a_random_walk(walks, tmp_path):

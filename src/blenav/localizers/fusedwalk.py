@@ -24,6 +24,10 @@ to ``grid.max_step_m`` that do not cross a wall, :func:`blenav.crf.grid.build_gr
   e.g. the KNN's calibrated ``fix_std``), each a heavy-tailed likelihood
   (1 - ``fix_outlier``) N(cell; fix, std^2 I) + ``fix_outlier`` / N at its nearest node, raised to ``fix_weight``: a
   fix 20 m off costs a bounded amount, so it cannot drag the track;
+* off the survey (``off_survey``): a fingerprint answers with places the train walks visited, so a walker d m from
+  every train walk gets a fix near the surveyed cell nearest to it, not near itself: the fix's mean at each cell is
+  that nearest surveyed cell (``project``) and its std grows to sqrt(std^2 + (``std_per_m`` d)^2); a walk through an
+  unsurveyed corridor beside a surveyed one is then not pulled onto the surveyed one (docs/results-ilc20.md);
 * scans (``radio_map``, optional): each WiFi (+ BLE) scan of the walk scored at every cell against the floor's radio
   map (:mod:`blenav.localizers.radiomap`, built from the train walks), with the same heavy tail, raised to
   ``radio_map.weight``: a scan that resembles two places keeps both, and an unsurveyed place is uninformative
@@ -61,7 +65,7 @@ from .base import NO_IO_MODEL, Estimate, FixConsumer, InertialModelConsumer, Loc
 from .inputs import RunInputs
 from .radiomap import RadioMapConfig, build_radio_map
 
-__all__ = ["FusedWalk", "MODES", "path_prior"]
+__all__ = ["FusedWalk", "MODES", "fix_log_likelihood", "path_prior", "survey_distance"]
 
 MODES = ("online", "offline")
 #: what an offline row reports per node: the smoothed marginal's mean (default) or its most probable cell, or the most
@@ -79,11 +83,8 @@ def _block(name: str, what: str, given, defaults: dict) -> dict:
     return {**defaults, **given}
 
 
-def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5) -> np.ndarray:
-    """(N,) density (sums to 1) over ``grid``'s cells of the labelled ``walks``' positions (interpolated linearly
-    between their waypoints every ``step_s`` s), blurred by a Gaussian of ``blur_m`` m over the cell raster."""
-    from scipy.ndimage import gaussian_filter
-
+def _walk_positions(grid, walks: list, step_s: float) -> np.ndarray:
+    """(N,) count per cell of ``grid`` of the labelled ``walks``' positions (linear between waypoints every ``step_s`` s)."""
     cnt = np.zeros(grid.n_cells)
     for s in walks:
         gt = s.groundtruth
@@ -94,11 +95,47 @@ def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5) -> n
         xy = xy[np.isfinite(xy).all(axis=1)]
         if len(xy):
             np.add.at(cnt, grid.cell_of(xy), 1.0)
+    return cnt
+
+
+def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5) -> np.ndarray:
+    """(N,) density (sums to 1) over ``grid``'s cells of the labelled ``walks``' positions (interpolated linearly
+    between their waypoints every ``step_s`` s), blurred by a Gaussian of ``blur_m`` m over the cell raster."""
+    from scipy.ndimage import gaussian_filter
+
     img = np.zeros(grid.shape)
-    img[grid.cy, grid.cx] = cnt
+    img[grid.cy, grid.cx] = _walk_positions(grid, walks, step_s)
     img = gaussian_filter(img, blur_m / grid.cell_m)[grid.cy, grid.cx]
     tot = img.sum()
     return img / tot if tot > 0 else np.full(grid.n_cells, 1.0 / grid.n_cells)
+
+
+def survey_distance(grid, walks: list, step_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Per cell of ``grid``: (distance in m to the nearest cell the labelled ``walks`` passed (N,), that cell's index
+    (N,), -1 where it is not walkable); zeros and the cell itself where no walk is given."""
+    from scipy.ndimage import distance_transform_edt
+
+    cnt = _walk_positions(grid, walks, step_s)
+    if not cnt.any():
+        return np.zeros(grid.n_cells), np.arange(grid.n_cells)
+    img = np.ones(grid.shape, bool)
+    img[grid.cy[cnt > 0], grid.cx[cnt > 0]] = False
+    dist, (iy, ix) = distance_transform_edt(img, return_indices=True)
+    lut = np.full(grid.shape, -1, np.int64)
+    lut[grid.cy, grid.cx] = np.arange(grid.n_cells)
+    return dist[grid.cy, grid.cx] * grid.cell_m, lut[iy[grid.cy, grid.cx], ix[grid.cy, grid.cx]]
+
+
+def fix_log_likelihood(expected: np.ndarray, extra_var: np.ndarray, fix: np.ndarray, std: float, outlier: float,
+                       n_cells: int) -> np.ndarray:
+    """(N,) log p(fix | walker in cell i): (1 - ``outlier``) N(fix; ``expected[i]``, (std^2 + ``extra_var[i]``) I) +
+    ``outlier`` / ``n_cells``. ``expected`` (N, 2) m: where a fix of a walker in each cell lands (the cell itself, or
+    off the survey the nearest surveyed cell: ``off_survey.project``); ``extra_var`` (N,) m^2 the spread a fix gains
+    there (``off_survey.std_per_m`` x the cell's distance to the survey, squared); ``fix`` (2,) m, ``std`` m."""
+    var = std * std + extra_var
+    d2 = ((expected - fix) ** 2).sum(axis=1)
+    return np.logaddexp(math.log1p(-outlier) - d2 / (2.0 * var) - np.log(2.0 * math.pi * var),
+                        math.log(outlier / n_cells))
 
 
 class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
@@ -113,7 +150,8 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                  odometry: dict | None = None, grid: dict | None = None, dt_s: float = 1.0,
                  motion: dict | None = None, layers: dict | None = None, fix_outlier: float = 0.01,
                  fix_std_scale: float = 1.0, fix_weight: float = 1.0, radio_map: dict | None = None,
-                 path_prior: dict | None = None, prune: float = 1e-6, graph: dict | None = None):
+                 path_prior: dict | None = None, prune: float = 1e-6, graph: dict | None = None,
+                 off_survey: dict | None = None):
         super().__init__(name, shared)
         if mode not in MODES:
             raise ValueError(f"method {name!r}: mode must be one of {MODES}, got {mode!r}")
@@ -176,6 +214,10 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                 raise ValueError(f"method {name!r}: {exc}") from None
         pp = _block(name, "path_prior", path_prior, {"weight": 1.0, "floor": 0.05, "blur_m": 1.5})
         self.prior_weight, self.prior_floor, self.prior_blur = float(pp["weight"]), float(pp["floor"]), float(pp["blur_m"])
+        osv = _block(name, "off_survey", off_survey, {"std_per_m": 0.5, "project": True})
+        self.off_std_per_m, self.off_project = float(osv["std_per_m"]), bool(osv["project"])
+        if not self.off_std_per_m >= 0:
+            raise ValueError(f"method {name!r}: off_survey.std_per_m must be >= 0, got {self.off_std_per_m}")
         self.prune = float(prune)
         if not 0.0 <= self.prune < 1.0:
             raise ValueError(f"method {name!r}: prune must be in [0, 1), got {prune}")
@@ -247,7 +289,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             else:
                 lp = np.zeros(grid.n_cells)
             rmap = build_radio_map(grid, same, self.radio_map) if same and self.radio_map is not None else None
-            cache[key] = (grid, lp, len(same), rmap)
+            cache[key] = (grid, lp, len(same), rmap, survey_distance(grid, same))
         return cache[key]
 
     def _lag_nodes(self) -> int:
@@ -283,7 +325,8 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                self.max_step_m,
                self.dt_s, self.sigma0, self.sigma_per, self.no_odometry_sigma, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
                self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", self.fix_weight,
-               self.radio_map, self.radio_weight, self._lag_nodes(), tuple(s.id for s in self.train))
+               self.radio_map, self.radio_weight, self._lag_nodes(), tuple(s.id for s in self.train), self.off_std_per_m,
+               self.off_project)
         if key in inputs.cache:
             return inputs.cache[key]
         t0 = time.perf_counter()
@@ -301,7 +344,9 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                 odo = pdr_odometry(session, heading, self._step(), cache=inputs.cache)
         except MissingStream as exc:  # no IMU (or no heading): the fixes alone, under a random walk at walking pace
             odo, heading = None, f"none ({exc}; random walk of {self.no_odometry_sigma:g} m per node)"
-        grid, log_prior, n_prior, rmap = self._floor_model(session, inputs.cache)
+        grid, log_prior, n_prior, rmap, (sdist, snear) = self._floor_model(session, inputs.cache)
+        cxy = grid.xy[snear] if self.off_project else grid.xy  # where a fix at each cell is expected
+        extra = (self.off_std_per_m * sdist) ** 2  # (N,) var a KNN fix adds off the survey (m^2)
         if rmap is not None:  # the session's scans against the floor's radio map
             try:
                 st, Q = rmap.scans(session)
@@ -327,7 +372,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         node = np.clip(np.round((ft - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
         fix_node = node
         unary: list = [None] * len(T)
-        lo_out, lo_in = math.log(self.fix_outlier / grid.n_cells), math.log1p(-self.fix_outlier)
+        lo_out, lo_in = math.log(self.fix_outlier / grid.n_cells), math.log1p(-self.fix_outlier)  # the scans' tail
 
         def observe(k, ll, weight):  # ll: with its heavy tail; times the observation's weight
             ll = ll if weight == 1.0 else weight * ll
@@ -335,9 +380,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
 
         if self.fix_weight > 0:
             for k, xy, sd in zip(node, fxy, fsd):  # fixes: F per walk (a few dozen), each (N,): one numpy pass each
-                d2 = ((grid.xy - xy) ** 2).sum(axis=1)
-                observe(k, np.logaddexp(lo_in - d2 / (2.0 * sd * sd) - math.log(2.0 * math.pi * sd * sd), lo_out),
-                        self.fix_weight)
+                observe(k, fix_log_likelihood(cxy, extra, xy, sd, self.fix_outlier, grid.n_cells), self.fix_weight)
         if Q is not None and len(st):
             snode = np.clip(np.round((st - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
             for k, ll in zip(snode, rmap.log_likelihood(Q)):
