@@ -7,6 +7,7 @@ The tables are written by :mod:`blenav.reporting.merge` (``python -m blenav.cli.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from blenav.limits import read_json
@@ -16,15 +17,46 @@ from .metrics import best_against_bound, rmse_mean
 __all__ = ["load_columns", "result_folders", "merge_leaderboard", "merge_runs"]
 
 
+def _read_methods(path: Path) -> dict:
+    """``path``'s ``methods`` table (results.json of blenav eval); ValueError naming the file when it has none."""
+    res = read_json(path, "results.json")
+    if not isinstance(res, dict) or not isinstance(res.get("methods"), dict):
+        raise ValueError(f"{path}: no 'methods' table (not written by blenav eval?)")
+    return res
+
+
+def _rmse(m, path: Path, where: str) -> float:
+    """A row's ``rmse_m.mean`` (:func:`rmse_mean`); ValueError naming the file and the field when it is not a finite
+    number."""
+    v = rmse_mean(m)
+    if v is None:
+        raise ValueError(f"{path}: {where}.rmse_m.mean is missing or not a finite number")
+    return v
+
+
+def _number(d: dict, key: str, path: Path, where: str) -> float:
+    v = d.get(key)
+    if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
+        raise ValueError(f"{path}: {where}.{key} is missing or not a finite number")
+    return float(v)
+
+
+def _per_session(m, path: Path, where: str) -> dict:
+    ps = m.get("per_session") if isinstance(m, dict) else None
+    if ps is not None and not isinstance(ps, dict):
+        raise ValueError(f"{path}: {where}.per_session is not a table")
+    return ps or {}
+
+
 def load_columns(runs: list[tuple[Path, str]]) -> tuple[dict[str, dict[str, float]], list[str]]:
     """{column: {session: RMSE mean}} and the sessions in first-seen order."""
     cols: dict[str, dict[str, float]] = {}
     sessions: list[str] = []
     for folder, prefix in runs:
-        res = read_json(Path(folder) / "results.json", "results.json")
-        for name, m in res["methods"].items():
-            for sid, v in (m.get("per_session") or {}).items():
-                cols.setdefault(prefix + name, {})[sid] = float(v["rmse_m"]["mean"])
+        path = Path(folder) / "results.json"
+        for name, m in _read_methods(path)["methods"].items():
+            for sid, v in _per_session(m, path, f"methods.{name}").items():
+                cols.setdefault(prefix + name, {})[sid] = _rmse(v, path, f"methods.{name}.per_session.{sid}")
                 if sid not in sessions:
                     sessions.append(sid)
     return cols, sessions
@@ -53,24 +85,34 @@ def merge_leaderboard(folders: list[Path]) -> dict:
     datasets, methods, best = [], {}, {}
     names: dict[str, int] = {}
     for f in folders:
-        res = read_json(Path(f) / "results.json", "results.json")
+        path = Path(f) / "results.json"
+        res = _read_methods(path)
         base = Path(str(res.get("dataset", f))).name or str(f)
         names[base] = names.get(base, 0) + 1
         name = base if names[base] == 1 else f"{base} ({names[base]})"
         datasets.append({"name": name, "dataset": res.get("dataset"), "folder": str(f), "sessions": res.get("sessions", []),
                          "runs": res.get("runs")})
         for m_name, m in res["methods"].items():
-            row = methods.setdefault(m_name, {"family": m.get("family", "-"), "rmse_m": {}, "_per_session": [],
+            if not isinstance(m, dict):
+                raise ValueError(f"{path}: methods.{m_name} is not a table")
+            row = methods.setdefault(m_name, {"family": str(m.get("family", "-")), "rmse_m": {}, "_per_session": [],
                                               "skipped": {}})
             if "rmse_m" in m:
-                row["rmse_m"][name] = float(m["rmse_m"]["mean"])
-                row["_per_session"] += [float(v["rmse_m"]["mean"]) for v in (m.get("per_session") or {}).values()]
+                where = f"methods.{m_name}"
+                row["rmse_m"][name] = _rmse(m, path, where)
+                row["_per_session"] += [_rmse(v, path, f"{where}.per_session.{sid}")
+                                        for sid, v in _per_session(m, path, where).items()]
             elif "skipped" in m:
-                row["skipped"][name] = "; ".join(sorted(set(map(str, m["skipped"].values()))))
-        b = (res["methods"].get("PCRLB") or {}).get("best")
+                why = m["skipped"]
+                row["skipped"][name] = "; ".join(sorted(set(map(str, why.values() if isinstance(why, dict) else [why]))))
+        b = res["methods"].get("PCRLB", {}).get("best")
         if b:
-            best[name] = {"method": b["method"], "rmse_m": b["rmse_m"], "bound_m": res["methods"]["PCRLB"]["rmse_m"]["mean"],
-                          "ratio": b["ratio"]}
+            where = "methods.PCRLB.best"
+            if not isinstance(b, dict):
+                raise ValueError(f"{path}: {where} is not a table")
+            best[name] = {"method": str(b.get("method")), "rmse_m": _number(b, "rmse_m", path, where),
+                          "bound_m": _rmse(res["methods"]["PCRLB"], path, "methods.PCRLB"),
+                          "ratio": _number(b, "ratio", path, where)}
     for row in methods.values():
         ps = row.pop("_per_session")
         row["pooled_rmse_m"] = float(sum(ps) / len(ps)) if ps else None
@@ -153,10 +195,7 @@ def merge_runs(folders: list[Path], out: Path) -> dict:
     out = Path(out)
     if out.exists():
         raise ValueError(f"{out} exists: merge into a new folder")
-    results = [read_json(f / "results.json", "results.json") for f in folders]
-    for f, r in zip(folders, results):
-        if not isinstance(r, dict) or not isinstance(r.get("methods"), dict):
-            raise ValueError(f"{f / 'results.json'}: no 'methods' table (not written by blenav eval?)")
+    results = [_read_methods(f / "results.json") for f in folders]
     merged = merge_results(folders, results)
     check_output_names(merged["methods"], "method")
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
