@@ -43,15 +43,16 @@ class BundleLocalizer:
     starts at (default: the first IMU, RSSI or odometry sample pushed); ``mag_offset``: the magnetometer's
     hard-iron offset (uT) for settings whose motion model runs an AHRS; ``keep_fixes``: how many of the latest
     fixes :attr:`fixes` holds, (t, x, y) each (None: every fix, as :meth:`Bundle.run_session` keeps for parity; a
-    live app keeps memory flat with the default, benchmarks/soak.py)."""
+    live app keeps memory flat with the default, benchmarks/soak.py); ``method``: a fresh ``bundle.method()`` to run
+    (default: one built here)."""
 
     def __init__(self, bundle, building, floor=None, seed: int = 0, start_xy=None, start_theta=None,
-                 t_start: float | None = None, mag_offset=None, keep_fixes: int | None = 1000):
+                 t_start: float | None = None, mag_offset=None, keep_fixes: int | None = 1000, method=None):
         bundle.check_building(building)
         fid = floor if floor is not None else next(iter(building.floors))
         self._ctx = SimpleNamespace(id="live", building=building, meta={"floor": fid}, floor=building.floor(fid))
         self.bundle, self.seed = bundle, int(seed)
-        self.method = bundle.method()
+        self.method = bundle.method() if method is None else method
         self.fixer = WindowFixer(bundle.graph)
         self.fixes: deque[tuple] = deque(maxlen=keep_fixes)
         self._online = None

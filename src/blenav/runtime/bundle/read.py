@@ -123,7 +123,8 @@ class Bundle:
         from blenav.filters.online import replay
 
         self.check_session(session)
-        uses_odo = self.method().needs_odometry
+        method = self.method()  # the localizer below runs this one
+        uses_odo = method.needs_odometry
         odometry = self.inertial.odometry(session) if self.inertial is not None and uses_odo else None
         self.last_odometry = (f"learned inertial odometry ({INERTIAL_DIR}/, {len(odometry)} points)"
                               if odometry is not None else "the session's odometry.csv" if uses_odo else "none")
@@ -131,7 +132,7 @@ class Bundle:
         firsts = [float(f["t"].iloc[0]) for f in (session.imu, session.rssi, odo) if len(f)]
         # the batch filter's start: the first IMU, RSSI or odometry sample (even when the motion model reads no IMU)
         loc = self.localizer(session.building, floor=session.meta.get("floor"), seed=seed,
-                             t_start=min(firsts) if firsts else None, keep_fixes=None)
+                             t_start=min(firsts) if firsts else None, keep_fixes=None, method=method)
         need_imu = loc.method.needs_imu
         out: list[TrackPoint] = []
         t_end = None
