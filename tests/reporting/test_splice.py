@@ -85,7 +85,7 @@ def test_tables_errors_are_one_line(tmp_path):
     (tmp_path / "odd").mkdir()
     (tmp_path / "odd" / "results.json").write_text("{}")
     r = _run("merge", tmp_path / "x.md", "T", tmp_path / "odd")
-    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1 and "lacks the key 'methods'" in r.stderr
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1 and "odd/results.json: no 'methods' table" in r.stderr
     r = _run("crf", tmp_path)
     assert r.returncode == 2 and r.stderr.startswith("usage: python -m blenav.cli.tables merge")
     assert not (tmp_path / "x.md").exists()
