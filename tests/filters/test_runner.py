@@ -60,6 +60,30 @@ def test_streaming_equals_batch(office):
     np.testing.assert_array_equal(pos, batch.position)
 
 
+def test_streaming_equals_batch_with_the_odometry_variance(office):
+    """Issue 31's odo_var_scale: the streaming path reads the odometry's stated variance (the events' fourth field,
+    the column var) as the batch path does, so the two give the same positions; and the variance matters (a track
+    without it gives other positions)."""
+    import dataclasses
+
+    from blenav.filters.motion import OdometryIncrement
+
+    s = office.session(office.session_ids[0])
+    odo = s.odometry
+    odo = odo.assign(var=0.02 * (odo["t"] - odo["t"].iloc[0]) + 0.3 * (np.arange(len(odo)) % 7 == 0).cumsum())
+
+    def method():
+        m = methods("mapfusion_002", office, n_particles=100)["PF-PS"]
+        return dataclasses.replace(m, motion=OdometryIncrement(theta0=0.0, odo_var_scale=3.0))
+
+    batch = run_session(method(), s, n_runs=2, seed=5, odometry=odo)
+    online = OnlineLocalizer(method(), s, n_runs=2, seed=5, t_start=0.0)
+    pos = streamed(online, replay(s, odo), batch.t[-1])
+    np.testing.assert_array_equal(pos, batch.position)
+    plain = run_session(method(), s, n_runs=2, seed=5, odometry=odo[["t", "x", "y"]])
+    assert np.abs(plain.position - batch.position).max() > 0.01
+
+
 def _err(res, s):
     gt = s.groundtruth
     ref = np.stack([np.interp(res.t, gt.t, gt.x), np.interp(res.t, gt.t, gt.y)], -1)

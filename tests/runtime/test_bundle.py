@@ -343,8 +343,25 @@ print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "
         export_bundle(compose("export", *common, f"out={tmp_path / 'X'}", f"io_model={io}",
                               "runtime.motion={_target_: blenav.filters.motion.RandomWalk}"))
     assert not (tmp_path / "X").exists()
-    # a bundle's odometry carries no variance: a settings.json asking for it is refused by name
+    # the learned track's variance reaches the filter (settings with motion.odo_var_scale): replayed and pushed live
+    # (push_odometry's var) alike, and it moves the track
+    from blenav.filters.online import replay
     from blenav.runtime.bundle.settings import check_settings
 
-    with pytest.raises(ValueError, match="motion.odo_var_scale"):
-        check_settings({**b.settings, "motion": {**b.settings["motion"], "odo_var_scale": 1.0}}, "settings.json")
+    b.settings = {**b.settings, "motion": {**b.settings["motion"], "odo_var_scale": 4.0}}
+    check_settings(b.settings, "settings.json")
+    weighed = b.run_session(s, seed=0)
+    w = np.array([[e.t, e.x, e.y] for e in weighed])
+    assert w.shape == a.shape and np.abs(w - a).max() > 0.01
+    loc = b.localizer(s.building, seed=0, keep_fixes=None, t_start=min(float(f["t"].iloc[0]) for f in (s.imu, s.rssi)))
+    rows, t_end = [], 0.0
+    for ev in replay(s, track):
+        if ev[0] == "rssi":
+            rows += loc.push_rssi(ev[1], ev[2], ev[3])
+        elif ev[0] == "odo":
+            rows += loc.push_odometry(ev[1], ev[2], var=ev[3])
+        else:
+            continue
+        t_end = ev[1]
+    rows += loc.close(t_end)
+    np.testing.assert_allclose(np.array([[e.t, e.x, e.y] for e in rows]), w, atol=1e-9)

@@ -49,8 +49,9 @@ class OnlineLocalizer:
     def push_rssi(self, t, anchor_id, rssi):
         return self._run(self.stream.push_rssi(t, anchor_id, rssi))
 
-    def push_odometry(self, t, xy):
-        return self._run(self.stream.push_odometry(t, xy))
+    def push_odometry(self, t, xy, var=None):
+        """An odometry position (m) and its cumulative variance (m^2 per axis; None when the track states none)."""
+        return self._run(self.stream.push_odometry(t, xy, var))
 
     def push_fix(self, t, x, y, std=None, source=None):
         """A position fix from another localizer: world x, y (m), std (m, None when unknown), source name.
@@ -69,7 +70,7 @@ class OnlineLocalizer:
         if kind == "rssi":
             return self.push_rssi(e[1], e[2], e[3])
         if kind == "odo":
-            return self.push_odometry(e[1], e[2])
+            return self.push_odometry(e[1], e[2], e[3] if len(e) > 3 else None)
         if kind == "fix":
             return self.push_fix(e[1], e[2], e[3], e[4], e[5])
         raise ValueError(f"unknown event kind {kind!r}")
@@ -81,7 +82,7 @@ class OnlineLocalizer:
 def replay(session: Session, odometry=None):
     """The session's samples as one time-ordered event list (kind, t, payload...).
 
-    Kinds: ('mag', t, m), ('odo', t, xy), ('rssi', t, anchor_id, rssi), ('fix', t, x, y, std | None,
+    Kinds: ('mag', t, m), ('odo', t, xy) or ('odo', t, xy, var) where the track has the column ``var``, ('rssi', t, anchor_id, rssi), ('fix', t, x, y, std | None,
     source | None), ('imu', t, acc, gyr); :meth:`OnlineLocalizer.push_event` dispatches them. ``odometry``
     (DataFrame t, x, y): the odometry events' track in place of the session's odometry.csv (e.g. the learned inertial
     odometry of a bundle).
@@ -92,8 +93,12 @@ def replay(session: Session, odometry=None):
     order = {"mag": 0, "odo": 1, "rssi": 2, "fix": 3, "imu": 4}
     for row in mag.itertuples(index=False):
         ev.append(("mag", row.t, np.array([row.mx, row.my, row.mz])))
-    for row in odo.itertuples(index=False):
-        ev.append(("odo", row.t, np.array([row.x, row.y])))
+    if "var" in odo.columns:  # the learned inertial odometry's variance (issue 31: odo_var_scale), as the batch reads it
+        for t, x, y, v in zip(*(odo[c].to_numpy(float) for c in ("t", "x", "y", "var"))):
+            ev.append(("odo", t, np.array([x, y]), float(v)))
+    else:
+        for row in odo.itertuples(index=False):
+            ev.append(("odo", row.t, np.array([row.x, row.y])))
     for row in r.itertuples(index=False):
         ev.append(("rssi", row.t, str(row.anchor_id), float(row.rssi)))
     for t, x, y, std, src in zip(fx["t"].to_numpy(float), fx["x"].to_numpy(float), fx["y"].to_numpy(float),

@@ -272,22 +272,33 @@ def _var_growth(odo_t: np.ndarray, var: np.ndarray | None, t0: float, t1: float)
 
 
 class OdometryTrack:
-    """A stream's odometry samples so far: times (n,) s and positions (n, 2) in arrays grown by doubling
-    (amortised O(1) per sample, no list turned into an array per step); :meth:`at` is :func:`_odo_at` on
-    them (O(log n)), so a streaming step costs the same after an hour as after a second."""
+    """A stream's odometry samples so far: times (n,) s, positions (n, 2) and cumulative position variances (n,) m^2
+    per axis in arrays grown by doubling (amortised O(1) per sample, no list turned into an array per step);
+    :meth:`at` is :func:`_odo_at` on them (O(log n)), so a streaming step costs the same after an hour as after a
+    second; :meth:`var_growth` is :func:`_var_growth` (the batch path's ``odo_var`` control, issue 31), with a
+    variance only while every sample has stated one (a track without the column ``var`` states none)."""
 
     def __init__(self, capacity: int = 256):
         self._t = np.empty(capacity)
         self._xy = np.empty((capacity, 2))
+        self._var = np.empty(capacity)
         self.n = 0
+        self.has_var = True
 
-    def append(self, t: float, xy: np.ndarray) -> None:
+    def append(self, t: float, xy: np.ndarray, var: float | None = None) -> None:
         if self.n == len(self._t):
             self._t = np.concatenate([self._t, np.empty_like(self._t)])
             self._xy = np.concatenate([self._xy, np.empty_like(self._xy)])
+            self._var = np.concatenate([self._var, np.empty_like(self._var)])
         self._t[self.n] = t
         self._xy[self.n] = xy
+        self._var[self.n] = np.nan if var is None else float(var)
+        self.has_var = self.has_var and var is not None
         self.n += 1
+
+    def var_growth(self, t0: float, t1: float) -> float:
+        """The variance growth (m^2) between the last samples at or before t0 and t1 (0 without variances)."""
+        return _var_growth(self._t[: self.n], self._var[: self.n] if self.has_var else None, t0, t1)
 
     def at(self, t: float) -> np.ndarray:
         """The last sample at or before ``t`` (the first when none is; zeros without samples)."""
@@ -376,7 +387,8 @@ class StepStream:
         ctrl, obs, self.heading = window_step(
             np.asarray(w.acc).reshape(-1, 3), np.asarray(w.q).reshape(-1, 4), w.steps, self.odo.at(self.prev_t),
             self.odo.at(t), np.asarray(w.rssi_idx, dtype=int), np.asarray(w.rssi, dtype=float), self.heading,
-            self.median_window, pack_fixes(w.fix_xy, w.fix_std, w.fix_source) if w.fix_xy else None, float(t))
+            self.median_window, pack_fixes(w.fix_xy, w.fix_std, w.fix_source) if w.fix_xy else None, float(t),
+            self.odo.var_growth(self.prev_t, t))
         self.win = Window()
         self.prev_t = t
         self.k += 1
@@ -413,9 +425,11 @@ class StepStream:
         self.win.fix_source.append("" if source is None else str(source).strip())
         return out
 
-    def push_odometry(self, t: float, xy: np.ndarray) -> list:
+    def push_odometry(self, t: float, xy: np.ndarray, var: float | None = None) -> list:
+        """An odometry position (m, its own frame) and, where the track states one, its cumulative position variance
+        (m^2 per axis: the column ``var`` of the learned inertial odometry)."""
         out = self._due(t)
-        self.odo.append(t, np.asarray(xy, float))
+        self.odo.append(t, np.asarray(xy, float), var)
         return out
 
     def close(self, t_end: float) -> list:

@@ -118,9 +118,12 @@ class BundleLocalizer:
         """One BLE packet: time (s), anchor id, RSSI (dBm)."""
         return self._push(("rssi", float(t), str(anchor_id), float(rssi)))
 
-    def push_odometry(self, t: float, xy) -> list[TrackPoint]:
-        """Inertial odometry position (m, the odometry's own frame, as odometry.csv)."""
-        return self._push(("odo", float(t), np.asarray(xy, float)))
+    def push_odometry(self, t: float, xy, var: float | None = None) -> list[TrackPoint]:
+        """Inertial odometry position (m, the odometry's own frame, as odometry.csv) and, where the odometry states
+        one, its cumulative position variance (m^2 per axis, odometry.csv's optional ``var``: settings with
+        ``motion.odo_var_scale`` weigh each step by its growth)."""
+        ev = ("odo", float(t), np.asarray(xy, float))
+        return self._push(ev if var is None else ev + (float(var),))
 
     def push_imu(self, t: float, acc, gyr) -> list[TrackPoint]:
         """Accelerometer (m/s^2) and gyroscope (rad/s), phone frame (used by settings with an IMU motion model)."""

@@ -147,10 +147,6 @@ def check_settings(settings: dict, where: str) -> None:
     if prior.get("window_dt_s") is not None:
         check_range(prior["window_dt_s"], "window_s", where, field="prior.window_dt_s")
     _check_numbers(settings, where)
-    motion = settings.get("motion") if isinstance(settings.get("motion"), dict) else {}
-    if motion.get("odo_var_scale") is not None:  # the bundle's odometry events carry positions only
-        raise ValueError(f"{where}: motion.odo_var_scale is not used by a bundle (its odometry carries positions, no "
-                         f"variance): remove it")
     try:
         dim = int(_instantiate(settings["motion"]).state_dim)
     except Exception:  # a bad motion node is refused where the method is built, with its own message
