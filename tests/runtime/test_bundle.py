@@ -365,3 +365,24 @@ print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "
         t_end = ev[1]
     rows += loc.close(t_end)
     np.testing.assert_allclose(np.array([[e.t, e.x, e.y] for e in rows]), w, atol=1e-9)
+    # live, as a phone runs it: IMU, magnetometer and BLE samples pushed, the bundle's network making the odometry
+    # (StreamingLio, the AHRS with the walk's hard-iron offset as the batch fits it): the same rows
+    from blenav.filters.attitude import AttitudeConfig
+    from blenav.filters.measurement import AnchorTable
+    from blenav.filters.runner import hard_iron_offset
+    from blenav.filters.steps import SessionArrays
+
+    off = hard_iron_offset(SessionArrays.from_session(s, AnchorTable.empty()), AttitudeConfig())
+    live = b.localizer(s.building, seed=0, keep_fixes=None, mag_offset=off)
+    rows, t_end = [], 0.0
+    for ev in replay(s):  # every stream of the walk but its odometry.csv: the phone's samples
+        if ev[0] != "odo":
+            rows += live.push_event(ev)
+            t_end = ev[1]
+    rows += live.close(t_end)
+    np.testing.assert_allclose(np.array([[e.t, e.x, e.y] for e in rows]), w, atol=1e-6)
+    imu0 = s.imu.iloc[0]
+    again = b.localizer(s.building, seed=0)
+    again.push_imu(float(imu0.t), imu0[["ax", "ay", "az"]].to_numpy(float), imu0[["gx", "gy", "gz"]].to_numpy(float))
+    with pytest.raises(ValueError, match="push one or the other"):  # the stream's odometry is the bundle's now
+        again.push_odometry(float(imu0.t) + 0.1, [0.0, 0.0])

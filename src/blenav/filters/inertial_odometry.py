@@ -20,12 +20,12 @@ from blenav.errors import MissingStream
 from blenav.limits import check_memory
 from blenav.features.inertial import GRAVITY, InertialGrid, heading_frame, integrate, rotate_velocity, windows
 
-from .attitude import AttitudeConfig
+from .attitude import AttitudeConfig, StreamingAttitude
 from .pdr_odometry import attitude_track, resolve_heading
 from .quaternions import quat_to_matrix
 from .steps import StepDetectorConfig
 
-__all__ = ["VelocityModel", "world_frame_imu", "session_frame_imu", "lio_odometry"]
+__all__ = ["VelocityModel", "world_frame_imu", "session_frame_imu", "lio_odometry", "StreamingLio", "LIVE_ATTITUDES"]
 
 
 class VelocityModel(Protocol):
@@ -122,3 +122,104 @@ def lio_odometry(session, model: VelocityModel, attitude: str = "auto", att: Att
     if cache is not None:
         cache[key] = df
     return df
+
+
+#: the attitude sources a live stream can give the learned odometry: the phone's rotation vector (pushed samples) or
+#: blenav's AHRS on the pushed IMU (and magnetometer)
+LIVE_ATTITUDES = ("orientation", "ahrs")
+
+
+class StreamingLio:
+    """:func:`lio_odometry` one sample at a time: the track a phone makes live from its IMU (issue 31, the push API).
+
+    ``push_imu(t, acc, gyr)`` (device frame, m/s^2 incl. gravity, rad/s; times increasing) returns the track points
+    (t s, xy (2,) m, var m^2) it completed: the origin (t0, 0, 0) at the first sample, then one point per stride when
+    the window ending there is full. The attitude: ``orientation``, the latest sample of ``push_orientation(t, q)``
+    (device -> world, w x y z) at or before each IMU sample (IMU samples before the first one wait for it, as the
+    batch path takes the first sample for them), or ``ahrs``, :class:`StreamingAttitude` on the pushed IMU and
+    ``push_mag(t, mag)`` with ``mag_offset`` (uT; the batch path fits it on the whole walk, a phone has its own
+    calibration). With the batch path's attitude the points are :func:`lio_odometry`'s (the same resampling to
+    ``model.grid``, windows, frames and integration; tests/filters/test_inertial_odometry.py). Per sample O(1): one
+    network run per stride, on one window."""
+
+    def __init__(self, model: VelocityModel, attitude: str, att: AttitudeConfig | None = None, mag_offset=None):
+        if attitude not in LIVE_ATTITUDES:
+            raise ValueError(f"live inertial odometry: attitude must be one of {LIVE_ATTITUDES}, got {attitude!r}")
+        self.model, self.attitude, self.grid = model, attitude, model.grid
+        self.ahrs = StreamingAttitude(att or AttitudeConfig(), mag_offset=mag_offset) if attitude == "ahrs" else None
+        self._q: np.ndarray | None = None
+        self._waiting: list[tuple] = []  # IMU samples before the first orientation sample
+        self._prev: tuple[float, np.ndarray] | None = None  # the last IMU sample, rotated (t, raw (15,))
+        self.t0: float | None = None
+        self.n = 0  # grid samples made
+        self._buf: np.ndarray | None = None  # (n_window, 15) float32: the last window's samples
+        self.xy, self.var, self.k = np.zeros(2), 0.0, 0
+
+    def push_orientation(self, t: float, q) -> list[tuple]:
+        """A rotation-vector sample (``orientation`` attitude; ignored otherwise)."""
+        if self.attitude != "orientation":
+            return []
+        self._q = np.asarray(q, float).reshape(4)
+        out, waiting, self._waiting = [], self._waiting, []
+        for t_i, acc, gyr in waiting:
+            out += self._sample(t_i, acc, gyr, self._q)
+        return out
+
+    def push_mag(self, t: float, mag) -> None:
+        if self.ahrs is not None:
+            self.ahrs.update_mag(float(t), np.asarray(mag, float))
+
+    def push_imu(self, t: float, acc, gyr) -> list[tuple]:
+        acc, gyr = np.asarray(acc, float).reshape(3), np.asarray(gyr, float).reshape(3)
+        if self.ahrs is not None:
+            return self._sample(float(t), acc, gyr, self.ahrs.update(float(t), acc, gyr))
+        if self._q is None:
+            self._waiting.append((float(t), acc, gyr))
+            return []
+        return self._sample(float(t), acc, gyr, self._q)
+
+    def _sample(self, t: float, acc: np.ndarray, gyr: np.ndarray, q: np.ndarray) -> list[tuple]:
+        R = quat_to_matrix(q[None])  # (1, 3, 3), as world_frame_imu rotates every sample
+        a_w = np.einsum("tij,tj->ti", R, acc[None])
+        g_w = np.einsum("tij,tj->ti", R, gyr[None])
+        a_w[:, 2] -= GRAVITY
+        raw = np.concatenate([a_w, g_w, R[:, :, 0], R[:, :, 1], R[:, :, 2]], axis=1)[0]
+        rate = float(self.grid.rate_hz)
+        out: list[tuple] = []
+        if self.t0 is None:
+            self.t0, self._prev = t, (t, raw)
+            self._buf = np.repeat(raw.astype(np.float32)[None], self.grid.n_window, axis=0)
+            self.n = 1
+            return [(t, np.zeros(2), 0.0)]
+        tp, rp = self._prev
+        if t <= tp:
+            if t < tp:
+                raise ValueError(f"live inertial odometry: IMU time goes backwards: {t} after {tp}")
+            return out  # a repeated time stamp adds no grid sample
+        while True:  # the grid samples in (tp, t], interpolated as np.interp over the whole walk does
+            g = self.t0 + self.n / rate
+            if g > t:
+                break
+            x = np.array([np.interp(g, (tp, t), (rp[j], raw[j])) for j in range(len(raw))], np.float32)
+            out += self._grid_sample(x)
+        self._prev = (t, raw)
+        return out
+
+    def _grid_sample(self, x: np.ndarray) -> list[tuple]:
+        self._buf = np.concatenate([self._buf[1:], x[None]], axis=0)
+        j, self.n = self.n, self.n + 1
+        if j % self.grid.n_stride:
+            return []
+        W, psi = self._buf[None], np.zeros(1)
+        if self.model.frame == "heading":
+            W, psi = heading_frame(W)
+        v, lv = (np.asarray(a, float) for a in self.model.predict(W))
+        if self.model.frame == "heading":
+            v, lv = rotate_velocity(v, lv, psi)
+        if not (np.isfinite(v).all() and np.isfinite(lv).all()):
+            raise ValueError("live inertial odometry: the inertial model returned a non-finite velocity")
+        s = float(self.grid.stride_s)
+        self.k += 1
+        self.xy = self.xy + v[0] * s  # integrate(): the cumulative sum, one window at a time
+        self.var = self.var + float(s * s * np.exp(np.clip(lv[0], -30.0, 30.0)).mean())
+        return [(self.t0 + s * self.k, self.xy.copy(), self.var)]

@@ -13,7 +13,7 @@ from .method import Method, require_models
 from .runner import build_filter
 from .steps import StepStream
 
-__all__ = ["OnlineLocalizer", "replay"]
+__all__ = ["OnlineLocalizer", "replay", "EVENT_ORDER"]
 
 
 class OnlineLocalizer:
@@ -79,6 +79,10 @@ class OnlineLocalizer:
         return self._run(self.stream.close(t_end))
 
 
+#: the order of :func:`replay`'s events at one time
+EVENT_ORDER = {"mag": 0, "odo": 1, "rssi": 2, "fix": 3, "imu": 4}
+
+
 def replay(session: Session, odometry=None):
     """The session's samples as one time-ordered event list (kind, t, payload...).
 
@@ -90,7 +94,7 @@ def replay(session: Session, odometry=None):
     ev = []
     imu, mag, r, fx = session.imu, session.mag, session.rssi, session.fixes
     odo = session.odometry if odometry is None else odometry
-    order = {"mag": 0, "odo": 1, "rssi": 2, "fix": 3, "imu": 4}
+    order = EVENT_ORDER
     for row in mag.itertuples(index=False):
         ev.append(("mag", row.t, np.array([row.mx, row.my, row.mz])))
     if "var" in odo.columns:  # the learned inertial odometry's variance (issue 31: odo_var_scale), as the batch reads it

@@ -1,0 +1,76 @@
+"""The learned inertial odometry one sample at a time (issue 31, the push API): StreamingLio gives lio_odometry's
+track, point for point, with either attitude and either input frame."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from helpers import as_waypoint_walks, simulate_small
+
+from blenav.data import Dataset
+from blenav.features.inertial import InertialGrid
+from blenav.filters.attitude import AttitudeConfig
+from blenav.filters.inertial_odometry import StreamingLio, lio_odometry
+from blenav.filters.runner import hard_iron_offset
+from blenav.filters.steps import SessionArrays
+from blenav.filters.measurement import AnchorTable
+
+
+class RowModel:
+    """A deterministic stand-in network, row by row (so a batch of 512 and a batch of 1 agree to the bit): the
+    velocity from the window's mean accelerations and its last gyro sample, the log variance from their spread."""
+
+    def __init__(self, frame: str):
+        self.grid, self.key, self.frame = InertialGrid(rate_hz=50.0, window_s=1.0, stride_s=0.5), "row", frame
+
+    def predict(self, W):
+        W = np.asarray(W, np.float64)
+        v = np.stack([W[:, :, 0].mean(1) + 0.3 * W[:, -1, 5], W[:, :, 1].mean(1) - 0.2 * W[:, :, 3].std(1)], 1)
+        return v, np.stack([np.log1p(W[:, :, 0].var(1)), -1.0 + W[:, :, 2].mean(1) * 0.01], 1)
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory):
+    root = as_waypoint_walks(simulate_small(tmp_path_factory.mktemp("slio") / "d", 4, 30, 1))
+    ds = Dataset.open(root)
+    return ds.session(ds.session_ids[0])
+
+
+def _stream(walk, model, attitude, mag_offset=None):
+    lio = StreamingLio(model, attitude, mag_offset=mag_offset)
+    ev = [(float(t), 1, np.array(q)) for t, *q in walk.orientation[["t", "qw", "qx", "qy", "qz"]].itertuples(index=False)]
+    ev += [(float(t), 0, np.array(m)) for t, *m in walk.mag[["t", "mx", "my", "mz"]].itertuples(index=False)]
+    ev += [(float(r.t), 2, np.array([r.ax, r.ay, r.az]), np.array([r.gx, r.gy, r.gz]))
+           for r in walk.imu.itertuples(index=False)]
+    pts = []
+    for e in sorted(ev, key=lambda e: (e[0], e[1])):  # time order: magnetometer, then orientation, then IMU at one time
+        if e[1] == 0:
+            lio.push_mag(e[0], e[2])
+        elif e[1] == 1:
+            pts += lio.push_orientation(e[0], e[2])
+        else:
+            pts += lio.push_imu(e[0], e[2], e[3])
+    return np.array([[t, *xy, var] for t, xy, var in pts])
+
+
+@pytest.mark.parametrize("frame", ["world", "heading"])
+@pytest.mark.parametrize("attitude", ["orientation", "ahrs"])
+def test_streaming_lio_is_the_batch_track(walk, attitude, frame):
+    model = RowModel(frame)
+    ref = lio_odometry(walk, model, attitude)[["t", "x", "y", "var"]].to_numpy()
+    off = hard_iron_offset(SessionArrays.from_session(walk, AnchorTable.empty()), AttitudeConfig())
+    got = _stream(walk, model, attitude, off)
+    assert len(ref) > 40 and got.shape == ref.shape
+    np.testing.assert_array_equal(got, ref)
+
+
+def test_streaming_lio_waits_for_its_attitude_and_refuses_bad_input(walk):
+    model = RowModel("world")
+    lio = StreamingLio(model, "orientation")
+    assert lio.push_imu(0.0, [0, 0, 9.8], [0, 0, 0]) == []  # no rotation vector yet: held, not guessed
+    assert len(lio.push_orientation(0.01, [1, 0, 0, 0])) == 1  # the origin, once the attitude exists
+    with pytest.raises(ValueError, match="backwards"):
+        lio.push_imu(-1.0, [0, 0, 9.8], [0, 0, 0])
+    with pytest.raises(ValueError, match="attitude must be one of"):
+        StreamingLio(model, "groundtruth")
