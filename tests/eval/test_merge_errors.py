@@ -29,17 +29,24 @@ def test_well_formed_results_merge(tmp_path):
     assert lb["best"]["a"] == {"method": "A", "rmse_m": 1.5, "bound_m": 0.5, "ratio": 3.0}
 
 
-@pytest.mark.parametrize("methods, field", [
-    ({"A": {"rmse_m": {"mean": "1.5"}}}, "methods.A.rmse_m.mean"),
-    ({"A": {"rmse_m": {"mean": 1.0}, "per_session": {"s1": {"rmse_m": None}}}}, "methods.A.per_session.s1.rmse_m.mean"),
-    ({"A": {"rmse_m": {"mean": 1.0}, "per_session": [1, 2]}}, "methods.A.per_session"),
-    ({"A": "fast"}, "methods.A"),
-    ({"PCRLB": {"rmse_m": {"mean": 0.5}, "best": {"method": "A", "rmse_m": 1.0, "ratio": "x"}}}, "methods.PCRLB.best.ratio"),
+@pytest.mark.parametrize("methods, field, in_columns", [
+    ({"A": {"rmse_m": {"mean": "1.5"}}}, "methods.A.rmse_m.mean", False),
+    ({"A": {"rmse_m": {"mean": 1.0}, "per_session": {"s1": {"rmse_m": None}}}}, "methods.A.per_session.s1.rmse_m.mean",
+     True),
+    ({"A": {"rmse_m": {"mean": 1.0}, "per_session": [1, 2]}}, "methods.A.per_session", True),
+    ({"A": "fast"}, "methods.A", True),
+    ({"PCRLB": {"rmse_m": {"mean": 0.5}, "best": {"method": "A", "rmse_m": 1.0, "ratio": "x"}}}, "methods.PCRLB.best.ratio",
+     False),
 ])
-def test_a_malformed_field_is_named_with_its_file(tmp_path, methods, field):
+def test_a_malformed_field_is_named_with_its_file(tmp_path, methods, field, in_columns):
+    """merge_leaderboard reads every field below; load_columns the per-session rows (in_columns: the field is one)."""
     _results(tmp_path / "bad", methods)
-    with pytest.raises(ValueError, match=rf"bad/results\.json: {field.replace('.', '[.]')}"):
+    match = rf"bad/results\.json: {field.replace('.', '[.]')}"
+    with pytest.raises(ValueError, match=match):
         merge_leaderboard([tmp_path / "bad"])
+    if in_columns:
+        with pytest.raises(ValueError, match=match):
+            load_columns([(tmp_path / "bad", "")])
 
 
 def test_a_file_without_methods_is_named(tmp_path):

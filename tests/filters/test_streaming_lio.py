@@ -74,3 +74,32 @@ def test_streaming_lio_waits_for_its_attitude_and_refuses_bad_input(walk):
         lio.push_imu(-1.0, [0, 0, 9.8], [0, 0, 0])
     with pytest.raises(ValueError, match="attitude must be one of"):
         StreamingLio(model, "groundtruth")
+
+
+def test_a_repeated_time_stamp_and_a_clock_jump(walk, tmp_path):
+    """An IMU row repeated at its time (off the network's grid) gives the batch track (the later sample, as the batch
+    interpolation reads it); a jump of the clock by more than MAX_GAP_S is refused at once, not a network run per
+    stride of the gap."""
+    import shutil
+
+    from blenav.filters.inertial_odometry import MAX_GAP_S
+
+    root = shutil.copytree(walk.root.parent.parent, tmp_path / "dup")
+    imu = walk.imu.copy()
+    imu["t"] += 0.0011 * (np.arange(len(imu)) % 3)  # jittered, so the network's grid falls between samples
+    t = imu["t"].to_numpy()
+    g = t[0] + np.arange(int((t[-1] - t[0]) * 50.0)) / 50.0
+    inside = np.searchsorted(g, t[:-1], side="right") < np.searchsorted(g, t[1:], side="left")  # a grid time after it
+    i = int(np.flatnonzero(inside)[10])
+    dup = imu.iloc[[i]].copy()
+    dup[["ax", "gy"]] += [0.7, 0.2]
+    imu2 = __import__("pandas").concat([imu.iloc[: i + 1], dup, imu.iloc[i + 1:]], ignore_index=True)
+    imu2.to_csv(root / "sessions" / walk.id / "imu.csv", index=False, float_format="%.17g")
+    w2 = Dataset.open(root).session(walk.id)
+    model = RowModel("world")
+    ref = lio_odometry(w2, model, "orientation")[["t", "x", "y", "var"]].to_numpy()
+    np.testing.assert_array_equal(_stream(w2, model, "orientation"), ref)
+    lio = StreamingLio(model, "ahrs")
+    lio.push_imu(0.0, [0, 0, 9.8], [0, 0, 0])
+    with pytest.raises(ValueError, match="time jumps from 0.000 s to"):
+        lio.push_imu(MAX_GAP_S + 1.0, [0, 0, 9.8], [0, 0, 0])

@@ -373,14 +373,41 @@ print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "
     from blenav.filters.steps import SessionArrays
 
     off = hard_iron_offset(SessionArrays.from_session(s, AnchorTable.empty()), AttitudeConfig())
-    live = b.localizer(s.building, seed=0, keep_fixes=None, mag_offset=off)
+    live = b.localizer(s.building, seed=0, keep_fixes=None, mag_offset=off, attitude="ahrs")
     rows, t_end = [], 0.0
     for ev in replay(s):  # every stream of the walk but its odometry.csv: the phone's samples
+        if ev[0] == "rssi":  # a rotation vector the AHRS does not read: it neither moves nor releases anything
+            rows += live.push_orientation(ev[1] + 0.003, [0.0, 0.0, 0.0, 1.0])
         if ev[0] != "odo":
             rows += live.push_event(ev)
             t_end = ev[1]
     rows += live.close(t_end)
     np.testing.assert_allclose(np.array([[e.t, e.x, e.y] for e in rows]), w, atol=1e-6)
+    # the rotation vector as the attitude (auto: it comes before the first IMU sample), against run_session on a copy
+    # of the walk with that orientation.csv (the batch path then reads it)
+    gt = s.groundtruth.iloc[::4]
+    gt[["t", "qw", "qx", "qy", "qz"]].to_csv(copy / "sessions" / sid / "orientation.csv", index=False,
+                                            float_format="%.17g")
+    so = Dataset.open(copy).session(sid)
+    b.settings = dict(plain.settings)  # as exported: no odo_var_scale
+    ref_o = np.array([[e.t, e.x, e.y] for e in b.run_session(so, seed=0)])
+    ori = [("ori", float(r.t), np.array([r.qw, r.qx, r.qy, r.qz])) for r in so.orientation.itertuples(index=False)]
+    events = sorted(ori + [e for e in replay(so) if e[0] != "odo"], key=lambda e: (e[1], e[0] != "ori"))
+    live = b.localizer(s.building, seed=0, keep_fixes=None)
+    rows = []
+    for ev in events:
+        rows += live.push_orientation(ev[1], ev[2]) if ev[0] == "ori" else live.push_event(ev)
+    rows += live.close(events[-1][1])
+    np.testing.assert_allclose(np.array([[e.t, e.x, e.y] for e in rows]), ref_o, atol=1e-6)
+    assert np.abs(ref_o[:, 1:] - w[:, 1:]).max() > 0.01  # another attitude, another track
+    # a stream without IMU: held at most 10 s, then an error saying what to push
+    mute = b.localizer(s.building, seed=0)
+    r0 = s.rssi.iloc[0]
+    with pytest.raises(ValueError, match="no IMU sample came: push_imu"):
+        for k in range(200):
+            mute.push_rssi(float(r0.t) + 0.1 * k, str(r0.anchor_id), float(r0.rssi))
+    with pytest.raises(ValueError, match="runs none"):
+        plain.localizer(s.building, attitude="ahrs")
     imu0 = s.imu.iloc[0]
     again = b.localizer(s.building, seed=0)
     again.push_imu(float(imu0.t), imu0[["ax", "ay", "az"]].to_numpy(float), imu0[["gx", "gy", "gz"]].to_numpy(float))

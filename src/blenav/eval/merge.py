@@ -55,6 +55,8 @@ def load_columns(runs: list[tuple[Path, str]]) -> tuple[dict[str, dict[str, floa
     for folder, prefix in runs:
         path = Path(folder) / "results.json"
         for name, m in _read_methods(path)["methods"].items():
+            if not isinstance(m, dict):
+                raise ValueError(f"{path}: methods.{name} is not a table")
             for sid, v in _per_session(m, path, f"methods.{name}").items():
                 cols.setdefault(prefix + name, {})[sid] = _rmse(v, path, f"methods.{name}.per_session.{sid}")
                 if sid not in sessions:

@@ -127,6 +127,8 @@ def lio_odometry(session, model: VelocityModel, attitude: str = "auto", att: Att
 #: the attitude sources a live stream can give the learned odometry: the phone's rotation vector (pushed samples) or
 #: blenav's AHRS on the pushed IMU (and magnetometer)
 LIVE_ATTITUDES = ("orientation", "ahrs")
+#: the largest step of the IMU clock a live stream may take (s), and the longest IMU waits for a rotation vector
+MAX_GAP_S = 60.0
 
 
 class StreamingLio:
@@ -139,8 +141,11 @@ class StreamingLio:
     batch path takes the first sample for them), or ``ahrs``, :class:`StreamingAttitude` on the pushed IMU and
     ``push_mag(t, mag)`` with ``mag_offset`` (uT; the batch path fits it on the whole walk, a phone has its own
     calibration). With the batch path's attitude the points are :func:`lio_odometry`'s (the same resampling to
-    ``model.grid``, windows, frames and integration; tests/filters/test_inertial_odometry.py). Per sample O(1): one
-    network run per stride, on one window."""
+    ``model.grid``, windows, frames and integration; tests/filters/test_streaming_lio.py; an IMU time stamp repeated
+    on a grid time is the one exception: the batch interpolation takes the later sample there). Per sample O(1): one
+    network run per stride, on one window; a jump of the IMU clock by more than :data:`MAX_GAP_S` is refused (a gap
+    would cost a network run per stride of it), as is an ``orientation`` attitude whose rotation vector has not come
+    after :data:`MAX_GAP_S` of IMU."""
 
     def __init__(self, model: VelocityModel, attitude: str, att: AttitudeConfig | None = None, mag_offset=None):
         if attitude not in LIVE_ATTITUDES:
@@ -154,6 +159,11 @@ class StreamingLio:
         self.n = 0  # grid samples made
         self._buf: np.ndarray | None = None  # (n_window, 15) float32: the last window's samples
         self.xy, self.var, self.k = np.zeros(2), 0.0, 0
+
+    @property
+    def horizon(self) -> float | None:
+        """The time of the last IMU sample made into odometry (every point up to it is out); None before the first."""
+        return None if self._prev is None else self._prev[0]
 
     def push_orientation(self, t: float, q) -> list[tuple]:
         """A rotation-vector sample (``orientation`` attitude; ignored otherwise)."""
@@ -174,6 +184,9 @@ class StreamingLio:
         if self.ahrs is not None:
             return self._sample(float(t), acc, gyr, self.ahrs.update(float(t), acc, gyr))
         if self._q is None:
+            if self._waiting and float(t) - self._waiting[0][0] > MAX_GAP_S:
+                raise ValueError(f"live inertial odometry: attitude 'orientation', but no rotation vector came in "
+                                 f"{MAX_GAP_S:g} s of IMU: push the rotation vector, or use the AHRS (attitude 'ahrs')")
             self._waiting.append((float(t), acc, gyr))
             return []
         return self._sample(float(t), acc, gyr, self._q)
@@ -192,10 +205,14 @@ class StreamingLio:
             self.n = 1
             return [(t, np.zeros(2), 0.0)]
         tp, rp = self._prev
-        if t <= tp:
-            if t < tp:
+        if not t > tp:
+            if t < tp or not np.isfinite(t):
                 raise ValueError(f"live inertial odometry: IMU time goes backwards: {t} after {tp}")
-            return out  # a repeated time stamp adds no grid sample
+            self._prev = (t, raw)  # a repeated time stamp: the later sample, as the batch interpolation takes it
+            return out
+        if t - tp > MAX_GAP_S:
+            raise ValueError(f"live inertial odometry: the IMU's time jumps from {tp:.3f} s to {t:.3f} s (more than "
+                             f"{MAX_GAP_S:g} s without a sample; times in seconds?): split the recording at the gap")
         while True:  # the grid samples in (tp, t], interpolated as np.interp over the whole walk does
             g = self.t0 + self.n / rate
             if g > t:

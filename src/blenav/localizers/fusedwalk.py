@@ -112,7 +112,8 @@ def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5) -> n
 
 def survey_distance(grid, walks: list, step_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """Per cell of ``grid``: (distance in m to the nearest cell the labelled ``walks`` passed (N,), that cell's index
-    (N,), -1 where it is not walkable); zeros and the cell itself where no walk is given."""
+    (N,)); zeros and the cell itself where no walk is given. (The walks' positions are counted on their cells
+    (:meth:`CrfGrid.cell_of`: always a walkable one), so the nearest is a cell of the grid.)"""
     from scipy.ndimage import distance_transform_edt
 
     cnt = _walk_positions(grid, walks, step_s)

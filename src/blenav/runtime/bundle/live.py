@@ -49,13 +49,14 @@ class BundleLocalizer:
     (default: one built here).
 
     A bundle with a learned inertial odometry (``inertial/``) whose settings read odometry runs it live
-    (:class:`blenav.filters.inertial_odometry.StreamingLio`) once the app pushes IMU samples (and magnetometer
-    samples, or with ``attitude="orientation"`` its rotation vector through :meth:`push_orientation`); an app that
-    runs the model itself pushes the track with :meth:`push_odometry` instead (one or the other per stream). The
-    attitude defaults to the model's own (``ahrs`` for a model trained with ``auto``), the AHRS's hard-iron offset is
-    ``mag_offset``. Until the stream shows which, and then while the bundle makes the odometry, the other samples
-    wait until an IMU sample at or after their time has made the odometry up to it (one IMU period), so the filter
-    sees every stream in time order, as :meth:`Bundle.run_session` does."""
+    (:class:`blenav.runtime.bundle.live_inertial.InertialFeed`) once the app pushes IMU samples, with magnetometer
+    samples (blenav's AHRS, hard-iron offset ``mag_offset``) or its rotation vector (:meth:`push_orientation`);
+    ``attitude``: ``orientation``, ``ahrs`` or ``auto`` (default: the model's own; ``auto``: the rotation vector when
+    one comes before the first IMU sample). An app that runs the model itself pushes the track with
+    :meth:`push_odometry` instead (one or the other per stream). Until the stream shows which, and while the bundle
+    makes the odometry, the other samples wait until a later IMU sample has made the odometry up to them (one IMU
+    period; at most ``MAX_HOLD_S`` = 10 s, then an error saying what to push), so the filter sees every stream in
+    replay's order and gives :meth:`Bundle.run_session`'s rows."""
 
     def __init__(self, bundle, building, floor=None, seed: int = 0, start_xy=None, start_theta=None,
                  t_start: float | None = None, mag_offset=None, keep_fixes: int | None = 1000, method=None,
@@ -74,13 +75,14 @@ class BundleLocalizer:
         self._start_theta, self._mag_offset = start_theta, mag_offset
         self._init = str(self.method.map.init)
         self._rssi_models = bool(self.method.measurements_needing("rssi"))
-        self._lio, self._held = None, []  # the live learned odometry and the samples waiting for it
-        self._odo_from: str | None = None  # with a live learned odometry: "imu" (it runs) or "pushed" (the app's)
+        self._lio = None  # the live learned odometry (InertialFeed), where the bundle has one its settings read
         if bundle.inertial is not None and self.method.needs_odometry:
-            from blenav.filters.inertial_odometry import LIVE_ATTITUDES, StreamingLio
+            from .live_inertial import InertialFeed
 
-            att = attitude or (bundle.inertial.attitude if bundle.inertial.attitude in LIVE_ATTITUDES else "ahrs")
-            self._lio = StreamingLio(bundle.inertial, att, mag_offset=mag_offset)
+            self._lio = InertialFeed(bundle.inertial, attitude or bundle.inertial.attitude, mag_offset)
+        elif attitude is not None:
+            raise ValueError("attitude= is the attitude of a bundle's learned inertial odometry (inertial/, with settings "
+                             "that read odometry): this bundle runs none")
         if self._init == "groundtruth" and self._start_xy is None:
             raise ValueError("the bundle's settings start at a known position (map.init: groundtruth): pass start_xy")
 
@@ -133,79 +135,58 @@ class BundleLocalizer:
             self.fixer.add(t, ev[2], ev[3])
         return out + self._feed(ev)
 
-    def _timed(self, ev: tuple) -> list[TrackPoint]:
-        """A sample in time order: at once, or with the live learned odometry held until the IMU has passed it."""
-        if self._lio is None or self._odo_from == "pushed":
-            return self._push(ev)
-        self._held.append(ev)
-        return []
-
-    def _release(self, t: float | None, odo: list) -> list[TrackPoint]:
-        """The held samples at or before ``t`` (all when None) and the odometry points ``odo`` made by then, pushed in
-        :func:`blenav.filters.online.replay`'s order (time, then mag, odo, rssi)."""
-        keep = [] if t is None else [e for e in self._held if e[1] > t]
-        due = [e for e in self._held if t is None or e[1] <= t] + [("odo", tk, xy, var) for tk, xy, var in odo]
-        self._held = keep
+    def _all(self, events: list[tuple]) -> list[TrackPoint]:
         out = []
-        for ev in sorted(due, key=lambda e: (e[1], EVENT_ORDER[e[0]])):
+        for ev in events:
             out += self._push(ev)
         return out
 
     def push_rssi(self, t: float, anchor_id: str, rssi: float) -> list[TrackPoint]:
         """One BLE packet: time (s), anchor id, RSSI (dBm)."""
-        return self._timed(("rssi", float(t), str(anchor_id), float(rssi)))
+        ev = ("rssi", float(t), str(anchor_id), float(rssi))
+        return self._push(ev) if self._lio is None else self._all(self._lio.hold(ev))
 
     def push_odometry(self, t: float, xy, var: float | None = None) -> list[TrackPoint]:
         """Inertial odometry position (m, the odometry's own frame, as odometry.csv) and, where the odometry states
         one, its cumulative position variance (m^2 per axis, odometry.csv's optional ``var``: settings with
         ``motion.odo_var_scale`` weigh each step by its growth)."""
-        out = []
-        if self._lio is not None:
-            if self._odo_from == "imu":
-                raise ValueError("this stream's odometry is made by the bundle's learned inertial odometry from the "
-                                 "pushed IMU (inertial/): push one or the other, not both")
-            if self._odo_from is None:
-                self._odo_from, out = "pushed", self._release(None, [])
         ev = ("odo", float(t), np.asarray(xy, float))
-        return out + self._push(ev if var is None else ev + (float(var),))
+        ev = ev if var is None else ev + (float(var),)
+        return self._push(ev) if self._lio is None else self._all(self._lio.odometry(ev))
 
     def push_imu(self, t: float, acc, gyr) -> list[TrackPoint]:
         """Accelerometer (m/s^2) and gyroscope (rad/s), phone frame (used by settings with an IMU motion model, and by
         the bundle's learned inertial odometry)."""
         ev = ("imu", float(t), np.asarray(acc, float), np.asarray(gyr, float))
-        if self._lio is None or self._odo_from == "pushed":
-            return self._push(ev)
-        self._odo_from = "imu"
-        return self._release(ev[1], self._lio.push_imu(ev[1], ev[2], ev[3])) + self._push(ev)
+        return self._push(ev) if self._lio is None else self._all(self._lio.imu(ev))
 
     def push_orientation(self, t: float, q) -> list[TrackPoint]:
         """The phone's rotation vector (device -> world quaternion w, x, y, z): the learned inertial odometry's attitude
         with ``attitude="orientation"``; nothing else reads it."""
-        if self._lio is None or self._odo_from == "pushed":
-            return []
-        return self._release(float(t), self._lio.push_orientation(float(t), q))
+        return [] if self._lio is None else self._all(self._lio.orientation(float(t), q))
 
     def push_mag(self, t: float, mag) -> list[TrackPoint]:
         """Magnetometer (uT), phone frame."""
-        if self._lio is not None and self._odo_from != "pushed":
-            self._lio.push_mag(float(t), mag)
-        return self._timed(("mag", float(t), np.asarray(mag, float)))
+        ev = ("mag", float(t), np.asarray(mag, float))
+        return self._push(ev) if self._lio is None else self._all(self._lio.hold(ev))
 
     def push_event(self, ev: tuple) -> list[TrackPoint]:
         """One event of :func:`blenav.filters.online.replay` (fix events are not taken: the bundle makes its own)."""
         if ev[0] == "fix":
             return []
+        if ev[0] not in EVENT_ORDER:
+            raise ValueError(f"unknown event kind {ev[0]!r} (one of {sorted(EVENT_ORDER)})")
         if ev[0] == "imu":
             return self.push_imu(ev[1], ev[2], ev[3])
         if ev[0] == "mag":
             return self.push_mag(ev[1], ev[2])
         if ev[0] == "odo":
             return self.push_odometry(ev[1], ev[2], ev[3] if len(ev) > 3 else None)
-        return self._timed(ev)
+        return self.push_rssi(ev[1], ev[2], ev[3])
 
     def close(self, t_end: float) -> list[TrackPoint]:
         """End of the data at ``t_end``: the last fix, then every step that ends by then (or by that fix)."""
-        out = self._release(None, []) if self._lio is not None else []
+        out = self._all(self._lio.close()) if self._lio is not None else []
         for tf, x, y in self.fixer.flush():
             self.fixes.append((tf, x, y))
             out += self._feed(("fix", tf, x, y, None, FIX_SOURCE))
