@@ -139,58 +139,60 @@ def main() -> None:
                   f"{info.get('baseline_val_error_m') or float('nan'):.3f} m")
 
 
+class _Graph:
+    """An onnxruntime session of an inertial graph with :class:`blenav.filters.inertial_odometry.VelocityModel`'s
+    protocol (the int8 graph), so :func:`~blenav.filters.inertial_odometry.lio_odometry` runs it as it runs the float
+    one."""
+
+    def __init__(self, like: InertialModel, sess, tag: str):
+        self.grid, self.frame, self.sess, self.key = like.grid, like.frame, sess, f"{tag}:{like.key}"
+
+    def predict(self, W):
+        return tuple(self.sess.run(["velocity", "log_var"], {"imu": np.ascontiguousarray(W, np.float32)}))
+
+
 def int8(model: InertialModel, walks: list) -> None:
     """The int8 graph against the float one on ``walks`` (see the module docstring)."""
+    import contextlib
+    import io
+    import logging
     import tempfile
 
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
     from blenav.eval.metrics import segment_errors
-    from blenav.features.inertial import integrate
+    from blenav.filters.inertial_odometry import lio_odometry, session_frame_imu
     from blenav.onnx_io import session
 
     g = model.grid
     src = Path(model.root) / "inertial.onnx"
     with tempfile.TemporaryDirectory() as tmp:
         dst = Path(tmp) / "inertial.int8.onnx"
-        import contextlib
-        import io
-        import logging
-
         logging.disable(logging.WARNING)  # the quantiser's progress lines and graph dumps
         with contextlib.redirect_stdout(io.StringIO()):
             quantize_dynamic(str(src), str(dst), weight_type=QuantType.QInt8)
         logging.disable(logging.NOTSET)
-        q = session(dst, 1)
-        dv, seg = 0.0, {"float": [], "int8": []}
-        lat = {"float": [], "int8": []}
+        graphs = {"float": model, "int8": _Graph(model, session(dst, 1), "int8")}
+        dv, seg, lat = 0.0, {"float": [], "int8": []}, {"float": [], "int8": []}
         for s in walks:
-            imu = s.imu
-            q_t, qa = attitude_track(s, "auto")
-            _, X = world_frame_imu(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float),
-                                   imu[["gx", "gy", "gz"]].to_numpy(float), q_t, qa, g.rate_hz)
-            W = windows(X, g)
-            W, psi = heading_frame(W) if model.frame == "heading" else (W, None)
-            out = {"float": model.predict(W), "int8": tuple(q.run(["velocity", "log_var"], {"imu": W}))}
-            dv = max(dv, float(np.abs(out["float"][0] - out["int8"][0]).max()))
             gt = s.groundtruth
-            for name, (v, lv) in out.items():
-                if psi is not None:
-                    v, lv = rotate_velocity(v, lv, psi)
-                tt, xy, _ = integrate(float(imu["t"].iloc[0]), g, v, lv)
-                seg[name].append(segment_errors(tt, xy[None], gt["t"].to_numpy(float),
-                                                gt[["x", "y"]].to_numpy(float))["err"][0])
-            for name, run in (("float", lambda w: model.predict(w)), ("int8", lambda w: q.run(None, {"imu": w}))):
+            for name, m in graphs.items():  # each graph's track, as the evaluation makes it
+                odo = lio_odometry(s, m, "auto")
+                seg[name].append(segment_errors(odo["t"].to_numpy(float), odo[["x", "y"]].to_numpy(float)[None],
+                                                gt["t"].to_numpy(float), gt[["x", "y"]].to_numpy(float))["err"][0])
+            _, X, _ = session_frame_imu(s, g)  # the walk's windows: the velocity difference and one window's latency
+            W = heading_frame(windows(X, g))[0] if model.frame == "heading" else windows(X, g)
+            dv = max(dv, float(np.abs(graphs["float"].predict(W)[0] - graphs["int8"].predict(W)[0]).max()))
+            for name, m in graphs.items():
                 for _ in range(20):
                     a = time.perf_counter()
-                    run(W[-1:])
+                    m.predict(W[-1:])
                     lat[name].append(1e3 * (time.perf_counter() - a))
         e = {k: np.concatenate(v) for k, v in seg.items()}
         print(f"int8: {dst.stat().st_size / 1e3:.0f} kB vs float {src.stat().st_size / 1e3:.0f} kB; one window "
               f"{np.median(lat['int8']):.3f} ms vs {np.median(lat['float']):.3f} ms; largest velocity difference "
               f"{dv:.4f} m/s; segment error ({len(e['float'])} segments) mean {e['int8'].mean():.3f} m vs float "
               f"{e['float'].mean():.3f} m (median {np.median(e['int8']):.3f} vs {np.median(e['float']):.3f})")
-
 
 if __name__ == "__main__":
     main()
