@@ -216,3 +216,19 @@ def import_graph(root: Path = SRC, skip=()) -> dict[str, set[str]]:
                 deps |= set(named) if named and len(named) == len(node.names) else {m, *named}
         graph[name] = {d for d in deps if d in mods and d != name and (name, d) not in skip}
     return graph
+
+
+class RowModel:
+    """A deterministic stand-in inertial network (:class:`blenav.filters.inertial_odometry.VelocityModel`), row by row
+    (so a batch of 512 and a batch of 1 agree to the bit): the velocity from the window's mean accelerations and its
+    last gyro sample, the log variance from their spread; ``frame``: world or heading."""
+
+    def __init__(self, frame: str):
+        from blenav.features.inertial import InertialGrid
+
+        self.grid, self.key, self.frame = InertialGrid(rate_hz=50.0, window_s=1.0, stride_s=0.5), "row", frame
+
+    def predict(self, W):
+        W = np.asarray(W, np.float64)
+        v = np.stack([W[:, :, 0].mean(1) + 0.3 * W[:, -1, 5], W[:, :, 1].mean(1) - 0.2 * W[:, :, 3].std(1)], 1)
+        return v, np.stack([np.log1p(W[:, :, 0].var(1)), -1.0 + W[:, :, 2].mean(1) * 0.01], 1)

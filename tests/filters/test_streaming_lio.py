@@ -6,28 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helpers import as_waypoint_walks, simulate_small
+from helpers import RowModel, as_waypoint_walks, simulate_small
 
 from blenav.data import Dataset
-from blenav.features.inertial import InertialGrid
 from blenav.filters.attitude import AttitudeConfig
 from blenav.filters.inertial_odometry import StreamingLio, lio_odometry
 from blenav.filters.runner import hard_iron_offset
 from blenav.filters.steps import SessionArrays
 from blenav.filters.measurement import AnchorTable
-
-
-class RowModel:
-    """A deterministic stand-in network, row by row (so a batch of 512 and a batch of 1 agree to the bit): the
-    velocity from the window's mean accelerations and its last gyro sample, the log variance from their spread."""
-
-    def __init__(self, frame: str):
-        self.grid, self.key, self.frame = InertialGrid(rate_hz=50.0, window_s=1.0, stride_s=0.5), "row", frame
-
-    def predict(self, W):
-        W = np.asarray(W, np.float64)
-        v = np.stack([W[:, :, 0].mean(1) + 0.3 * W[:, -1, 5], W[:, :, 1].mean(1) - 0.2 * W[:, :, 3].std(1)], 1)
-        return v, np.stack([np.log1p(W[:, :, 0].var(1)), -1.0 + W[:, :, 2].mean(1) * 0.01], 1)
 
 
 @pytest.fixture(scope="module")

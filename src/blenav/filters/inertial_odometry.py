@@ -180,6 +180,8 @@ class StreamingLio:
             self.ahrs.update_mag(float(t), np.asarray(mag, float))
 
     def push_imu(self, t: float, acc, gyr) -> list[tuple]:
+        if not np.isfinite(t):
+            raise ValueError(f"live inertial odometry: an IMU sample at time {t!r}")
         acc, gyr = np.asarray(acc, float).reshape(3), np.asarray(gyr, float).reshape(3)
         if self.ahrs is not None:
             return self._sample(float(t), acc, gyr, self.ahrs.update(float(t), acc, gyr))
