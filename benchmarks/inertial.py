@@ -60,11 +60,12 @@ def main() -> None:
     walks = [s for s in Dataset.open(args.data).sessions() if (s.root / "imu.csv").is_file()][: args.walks]
     step_ms, sample_ms, live_diff, batch_ms, minutes, growth = [], [], 0.0, 0.0, 0.0, []
     for s in walks:
-        odo = model.odometry(s)
+        cache: dict = {}  # the walk's attitude (an AHRS run) once, for every track below
+        odo = model.odometry(s, cache=cache)
         growth.append(np.diff(odo["var"].to_numpy(float)) / np.diff(odo["t"].to_numpy(float)))
         imu = s.imu
         t, acc, gyr = imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), imu[["gx", "gy", "gz"]].to_numpy(float)
-        q_t, q = attitude_track(s, "auto")
+        q_t, q = attitude_track(s, model.attitude, cache=cache)
         _, X = world_frame_imu(t, acc, gyr, q_t, q, g.rate_hz)
         a = time.perf_counter()
         W = windows(X, g)
@@ -76,7 +77,7 @@ def main() -> None:
         minutes += (t[-1] - t[0]) / 60.0
         # streaming: the push API's StreamingLio, its samples in time order (the batch path's attitude source; the
         # AHRS with the walk's hard-iron offset as the batch fits it)
-        source = resolve_heading(s, "auto")
+        source = resolve_heading(s, model.attitude)  # the reference track's own source
         off = hard_iron_offset(SessionArrays.from_session(s, AnchorTable.empty()), AttitudeConfig())
         lio = StreamingLio(model, source, mag_offset=off)
         ev = [(float(tm), 1, qq) for tm, qq in zip(q_t, q)] if source == "orientation" else \
@@ -118,7 +119,7 @@ def main() -> None:
 
         net, _ = load_inertial(args.ckpt)
         s = walks[0]
-        q_t, q = attitude_track(s, "auto")
+        q_t, q = attitude_track(s, model.attitude)
         imu = s.imu
         _, X = world_frame_imu(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float),
                                imu[["gx", "gy", "gz"]].to_numpy(float), q_t, q, g.rate_hz)
@@ -176,11 +177,12 @@ def int8(model: InertialModel, walks: list) -> None:
         dv, seg, lat = 0.0, {"float": [], "int8": []}, {"float": [], "int8": []}
         for s in walks:
             gt = s.groundtruth
+            cache: dict = {}  # the walk's attitude once for both graphs
             for name, m in graphs.items():  # each graph's track, as the evaluation makes it
-                odo = lio_odometry(s, m, "auto")
+                odo = lio_odometry(s, m, model.attitude, cache=cache)
                 seg[name].append(segment_errors(odo["t"].to_numpy(float), odo[["x", "y"]].to_numpy(float)[None],
                                                 gt["t"].to_numpy(float), gt[["x", "y"]].to_numpy(float))["err"][0])
-            _, X, _ = session_frame_imu(s, g)  # the walk's windows: the velocity difference and one window's latency
+            _, X, _ = session_frame_imu(s, g, model.attitude, cache=cache)  # the walk's windows: the velocity difference and one window's latency
             W = heading_frame(windows(X, g))[0] if model.frame == "heading" else windows(X, g)
             dv = max(dv, float(np.abs(graphs["float"].predict(W)[0] - graphs["int8"].predict(W)[0]).max()))
             for name, m in graphs.items():

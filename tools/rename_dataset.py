@@ -8,7 +8,7 @@ checked on names the simulator never writes (the contract checks from outside us
 SRC: a dataset with one building (``blenav sim`` writes one). DST is created (refused when it exists). The building's
 folder and the ``building:`` of every session.yaml take the new building name (the building's YAML files have the old
 id replaced), session folders become ``--session`` formatted with i (0, 1, ... in SRC's sorted order) and rx (3 + 7 i),
-``device_model`` becomes ``--phone``. The copy is checked with ``blenav validate``'s reader before this returns.
+``device_model`` becomes ``--phone``. The copy is checked with ``blenav validate``'s checks before this returns.
 """
 
 from __future__ import annotations
@@ -39,11 +39,11 @@ def rename(src: Path, dst: Path, building: str, session: str, phone: str) -> lis
         y.write_text(text)
         ids.append(session.format(i=i, rx=3 + 7 * i))
         s.rename(dst / "sessions" / ids[-1])
-    from blenav.data import Dataset
+    from blenav.data.validate import validate
 
-    ds = Dataset.open(dst)
-    for sid in ds.session_ids:
-        ds.session(sid).building  # noqa: B018  (reads and checks the session's building)
+    errors = [i for i in validate(dst) if i.is_error]  # blenav-validate's checks on the renamed copy
+    if errors:
+        raise ValueError(f"the renamed copy {dst} is not a valid dataset: {errors[0]}")
     return ids
 
 

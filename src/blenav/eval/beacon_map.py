@@ -31,6 +31,8 @@ import pandas as pd
 from blenav.backend.mapping import mean_map  # noqa: F401  (re-exported: runs' maps averaged)
 from blenav.localizers.base import Estimate
 
+from .metrics import finite_number
+
 TRUE_COLS = ("x_true", "y_true", "z_true")
 
 
@@ -103,13 +105,12 @@ def checked_by_heard(entries) -> dict[str, dict]:
     out, so what a file holds cannot add columns or break a table."""
     known = {(lo, hi): label for lo, hi, label in heard_bins()}
     out: dict[str, dict] = {}
-    finite = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)  # noqa: E731
     for e in entries if isinstance(entries, list) else []:
         if not isinstance(e, dict):
             continue
         label = known.get((e.get("from"), e.get("to")))
-        if label and isinstance(e.get("beacons"), int) and finite(e.get("given_m")) \
-                and (e.get("optimized_m") is None or finite(e.get("optimized_m"))):
+        if label and isinstance(e.get("beacons"), int) and finite_number(e.get("given_m")) is not None \
+                and (e.get("optimized_m") is None or finite_number(e.get("optimized_m")) is not None):
             out[label] = e
     return out
 

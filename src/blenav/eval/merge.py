@@ -7,21 +7,24 @@ The tables are written by :mod:`blenav.reporting.merge` (``python -m blenav.cli.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 from blenav.limits import read_json
 
-from .metrics import best_against_bound, rmse_mean
+from .metrics import best_against_bound, finite_number, rmse_mean
 
 __all__ = ["load_columns", "result_folders", "merge_leaderboard", "merge_runs"]
 
 
 def _read_methods(path: Path) -> dict:
-    """``path``'s ``methods`` table (results.json of blenav eval); ValueError naming the file when it has none."""
+    """``path``'s results (results.json of blenav eval); ValueError naming the file when it has no ``methods`` table or
+    a method that is not one."""
     res = read_json(path, "results.json")
     if not isinstance(res, dict) or not isinstance(res.get("methods"), dict):
         raise ValueError(f"{path}: no 'methods' table (not written by blenav eval?)")
+    for name, m in res["methods"].items():
+        if not isinstance(m, dict):
+            raise ValueError(f"{path}: methods.{name} is not a table")
     return res
 
 
@@ -35,14 +38,14 @@ def _rmse(m, path: Path, where: str) -> float:
 
 
 def _number(d: dict, key: str, path: Path, where: str) -> float:
-    v = d.get(key)
-    if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
+    v = finite_number(d.get(key))
+    if v is None:
         raise ValueError(f"{path}: {where}.{key} is missing or not a finite number")
-    return float(v)
+    return v
 
 
 def _per_session(m, path: Path, where: str) -> dict:
-    ps = m.get("per_session") if isinstance(m, dict) else None
+    ps = m.get("per_session")
     if ps is not None and not isinstance(ps, dict):
         raise ValueError(f"{path}: {where}.per_session is not a table")
     return ps or {}
@@ -55,8 +58,6 @@ def load_columns(runs: list[tuple[Path, str]]) -> tuple[dict[str, dict[str, floa
     for folder, prefix in runs:
         path = Path(folder) / "results.json"
         for name, m in _read_methods(path)["methods"].items():
-            if not isinstance(m, dict):
-                raise ValueError(f"{path}: methods.{name} is not a table")
             for sid, v in _per_session(m, path, f"methods.{name}").items():
                 cols.setdefault(prefix + name, {})[sid] = _rmse(v, path, f"methods.{name}.per_session.{sid}")
                 if sid not in sessions:
@@ -95,8 +96,6 @@ def merge_leaderboard(folders: list[Path]) -> dict:
         datasets.append({"name": name, "dataset": res.get("dataset"), "folder": str(f), "sessions": res.get("sessions", []),
                          "runs": res.get("runs")})
         for m_name, m in res["methods"].items():
-            if not isinstance(m, dict):
-                raise ValueError(f"{path}: methods.{m_name} is not a table")
             row = methods.setdefault(m_name, {"family": str(m.get("family", "-")), "rmse_m": {}, "_per_session": [],
                                               "skipped": {}})
             if "rmse_m" in m:

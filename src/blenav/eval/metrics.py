@@ -221,11 +221,15 @@ def best_against_bound(ran: dict[str, float], bound_rmse: float) -> dict:
     return {"method": best, "rmse_m": ran[best], "ratio": ran[best] / max(bound_rmse, 1e-12)}
 
 
+def finite_number(v) -> float | None:
+    """``v`` as a float when it is a finite int or float of a JSON file (a stranger's may hold anything), else None."""
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) else None
+
+
 def rmse_mean(m) -> float | None:
     """A results.json row's RMSE mean when it is a finite number (a stranger's file may hold anything), else None."""
     r = m.get("rmse_m") if isinstance(m, dict) else None
-    v = r.get("mean") if isinstance(r, dict) else None
-    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) else None
+    return finite_number(r.get("mean") if isinstance(r, dict) else None)
 
 
 def public(value):

@@ -21,7 +21,7 @@ from blenav.limits import check_memory
 from blenav.features.inertial import GRAVITY, InertialGrid, heading_frame, integrate, rotate_velocity, windows
 
 from .attitude import AttitudeConfig, StreamingAttitude
-from .pdr_odometry import attitude_track, resolve_heading
+from .pdr_odometry import HEADINGS, attitude_track, resolve_heading
 from .quaternions import quat_to_matrix
 from .steps import StepDetectorConfig
 
@@ -125,8 +125,8 @@ def lio_odometry(session, model: VelocityModel, attitude: str = "auto", att: Att
 
 
 #: the attitude sources a live stream can give the learned odometry: the phone's rotation vector (pushed samples) or
-#: blenav's AHRS on the pushed IMU (and magnetometer)
-LIVE_ATTITUDES = ("orientation", "ahrs")
+#: blenav's AHRS on the pushed IMU (and magnetometer): the PDR headings
+LIVE_ATTITUDES = HEADINGS
 #: the largest step of the IMU clock a live stream may take (s), and the longest IMU waits for a rotation vector
 MAX_GAP_S = 60.0
 
@@ -208,7 +208,7 @@ class StreamingLio:
             return [(t, np.zeros(2), 0.0)]
         tp, rp = self._prev
         if not t > tp:
-            if t < tp or not np.isfinite(t):
+            if t < tp:
                 raise ValueError(f"live inertial odometry: IMU time goes backwards: {t} after {tp}")
             self._prev = (t, raw)  # a repeated time stamp: the later sample, as the batch interpolation takes it
             return out

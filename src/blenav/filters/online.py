@@ -94,7 +94,6 @@ def replay(session: Session, odometry=None):
     ev = []
     imu, mag, r, fx = session.imu, session.mag, session.rssi, session.fixes
     odo = session.odometry if odometry is None else odometry
-    order = EVENT_ORDER
     for row in mag.itertuples(index=False):
         ev.append(("mag", row.t, np.array([row.mx, row.my, row.mz])))
     if "var" in odo.columns:  # the learned inertial odometry's variance (issue 31: odo_var_scale), as the batch reads it
@@ -111,5 +110,5 @@ def replay(session: Session, odometry=None):
                    None if not isinstance(src, str) else src))
     for row in imu.itertuples(index=False):
         ev.append(("imu", row.t, np.array([row.ax, row.ay, row.az]), np.array([row.gx, row.gy, row.gz])))
-    ev.sort(key=lambda e: (e[1], order[e[0]]))
+    ev.sort(key=lambda e: (e[1], EVENT_ORDER[e[0]]))
     return ev

@@ -98,25 +98,29 @@ def _walk_positions(grid, walks: list, step_s: float) -> np.ndarray:
     return cnt
 
 
-def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5) -> np.ndarray:
+def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5, counts: np.ndarray | None = None
+               ) -> np.ndarray:
     """(N,) density (sums to 1) over ``grid``'s cells of the labelled ``walks``' positions (interpolated linearly
-    between their waypoints every ``step_s`` s), blurred by a Gaussian of ``blur_m`` m over the cell raster."""
+    between their waypoints every ``step_s`` s), blurred by a Gaussian of ``blur_m`` m over the cell raster.
+    ``counts``: those positions per cell already counted (:func:`_walk_positions`), in place of ``walks``."""
     from scipy.ndimage import gaussian_filter
 
     img = np.zeros(grid.shape)
-    img[grid.cy, grid.cx] = _walk_positions(grid, walks, step_s)
+    img[grid.cy, grid.cx] = _walk_positions(grid, walks, step_s) if counts is None else counts
     img = gaussian_filter(img, blur_m / grid.cell_m)[grid.cy, grid.cx]
     tot = img.sum()
     return img / tot if tot > 0 else np.full(grid.n_cells, 1.0 / grid.n_cells)
 
 
-def survey_distance(grid, walks: list, step_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+def survey_distance(grid, walks: list, step_s: float = 0.5, counts: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Per cell of ``grid``: (distance in m to the nearest cell the labelled ``walks`` passed (N,), that cell's index
     (N,)); zeros and the cell itself where no walk is given. (The walks' positions are counted on their cells
-    (:meth:`CrfGrid.cell_of`: always a walkable one), so the nearest is a cell of the grid.)"""
+    (:meth:`CrfGrid.cell_of`: always a walkable one), so the nearest is a cell of the grid.) ``counts``: as
+    :func:`path_prior`'s."""
     from scipy.ndimage import distance_transform_edt
 
-    cnt = _walk_positions(grid, walks, step_s)
+    cnt = _walk_positions(grid, walks, step_s) if counts is None else counts
     if not cnt.any():
         return np.zeros(grid.n_cells), np.arange(grid.n_cells)
     img = np.ones(grid.shape, bool)
@@ -278,20 +282,26 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         gkey = ("fused-walk-grid", *floor, self.cell_m, self.max_step_m)  # the grid: shared by every row's settings
         if gkey not in cache:
             cache[gkey] = build_grid(session.floor, cell_m=self.cell_m, max_step_m=self.max_step_m)
-        key = ("fused-walk-floor", *floor, self.cell_m, self.max_step_m, tuple(s.id for s in self.train),
-               self.prior_weight, self.prior_floor, self.prior_blur, self.radio_map)
+        grid = cache[gkey]
+        same = [s for s in self.train if s.building.id == session.building.id
+                and str(s.meta.get("floor")) == str(session.meta.get("floor"))]
+        # where the floor's train walks went: counted once, shared by every row's prior and off-survey settings
+        ckey = ("fused-walk-survey", *gkey[1:], tuple(s.id for s in same))
+        if ckey not in cache:
+            cnt = _walk_positions(grid, same, 0.5)
+            cache[ckey] = (cnt, survey_distance(grid, same, counts=cnt))
+        cnt, survey = cache[ckey]
+        key = ("fused-walk-floor", *gkey[1:], tuple(s.id for s in same), self.prior_weight, self.prior_floor,
+               self.prior_blur, self.radio_map)
         if key not in cache:
-            grid = cache[gkey]
-            same = [s for s in self.train if s.building.id == session.building.id
-                    and str(s.meta.get("floor")) == str(session.meta.get("floor"))]
             if same and self.prior_weight > 0:
-                dens = path_prior(grid, same, self.prior_blur)
+                dens = path_prior(grid, same, self.prior_blur, counts=cnt)
                 lp = self.prior_weight * np.log(dens + self.prior_floor / grid.n_cells)
             else:
                 lp = np.zeros(grid.n_cells)
             rmap = build_radio_map(grid, same, self.radio_map) if same and self.radio_map is not None else None
-            cache[key] = (grid, lp, len(same), rmap, survey_distance(grid, same))
-        return cache[key]
+            cache[key] = (grid, lp, len(same), rmap)
+        return (*cache[key], survey)
 
     def _lag_nodes(self) -> int:
         """The online row's fixed lag in nodes (``lag_s`` / ``dt_s``, rounded); the offline row needs none."""
@@ -370,8 +380,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             T = np.arange(float(ft[0]), float(ft[-1]) + 0.5 * self.dt_s, self.dt_s)
             disp = np.zeros((len(T) - 1, 2))
             sigma = np.full(len(T) - 1, self.no_odometry_sigma)
-        node = np.clip(np.round((ft - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
-        fix_node = node
+        fix_node = np.clip(np.round((ft - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
         unary: list = [None] * len(T)
         lo_out, lo_in = math.log(self.fix_outlier / grid.n_cells), math.log1p(-self.fix_outlier)  # the scans' tail
 
@@ -380,20 +389,21 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             unary[k] = ll if unary[k] is None else unary[k] + ll
 
         if self.fix_weight > 0:
-            for k, xy, sd in zip(node, fxy, fsd):  # fixes: F per walk (a few dozen), each (N,): one numpy pass each
+            for k, xy, sd in zip(fix_node, fxy, fsd):  # fixes: F per walk (a few dozen), each (N,): one numpy pass each
                 observe(k, fix_log_likelihood(cxy, extra, xy, sd, self.fix_outlier, grid.n_cells), self.fix_weight)
+        first = int(fix_node.min())
         if Q is not None and len(st):
             snode = np.clip(np.round((st - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
             for k, ll in zip(snode, rmap.log_likelihood(Q)):
                 observe(k, np.logaddexp(lo_in + ll, lo_out), self.radio_weight)
-            node = np.concatenate([node, snode])
+            first = min(first, int(snode.min()))
         res = forward_backward(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers, prune=self.prune,
                                lag=self._lag_nodes())
         path = None
         if self.estimate == "viterbi":
             path = grid.xy[viterbi(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers,
                                    prune=self.prune)[0]]
-        out = {"t": T, "res": res, "first_fix": int(node.min()), "role": role, "n_fixes": int(len(ft)), "heading": heading,
+        out = {"t": T, "res": res, "first_fix": first, "role": role, "n_fixes": int(len(ft)), "heading": heading,
                "radio_scans": int(len(st)),
                "prior_walks": n_prior, "wall_s": time.perf_counter() - t0, "path": path, "grid_xy": grid.xy,
                "graph_inputs": (disp, sigma, fix_node, fxy, fsd), "graphs": {}}

@@ -17,7 +17,8 @@ refusal changes nothing, so the stream goes on once the IMU (or the rotation vec
 
 from __future__ import annotations
 
-from blenav.filters.inertial_odometry import LIVE_ATTITUDES, StreamingLio
+from blenav.filters.inertial_odometry import MAX_GAP_S, StreamingLio
+from blenav.filters.pdr_odometry import HEADING_SOURCES
 from blenav.filters.online import EVENT_ORDER
 
 __all__ = ["InertialFeed", "MAX_HOLD_S", "AUTO_GRACE_S"]
@@ -38,8 +39,8 @@ class InertialFeed:
     counts them)."""
 
     def __init__(self, model, attitude: str = "auto", mag_offset=None):
-        if attitude not in LIVE_ATTITUDES + ("auto",):
-            raise ValueError(f"attitude must be one of {LIVE_ATTITUDES + ('auto',)}, got {attitude!r}")
+        if attitude not in HEADING_SOURCES:
+            raise ValueError(f"attitude must be one of {HEADING_SOURCES}, got {attitude!r}")
         self.model, self.attitude, self.mag_offset = model, attitude, mag_offset
         self.lio: StreamingLio | None = None
         self.source: str | None = None  # "imu": the bundle makes the odometry; "pushed": the app does
@@ -74,7 +75,7 @@ class InertialFeed:
                    "localizer with attitude='ahrs'")
         elif self.source == "imu":
             why = (f"the IMU stopped at {h if h is not None else oldest:.3f} s: push_imu resumes the stream (a gap of up "
-                   f"to 60 s), else open a new localizer")
+                   f"to {MAX_GAP_S:g} s), else open a new localizer")
         else:
             why = ("no IMU sample came: push_imu (with push_mag, or push_orientation), or push the odometry your app "
                    "makes with push_odometry")
@@ -136,7 +137,7 @@ class InertialFeed:
         if self.lio is None:
             self._make("orientation" if self.attitude == "auto" else self.attitude)
         pts = self.lio.push_orientation(t, q)
-        return self._points(pts + (self._feed_early() if self._early else []))
+        return self._points(pts + self._feed_early())
 
     def odometry(self, ev: tuple) -> list[tuple]:
         """Odometry the app made: from now on nothing is held (refused once the bundle makes the odometry)."""
