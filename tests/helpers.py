@@ -158,6 +158,16 @@ def set_cell(path: Path, line: int, column: str, value: str) -> None:
     write_lines(path, ls)
 
 
+def seeded(seed: int, build):
+    """``build()`` with the global torch RNG seeded and restored after: modules with a fixed weight initialisation,
+    no global random state touched."""
+    import torch
+
+    with torch.random.fork_rng():
+        torch.manual_seed(seed)
+        return build()
+
+
 def training_node() -> dict:
     """The networks' training node (data, trainer, models) conf/localizer/fingerprint.yaml composes into a method's
     node, as blenav-eval hands it to the localizer."""

@@ -281,3 +281,30 @@ def test_the_run_folders_config_yaml_is_read_as_data(tmp_path):
     (tmp_path / "config.yaml").write_text("\n".join(lines) + "\ndata: {path: null, bomb: *a7}\n")
     with pytest.raises(ValueError, match=r"config.yaml: \[yaml-size\] the document expands to more than"):
         _data_path(cfg, {})
+
+
+def test_a_std_head_trains_calibrates_and_exports_its_sigma(dataset, tmp_path):
+    """train.py with LocNet's std head (issue 29): the checkpoint's training report holds the validation scale that
+    the weights carry (std_scale), and the export adds output std_m, equal to PyTorch's on real windows."""
+    from blenav.onnx_io import session
+
+    run = tmp_path / "run"
+    train(compose("train", "model=locnet", f"data.path={dataset}", f"out={run}", "data.batch_size=32",
+                  "model.lr=3e-3", "trainer.enable_progress_bar=false", "trainer.max_epochs=1",
+                  "model.locnet.hidden=16", "model.locnet.fc_hidden=8", "+model.locnet.std_head=true",
+                  "data.val_fraction=0.5"))
+    module, meta = load_module(run / "last.ckpt")
+    info = torch.load(run / "last.ckpt", weights_only=False)["blenav_training"]
+    assert isinstance(info["fix_std"], dict), info["fix_std"]
+    assert info["fix_std"]["scale"] == pytest.approx(float(module.locnet.std_scale), rel=1e-6)
+    path = Path(export(compose("export", f"ckpt={run / 'last.ckpt'}", f"out={tmp_path / 'm.onnx'}")))
+    sess = session(path)
+    assert [o.name for o in sess.get_outputs()] == ["xy", "h", "c", "std_m"]
+    S = real_windows(dataset, meta)[:16].astype(np.float32)
+    h0 = np.zeros((module.locnet.layers, len(S), module.locnet.hidden), np.float32)
+    xy, std = sess.run(["xy", "std_m"], {"S": S, "h0": h0, "c0": h0})
+    with torch.no_grad():
+        ref_xy, ref_std = module.locnet.forward_std(torch.from_numpy(S) / meta["window"]["u_scale"])
+    np.testing.assert_allclose(xy, ref_xy.numpy(), atol=TOL)
+    np.testing.assert_allclose(std, ref_std.numpy(), rtol=1e-4)
+    assert OnnxLocalizer(path).predict_windows(S).shape == (len(S), 2)  # the loader reads xy as before

@@ -233,6 +233,30 @@ def test_locnet_fix_std_is_its_validation_rms_error_when_asked(coded, tmp_path):
         FingerprintLocalizer("x", net_cov="rms")
 
 
+def test_locnet_fix_std_is_its_own_calibrated_sigma_when_asked(coded, tmp_path):
+    """net_cov: predicted (issue 29): each fix's std is LocNet's std head, scaled on the validation walk, plus
+    cov_floor_m; the positions are those of the network without the head; the scale is in the training report."""
+    from blenav.localizers import RunInputs
+
+    kw = dict(model="locnet", val_fraction=0.5, seed=3, training=training_node(),
+              trainer={"budget": {"max_steps": 20, "val_every_steps": 5, "warmup_steps": 2}})
+    walks = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")]
+    loc = FingerprintLocalizer("LocNet-WiFi", **kw, net={"locnet": {"std_head": True}}, net_cov="predicted")
+    rep = loc.fit(walks, RunInputs(out=tmp_path / "a"))["floors"]["mall/F1"]
+    plain = FingerprintLocalizer("LocNet-WiFi", **kw)
+    plain.fit(walks, RunInputs(out=tmp_path / "b"))
+    est, ref = loc.run(coded.session("mall_F1_walkC"), 1, seed=0), plain.run(coded.session("mall_F1_walkC"), 1, seed=0)
+    np.testing.assert_array_equal(est.position, ref.position)
+    std = np.sqrt(est.cov[0, :, 0, 0] - 1.0)  # the head's calibrated sigma (cov_floor_m = 1 m added in quadrature)
+    np.testing.assert_allclose(est.cov[0], (std ** 2 + 1.0)[:, None, None] * np.eye(2), rtol=1e-6)
+    assert np.all(std > 0) and np.ptp(std) > 0  # one sigma per fix
+    assert rep["fix_std"]["scale"] > 0 and rep["fix_std"]["val_windows"] > 0
+    with pytest.raises(ValueError, match="std head"):
+        FingerprintLocalizer("x", **kw, net_cov="predicted")
+    with pytest.raises(ValueError, match="std head"):
+        FingerprintLocalizer("x", net_cov="predicted")  # a KNN has none
+
+
 def test_named_train_walks_through_the_harness(tmp_path):
     """split: {train: [ids]}: those walks train the fingerprint rows and are not scored; the others are."""
     d = write_floor(tmp_path / "raw")
@@ -248,6 +272,11 @@ def test_named_train_walks_through_the_harness(tmp_path):
     res = evaluate(cfg)
     assert res["split"]["train"] == [ids[0], ids[2]] and res["sessions"] == [ids[1]]
     assert res["methods"]["KNN-WiFi"]["training"]["floors"]["mall/F1"]["train_walks"] == 2
+    # a fingerprint's own fixes and their stated std (the neighbours' spread + 1 m): scored as fix_coverage own
+    cov = res["methods"]["KNN-WiFi"]["fix_coverage"]["own"]
+    n = len(Dataset.open(tmp_path / "ds").session(ids[1]).groundtruth)
+    assert cov["waypoints"] == n and 0 <= cov["1sigma"] <= cov["2sigma"] <= 1
+    assert round(cov["1sigma"] * n) == pytest.approx(cov["1sigma"] * n)  # shares of whole waypoints
     with pytest.raises(Exception, match="nothing left to score"):
         evaluate(compose("eval", "experiment=mapfusion_002", f"data={tmp_path / 'ds'}", f"out={tmp_path / 'o2'}", *over,
                          f"sessions=[{ids[1]}]", f"split={{train: [{ids[1]}]}}"))

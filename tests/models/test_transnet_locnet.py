@@ -7,13 +7,7 @@ import pytest
 import torch
 
 from blenav.models import LocNet, TransNet
-
-
-def seeded(seed: int, build):
-    """Build modules with a fixed weight initialisation without touching the global torch RNG."""
-    with torch.random.fork_rng():
-        torch.manual_seed(seed)
-        return build()
+from helpers import seeded
 
 
 def _S(batch=4, B=7, H=5, seed=0):

@@ -327,6 +327,10 @@ def run_method(name: str, method: Localizer, sessions: list, runs: int, seed: in
                 m["fix_coverage"] = {r: c for r, c in cov.items() if c is not None}
             # no known start: how long until the track settles within CONVERGED_M
             m["_convergence_s"] = convergence_times(m["_runs"]["err_all"], m["_runs"]["t"])
+        elif method.states_fix_std and est.cov is not None:  # a fingerprint's own fixes and their stated std
+            c = fix_coverage_counts(est.t, est.position[0], est.std[0], gt["t"].to_numpy(), gt[["x", "y"]].to_numpy())
+            if c is not None:
+                m["fix_coverage"] = {"own": c}
         oc.metrics[s.id], oc.results[s.id] = m, est
         progress(f"{name} / {s.id}")
     return oc

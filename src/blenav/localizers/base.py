@@ -46,6 +46,9 @@ class Localizer:
     #: whether the method uses the floor plan (free space, walls); a map-free method's estimates are not
     #: moved into free space by the evaluation (see :mod:`blenav.localizers.confine`)
     uses_floor_plan: bool = True
+    #: whether the method's covariance is a stated uncertainty of its own fixes (fingerprints), scored by the
+    #: evaluation as ``fix_coverage`` {"own": ...}: the share of waypoints inside its 1-sigma / 2-sigma regions
+    states_fix_std: bool = False
 
     def __init__(self, name: str, shared=None):
         self.name = str(name)

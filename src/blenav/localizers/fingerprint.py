@@ -42,7 +42,10 @@ None: all): the BLE anchor ids the localizer hears at run time (the others' adve
 sparse beacon subset of :mod:`blenav.eval.fixes`. Deterministic: R identical runs.
 ``cov``: KNN: the (weighted) covariance of the k neighbours' positions plus ``cov_floor_m``^2 I; the networks: none
 by default, with ``net_cov: validation`` (opt-in) their RMS error per axis on their validation walks (squared) plus
-``cov_floor_m``^2, the same for every fix (none when no walk was held out for validation). Its std is what the fused
+``cov_floor_m``^2, the same for every fix (none when no walk was held out for validation); with ``net_cov:
+predicted`` (a LocNet with its std head, ``net: {locnet: {std_head: true}}``, issue 29) each fix's own sigma, trained
+with the Gaussian negative log-likelihood and scaled on the validation walks (:mod:`blenav.models.locnet`), squared,
+plus ``cov_floor_m``^2. Its std is what the fused
 filters may use (:mod:`blenav.eval.fixes`), so it can change a fused row fed by a network's fixes.
 
 **Issue 29** (reading scans the way they were heard; KNN done well): WiFi steps are the scans at the times their
@@ -87,6 +90,8 @@ CV_GRID = {"folds": 5, "metric": ["cosine", "powed"], "k": [1, 3, 5, 7, 10, 15, 
            "weights": ["uniform", "distance", 0.02, 0.05, 0.1], "ble_weight": [0.25, 0.5, 1.0]}
 
 MODELS = ("knn", "locnet", "transnet_locnet")
+#: the networks' fix covariance: none, the validation walks' RMS error, or the std head's own calibrated sigma
+NET_COVS = ("none", "validation", "predicted")
 #: features kept by ``max_features: auto`` for TransNet+LocNet (its SSL loss holds b x F x F x H values)
 NET_MAX_FEATURES = 256
 
@@ -128,6 +133,7 @@ class FingerprintLocalizer(Localizer, Trained):
     """Fingerprinting (KNN / LocNet / TransNet+LocNet) on WiFi, BLE or both; see the module docstring."""
 
     uses_floor_plan = False  # radio fingerprints only: estimates are not moved into free space
+    states_fix_std = True  # its covariance is each fix's stated uncertainty: scored as fix_coverage {own}
 
     def __init__(self, name: str, shared=None, model: str = "knn", features: str = "wifi", k: int = 5,
                  weights: str = "uniform", metric: str = "cosine", history: int = 1, fill_dbm: float = -100.0,
@@ -168,8 +174,8 @@ class FingerprintLocalizer(Localizer, Trained):
             raise ValueError(f"method {name!r}: metric must be 'cosine' or 'euclidean', got {metric!r}")
         self.model, self.k, self.weights, self.metric = model, int(k), weights, metric
         self.cv = self._cv_grid(name, cv)
-        if net_cov not in ("none", "validation"):
-            raise ValueError(f"method {name!r}: net_cov must be 'none' or 'validation', got {net_cov!r}")
+        if net_cov not in NET_COVS:
+            raise ValueError(f"method {name!r}: net_cov must be one of {NET_COVS}, got {net_cov!r}")
         self.net_cov = net_cov
         if fix_std not in ("neighbours", "calibrated"):
             raise ValueError(f"method {name!r}: fix_std must be 'neighbours' or 'calibrated', got {fix_std!r}")
@@ -182,10 +188,20 @@ class FingerprintLocalizer(Localizer, Trained):
             max_features = NET_MAX_FEATURES if model == "transnet_locnet" else None
         self.max_features = None if max_features is None else int(max_features)
         self.net, self.trainer = dict(net or {}), dict(trainer or {})
+        if net_cov == "predicted" and not self._std_head(model):
+            raise ValueError(f"method {name!r}: net_cov: predicted needs a network with LocNet's std head "
+                             f"(model: locnet or transnet_locnet, net: {{locnet: {{std_head: true}}}})")
         self.val_fraction, self.batch_size, self.seed = float(val_fraction), int(batch_size), int(seed)
         self.threads, self.plots = threads, bool(plots)
         self.floors: dict[str, _FloorModel] = {}
         self._unfitted = "was not fitted (no train walks: the experiment needs a split)"  # why run() cannot
+
+    def _std_head(self, model: str) -> bool:
+        """Whether the network this method trains has LocNet's std head (its model node with ``net`` over it)."""
+        if model == "knn":
+            return False
+        node = dict(((self.training or {}).get("models") or {}).get(model, {}).get("locnet") or {})
+        return bool({**node, **dict(self.net.get("locnet") or {})}.get("std_head", False))
 
     @staticmethod
     def _cv_grid(name: str, cv) -> dict | None:
@@ -342,17 +358,29 @@ class FingerprintLocalizer(Localizer, Trained):
                                          net=self.net, trainer=self.trainer, val_fraction=self.val_fraction,
                                          batch_size=self.batch_size, threads=self.threads, plots=self.plots)
         info["training"] = rep
+        if self.net_cov == "predicted":  # each fix's own calibrated sigma (LocNet's std head) + cov_floor_m^2
+            if "fix_std" not in rep:
+                raise ValueError(f"method {self.name!r}: net_cov: predicted needs a LocNet with a std head "
+                                 f"(net.locnet.std_head: true)")
+            info["fix_std"] = rep["fix_std"]
+
+            def predict(Sq):
+                xy_q, std = net_predict(Sq)
+                var = std ** 2 + self.cov_floor_m ** 2
+                return xy_q, var[:, None, None] * np.eye(2)
+
+            return predict
         # net_cov: validation (opt-in; none by default): each fix's std is the network's RMS error per axis on its
         # validation walks (held out of its training), one isotropic covariance for every fix; none without them
         val = split_walks(walk_of, self.val_fraction, self.seed) if self.net_cov == "validation" else None
         cov = None
         if val is not None and val.any():
-            var = float(np.mean(np.sum((net_predict(S[val]) - xy[val]) ** 2, axis=1))) / 2.0
+            var = float(np.mean(np.sum((net_predict(S[val])[0] - xy[val]) ** 2, axis=1))) / 2.0
             cov = (var + self.cov_floor_m ** 2) * np.eye(2)
             info["fix_std_m"] = float(np.sqrt(var + self.cov_floor_m ** 2))
 
         def predict(Sq):
-            xy_q = net_predict(Sq)
+            xy_q = net_predict(Sq)[0]
             return xy_q, None if cov is None else np.broadcast_to(cov, (len(xy_q), 2, 2)).copy()
 
         return predict

@@ -129,14 +129,15 @@ def summary_table(results_by_floor: dict, rows: dict) -> str:
 
 
 def fused_table(results_by_floor: dict, rows: dict) -> str | None:
-    """Markdown: per floor and fused row with fixes, the share of the test waypoints inside its fixes' stated 1-sigma /
-    2-sigma regions (per role; a 2-D Gaussian holds 39 % / 86 %) and the time until the track stays within 5 m
+    """Markdown: per floor and fused row with fixes (per role) and fingerprint row with a stated std (its ``own``
+    fixes), the share of the test waypoints inside the fixes' stated 1-sigma / 2-sigma regions (a 2-D Gaussian holds
+    39 % / 86 %) and the time until the track stays within 5 m
     (median over the walks that settle, and their share); None when no row reports them."""
     lines = ["| floor | method | fixes | inside 1 sigma | inside 2 sigma | settles within 5 m | after (median) |",
              "|---|---|---|---|---|---|---|"]
     n = 0
     for floor, r in results_by_floor.items():
-        for row in rows["fused"]:
+        for row in rows["fused"] + rows["fingerprint"]:
             m = r["methods"].get(row) or {}
             for role, c in (m.get("fix_coverage") or {}).items():
                 conv = m.get("convergence") or {}

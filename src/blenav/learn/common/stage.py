@@ -53,8 +53,13 @@ def validate_last(trainer, module, dm, monitor: TrainingMonitor) -> None:
 
 
 def end_stage(module, trainer, out: Path, info: dict, monitor: TrainingMonitor, title: str, plots: bool) -> None:
-    """A stage's end: ``info`` on the module, OUT/last.ckpt of the final step amended on rank 0 with the module's
-    weights and ``info`` (:func:`finish_checkpoint`), and the training report."""
+    """A stage's end: the module's own calibration on the data module, when it has one (``module.calibrate(dm)``:
+    e.g. LocNet's std head, its report added to ``info``), ``info`` on the module, OUT/last.ckpt of the final step
+    amended on rank 0 with the module's weights and ``info`` (:func:`finish_checkpoint`), and the training report."""
+    calibrate = getattr(module, "calibrate", None)
+    dm = getattr(trainer, "datamodule", None)
+    if calibrate is not None and dm is not None:
+        info.update(calibrate(dm))
     module.training_info = info
     final_step_checkpoint(trainer, out)
     if trainer.is_global_zero:

@@ -6,7 +6,10 @@ The exported graph, for a model of B beacons and windows of H steps (both fixed;
   heard packet, 0 = not heard; rows in the model's beacon order, columns oldest..newest step), ``h0`` and
   ``c0`` (layers, batch, hidden) float32, the LSTM state (zeros: see ``lstm_state`` below);
 - outputs ``xy`` (batch, 2) float32, world x, y in metres at the end of the window's newest step, and
-  ``h``, ``c`` (layers, batch, hidden), the LSTM state after the window.
+  ``h``, ``c`` (layers, batch, hidden), the LSTM state after the window; a LocNet with a std head (``std_head: true``,
+  issue 29) adds ``std_m`` (batch,) float32, the network's own 1-sigma per axis in metres (isotropic 2-D Gaussian),
+  calibrated: the head's sigma times the scale fitted on the validation windows at the training's end (LocNet's
+  ``std_scale``, part of the weights; the training report's ``fix_std``).
 
 The graph divides S by ``u_scale`` itself (the networks are trained on u / u_scale, see
 :mod:`blenav.learn.crossphone.losses`) and applies TransNet when the model has one, so an app feeds u, the same numbers
@@ -57,6 +60,7 @@ from ..common.onnx_export import DEFAULT_OPSET, trace_onnx
 TOL = 1e-4  # max abs difference between onnxruntime and PyTorch outputs (metres and state units)
 INPUT_NAMES = ("S", "h0", "c0")
 OUTPUT_NAMES = ("xy", "h", "c")
+STD_OUTPUT = "std_m"  # the std head's output (appended after OUTPUT_NAMES)
 INPUT_TRANSFORM = ("per packet u = max(rssi_dbm + offset_db, floor_u); per step and beacon the mean of u over its "
                    "packets, 0 when not heard; S rows in beacons order, columns oldest..newest step; feed u as it "
                    "is (the graph divides by u_scale itself)")
@@ -71,11 +75,18 @@ _DOCS = {
     "xy": "(batch, 2) float32 world x, y in metres at the end of the window's newest step (metadata output_frame)",
     "h": "(layers, batch, hidden) float32 LSTM hidden state after the window (not fed back: metadata lstm_state)",
     "c": "(layers, batch, hidden) float32 LSTM cell state after the window (not fed back: metadata lstm_state)",
+    STD_OUTPUT: "(batch,) float32 the network's 1-sigma per axis in metres, scaled on its validation windows",
 }
 
 
+def output_names(locnet: nn.Module) -> tuple[str, ...]:
+    """The exported graph's outputs for this LocNet: :data:`OUTPUT_NAMES`, plus :data:`STD_OUTPUT` with a std head."""
+    return OUTPUT_NAMES + ((STD_OUTPUT,) if getattr(locnet, "std_head", False) else ())
+
+
 class StreamingLocalizer(nn.Module):
-    """(S on the thesis scale, h0, c0) -> (xy m, h, c): divide by ``u_scale``, TransNet if any, LocNet with state."""
+    """(S on the thesis scale, h0, c0) -> (xy m, h, c[, std_m]): divide by ``u_scale``, TransNet if any, LocNet with
+    state (and its std with a std head)."""
 
     def __init__(self, locnet: nn.Module, transnet: nn.Module | None = None, u_scale: float = 1.0):
         super().__init__()
@@ -85,6 +96,9 @@ class StreamingLocalizer(nn.Module):
         g = S / self.u_scale
         if self.transnet is not None:
             g = self.transnet(g)
+        if getattr(self.locnet, "std_head", False):
+            xy, std, h, c = self.locnet.forward_state_std(g, h0, c0)
+            return xy, h, c, std
         return self.locnet.forward_state(g, h0, c0)
 
 
@@ -106,17 +120,19 @@ def random_inputs(n_beacons: int, history: int, layers: int, hidden: int, batch:
 
 def export_onnx(net: nn.Module, inputs: tuple, path: str | Path, opset: int = DEFAULT_OPSET,
                 metadata: dict[str, str] | None = None, doc: str = "") -> Path:
-    """Trace ``net(S, h0, c0) -> (xy, h, c)`` to ONNX at ``path`` with a dynamic batch, write ``metadata``
+    """Trace ``net(S, h0, c0) -> (xy, h, c[, std_m])`` to ONNX at ``path`` with a dynamic batch, write ``metadata``
     (str -> str) into ``metadata_props``, run ``onnx.checker``. Returns the path."""
+    names = output_names(net.locnet) if hasattr(net, "locnet") else OUTPUT_NAMES
     dynamic = {"S": {0: "batch"}, "h0": {1: "batch"}, "c0": {1: "batch"}, "xy": {0: "batch"}, "h": {1: "batch"},
-               "c": {1: "batch"}}
-    return trace_onnx(net, inputs, path, INPUT_NAMES, OUTPUT_NAMES, dynamic, opset=opset, metadata=metadata,
-                      doc=doc, io_docs=_DOCS)
+               "c": {1: "batch"}, STD_OUTPUT: {0: "batch"}}
+    return trace_onnx(net, inputs, path, INPUT_NAMES, names, {k: dynamic[k] for k in (*INPUT_NAMES, *names)},
+                      opset=opset, metadata=metadata, doc=doc, io_docs=_DOCS)
 
 
 def onnx_max_diff(path: str | Path, net: nn.Module, inputs: tuple) -> float:
     """Max abs difference over all outputs between onnxruntime (one thread) and ``net`` on ``inputs``."""
-    got = session(path, threads=1).run(list(OUTPUT_NAMES), {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)})
+    names = output_names(net.locnet) if hasattr(net, "locnet") else OUTPUT_NAMES
+    got = session(path, threads=1).run(list(names), {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)})
     with torch.no_grad():
         ref = net.eval()(*inputs)
     return max_diff(got, [b.numpy() for b in ref])

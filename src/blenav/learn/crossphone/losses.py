@@ -131,14 +131,21 @@ def localization_loss(f: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return ((f - x) ** 2).sum(dim=1).mean()
 
 
+def gaussian_nll(f: torch.Tensor, x: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+    """Negative log-likelihood of labels x (b, 2) m under N(f, sigma^2 I) per window (f (b, 2) m, sigma (b,) m, the
+    isotropic std of each axis), without the constant log(2 pi): |f - x|^2 / (2 sigma^2) + 2 log sigma, mean over
+    the batch. LocNet's std head is trained with it (:class:`blenav.models.LocNet`, ``std_head``)."""
+    return ((f - x) ** 2).sum(dim=1).div(2.0 * sigma ** 2).add(2.0 * torch.log(sigma)).mean()
+
+
 def position_smoothness_loss(f_t: torch.Tensor, f_prev: torch.Tensor) -> torch.Tensor:
     """L_ps = ||f(S_t) - f(S_{t-1})||^2 for predictions of consecutive windows, mean over the batch."""
     return ((f_t - f_prev) ** 2).sum(dim=1).mean()
 
 
 def total_loss(terms: dict[str, torch.Tensor], weights: dict[str, float]) -> torch.Tensor:
-    """Eq. 3.6: sum_k w_k L_k over the terms present (keys loc, ps, ssl, ts)."""
-    unknown = set(terms) - {"loc", "ps", "ssl", "ts"}
+    """Eq. 3.6: sum_k w_k L_k over the terms present (keys loc, ps, ssl, ts; nll: the std head's, issue 29)."""
+    unknown = set(terms) - {"loc", "ps", "ssl", "ts", "nll"}
     if unknown:
         raise KeyError(f"unknown loss terms {sorted(unknown)}")
     return sum(weights.get(k, 0.0) * v for k, v in terms.items())

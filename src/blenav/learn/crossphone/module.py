@@ -12,6 +12,13 @@ when ``schedule`` is given (``{"kind", "warmup_steps", "total_steps", "min_lr_ra
 cosine or one-cycle; a ``LambdaLR`` stepped every optimizer step, its state resumes with the checkpoint),
 else constant. ``stage = "semi"`` (the semi-supervised stage of scenario 3) trains at the constant
 ``semi_lr`` instead, whatever the optimizer state restored from the supervised stage held.
+
+A LocNet with a std head (``std_head: true``, issue 29) adds the term ``nll`` (weight ``weights.nll``, 1 by default):
+the Gaussian negative log-likelihood of the labels under its positions (detached) and sigma. It is added to the loss
+the optimizer steps on in training, and logged beside ``loss`` -- which stays the positions' objective, so the early
+stopping on ``val/loss`` and the kept weights are the plain network's; the head reads detached features, so its
+gradients reach no other weight. At a stage's end :meth:`CrossPhoneModule.calibrate` scales its sigma on the
+validation windows (the training windows' errors, which the head learns, are smaller than a new walk's).
 """
 
 from __future__ import annotations
@@ -23,7 +30,16 @@ import torch
 
 from ..common.schedule import lr_factor
 from .augment import ReceiverAugment
-from .losses import localization_loss, position_smoothness_loss, ssl_loss, temporal_smoothness_loss, total_loss
+from .losses import (gaussian_nll, localization_loss, position_smoothness_loss, ssl_loss, temporal_smoothness_loss,
+                     total_loss)
+
+
+def _spearman(a: torch.Tensor, b: torch.Tensor) -> float | None:
+    """Spearman's rank correlation of two (N,) tensors (ties broken by order; None below 2 values)."""
+    if len(a) < 2:
+        return None
+    ra, rb = (torch.argsort(torch.argsort(x)).double() for x in (a, b))
+    return float(torch.corrcoef(torch.stack([ra, rb]))[0, 1])
 
 
 class CrossPhoneModule(L.LightningModule):
@@ -34,7 +50,8 @@ class CrossPhoneModule(L.LightningModule):
         super().__init__()
         self.locnet, self.transnet = locnet, transnet
         self.optimizer_factory = optimizer
-        self.weights = {"loc": 1.0, "ps": 0.0, "ssl": 0.0, "ts": 0.0, **(weights or {})}
+        self.weights = {"loc": 1.0, "ps": 0.0, "ssl": 0.0, "ts": 0.0, "nll": 1.0, **(weights or {})}
+        self.std_head = bool(getattr(locnet, "std_head", False))
         self.tau = tau
         self.meta = meta or {}  # stored in checkpoints under "blenav" (see blenav.learn.crossphone.checkpoint)
         self.schedule = dict(schedule) if schedule else None
@@ -58,7 +75,10 @@ class CrossPhoneModule(L.LightningModule):
         n = S.shape[0]
         # the previous windows (position smoothness) go through the networks in the same pass
         g_all = self.translate(torch.cat([S, batch["S_prev"]]) if with_prev else S)
-        f_all = self.locnet(g_all)
+        if self.std_head:
+            f_all, sigma = self.locnet.forward_std(g_all)
+        else:
+            f_all, sigma = self.locnet(g_all), None
         g, f = g_all[:n], f_all[:n]
         terms = {}
         labelled = ~torch.isnan(batch["xy"]).any(dim=1)
@@ -73,29 +93,65 @@ class CrossPhoneModule(L.LightningModule):
         if not terms:
             raise ValueError("no loss term applies to this batch (no labels and no unsupervised term enabled)")
         terms["loss"] = total_loss({k: v for k, v in terms.items()}, self.weights)
+        if sigma is not None and labelled.any():  # the std head's term: beside the monitored loss, not in it
+            terms["nll"] = gaussian_nll(f[labelled].detach(), batch["xy"][labelled], sigma[:n][labelled])
         with torch.no_grad():
             if labelled.any():
                 terms["err_m"] = (f[labelled] - batch["xy"][labelled]).norm(dim=1).mean()
         return terms
 
-    def _log_step(self, batch, stage: str) -> torch.Tensor:
+    def _log_step(self, batch, stage: str) -> dict[str, torch.Tensor]:
         out = self.model_step(batch)
         for k, v in out.items():
             self.log(f"{stage}/{k}", v, prog_bar=k in ("loss", "err_m"), batch_size=batch["S"].shape[0],
                      sync_dist=stage != "train")  # epoch metrics averaged over DDP ranks
-        return out["loss"]
+        return out
 
     def training_step(self, batch, batch_idx):
         if self.augment is not None:  # training windows only: validation and test see the phones as they are
             keys = [k for k in ("S", "S_prev") if k in batch]
             batch = {**batch, **dict(zip(keys, self.augment([batch[k] for k in keys], self.aug_generator)))}
-        return self._log_step(batch, "train")
+        out = self._log_step(batch, "train")
+        return out["loss"] + self.weights["nll"] * out["nll"] if "nll" in out else out["loss"]
 
     def validation_step(self, batch, batch_idx):
-        return self._log_step(batch, "val")
+        return self._log_step(batch, "val")["loss"]
 
     def test_step(self, batch, batch_idx):
-        return self._log_step(batch, "test")
+        return self._log_step(batch, "test")["loss"]
+
+    def calibrate(self, dm) -> dict:
+        """With a std head: set LocNet's ``std_scale`` to the maximum-likelihood scale c of its sigma on the data
+        module's validation windows (2-D isotropic Gaussian errors e: c^2 = mean(|e|^2 / sigma^2) / 2) and return
+        ``{"fix_std": {scale, val_windows, coverage_1sigma, coverage_2sigma, median_std_m, rank_correlation}}``
+        (coverage: the share of validation errors within 1 / 2 calibrated sigma, a 2-D Gaussian holds 39.3 / 86.5 %;
+        rank_correlation: Spearman's between sigma and the error's norm, 0 for a sigma that says nothing of which fix
+        is worse); without validation
+        windows the scale stays 1 and the report says so. {} without a std head. Called by
+        :func:`blenav.learn.common.stage.end_stage`."""
+        if not self.std_head:
+            return {}
+        val = dm.sets.get("val") if hasattr(dm, "sets") else None
+        S, xy = (val.tensors[0], val.tensors[-1]) if val is not None and len(val) else (None, None)
+        ok = ~torch.isnan(xy).any(dim=1) if xy is not None else None
+        if ok is None or not ok.any():
+            return {"fix_std": "uncalibrated (scale 1): no labelled validation windows"}
+        was = self.training
+        self.eval()
+        with torch.no_grad():
+            self.locnet.std_scale.fill_(1.0)
+            f, sigma = self.locnet.forward_std(self.translate(S[ok]))
+            r2 = ((f - xy[ok]) ** 2).sum(dim=1) / sigma ** 2
+            c = float(torch.sqrt(r2.mean() / 2.0))
+            self.locnet.std_scale.fill_(c)
+        self.train(was)
+        r = torch.sqrt(r2) / c
+        return {"fix_std": {"model": "sigma of LocNet's std head (Gaussian NLL) x scale, the scale fitted by maximum "
+                                     "likelihood on the validation windows", "scale": c, "val_windows": int(ok.sum()),
+                            "coverage_1sigma": float((r <= 1).double().mean()),
+                            "coverage_2sigma": float((r <= 2).double().mean()),
+                            "median_std_m": float(torch.median(sigma) * c),
+                            "rank_correlation": _spearman(sigma, torch.sqrt(r2) * sigma)}}
 
     def on_train_batch_start(self, batch, batch_idx) -> None:
         if self.stage == "semi":  # the optimizer state restored from the supervised stage carries its lr

@@ -105,8 +105,10 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
     previous windows P (N, F, H), labels xy (N, 2) m, walk index ``walk_of`` (N,) into ``sessions``.
 
     The run folder ``out`` is emptied first (the trainer would resume a run of other data from its
-    last.ckpt). Returns (predict: S (K, F, H) u scale -> (K, 2) m, the training report of
-    :func:`blenav.learn.common.report.training_report` plus ``train_windows`` / ``val_windows`` / ``val_walks``)."""
+    last.ckpt). Returns (predict: S (K, F, H) u scale -> (xy (K, 2) m, std (K,) m or None), the training report of
+    :func:`blenav.learn.common.report.training_report` plus ``train_windows`` / ``val_windows`` / ``val_walks``); std
+    is the calibrated sigma of a LocNet with a std head (``net.locnet.std_head: true``; its scale in the report's
+    ``fix_std``), None without one."""
     from ..crossphone.train import data_config
     from ..train import train
 
@@ -126,10 +128,13 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
     _, objs = train(cfg, datamodule=dm)
     module = objs["module"].eval()
 
-    def predict(Sq: np.ndarray) -> np.ndarray:
+    def predict(Sq: np.ndarray):
         with torch.no_grad():
             x = torch.from_numpy(np.ascontiguousarray(Sq, np.float32) / U_SCALE)
-            return module(x).numpy().astype(float)
+            if not module.std_head:
+                return module(x).numpy().astype(float), None
+            xy_q, std = module.locnet.forward_std(module.translate(x))
+            return xy_q.numpy().astype(float), std.numpy().astype(float)
 
     report = {**objs["training"], "val_walks": len(in_val), "run": str(out)}  # window counts: train._window_counts
     return predict, report
