@@ -307,4 +307,7 @@ def test_a_std_head_trains_calibrates_and_exports_its_sigma(dataset, tmp_path):
         ref_xy, ref_std = module.locnet.forward_std(torch.from_numpy(S) / meta["window"]["u_scale"])
     np.testing.assert_allclose(xy, ref_xy.numpy(), atol=TOL)
     np.testing.assert_allclose(std, ref_std.numpy(), rtol=1e-4)
-    assert OnnxLocalizer(path).predict_windows(S).shape == (len(S), 2)  # the loader reads xy as before
+    loader = OnnxLocalizer(path)  # reads xy (and steps its state) as before, the extra output left alone
+    np.testing.assert_allclose(loader.predict_windows(S), xy, atol=TOL)
+    np.testing.assert_allclose(loader.step(S[:1]), xy[:1], atol=TOL)
+    assert "std_m" in loader.meta["output_frame"]

@@ -81,8 +81,9 @@ def test_the_monitored_loss_is_the_positions_and_training_adds_the_nll():
     f, sigma = m.locnet.forward_std(S)
     assert out["nll"].item() == pytest.approx(gaussian_nll(f, xy, sigma).item(), rel=1e-6)
     m.log = lambda *a, **k: None  # no trainer attached
-    total = m.training_step(batch, 0)
-    assert total.item() == pytest.approx((out["loss"] + out["nll"]).item(), rel=1e-6)
+    step = m.training_step(batch, 0)  # the optimizer's loss, and the positions' loss for the learning curve
+    assert step["loss"].item() == pytest.approx((out["loss"] + out["nll"]).item(), rel=1e-6)
+    assert step["monitored"].item() == pytest.approx(out["loss"].item(), rel=1e-6)
     assert m.validation_step(batch, 0).item() == pytest.approx(out["loss"].item(), rel=1e-6)
 
 

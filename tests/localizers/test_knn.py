@@ -21,11 +21,13 @@ HEARD = {"wifi_age_ref": "scan", "wifi_time": "heard"}  # issue 29's reading (op
 def test_defaults_fingerprint_yaml_and_realwalks():
     """conf/localizer/fingerprint.yaml: scans read at their delivery (5 s age from it), no cross-validation (k = 5
     uniform cosine), the neighbours' std, no covariance for the networks' fixes; experiment=realwalks turns issue 29's
-    reading and cross-validation on for its WiFi KNN rows and the calibrated std on for every KNN row; cv: {} is
-    CV_GRID."""
+    reading and cross-validation on for its WiFi KNN rows, the calibrated std on for every KNN row and LocNet's std
+    head on for its networks; cv: {} is CV_GRID."""
     m = compose("eval", "experiment=realwalks").methods
+    for name in ("locnet_wifi", "transnet_wifi", "net_both"):
+        assert m[name].cv is None and m[name].net_cov == "predicted" and m[name].net.locnet.std_head, name
+    assert compose("eval", "experiment=mapfusion_002", "+localizer@methods.n=fingerprint").methods.n.net_cov == "none"
     for name in ("locnet_wifi", "transnet_wifi"):
-        assert m[name].cv is None and m[name].net_cov == "none", name
         assert (m[name].wifi_max_age_s, m[name].wifi_age_ref, m[name].wifi_time) == (5.0, "delivery", "delivery")
     for name in ("knn_wifi", "knn_both"):
         assert m[name].cv == {} and (m[name].wifi_age_ref, m[name].wifi_time, m[name].fix_std) == \

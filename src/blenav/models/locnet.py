@@ -36,7 +36,7 @@ class LocNet(nn.Module):
         self.std_head = bool(std_head)
         self.head_std = None
         if self.std_head:  # built last, and the global torch RNG restored after it: this network's other layers and
-            with torch.random.fork_rng():  # any built after it (TransNet) draw the same weights with or without it
+            with torch.random.fork_rng(devices=[]):  # any built after it (TransNet) draw the same weights with or without it
                 self.head_std = nn.Sequential(nn.Linear(hidden, fc_hidden), nn.ReLU(), nn.Linear(fc_hidden, 1))
         if self.std_head:
             self.register_buffer("std_scale", torch.ones(()))

@@ -39,7 +39,8 @@ def _examples(ids: list[str]) -> str:
 
 class LocalizerSession:
     """The graph of an exported localizer in an onnxruntime session ``sess`` (inputs S (K, B, H), h0, c0 (layers, K,
-    hidden); outputs xy (K, 2) m, h, c) with its decoded metadata ``meta``: the sizes B, H, layers and hidden read
+    hidden); outputs xy (K, 2) m, h, c, and std_m (K,) m for a LocNet with a std head, which it does not read) with
+    its decoded metadata ``meta``: the sizes B, H, layers and hidden read
     from the graph, and :meth:`predict_windows` from a zero LSTM state. What :class:`OnnxLocalizer` (one exported
     file) and a runtime bundle's graph (:class:`blenav.runtime.bundle.graphs.LocalizerGraph`) share."""
 
@@ -58,7 +59,7 @@ class LocalizerSession:
 
     @property
     def session(self):
-        """The underlying ``onnxruntime.InferenceSession`` (inputs S, h0, c0; outputs xy, h, c)."""
+        """The underlying ``onnxruntime.InferenceSession`` (inputs S, h0, c0; outputs xy, h, c[, std_m])."""
         return self._sess
 
     @property
@@ -76,7 +77,7 @@ class LocalizerSession:
         return z, z.copy()
 
     def _run(self, S: np.ndarray, h0: np.ndarray, c0: np.ndarray):
-        return self._sess.run(None, {"S": S, "h0": h0, "c0": c0})
+        return self._sess.run(["xy", "h", "c"], {"S": S, "h0": h0, "c0": c0})  # by name: a std head adds std_m
 
     def predict_windows(self, S: np.ndarray) -> np.ndarray:
         """(K, B, H) float32 windows on the thesis scale (not checked) -> (K, 2) m, each from a zero state; NaN rows

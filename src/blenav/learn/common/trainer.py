@@ -111,7 +111,9 @@ class TrainingMonitor(L.Callback):
         return f"TrainingMonitor{{monitor={self.monitor}}}"
 
     def on_train_batch_end(self, trainer, module, outputs, batch, batch_idx):
-        loss = outputs["loss"] if isinstance(outputs, dict) else outputs
+        # a step may return {"loss": what the optimizer steps on, "monitored": the loss its validation counterpart
+        # measures} (LocNet's std head trains on loss + NLL; the curve shows the positions' loss)
+        loss = outputs.get("monitored", outputs["loss"]) if isinstance(outputs, dict) else outputs
         if loss is not None:
             self._sum += float(loss.detach())
             self._n += 1

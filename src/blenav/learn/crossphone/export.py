@@ -134,8 +134,9 @@ def onnx_max_diff(path: str | Path, net: nn.Module, inputs: tuple) -> float:
     names = output_names(net.locnet) if hasattr(net, "locnet") else OUTPUT_NAMES
     got = session(path, threads=1).run(list(names), {n: t.numpy() for n, t in zip(INPUT_NAMES, inputs)})
     with torch.no_grad():
-        ref = net.eval()(*inputs)
-    return max_diff(got, [b.numpy() for b in ref])
+        ref = [b.numpy() for b in net.eval()(*inputs)]
+    # std_m relative to its own size (a sigma of thousands of metres rounds past 1e-4 m in float32)
+    return max(max_diff(got[:3], ref[:3]), max_diff(got[3:], ref[3:], relative=True))
 
 
 def onnx_metadata(meta: dict) -> dict[str, str]:
@@ -225,6 +226,10 @@ def app_contract(meta: dict) -> dict:
         "building": meta.get("building"),
         "time": out_time,
     }
+    model = meta.get("model") if isinstance(meta.get("model"), dict) else {}
+    if (model.get("locnet") or {}).get("std_head"):
+        output_frame["std_m"] = ("(batch,) float32: the fix's 1-sigma per axis in metres (an isotropic 2-D Gaussian "
+                                 "N(xy, std_m^2 I)), LocNet's std head scaled on its validation windows")
     return {"input_units": input_units, "window_recipe": window_recipe, "not_heard": not_heard,
             "lstm_state": lstm_state, "output_frame": output_frame}
 
@@ -249,7 +254,8 @@ def export_module(module, meta: dict, out: str | Path, opset: int = DEFAULT_OPSE
     example = random_inputs(B, H, loc.layers, loc.hidden, batch=2, seed=seed, u_max=u_max, zero_state=True)
     name = meta["model"].get("name", "model") if isinstance(meta["model"], dict) else "model"
     doc = (f"blenav cross-phone localizer '{name}' for building {meta.get('building')}: S (batch, {B}, {H}) "
-           f"thesis scale, h0/c0 ({loc.layers}, batch, {loc.hidden}) -> xy (batch, 2) m, h, c")
+           f"thesis scale, h0/c0 ({loc.layers}, batch, {loc.hidden}) -> xy (batch, 2) m, h, c"
+           + (", std_m (batch,) m" if getattr(loc, "std_head", False) else ""))
     path = export_onnx(net, example, out, opset=opset, metadata=props, doc=doc)
     worst = 0.0
     for i, batch in enumerate((1, 3, 5)):  # other batch sizes than traced, random non-zero state

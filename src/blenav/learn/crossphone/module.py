@@ -112,7 +112,10 @@ class CrossPhoneModule(L.LightningModule):
             keys = [k for k in ("S", "S_prev") if k in batch]
             batch = {**batch, **dict(zip(keys, self.augment([batch[k] for k in keys], self.aug_generator)))}
         out = self._log_step(batch, "train")
-        return out["loss"] + self.weights["nll"] * out["nll"] if "nll" in out else out["loss"]
+        if "nll" not in out:
+            return out["loss"]
+        # the optimizer steps on both; "monitored" is the positions' loss the learning curve shows beside val/loss
+        return {"loss": out["loss"] + self.weights["nll"] * out["nll"], "monitored": out["loss"].detach()}
 
     def validation_step(self, batch, batch_idx):
         return self._log_step(batch, "val")["loss"]
@@ -135,13 +138,14 @@ class CrossPhoneModule(L.LightningModule):
         S, xy = (val.tensors[0], val.tensors[-1]) if val is not None and len(val) else (None, None)
         ok = ~torch.isnan(xy).any(dim=1) if xy is not None else None
         if ok is None or not ok.any():
+            self.locnet.std_scale.fill_(1.0)
             return {"fix_std": "uncalibrated (scale 1): no labelled validation windows"}
         was = self.training
         self.eval()
         with torch.no_grad():
             self.locnet.std_scale.fill_(1.0)
-            f, sigma = self.locnet.forward_std(self.translate(S[ok]))
-            r2 = ((f - xy[ok]) ** 2).sum(dim=1) / sigma ** 2
+            f, sigma = self.locnet.forward_std(self.translate(S[ok].to(self.device)))
+            r2 = ((f - xy[ok].to(self.device)) ** 2).sum(dim=1) / sigma ** 2
             c = float(torch.sqrt(r2.mean() / 2.0))
             self.locnet.std_scale.fill_(c)
         self.train(was)
