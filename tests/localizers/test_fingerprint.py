@@ -250,7 +250,7 @@ def test_locnet_fix_std_is_its_own_calibrated_sigma_when_asked(coded, tmp_path):
     std = np.sqrt(est.cov[0, :, 0, 0] - 1.0)  # the head's calibrated sigma (cov_floor_m = 1 m added in quadrature)
     np.testing.assert_allclose(est.cov[0], (std ** 2 + 1.0)[:, None, None] * np.eye(2), rtol=1e-6)
     assert np.all(std > 0) and np.ptp(std) > 0  # one sigma per fix
-    assert rep["fix_std"]["scale"] > 0 and rep["fix_std"]["val_windows"] > 0
+    assert rep["fix_std"]["scale"] > 0 and rep["fix_std"]["windows"] > 0
     with pytest.raises(ValueError, match="std head"):
         FingerprintLocalizer("x", **kw, net_cov="predicted")
     with pytest.raises(ValueError, match="std head"):

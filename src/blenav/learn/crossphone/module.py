@@ -28,18 +28,12 @@ from functools import partial
 import lightning as L
 import torch
 
+from blenav.eval.metrics import std_scale_fit
+
 from ..common.schedule import lr_factor
 from .augment import ReceiverAugment
 from .losses import (gaussian_nll, localization_loss, position_smoothness_loss, ssl_loss, temporal_smoothness_loss,
                      total_loss)
-
-
-def _spearman(a: torch.Tensor, b: torch.Tensor) -> float | None:
-    """Spearman's rank correlation of two (N,) tensors (ties broken by order; None below 2 values)."""
-    if len(a) < 2:
-        return None
-    ra, rb = (torch.argsort(torch.argsort(x)).double() for x in (a, b))
-    return float(torch.corrcoef(torch.stack([ra, rb]))[0, 1])
 
 
 class CrossPhoneModule(L.LightningModule):
@@ -125,11 +119,8 @@ class CrossPhoneModule(L.LightningModule):
 
     def calibrate(self, dm) -> dict:
         """With a std head: set LocNet's ``std_scale`` to the maximum-likelihood scale c of its sigma on the data
-        module's validation windows (2-D isotropic Gaussian errors e: c^2 = mean(|e|^2 / sigma^2) / 2) and return
-        ``{"fix_std": {scale, val_windows, coverage_1sigma, coverage_2sigma, median_std_m, rank_correlation}}``
-        (coverage: the share of validation errors within 1 / 2 calibrated sigma, a 2-D Gaussian holds 39.3 / 86.5 %;
-        rank_correlation: Spearman's between sigma and the error's norm, 0 for a sigma that says nothing of which fix
-        is worse); without validation
+        module's validation windows (:func:`blenav.eval.metrics.std_scale_fit`) and return ``{"fix_std": {model,
+        scale, windows, coverage_1sigma, coverage_2sigma, median_std_m, rank_correlation}}``; without validation
         windows the scale stays 1 and the report says so. {} without a std head. Called by
         :func:`blenav.learn.common.stage.end_stage`."""
         if not self.std_head:
@@ -145,17 +136,12 @@ class CrossPhoneModule(L.LightningModule):
         with torch.no_grad():
             self.locnet.std_scale.fill_(1.0)
             f, sigma = self.locnet.forward_std(self.translate(S[ok].to(self.device)))
-            r2 = ((f - xy[ok].to(self.device)) ** 2).sum(dim=1) / sigma ** 2
-            c = float(torch.sqrt(r2.mean() / 2.0))
-            self.locnet.std_scale.fill_(c)
+            err = (f - xy[ok].to(self.device)).norm(dim=1)
         self.train(was)
-        r = torch.sqrt(r2) / c
+        c, rep = std_scale_fit(err.double().cpu().numpy(), sigma.double().cpu().numpy())
+        self.locnet.std_scale.fill_(c)
         return {"fix_std": {"model": "sigma of LocNet's std head (Gaussian NLL) x scale, the scale fitted by maximum "
-                                     "likelihood on the validation windows", "scale": c, "val_windows": int(ok.sum()),
-                            "coverage_1sigma": float((r <= 1).double().mean()),
-                            "coverage_2sigma": float((r <= 2).double().mean()),
-                            "median_std_m": float(torch.median(sigma) * c),
-                            "rank_correlation": _spearman(sigma, torch.sqrt(r2) * sigma)}}
+                                     "likelihood on the validation windows", **rep}}
 
     def on_train_batch_start(self, batch, batch_idx) -> None:
         if self.stage == "semi":  # the optimizer state restored from the supervised stage carries its lr
