@@ -310,4 +310,23 @@ def test_a_std_head_trains_calibrates_and_exports_its_sigma(dataset, tmp_path):
     loader = OnnxLocalizer(path)  # reads xy (and steps its state) as before, the extra output left alone
     np.testing.assert_allclose(loader.predict_windows(S), xy, atol=TOL)
     np.testing.assert_allclose(loader.step(S[:1]), xy[:1], atol=TOL)
-    assert "std_m" in loader.meta["output_frame"]
+    assert "std_m" in loader.meta["output_frame"] and loader.has_std
+    got_xy, got_std = loader.predict_std(S)
+    np.testing.assert_allclose(got_std, std, rtol=1e-6)
+    assert np.array_equal(np.isnan(got_xy[:, 0]), ~loader.heard(S)) and np.array_equal(np.isnan(got_std), ~loader.heard(S))
+    # blenav-fixes writes each fix's own std (the std column) for such a model; a plain model leaves it empty
+    import shutil
+
+    from blenav.cli.fixes import main as fixes_main
+
+    data = tmp_path / "d"
+    shutil.copytree(dataset, data)
+    sid = Dataset.open(data).session_ids[0]
+    assert fixes_main([str(data), str(path), "--sessions", sid, "--source", "net"]) == 0
+    fx = Dataset.open(data).session(sid).fixes
+    win = real_windows(dataset, meta)
+    ref_xy, ref_std = loader.predict_std(win)
+    ok = np.isfinite(ref_xy).all(axis=1)
+    np.testing.assert_allclose(fx["std"].to_numpy(float), ref_std[ok], rtol=1e-6)
+    assert len(fx) == ok.sum() and (fx["std"] > 0).all()
+    assert not OnnxLocalizer(path).predict_std(win[:0])[0].size

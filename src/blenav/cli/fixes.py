@@ -52,8 +52,10 @@ def _main(argv: list[str] | None) -> int:
         return 1
     total = sum(r["fixes"] for r in report.values())
     silent = sum(r["no_beacon_windows"] for r in report.values())
+    with_std = any(r["std"] for r in report.values())
     print(f"wrote {total} fixes (source {args.source!r}) to {len(report)} session(s); "
-          f"{silent} window(s) without any beacon heard gave no fix")
+          f"{silent} window(s) without any beacon heard gave no fix; std column: "
+          + ("the model's own std per fix (its std head)" if with_std else "empty (the model states none)"))
     return 0
 
 

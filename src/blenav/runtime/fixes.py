@@ -4,7 +4,8 @@
 ``1 / step_hz`` steps, the windowing of :func:`blenav.features.windows.session_windows`) and returns the
 fixes (t s, x y m world) of the windows in which at least one beacon was heard; :func:`write_model_fixes`
 does so for sessions of a dataset and merges them into each session's ``fixes.csv`` under one
-``source`` (rows of other sources are kept; see :func:`blenav.data.writer.write_fixes`). The particle
+``source``, with the model's own std per fix in the ``std`` column when the graph states one (``std_m``: a LocNet with a
+std head, calibrated on its validation walks; empty otherwise) (rows of other sources are kept; see :func:`blenav.data.writer.write_fixes`). The particle
 filter reads them with :class:`blenav.filters.measurement.FixLikelihood` (eq. 3.9, Roy).
 
 :func:`calibrate_model_fixes` measures, on labelled sessions, how much a fix is worth as a measurement:
@@ -31,19 +32,26 @@ log = logging.getLogger("blenav.runtime.fixes")
 
 
 def _predict_windows(model: OnnxLocalizer, session):
-    """(the session's windows with the model's window settings, predicted xy (W, 2); NaN rows: nothing heard)."""
+    """(the session's windows with the model's window settings, predicted xy (W, 2), std (W,) m or None; NaN rows:
+    nothing heard)."""
     w = model.meta["window"]
     wcfg = WindowConfig(history=int(w["history"]), step_hz=float(w["step_hz"]), offset_db=float(w["offset_db"]),
                         floor_u=float(w["floor_u"]), beacon_subset=model.beacon_subset)
     win = session_windows(session, model.beacons, wcfg)
-    return win, model.predict(win.S)
+    return (win, *model.predict_std(win.S))
+
+
+def _fixes(model: OnnxLocalizer, session):
+    """(t (F,), xy (F, 2), std (F,) m or None, number of windows without any beacon heard) for one session."""
+    win, xy, std = _predict_windows(model, session)
+    ok = np.isfinite(xy).all(axis=1)
+    return win.t[ok], xy[ok], None if std is None else std[ok], int((~ok).sum())
 
 
 def session_fixes(model: OnnxLocalizer, session) -> tuple[np.ndarray, np.ndarray, int]:
     """(t (F,), xy (F, 2), number of windows without any beacon heard) for one session."""
-    win, xy = _predict_windows(model, session)
-    ok = np.isfinite(xy).all(axis=1)
-    return win.t[ok], xy[ok], int((~ok).sum())
+    t, xy, _, silent = _fixes(model, session)
+    return t, xy, silent
 
 
 def fix_error_stats(errors: list[np.ndarray], rho_stop: float = 0.05, max_lag: int = 600) -> dict:
@@ -93,7 +101,7 @@ def calibrate_model_fixes(dataset, model_path: str | Path, session_ids=None) -> 
             trained = set(seen) if seen is not None else None
         if not s.labelled:
             continue
-        win, xy = _predict_windows(model, s)
+        win, xy, _ = _predict_windows(model, s)
         ok = np.isfinite(xy).all(axis=1) & np.isfinite(win.xy).all(axis=1)
         errors.append(xy[ok] - win.xy[ok])
         used.append(s.id)
@@ -107,15 +115,16 @@ def calibrate_model_fixes(dataset, model_path: str | Path, session_ids=None) -> 
 
 def write_model_fixes(dataset, model_path: str | Path, source: str, session_ids=None) -> dict[str, dict]:
     """Write fixes for the chosen sessions (default: all) of ``dataset``; returns per session
-    {"fixes": count, "no_beacon_windows": count, "path": fixes.csv}. The model must match the building."""
+    {"fixes": count, "no_beacon_windows": count, "path": fixes.csv, "std": whether the rows carry the model's std}.
+    The model must match the building."""
     from blenav.data.writer import write_fixes
 
     report = {}
     for s, model in _sessions_with_model(dataset, model_path, session_ids):
-        t, xy, silent = session_fixes(model, s)
+        t, xy, std, silent = _fixes(model, s)
         if len(t) == 0:
-            report[s.id] = {"fixes": 0, "no_beacon_windows": silent, "path": None}
+            report[s.id] = {"fixes": 0, "no_beacon_windows": silent, "path": None, "std": std is not None}
             continue
-        path = write_fixes(s.root, t, xy, source=source)
-        report[s.id] = {"fixes": int(len(t)), "no_beacon_windows": silent, "path": str(path)}
+        path = write_fixes(s.root, t, xy, std, source=source)
+        report[s.id] = {"fixes": int(len(t)), "no_beacon_windows": silent, "path": str(path), "std": std is not None}
     return report

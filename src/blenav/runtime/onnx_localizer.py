@@ -79,16 +79,29 @@ class LocalizerSession:
     def _run(self, S: np.ndarray, h0: np.ndarray, c0: np.ndarray):
         return self._sess.run(["xy", "h", "c"], {"S": S, "h0": h0, "c0": c0})  # by name: a std head adds std_m
 
+    @property
+    def has_std(self) -> bool:
+        """Whether the graph states a std per fix (output ``std_m``: a LocNet with a std head, issue 29)."""
+        return "std_m" in {o.name for o in self._sess.get_outputs()}
+
     def predict_windows(self, S: np.ndarray) -> np.ndarray:
         """(K, B, H) float32 windows on the thesis scale (not checked) -> (K, 2) m, each from a zero state; NaN rows
         where no beacon was heard."""
+        return self.predict_windows_std(S, std=False)[0]
+
+    def predict_windows_std(self, S: np.ndarray, std: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`predict_windows` and the graph's std per fix (K,) m (NaN where no beacon was heard; None for a
+        graph without ``std_m`` or with ``std`` false)."""
         S = np.ascontiguousarray(S, dtype=np.float32)
+        names = ["xy", "std_m"] if std and self.has_std else ["xy"]
         if len(S) == 0:
-            return np.zeros((0, 2))
+            return np.zeros((0, 2)), np.zeros(0) if len(names) > 1 else None
         z = np.zeros((self.layers, len(S), self.hidden), np.float32)  # h0 = c0 = 0, read-only inputs
-        xy = self._sess.run(["xy"], {"S": S, "h0": z, "c0": z})[0].astype(float)
-        xy[~self.heard(S)] = np.nan
-        return xy
+        out = [a.astype(float) for a in self._sess.run(names, {"S": S, "h0": z, "c0": z})]
+        silent = ~self.heard(S)
+        for a in out:
+            a[silent] = np.nan
+        return out[0], out[1] if len(out) > 1 else None
 
 
 class OnnxLocalizer(LocalizerSession):
@@ -168,6 +181,10 @@ class OnnxLocalizer(LocalizerSession):
     def predict(self, S) -> np.ndarray:
         """(K, B, H) windows -> (K, 2) metres, each from a zero state; NaN rows where no beacon was heard."""
         return self.predict_windows(self._check(S, "predict"))
+
+    def predict_std(self, S) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`predict` and the graph's std per fix (K,) m (:meth:`predict_windows_std`; None without one)."""
+        return self.predict_windows_std(self._check(S, "predict_std"))
 
     def step(self, S) -> np.ndarray:
         """One window (1, B, H) (or (B, H)) -> (1, 2) metres, continuing the state of the previous call.
