@@ -173,7 +173,8 @@ def floor_markdown(results: dict, floor: str, command: str, rows: dict) -> str:
                   "No fused row is told where a walk starts. 'inside 1 / 2 sigma': share of the test waypoints whose "
                   "error of the fix (interpolated at the waypoint time) is within 1 / 2 of its stated std (a 2-D "
                   "Gaussian: 39 % / 86 %); 'settles': share of the walks whose error stays within 5 m from some "
-                  "waypoint on, and the median time from the walk's first waypoint to that one.", "", fused, ""]
+                  "waypoint on, and the median time from the walk's first waypoint to that one. Rows 'own': a "
+                  "fingerprint row's own fixes and their stated std.", "", fused, ""]
     lines += ["## Verdicts (mean error)", ""] + [f"- {v}" for v in verdicts(results, rows)]
     return "\n".join(lines) + "\n"
 
@@ -197,8 +198,9 @@ def write_tables(out_root: str, summary_md: str, rows: dict, command: str = "mak
     parts = [f"Mean / p90 error (m) at the test walks' waypoints, per floor (`{command}`):", "", table, ""]
     fused = fused_table(by_floor, rows)
     if fused:
-        parts += ["The fused rows' fixes: share of the test waypoints inside their stated 1 / 2 sigma (39 % / 86 % for "
-                  "a calibrated 2-D Gaussian), and how long the rows take to stay within 5 m (no start given):", "",
+        parts += ["The fused rows' fixes (and, 'own', every fingerprint row's): share of the test waypoints inside their "
+                  "stated 1 / 2 sigma (39 % / 86 % for a calibrated 2-D Gaussian), and how long the fused rows take to "
+                  "stay within 5 m (no start given):", "",
                   fused, ""]
     if fa is not None:
         parts += [f"Floor classifier (which floor a test walk is on, from its scans; all three floors in one dataset): "
