@@ -220,6 +220,7 @@ def test_model_fixes_feed_the_particle_filter(dataset, runs, tmp_path):
     assert fixes_main([str(data), str(runs["transnet_locnet"][1]), "--sessions", sid]) == 0
     fx = Dataset.open(data).session(sid).fixes
     assert len(fx) > 30 and set(fx["source"]) == {"TransNet+LocNet"} and np.isfinite(fx[["x", "y"]].to_numpy()).all()
+    assert fx["std"].isna().all()  # a model without a std head states none
     assert not [i for i in validate(data) if i.severity == "error"]
     res = evaluate(compose("eval", "experiment=fused_003", f"data={data}", f"sessions=[{sid}]", "runs=2",
                            f"out={tmp_path / 'o'}", "plots=false", "progress=false", "filter.n_particles=200"))
@@ -324,6 +325,7 @@ def test_a_std_head_trains_calibrates_and_exports_its_sigma(dataset, tmp_path):
     sid = Dataset.open(data).session_ids[0]
     assert fixes_main([str(data), str(path), "--sessions", sid, "--source", "net"]) == 0
     fx = Dataset.open(data).session(sid).fixes
+    fx = fx[fx["source"] == "net"]
     win = real_windows(dataset, meta)
     ref_xy, ref_std = loader.predict_std(win)
     ok = np.isfinite(ref_xy).all(axis=1)

@@ -10,7 +10,7 @@ from scipy.stats import multivariate_normal, spearmanr
 from torch.utils.data import TensorDataset
 
 from blenav.learn.crossphone.losses import gaussian_nll
-from blenav.eval.metrics import std_scale_fit
+from blenav.learn.common.calibration import std_scale_fit
 from blenav.learn.crossphone.module import CrossPhoneModule
 from blenav.models import LocNet
 from helpers import seeded
@@ -115,7 +115,18 @@ def test_calibration_is_the_maximum_likelihood_scale_on_the_validation_windows()
     assert float(m.locnet.std_scale) == pytest.approx(rep["scale"])  # calibrate left the scale set
     assert "uncalibrated" in _module().calibrate(_DM(S[:0], xy[:0]))["fix_std"]
     assert _module(std_head=False).calibrate(_DM(S, xy)) == {}
+
+
+def test_the_scale_fit_never_returns_a_non_finite_number():
+    """Rows without a finite error and a positive std are left out; a constant column has no rank correlation
+    (None, not NaN); without a finite positive scale the scale is 1 and the report says uncalibrated."""
+    c, rep = std_scale_fit(np.array([1.0, 2.0, np.nan, 3.0, 4.0]), np.array([1.0, 0.0, 1.0, np.inf, 2.0]))
+    assert rep["windows"] == 2 and c == pytest.approx(np.sqrt((1 + 4) / 2 / 2))
     assert std_scale_fit(np.ones(1), np.ones(1))[1]["rank_correlation"] is None
+    assert std_scale_fit(np.ones(3), np.array([1.0, 2.0, 3.0]))[1]["rank_correlation"] is None
+    for err, sd in ((np.zeros(3), np.ones(3)), (np.ones(2), np.zeros(2)), (np.zeros(0), np.zeros(0))):
+        c, rep = std_scale_fit(err, sd)
+        assert c == 1.0 and set(rep) == {"uncalibrated"}
 
 
 @pytest.mark.onnx

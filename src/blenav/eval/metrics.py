@@ -173,22 +173,6 @@ def fix_coverage_counts(t: np.ndarray, xy: np.ndarray, std: np.ndarray, gt_t: np
     return int((e <= sd).sum()), int((e <= 2.0 * sd).sum()), int(len(e))
 
 
-def std_scale_fit(err_m: np.ndarray, sigma_m: np.ndarray) -> tuple[float, dict]:
-    """The maximum-likelihood scale c of stated stds sigma_m (N,) m for 2-D errors of norm err_m (N,) m, each error
-    N(0, (c sigma)^2 I): c^2 = mean(err^2 / sigma^2) / 2; and what the scaled std says about these errors:
-    ``{scale, windows, coverage_1sigma, coverage_2sigma, median_std_m, rank_correlation}`` (coverage: the share within
-    1 / 2 scaled sigma, a 2-D Gaussian holds 39.3 / 86.5 %; rank_correlation: Spearman's between sigma and the
-    error, 0 for a sigma that says nothing of which fix is worse, None below 2 errors)."""
-    err, sigma = np.asarray(err_m, float), np.asarray(sigma_m, float)
-    r2 = (err / sigma) ** 2
-    c = float(np.sqrt(r2.mean() / 2.0))
-    r = np.sqrt(r2) / c
-    rho = float(stats.spearmanr(sigma, err)[0]) if len(err) > 1 else None
-    return c, {"scale": c, "windows": int(len(err)), "coverage_1sigma": float(np.mean(r <= 1.0)),
-               "coverage_2sigma": float(np.mean(r <= 2.0)), "median_std_m": float(np.median(sigma) * c),
-               "rank_correlation": rho}
-
-
 #: error (m) below which a track counts as converged (:func:`convergence_times`)
 CONVERGED_M = 5.0
 

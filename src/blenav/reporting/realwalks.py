@@ -137,7 +137,7 @@ def fused_table(results_by_floor: dict, rows: dict) -> str | None:
              "|---|---|---|---|---|---|---|"]
     n = 0
     for floor, r in results_by_floor.items():
-        for row in rows["fused"] + rows["fingerprint"]:
+        for row in dict.fromkeys(rows["fused"] + rows["fingerprint"]):  # in order, each once
             m = r["methods"].get(row) or {}
             for role, c in (m.get("fix_coverage") or {}).items():
                 conv = m.get("convergence") or {}

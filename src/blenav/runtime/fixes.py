@@ -42,10 +42,19 @@ def _predict_windows(model: OnnxLocalizer, session):
 
 
 def _fixes(model: OnnxLocalizer, session):
-    """(t (F,), xy (F, 2), std (F,) m or None, number of windows without any beacon heard) for one session."""
+    """(t (F,), xy (F, 2), std (F,) m or None, number of windows without any beacon heard) for one session; a std
+    that is not a finite positive number (a float32 overflow of the graph) is written as unknown (NaN), counted in the
+    log."""
     win, xy, std = _predict_windows(model, session)
     ok = np.isfinite(xy).all(axis=1)
-    return win.t[ok], xy[ok], None if std is None else std[ok], int((~ok).sum())
+    if std is not None:
+        std = std[ok]
+        bad = ~(np.isfinite(std) & (std > 0))
+        if bad.any():
+            log.warning("session %s: %d of %d fixes have no finite positive std from %s; written as unknown",
+                        session.id, int(bad.sum()), len(std), model.path)
+            std = np.where(bad, np.nan, std)
+    return win.t[ok], xy[ok], std, int((~ok).sum())
 
 
 def session_fixes(model: OnnxLocalizer, session) -> tuple[np.ndarray, np.ndarray, int]:

@@ -39,8 +39,8 @@ def _examples(ids: list[str]) -> str:
 
 class LocalizerSession:
     """The graph of an exported localizer in an onnxruntime session ``sess`` (inputs S (K, B, H), h0, c0 (layers, K,
-    hidden); outputs xy (K, 2) m, h, c, and std_m (K,) m for a LocNet with a std head, which it does not read) with
-    its decoded metadata ``meta``: the sizes B, H, layers and hidden read
+    hidden); outputs xy (K, 2) m, h, c, and std_m (K,) m for a LocNet with a std head: :meth:`predict_windows_std`)
+    with its decoded metadata ``meta``: the sizes B, H, layers and hidden read
     from the graph, and :meth:`predict_windows` from a zero LSTM state. What :class:`OnnxLocalizer` (one exported
     file) and a runtime bundle's graph (:class:`blenav.runtime.bundle.graphs.LocalizerGraph`) share."""
 
@@ -49,6 +49,7 @@ class LocalizerSession:
         s, h = sess.get_inputs()[0].shape, sess.get_inputs()[1].shape
         self.n_beacons, self.history = int(s[1]), int(s[2])
         self.layers, self.hidden = int(h[0]), int(h[2])
+        self._has_std = "std_m" in {o.name for o in sess.get_outputs()}
         if self.n_beacons != len(self.beacons):
             raise ValueError(f"{self.path}: graph reads {self.n_beacons} beacons, metadata lists {len(self.beacons)}")
 
@@ -82,7 +83,7 @@ class LocalizerSession:
     @property
     def has_std(self) -> bool:
         """Whether the graph states a std per fix (output ``std_m``: a LocNet with a std head, issue 29)."""
-        return "std_m" in {o.name for o in self._sess.get_outputs()}
+        return self._has_std
 
     def predict_windows(self, S: np.ndarray) -> np.ndarray:
         """(K, B, H) float32 windows on the thesis scale (not checked) -> (K, 2) m, each from a zero state; NaN rows

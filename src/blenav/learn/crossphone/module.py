@@ -28,8 +28,8 @@ from functools import partial
 import lightning as L
 import torch
 
-from blenav.eval.metrics import std_scale_fit
 
+from ..common.calibration import std_scale_fit
 from ..common.schedule import lr_factor
 from .augment import ReceiverAugment
 from .losses import (gaussian_nll, localization_loss, position_smoothness_loss, ssl_loss, temporal_smoothness_loss,
@@ -119,8 +119,9 @@ class CrossPhoneModule(L.LightningModule):
 
     def calibrate(self, dm) -> dict:
         """With a std head: set LocNet's ``std_scale`` to the maximum-likelihood scale c of its sigma on the data
-        module's validation windows (:func:`blenav.eval.metrics.std_scale_fit`) and return ``{"fix_std": {model,
-        scale, windows, coverage_1sigma, coverage_2sigma, median_std_m, rank_correlation}}``; without validation
+        module's validation windows (:func:`blenav.learn.common.calibration.std_scale_fit`) and return
+        ``{"fix_std": {model, scale, windows, coverage_1sigma, coverage_2sigma, median_std_m, rank_correlation}}``;
+        without validation
         windows the scale stays 1 and the report says so. {} without a std head. Called by
         :func:`blenav.learn.common.stage.end_stage`."""
         if not self.std_head:
@@ -140,6 +141,8 @@ class CrossPhoneModule(L.LightningModule):
         self.train(was)
         c, rep = std_scale_fit(err.double().cpu().numpy(), sigma.double().cpu().numpy())
         self.locnet.std_scale.fill_(c)
+        if "uncalibrated" in rep:
+            return {"fix_std": f"uncalibrated ({rep['uncalibrated']})"}
         return {"fix_std": {"model": "sigma of LocNet's std head (Gaussian NLL) x scale, the scale fitted by maximum "
                                      "likelihood on the validation windows", **rep}}
 
