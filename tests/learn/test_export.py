@@ -55,12 +55,17 @@ def runs(dataset, tmp_path_factory):
     return out
 
 
-def real_windows(dataset, meta) -> np.ndarray:
-    """(K, B, H) thesis-scale windows of the first session, in the model's beacon order."""
+def first_session_windows(dataset, meta):
+    """The first session's windows (S (K, B, H) thesis scale, xy (K, 2) truth, ...) in the model's beacon order."""
     w = meta["window"]
     s = next(Dataset.open(dataset).sessions())
     cfg = WindowConfig(history=w["history"], step_hz=w["step_hz"], offset_db=w["offset_db"], floor_u=w["floor_u"])
-    return session_windows(s, meta["beacons"], cfg).S
+    return session_windows(s, meta["beacons"], cfg)
+
+
+def real_windows(dataset, meta) -> np.ndarray:
+    """(K, B, H) thesis-scale windows of the first session, in the model's beacon order."""
+    return first_session_windows(dataset, meta).S
 
 
 def torch_state_step(module, meta, S: np.ndarray, h0, c0):
@@ -332,3 +337,12 @@ def test_a_std_head_trains_calibrates_and_exports_its_sigma(dataset, tmp_path):
     np.testing.assert_allclose(fx["std"].to_numpy(float), ref_std[ok], rtol=1e-6)
     assert len(fx) == ok.sum() and (fx["std"] > 0).all()
     assert not OnnxLocalizer(path).predict_std(win[:0])[0].size
+    # --calibrate says how the stated std covers labelled walks' errors
+    from blenav.runtime.fixes import calibrate_model_fixes
+
+    st = calibrate_model_fixes(Dataset.open(dataset), path, [sid])["stated_std"]
+    ok = np.isfinite(ref_xy).all(axis=1) & np.isfinite(win_xy := first_session_windows(dataset, meta).xy).all(axis=1)
+    e = np.linalg.norm(ref_xy[ok] - win_xy[ok], axis=1)
+    assert st["fixes"] == ok.sum() and st["coverage_1sigma"] == pytest.approx(np.mean(e <= ref_std[ok]))
+    assert st["coverage_2sigma"] == pytest.approx(np.mean(e <= 2 * ref_std[ok]))
+    assert st["ml_scale"] == pytest.approx(np.sqrt(np.mean((e / ref_std[ok]) ** 2) / 2), rel=1e-6)

@@ -10,7 +10,7 @@ from scipy.stats import multivariate_normal, spearmanr
 from torch.utils.data import TensorDataset
 
 from blenav.learn.crossphone.losses import gaussian_nll
-from blenav.learn.common.calibration import std_scale_fit
+from blenav.runtime.calibration import std_scale_fit
 from blenav.learn.crossphone.module import CrossPhoneModule
 from blenav.models import LocNet
 from helpers import seeded

@@ -6,9 +6,9 @@ rows of other sources. A particle filter then uses them through the ``fix_003`` 
 (``blenav-eval experiment=fused_003 ...``).
 
 ``--calibrate`` writes nothing: on labelled sessions it prints the fixes' error statistics
-(:func:`blenav.runtime.fixes.calibrate_model_fixes`) and, as its last line, ``sigma_eff_m=VALUE``, the sigma
-to give the fix likelihood (``...measurements.fix.sigma_m=VALUE``) so that correlated fixes are not
-over-counted.
+(:func:`blenav.runtime.fixes.calibrate_model_fixes`; for a model with a std head also how its own std covers the
+errors) and, as its last line, ``sigma_eff_m=VALUE``, the sigma to give the fix likelihood
+(``...measurements.fix.sigma_m=VALUE``) so that correlated fixes are not over-counted.
 """
 
 from __future__ import annotations
@@ -44,6 +44,13 @@ def _main(argv: list[str] | None) -> int:
             if st.get("trained_on"):
                 print(f"blenav-fixes: warning: session(s) {', '.join(st['trained_on'])} trained the model: their "
                       f"errors understate what unseen walks give; calibrate on walks it never saw", file=sys.stderr)
+            ss = st.get("stated_std")
+            if ss:
+                rho = "--" if ss["rank_correlation"] is None else f"{ss['rank_correlation']:.2f}"
+                scale = "--" if ss["ml_scale"] is None else f"{ss['ml_scale']:.2f}"
+                print(f"the model's own std (std_m) on {ss['fixes']} fixes: {100 * ss['coverage_1sigma']:.0f} % within "
+                      f"1 sigma, {100 * ss['coverage_2sigma']:.0f} % within 2 (a calibrated 2-D Gaussian: 39 / 86 %); "
+                      f"scale that would calibrate it here {scale} (1: calibrated), rank correlation with the error {rho}")
             print(f"sigma_eff_m={st['sigma_eff_m']:.2f}")
             return 0
         report = write_model_fixes(ds, args.model, args.source, ids)

@@ -1,8 +1,7 @@
 """What the learned models' training shares: the Lightning run (:mod:`.trainer`: seeding, loggers, OUT/last.ckpt,
 resuming, learning curves, the step-budget callback), the step budget and its learning-rate schedule
 (:mod:`.budget`, :mod:`.schedule`), reading checkpoints safely (:mod:`.checkpoint`), tracing to ONNX
-(:mod:`.onnx_export`), the training report (:mod:`.report`), a stated std's calibration (:mod:`.calibration`) and a
-sweep's bookkeeping (:mod:`.sweep`). It knows no
+(:mod:`.onnx_export`), the training report (:mod:`.report`) and a sweep's bookkeeping (:mod:`.sweep`). It knows no
 model: the model packages (:mod:`blenav.learn.crossphone`, :mod:`blenav.learn.mapprior`,
 :mod:`blenav.learn.fingerprint`) import it, never the reverse. Nothing is imported here.
 

@@ -28,8 +28,8 @@ from functools import partial
 import lightning as L
 import torch
 
+from blenav.runtime.calibration import std_scale_fit
 
-from ..common.calibration import std_scale_fit
 from ..common.schedule import lr_factor
 from .augment import ReceiverAugment
 from .losses import (gaussian_nll, localization_loss, position_smoothness_loss, ssl_loss, temporal_smoothness_loss,
@@ -119,7 +119,7 @@ class CrossPhoneModule(L.LightningModule):
 
     def calibrate(self, dm) -> dict:
         """With a std head: set LocNet's ``std_scale`` to the maximum-likelihood scale c of its sigma on the data
-        module's validation windows (:func:`blenav.learn.common.calibration.std_scale_fit`) and return
+        module's validation windows (:func:`blenav.runtime.calibration.std_scale_fit`) and return
         ``{"fix_std": {model, scale, windows, coverage_1sigma, coverage_2sigma, median_std_m, rank_correlation}}``;
         without validation
         windows the scale stays 1 and the report says so. {} without a std head. Called by

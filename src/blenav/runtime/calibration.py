@@ -1,6 +1,7 @@
 """A stated std's calibration on held-out errors (numpy only): the maximum-likelihood scale of per-fix stds and what
 the scaled std says about the errors. LocNet's std head is scaled with it at a training stage's end
-(:meth:`blenav.learn.crossphone.module.CrossPhoneModule.calibrate`)."""
+(:meth:`blenav.learn.crossphone.module.CrossPhoneModule.calibrate`), and ``blenav-fixes --calibrate`` reports with
+it how an exported model's stated std fits labelled walks (:func:`blenav.runtime.fixes.calibrate_model_fixes`)."""
 
 from __future__ import annotations
 
