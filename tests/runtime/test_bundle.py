@@ -413,3 +413,39 @@ print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "
     again.push_imu(float(imu0.t), imu0[["ax", "ay", "az"]].to_numpy(float), imu0[["gx", "gy", "gz"]].to_numpy(float))
     with pytest.raises(ValueError, match="push one or the other"):  # the stream's odometry is the bundle's now
         again.push_odometry(float(imu0.t) + 0.1, [0.0, 0.0])
+
+
+def test_a_std_head_bundle_feeds_each_live_fix_with_its_own_std(made, tmp_path):
+    """Issue 29: the bundle of a LocNet with a std head hands each live fix the graph's own std (std_m), the same
+    numbers the graph gives on the session's windows; a plain model's fixes carry none (the filter's sigma_m)."""
+    from blenav.features.windows import WindowConfig, session_windows
+    from blenav.filters.online import replay
+    from blenav.runtime.bundle.windows import WindowFixer
+
+    train(compose("train", "model=locnet", f"data={made['data']}", f"out={tmp_path / 'loc'}", "data.batch_size=32",
+                  "model.lr=3e-3", "trainer.enable_progress_bar=false", "trainer.max_epochs=1",
+                  "model.locnet.hidden=16", "model.locnet.fc_hidden=8", "+model.locnet.std_head=true"))
+    export_bundle(compose("export", "bundle=true", f"ckpt={tmp_path / 'loc' / 'last.ckpt'}", f"out={tmp_path / 'B'}",
+                          f"data={made['data']}", "variants=false", "eval_sessions=1"))
+    s = Dataset.open(made["data"]).session(sorted(Dataset.open(made["data"]).session_ids)[1])
+
+    def live_fixes(graph):
+        fixer, out = WindowFixer(graph), []
+        for ev in replay(s):
+            if ev[0] == "rssi":
+                out += fixer.advance(ev[1])
+                fixer.add(ev[1], ev[2], ev[3])
+        return out + fixer.flush()
+
+    g = Bundle.open(tmp_path / "B").graph
+    got = np.array(live_fixes(g), dtype=float)  # (F, 4): t, x, y, std
+    w = g.meta["window"]
+    win = session_windows(s, g.beacons, WindowConfig(history=int(w["history"]), step_hz=float(w["step_hz"]),
+                                                     offset_db=float(w["offset_db"]), floor_u=float(w["floor_u"])))
+    xy, std = g.predict_windows_std(win.S)
+    ok = np.isfinite(xy).all(axis=1)
+    assert g.has_std and len(got) == ok.sum() > 10
+    np.testing.assert_allclose(got[:, 3], std[ok], rtol=1e-5)
+    np.testing.assert_allclose(got[:, 1:3], xy[ok], atol=1e-4)
+    plain = live_fixes(Bundle.open(made["bundle"]).graph)
+    assert plain and all(f[3] is None for f in plain)

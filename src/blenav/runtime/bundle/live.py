@@ -128,9 +128,9 @@ class BundleLocalizer:
         if ev[0] != "mag" and self._t_start is None:
             self._t_start = t
         out = []
-        for tf, x, y in self.fixer.advance(t):
+        for tf, x, y, sd in self.fixer.advance(t):
             self.fixes.append((tf, x, y))
-            out += self._feed(("fix", tf, x, y, None, FIX_SOURCE))
+            out += self._feed(("fix", tf, x, y, sd, FIX_SOURCE))
         if ev[0] == "rssi":
             self.fixer.add(t, ev[2], ev[3])
         return out + self._feed(ev)
@@ -187,9 +187,9 @@ class BundleLocalizer:
     def close(self, t_end: float) -> list[TrackPoint]:
         """End of the data at ``t_end``: the last fix, then every step that ends by then (or by that fix)."""
         out = self._all(self._lio.close()) if self._lio is not None else []
-        for tf, x, y in self.fixer.flush():
+        for tf, x, y, sd in self.fixer.flush():
             self.fixes.append((tf, x, y))
-            out += self._feed(("fix", tf, x, y, None, FIX_SOURCE))
+            out += self._feed(("fix", tf, x, y, sd, FIX_SOURCE))
             t_end = max(t_end, tf)
         if self._online is None:
             if not self._pending:

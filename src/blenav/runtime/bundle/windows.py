@@ -26,7 +26,8 @@ class WindowFixer:
     :func:`blenav.features.windows.session_windows` (``steps: time``): step k = floor((t - t0) step_hz) from the
     first packet t0; per step and beacon the mean of u; the window of the last H steps ends at t0 + (k + 1) / step_hz.
 
-    :meth:`advance` (t) closes the steps that end at or before ``t`` and returns their fixes (t, x, y) (windows whose
+    :meth:`advance` (t) closes the steps that end at or before ``t`` and returns their fixes (t, x, y, std) (std: the
+    graph's own std per fix in m, ``std_m`` of a LocNet with a std head, else None; windows whose
     prediction is not finite give none; a jump of more than :data:`MAX_GAP_STEPS` steps is a ValueError); :meth:`add` a packet; :meth:`flush` closes the open step at the end of the data."""
 
     def __init__(self, graph: LocalizerGraph):
@@ -59,10 +60,12 @@ class WindowFixer:
             return None
         self.windows += 1
         S = np.stack(self.steps, axis=1)[None].astype(np.float32)  # (1, B, H), oldest step first
-        xy = self.graph.predict(S)[0]
+        xy, std = self.graph.predict_windows_std(S)
+        xy = xy[0]
         if not np.isfinite(xy).all():
             return None
-        return (self.t0 + (k + 1) / self.hz, float(xy[0]), float(xy[1]))
+        sd = float(std[0]) if std is not None and np.isfinite(std[0]) and std[0] > 0 else None
+        return (self.t0 + (k + 1) / self.hz, float(xy[0]), float(xy[1]), sd)
 
     def advance(self, t: float) -> list[tuple]:
         if self.t0 is None:
