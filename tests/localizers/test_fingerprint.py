@@ -257,6 +257,43 @@ def test_locnet_fix_std_is_its_own_calibrated_sigma_when_asked(coded, tmp_path):
         FingerprintLocalizer("x", net_cov="predicted")  # a KNN has none
 
 
+def test_locnet_fix_std_calibrated_on_the_head_and_the_distance_to_the_survey(coded, tmp_path):
+    """net_cov: calibrated (issue 29): log std = c0 + c1 log(1 + sigma) + c2 d1 of the std head's sigma and the
+    window's cosine signal distance to the windows the network trained on, fitted on the validation walk; the
+    positions stay the network's."""
+    from blenav.localizers import RunInputs
+    from blenav.localizers import knn as KNN
+
+    kw = dict(model="locnet", val_fraction=0.5, seed=3, training=training_node(), net={"locnet": {"std_head": True}},
+              trainer={"budget": {"max_steps": 20, "val_every_steps": 5, "warmup_steps": 2}})
+    walks = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")]
+    loc = FingerprintLocalizer("LocNet-WiFi", **kw, net_cov="calibrated")
+    rep = loc.fit(walks, RunInputs(out=tmp_path / "a"))["floors"]["mall/F1"]
+    ref = FingerprintLocalizer("LocNet-WiFi", **kw, net_cov="predicted")
+    ref.fit(walks, RunInputs(out=tmp_path / "b"))
+    s = coded.session("mall_F1_walkC")
+    est, plain = loc.run(s, 1, seed=0), ref.run(s, 1, seed=0)
+    np.testing.assert_array_equal(est.position, plain.position)
+    fs = rep["fix_std"]
+    assert len(fs["c"]) == 3 and fs["windows"] > 0 and 0 <= fs["coverage_1sigma"] <= fs["coverage_2sigma"] <= 1
+    # the std by hand: the head's sigma (the predicted row's, less its floor) and d1 to the training walk's windows
+    fm = loc.floors["mall/F1"]
+    from blenav.learn.fingerprint.train import split_walks
+
+    train = walks[int(np.flatnonzero(~split_walks(np.array([0, 1]), 0.5, 3))[0])]
+    tw, _ = FP.label_windows(train, FP.session_windows(train, fm.columns, loc.cfg))
+    keep = ~np.isnan(tw.xy).any(axis=1) & tw.heard  # the windows it trained on: labelled, something heard
+    X = KNN.represent(tw.S[keep], "cosine", np.zeros(len(fm.columns), bool), 1.0, loc.cfg.fill_dbm)
+    w = FP.session_windows(s, fm.columns, loc.cfg)
+    Q = KNN.represent(w.S[w.heard], "cosine", np.zeros(len(fm.columns), bool), 1.0, loc.cfg.fill_dbm)
+    d1 = np.sqrt(KNN.neighbours(Q, X, 1)[1][:, 0])
+    sigma = np.sqrt(plain.cov[0, :, 0, 0] - 1.0)
+    sd = KNN.StdModel(tuple(fs["c"])).std(sigma, d1)
+    np.testing.assert_allclose(est.cov[0, :, 0, 0], sd ** 2 + 1.0, rtol=1e-6)
+    with pytest.raises(ValueError, match="std head"):
+        FingerprintLocalizer("x", model="locnet", training=training_node(), net_cov="calibrated")
+
+
 def test_named_train_walks_through_the_harness(tmp_path):
     """split: {train: [ids]}: those walks train the fingerprint rows and are not scored; the others are."""
     d = write_floor(tmp_path / "raw")

@@ -25,7 +25,7 @@ def test_defaults_fingerprint_yaml_and_realwalks():
     head on for its networks; cv: {} is CV_GRID."""
     m = compose("eval", "experiment=realwalks").methods
     for name in ("locnet_wifi", "transnet_wifi", "net_both"):
-        assert m[name].cv is None and m[name].net_cov == "predicted" and m[name].net.locnet.std_head, name
+        assert m[name].cv is None and m[name].net_cov == "calibrated" and m[name].net.locnet.std_head, name
     assert compose("eval", "experiment=mapfusion_002", "+localizer@methods.n=fingerprint").methods.n.net_cov == "none"
     for name in ("locnet_wifi", "transnet_wifi"):
         assert (m[name].wifi_max_age_s, m[name].wifi_age_ref, m[name].wifi_time) == (5.0, "delivery", "delivery")

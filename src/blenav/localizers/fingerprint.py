@@ -45,7 +45,9 @@ by default, with ``net_cov: validation`` (opt-in) their RMS error per axis on th
 ``cov_floor_m``^2, the same for every fix (none when no walk was held out for validation); with ``net_cov:
 predicted`` (a LocNet with its std head, ``net: {locnet: {std_head: true}}``, issue 29) each fix's own sigma, trained
 with the Gaussian negative log-likelihood and scaled on the validation walks (:mod:`blenav.models.locnet`), squared,
-plus ``cov_floor_m``^2. Its std is what the fused
+plus ``cov_floor_m``^2; with ``net_cov: calibrated`` (the default of experiment=realwalks' learned rows) a std of
+:class:`~blenav.localizers.knn.StdModel`'s form from that sigma and the window's signal distance to the windows the
+network trained on, fitted on the validation walks' errors (:meth:`FingerprintLocalizer._net_std_model`). Its std is what the fused
 filters may use (:mod:`blenav.eval.fixes`), so it can change a fused row fed by a network's fixes.
 
 **Issue 29** (reading scans the way they were heard; KNN done well): WiFi steps are the scans at the times their
@@ -79,6 +81,7 @@ from pathlib import Path
 import numpy as np
 
 from blenav.errors import MissingStream
+from blenav.runtime.calibration import std_scale_fit
 from blenav.features import fingerprints as FP
 
 from . import knn as KNN
@@ -91,7 +94,7 @@ CV_GRID = {"folds": 5, "metric": ["cosine", "powed"], "k": [1, 3, 5, 7, 10, 15, 
 
 MODELS = ("knn", "locnet", "transnet_locnet")
 #: the networks' fix covariance: none, the validation walks' RMS error, or the std head's own calibrated sigma
-NET_COVS = ("none", "validation", "predicted")
+NET_COVS = ("none", "validation", "predicted", "calibrated")
 #: features kept by ``max_features: auto`` for TransNet+LocNet (its SSL loss holds b x F x F x H values)
 NET_MAX_FEATURES = 256
 
@@ -188,8 +191,8 @@ class FingerprintLocalizer(Localizer, Trained):
             max_features = NET_MAX_FEATURES if model == "transnet_locnet" else None
         self.max_features = None if max_features is None else int(max_features)
         self.net, self.trainer = dict(net or {}), dict(trainer or {})
-        if net_cov == "predicted" and not self._std_head(model):
-            raise ValueError(f"method {name!r}: net_cov: predicted needs a network with LocNet's std head "
+        if net_cov in ("predicted", "calibrated") and not self._std_head(model):
+            raise ValueError(f"method {name!r}: net_cov: {net_cov} needs a network with LocNet's std head "
                              f"(model: locnet or transnet_locnet, net: {{locnet: {{std_head: true}}}})")
         self.val_fraction, self.batch_size, self.seed = float(val_fraction), int(batch_size), int(seed)
         self.threads, self.plots = threads, bool(plots)
@@ -358,6 +361,8 @@ class FingerprintLocalizer(Localizer, Trained):
                                          net=self.net, trainer=self.trainer, val_fraction=self.val_fraction,
                                          batch_size=self.batch_size, threads=self.threads, plots=self.plots)
         info["training"] = rep
+        if self.net_cov == "calibrated":
+            return self._net_std_model(net_predict, S, xy, walk_of, names, info)
         if self.net_cov == "predicted":  # each fix's own calibrated sigma (LocNet's std head) + cov_floor_m^2
             if "fix_std" not in rep:
                 raise ValueError(f"method {self.name!r}: net_cov: predicted needs a LocNet with a std head "
@@ -382,6 +387,43 @@ class FingerprintLocalizer(Localizer, Trained):
         def predict(Sq):
             xy_q = net_predict(Sq)[0]
             return xy_q, None if cov is None else np.broadcast_to(cov, (len(xy_q), 2, 2)).copy()
+
+        return predict
+
+    def _net_std_model(self, net_predict, S, xy, walk_of, names, info):
+        """``net_cov: calibrated``: each network fix's std from :class:`blenav.localizers.knn.StdModel`'s form, log std
+        = c0 + c1 log(1 + sigma) + c2 d1, sigma the std head's and d1 the window's cosine signal distance to the
+        nearest window the network trained on (large where the survey did not go), fitted by maximum likelihood on the
+        errors of the validation walks (held out of the training); plus ``cov_floor_m``^2."""
+        from blenav.learn.fingerprint.train import split_walks
+
+        val = split_walks(walk_of, self.val_fraction, self.seed)
+        if not val.any():
+            raise ValueError(f"method {self.name!r}: net_cov: calibrated needs validation walks (val_fraction > 0 and "
+                             f"two or more train walks)")
+        is_ble = np.array([n.startswith("ble:") for n in names])
+        X = KNN.represent(S[~val], "cosine", is_ble, 1.0, self.cfg.fill_dbm)
+
+        def features(Sq):
+            xy_q, sigma = net_predict(Sq)
+            Q = KNN.represent(Sq, "cosine", is_ble, 1.0, self.cfg.fill_dbm)
+            d2 = np.concatenate([KNN.neighbours(Q[i:i + 512], X, 1)[1][:, 0] for i in range(0, len(Q), 512)]
+                                or [np.zeros(0)])  # bounded memory: 512 x N distances at a time
+            return xy_q, sigma, np.sqrt(d2)
+
+        xy_v, sigma_v, d1_v = features(S[val])
+        err = np.hypot(*(xy_v - xy[val]).T)
+        model = KNN.fit_std_model(err, sigma_v, d1_v)
+        _, fit = std_scale_fit(err, model.std(sigma_v, d1_v))  # how the fitted std covers and ranks them
+        info["fix_std"] = {"model": "log std = c0 + c1 log(1 + sigma of the std head) + c2 d1 (signal distance to "
+                                    "the training windows), fitted on the validation walks' errors",
+                           "c": list(model.c), **{k: fit.get(k) for k in ("windows", "coverage_1sigma",
+                                                                            "coverage_2sigma", "rank_correlation")}}
+
+        def predict(Sq):
+            xy_q, sigma, d1 = features(Sq)
+            var = model.std(sigma, d1) ** 2 + self.cov_floor_m ** 2
+            return xy_q, var[:, None, None] * np.eye(2)
 
         return predict
 
