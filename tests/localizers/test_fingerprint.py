@@ -257,13 +257,15 @@ def test_locnet_fix_std_is_its_own_calibrated_sigma_when_asked(coded, tmp_path):
         FingerprintLocalizer("x", net_cov="predicted")  # a KNN has none
 
 
-def test_locnet_fix_std_calibrated_on_the_head_and_the_distance_to_the_survey(coded, tmp_path):
+def test_locnet_fix_std_calibrated_on_the_head_and_the_distance_to_the_survey(coded, tmp_path, monkeypatch):
     """net_cov: calibrated (issue 29): log std = c0 + c1 log(1 + sigma) + c2 d1 of the std head's sigma and the
     window's cosine signal distance to the windows the network trained on, fitted on the validation walk; the
     positions stay the network's."""
     from blenav.localizers import RunInputs
+    from blenav.localizers import fingerprint as FPL
     from blenav.localizers import knn as KNN
 
+    monkeypatch.setattr(FPL, "MIN_STD_FIT", 3)  # the coded walks' validation walk has 5 windows
     kw = dict(model="locnet", val_fraction=0.5, seed=3, training=training_node(), net={"locnet": {"std_head": True}},
               trainer={"budget": {"max_steps": 20, "val_every_steps": 5, "warmup_steps": 2}})
     walks = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")]
@@ -290,6 +292,23 @@ def test_locnet_fix_std_calibrated_on_the_head_and_the_distance_to_the_survey(co
     sigma = np.sqrt(plain.cov[0, :, 0, 0] - 1.0)
     sd = KNN.StdModel(tuple(fs["c"])).std(sigma, d1)
     np.testing.assert_allclose(est.cov[0, :, 0, 0], sd ** 2 + 1.0, rtol=1e-6)
+    # the model is the one fitted on the validation walk's errors, its coverage that of the std the fixes state
+    vwalk = walks[1] if train is walks[0] else walks[0]
+    vw, _ = FP.label_windows(vwalk, FP.session_windows(vwalk, fm.columns, loc.cfg))
+    vk = ~np.isnan(vw.xy).any(axis=1) & vw.heard
+    vxy, vcov = ref.floors["mall/F1"].predict(vw.S[vk])
+    verr = np.hypot(*(vxy - vw.xy[vk]).T)
+    vsig = np.sqrt(vcov[:, 0, 0] - 1.0)
+    vd1 = np.sqrt(KNN.neighbours(KNN.represent(vw.S[vk], "cosine", np.zeros(len(fm.columns), bool), 1.0,
+                                                 loc.cfg.fill_dbm), X, 1)[1][:, 0])
+    model = KNN.fit_std_model(verr, vsig, vd1)
+    np.testing.assert_allclose(fs["c"], model.c, rtol=1e-6, atol=1e-9)
+    stated = np.sqrt(model.std(vsig, vd1) ** 2 + 1.0)
+    assert fs["windows"] == vk.sum() and fs["coverage_1sigma"] == pytest.approx(np.mean(verr <= stated))
+    # too few validation windows (2 walks at val_fraction 0.2: none held out): the head's own sigma, said so
+    few = FingerprintLocalizer("LocNet-WiFi", **{**kw, "val_fraction": 0.2}, net_cov="calibrated")
+    frep = few.fit(walks, RunInputs(out=tmp_path / "c"))["floors"]["mall/F1"]
+    assert "not fitted" in frep["fix_std_calibrated"] and np.isfinite(few.run(s, 1, seed=0).cov).all()
     with pytest.raises(ValueError, match="std head"):
         FingerprintLocalizer("x", model="locnet", training=training_node(), net_cov="calibrated")
 

@@ -93,8 +93,11 @@ CV_GRID = {"folds": 5, "metric": ["cosine", "powed"], "k": [1, 3, 5, 7, 10, 15, 
            "weights": ["uniform", "distance", 0.02, 0.05, 0.1], "ble_weight": [0.25, 0.5, 1.0]}
 
 MODELS = ("knn", "locnet", "transnet_locnet")
-#: the networks' fix covariance: none, the validation walks' RMS error, or the std head's own calibrated sigma
+#: the networks' fix covariance: none, the validation walks' RMS error, the std head's own calibrated sigma, or a
+#: std model of that sigma and the scan's distance to the survey
 NET_COVS = ("none", "validation", "predicted", "calibrated")
+#: validation windows needed to fit ``net_cov: calibrated``'s std model (fewer: the head's sigma)
+MIN_STD_FIT = 10
 #: features kept by ``max_features: auto`` for TransNet+LocNet (its SSL loss holds b x F x F x H values)
 NET_MAX_FEATURES = 256
 
@@ -362,8 +365,11 @@ class FingerprintLocalizer(Localizer, Trained):
                                          batch_size=self.batch_size, threads=self.threads, plots=self.plots)
         info["training"] = rep
         if self.net_cov == "calibrated":
-            return self._net_std_model(net_predict, S, xy, walk_of, names, info)
-        if self.net_cov == "predicted":  # each fix's own calibrated sigma (LocNet's std head) + cov_floor_m^2
+            predict = self._net_std_model(net_predict, S, xy, walk_of, names, info)
+            if predict is not None:
+                return predict
+        if self.net_cov in ("predicted", "calibrated"):  # each fix's own sigma (LocNet's std head) + cov_floor_m^2;
+            # calibrated comes here when too few validation windows fit its model
             if "fix_std" not in rep:
                 raise ValueError(f"method {self.name!r}: net_cov: predicted needs a LocNet with a std head "
                                  f"(net.locnet.std_head: true)")
@@ -394,13 +400,16 @@ class FingerprintLocalizer(Localizer, Trained):
         """``net_cov: calibrated``: each network fix's std from :class:`blenav.localizers.knn.StdModel`'s form, log std
         = c0 + c1 log(1 + sigma) + c2 d1, sigma the std head's and d1 the window's cosine signal distance to the
         nearest window the network trained on (large where the survey did not go), fitted by maximum likelihood on the
-        errors of the validation walks (held out of the training); plus ``cov_floor_m``^2."""
+        errors of the validation walks (held out of the training); plus ``cov_floor_m``^2. None (and the reason in
+        ``info["fix_std_calibrated"]``) with fewer than :data:`MIN_STD_FIT` validation windows: the caller then states
+        the head's own sigma (``net_cov: predicted``)."""
         from blenav.learn.fingerprint.train import split_walks
 
         val = split_walks(walk_of, self.val_fraction, self.seed)
-        if not val.any():
-            raise ValueError(f"method {self.name!r}: net_cov: calibrated needs validation walks (val_fraction > 0 and "
-                             f"two or more train walks)")
+        if val.sum() < MIN_STD_FIT:
+            info["fix_std_calibrated"] = (f"not fitted: {int(val.sum())} validation windows (need {MIN_STD_FIT}); the "
+                                          f"std head's own sigma instead (net_cov: predicted)")
+            return None
         is_ble = np.array([n.startswith("ble:") for n in names])
         X = KNN.represent(S[~val], "cosine", is_ble, 1.0, self.cfg.fill_dbm)
 
@@ -414,11 +423,15 @@ class FingerprintLocalizer(Localizer, Trained):
         xy_v, sigma_v, d1_v = features(S[val])
         err = np.hypot(*(xy_v - xy[val]).T)
         model = KNN.fit_std_model(err, sigma_v, d1_v)
-        _, fit = std_scale_fit(err, model.std(sigma_v, d1_v))  # how the fitted std covers and ranks them
+        stated = np.sqrt(model.std(sigma_v, d1_v) ** 2 + self.cov_floor_m ** 2)  # the std the fixes state
+        scale, fit = std_scale_fit(err, stated)
         info["fix_std"] = {"model": "log std = c0 + c1 log(1 + sigma of the std head) + c2 d1 (signal distance to "
-                                    "the training windows), fitted on the validation walks' errors",
-                           "c": list(model.c), **{k: fit.get(k) for k in ("windows", "coverage_1sigma",
-                                                                            "coverage_2sigma", "rank_correlation")}}
+                                    "the training windows), fitted on the validation walks' errors; + cov_floor_m",
+                           "c": list(model.c), "windows": int(len(err)),
+                           "coverage_1sigma": float(np.mean(err <= stated)),
+                           "coverage_2sigma": float(np.mean(err <= 2.0 * stated)),
+                           "rank_correlation": fit.get("rank_correlation"),
+                           "ml_scale": None if "uncalibrated" in fit else scale}
 
         def predict(Sq):
             xy_q, sigma, d1 = features(Sq)
