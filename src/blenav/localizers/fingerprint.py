@@ -412,11 +412,12 @@ class FingerprintLocalizer(Localizer, Trained):
             return None
         is_ble = np.array([n.startswith("ble:") for n in names])
         X = KNN.represent(S[~val], "cosine", is_ble, 1.0, self.cfg.fill_dbm)
+        bb = np.einsum("nf,nf->n", X, X)  # X's squared norms, once for every query (as KNN.fit)
 
         def features(Sq):
             xy_q, sigma = net_predict(Sq)
             Q = KNN.represent(Sq, "cosine", is_ble, 1.0, self.cfg.fill_dbm)
-            d2 = np.concatenate([KNN.neighbours(Q[i:i + 512], X, 1)[1][:, 0] for i in range(0, len(Q), 512)]
+            d2 = np.concatenate([KNN._sqdist(Q[i:i + 512], X, bb).min(axis=1) for i in range(0, len(Q), 512)]
                                 or [np.zeros(0)])  # bounded memory: 512 x N distances at a time
             return xy_q, sigma, np.sqrt(d2)
 

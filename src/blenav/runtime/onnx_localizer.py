@@ -99,6 +99,9 @@ class LocalizerSession:
             return np.zeros((0, 2)), np.zeros(0) if len(names) > 1 else None
         z = np.zeros((self.layers, len(S), self.hidden), np.float32)  # h0 = c0 = 0, read-only inputs
         out = [a.astype(float) for a in self._sess.run(names, {"S": S, "h0": z, "c0": z})]
+        if out[0].shape != (len(S), 2) or (len(out) > 1 and out[1].shape != (len(S),)):
+            raise ValueError(f"{self.path}: the graph gave outputs of shapes {[a.shape for a in out]} for {len(S)} "
+                             f"windows (expected xy ({len(S)}, 2) and std_m ({len(S)},)): not a blenav localizer export")
         silent = ~self.heard(S)
         for a in out:
             a[silent] = np.nan
