@@ -96,6 +96,45 @@ def test_batch_run_in_pieces_equals_run_session(sim):
     np.testing.assert_array_equal(whole.t, pieces.t)
 
 
+def test_a_bias_feedback_resumes_the_ahrs_with_a_whole_runs_numbers(sim, monkeypatch):
+    """correct_imu resumes the AHRS at the corrected samples (and the steps at the first not done) instead of running
+    the session again: the filter's positions and attitude are those of the whole re-run, to the bit."""
+    from blenav.data import Dataset
+    from blenav.filters import runner
+    from blenav.filters.runner import BatchRun
+
+    ds = Dataset.open(sim)
+    s = ds.session(ds.session_ids[0])
+    m = _method(sim).front.method
+
+    def drive():
+        run = BatchRun(m, s, 2, 7)
+        t0 = run.arrays.t_start
+        for i, t_end in enumerate((t0 + 12.0, t0 + 31.3, t0 + 45.0)):
+            run.advance(t_end)
+            run.correct_imu(t_end, np.array([0.05, -0.02, 0.01]) * (i + 1), np.array([1e-3, -2e-3, 5e-4]) * (i + 1))
+        run.advance(np.inf)
+        return run
+
+    resumed = drive()
+    monkeypatch.setattr(runner, "resumable", lambda cfg: False)  # every correction runs the AHRS whole
+    whole = drive()
+    assert resumed.q is not None and np.ptp(resumed.q[:, 3]) > 0
+    np.testing.assert_array_equal(resumed.q, whole.q)
+    np.testing.assert_array_equal(resumed.result().position, whole.result().position)
+    # the steps after the last correction, made as the filter reached them, are those of one pass over the
+    # corrected session
+    from blenav.filters.steps import detect_steps, session_steps
+
+    a, k_last = resumed.arrays, int(np.searchsorted(resumed.ts, resumed.arrays.t_start + 45.0, side="right"))
+    eager, _ = session_steps(a, m.filter.rate_hz, m.attitude, m.steps, True, resumed.mag_offset,
+                             (resumed.q, detect_steps(a.imu_t, a.acc, m.steps)))
+    assert 0 < k_last < len(eager) == len(resumed.steps)
+    for (t1, c1, _), (t2, c2, _) in zip(resumed.steps[k_last:], eager[k_last:]):
+        assert t1 == t2 and c1["heading"] == c2["heading"] and c1["steps"] == c2["steps"]
+        np.testing.assert_array_equal(c1["acc_w"], c2["acc_w"])
+
+
 def test_f_end_and_b_end_share_one_closed_loop(sim):
     """Two methods that differ only in label and estimate compute the loop once per session (inputs.cache); the
     F-end is the closed-loop filter, the B-end the smoothed trajectory; feedbacks happened."""

@@ -281,3 +281,29 @@ def test_unknown_filter_name():
     cfg.filter = "complementary"
     with pytest.raises(ValueError, match="choose one of"):
         estimate_attitude(np.arange(3) * 0.01, np.tile([0, 0, 9.8], (3, 1)), np.zeros((3, 3)), cfg=cfg)
+
+
+def test_a_resumed_run_is_the_whole_run_to_the_bit():
+    """attitude_states resumed at a sample from a run on the same inputs before it (a bias correction from there on)
+    gives the whole run's states; settings whose state is more than the quaternion are refused."""
+    from blenav.filters.attitude import AttitudeConfig, attitude_states, estimate_attitude, to_world
+
+    rng = np.random.default_rng(3)
+    n = 2000
+    t = np.cumsum(0.01 + 0.002 * rng.random(n))
+    acc = np.array([0.0, 0.0, 9.81]) + 0.3 * rng.standard_normal((n, 3))
+    gyr = 0.2 * rng.standard_normal((n, 3)) + np.array([0.0, 0.0, 0.3])
+    mag_t = t[5::2] + 0.001  # the magnetometer starts late: the heading aligns at its first sample
+    mag = np.array([0.0, 22.0, -40.0]) + rng.standard_normal((len(mag_t), 3))
+    cfg = AttitudeConfig()
+    first = attitude_states(t, acc, gyr, mag_t, mag, cfg)
+    for start in (3, 7, 1234):  # before the first magnetometer sample, right after it, and later
+        gyr2 = gyr.copy()
+        gyr2[start:] -= np.array([0.01, -0.02, 0.005])
+        whole = attitude_states(t, acc, gyr2, mag_t, mag, cfg)
+        resumed = attitude_states(t, acc, gyr2, mag_t, mag, cfg, start=start, prev=first)
+        np.testing.assert_array_equal(resumed, whole)
+        assert np.abs(whole[start:] - first[start:]).max() > 0  # the correction changed what follows
+    np.testing.assert_array_equal(to_world(first, cfg), estimate_attitude(t, acc, gyr, mag_t, mag, cfg))
+    with pytest.raises(ValueError, match="cannot be resumed"):
+        attitude_states(t, acc, gyr, mag_t, mag, AttitudeConfig(filter="mahony"), start=10, prev=first)

@@ -403,6 +403,31 @@ def estimate_attitude(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag_t: np
     ``gyro_bias``/``acc_bias``: (3,) or (T, 3); ``mag_offset``: (3,) hard-iron offset in mag's unit.
     """
     cfg = cfg or AttitudeConfig()
+    return to_world(attitude_states(t, acc, gyr, mag_t, mag, cfg, gyro_bias, acc_bias, mag_offset), cfg)
+
+
+def to_world(states: np.ndarray, cfg: AttitudeConfig) -> np.ndarray:
+    """:func:`attitude_states`' filter-frame quaternions (T, 4) as device-to-world ones (:func:`estimate_attitude`)."""
+    return qmul(_Engine(cfg).to_world, states) if len(states) else states
+
+
+def resumable(cfg: AttitudeConfig) -> bool:
+    """Whether :func:`attitude_states` can resume a run (``start`` > 0): the compiled Madgwick without the compass
+    reset, whose whole state is the quaternion (Mahony's bias, the EKF's covariance and the reset's timer are not
+    kept)."""
+    return cfg.filter == "madgwick" and cfg.backend == "numba" and cfg.reset_deg is None
+
+
+def attitude_states(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag_t: np.ndarray | None = None,
+                    mag: np.ndarray | None = None, cfg: AttitudeConfig | None = None, gyro_bias=None,
+                    acc_bias=None, mag_offset=None, start: int = 0, prev: np.ndarray | None = None) -> np.ndarray:
+    """The AHRS of :func:`estimate_attitude` in the filter's frame (T, 4) (:func:`to_world` turns it to the world).
+
+    Resumed (``start`` > 0, :func:`resumable` settings only): samples before ``start`` are ``prev[:start]``, the
+    states of a run on inputs equal to these up to sample ``start - 1`` (e.g. before a bias correction that starts at
+    ``start``, the back-end's feedback); the filter continues from ``prev[start - 1]``. The result is the full run's
+    to the bit: the causal median and the filter read nothing later than the sample they make."""
+    cfg = cfg or AttitudeConfig()
     t = np.asarray(t, float)
     n = len(t)
     acc = np.asarray(acc, float).reshape(n, 3)
@@ -411,8 +436,18 @@ def estimate_attitude(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag_t: np
         raise ValueError("IMU time goes backwards")
     if (mag is None) != (mag_t is None):
         raise ValueError("give both mag_t and mag, or neither")
-    a = causal_median(acc - _as_bias(acc_bias, n), cfg.median_window)
-    g = causal_median(gyr - _as_bias(gyro_bias, n), cfg.median_window)
+    if start:
+        if not resumable(cfg):
+            raise ValueError(f"attitude_states: a {cfg.filter} run (backend {cfg.backend}, reset_deg "
+                             f"{cfg.reset_deg}) cannot be resumed; run it from the start")
+        if prev is None or len(prev) != n or not 0 < start <= n:
+            raise ValueError(f"attitude_states: resuming at sample {start} needs the previous run's {n} states")
+    lo = max(0, start - cfg.median_window + 1)  # the first sample the medians from `start` on read
+    a = np.empty((n, 3))
+    g = np.empty((n, 3))
+    ab, gb = _as_bias(acc_bias, n), _as_bias(gyro_bias, n)
+    a[lo:] = causal_median(acc[lo:] - (ab[lo:] if np.ndim(ab) == 2 else ab), cfg.median_window)
+    g[lo:] = causal_median(gyr[lo:] - (gb[lo:] if np.ndim(gb) == 2 else gb), cfg.median_window)
     # zero-order hold of the median-filtered magnetometer: latest sample with mag_t <= t
     idx = np.full(n, -1)
     m = None
@@ -425,7 +460,11 @@ def estimate_attitude(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag_t: np
         idx = np.searchsorted(mag_t, t, side="right") - 1
     eng = _Engine(cfg)
     Q = np.empty((n, 4))
-    k = 0
+    k = start
+    if start:
+        Q[:start] = prev[:start]
+        eng.q = Q[start - 1].copy()
+        eng.mag_seen = bool(idx[start - 1] >= 0)  # the first magnetometer sample aligned the heading
     while k < n:
         if eng.jit and k > 0:  # compiled: runs until a sample that needs the Python engine (or the end)
             from .ahrs_jit import madgwick_run
@@ -444,4 +483,4 @@ def estimate_attitude(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag_t: np
             eng.step(t[k], t[k] - t[k - 1], g[k], a[k], mk, idx[k] != idx[k - 1])
         Q[k] = eng.q
         k += 1
-    return qmul(eng.to_world, Q) if n else Q
+    return Q

@@ -19,14 +19,14 @@ import numpy as np
 from blenav.data import Session
 from blenav.errors import MissingStream
 
-from .attitude import AttitudeConfig, estimate_hard_iron
+from .attitude import AttitudeConfig, attitude_states, estimate_hard_iron, resumable, to_world
 from .constraints import ObstacleRules
 from .engine import Initializer, ParticleFilter
 from .estimate import Estimate
 from .map import MapGeometry, WallCrossing
 from .measurement import AnchorTable
 from .method import HEADING_MODES, INIT_MODES, MapSpec, Method, require_models
-from .steps import SessionArrays, StepDetectorConfig, imu_features, session_steps
+from .steps import SessionArrays, StepDetectorConfig, detect_steps, imu_features, session_steps
 
 
 class _Initializer(Initializer):
@@ -264,6 +264,9 @@ class BatchRun:
         self.cov = np.empty((n_runs, K, 2, 2))
         self.neff = np.empty((n_runs, K))
         self.k = 0  # steps done
+        self._att_states: np.ndarray | None = None  # the AHRS in its filter frame since the last correct_imu
+        self._flags: np.ndarray | None = None  # the step flags of the corrected IMU
+        self._stale: int | None = None  # the first step to make again from the corrected IMU (None: none is)
 
     @property
     def done(self) -> bool:
@@ -271,6 +274,7 @@ class BatchRun:
 
     def advance(self, t_end: float = np.inf) -> int:
         """Run the steps at times <= ``t_end``; returns the number of steps done so far."""
+        self._refresh(int(np.searchsorted(self.ts, t_end, side="right")))
         pf, steps = self.pf, self.steps
         while self.k < len(steps) and steps[self.k][0] <= t_end:
             t, ctrl, obs = steps[self.k]
@@ -297,8 +301,10 @@ class BatchRun:
 
     def correct_imu(self, t_from: float, accel_bias: np.ndarray, gyro_bias: np.ndarray) -> None:
         """Subtract constant biases (device frame: m/s^2, rad/s) from the IMU samples after ``t_from`` and
-        recompute the AHRS, step detection and the controls of the steps not yet done (the AHRS runs again
-        from the start: its values before ``t_from`` do not change)."""
+        recompute the AHRS, step detection and the controls of the steps not yet done (the AHRS resumes where the
+        correction starts, :func:`blenav.filters.attitude.attitude_states`, after one whole run at the first
+        correction: its values before ``t_from`` do not change; the numbers of a whole run, to the bit); the steps
+        are made again as :meth:`advance` reaches them."""
         if not self.method.needs_imu or not len(self.arrays.imu_t):
             return
         a = self.arrays
@@ -308,8 +314,29 @@ class BatchRun:
         gyr[after] -= np.asarray(gyro_bias, float)
         self.arrays = a = replace(a, acc=np.ascontiguousarray(acc), gyr=np.ascontiguousarray(gyr))
         m = self.method
-        steps, self.q = session_steps(a, m.filter.rate_hz, m.attitude, m.steps, True, self.mag_offset)
-        self.steps = self.steps[: self.k] + steps[self.k:]
+        # the AHRS resumes at the first corrected sample from the states of the last correction (the first one runs
+        # it whole): causal, so the states before are the same; the steps done keep their controls
+        i0 = int(np.searchsorted(a.imu_t, t_from, side="right"))
+        resume = self._att_states is not None and i0 > 0 and resumable(m.attitude)
+        self._att_states = attitude_states(a.imu_t, a.acc, a.gyr, a.mag_t, a.mag, m.attitude,
+                                           mag_offset=self.mag_offset, start=i0 if resume else 0,
+                                           prev=self._att_states if resume else None)
+        self.q = to_world(self._att_states, m.attitude)
+        self._flags = detect_steps(a.imu_t, a.acc, m.steps)
+        self._stale = self.k  # the steps from here on: made again from the corrected IMU as advance reaches them
+
+    def _refresh(self, k_end: int) -> None:
+        """Make the stale steps before ``k_end`` again (after :meth:`correct_imu`), in order, each from the heading
+        of the one before: the numbers of making them all at once."""
+        lo = self._stale
+        if lo is None or k_end <= lo:
+            return
+        m = self.method
+        heading = self.steps[lo - 1][1]["heading"] if lo else 0.0
+        steps, _ = session_steps(self.arrays, m.filter.rate_hz, m.attitude, m.steps, True, self.mag_offset,
+                                 (self.q, self._flags), start=lo, stop=k_end, heading=heading)
+        self.steps[lo:k_end] = steps
+        self._stale = k_end if k_end < len(self.steps) else None
 
     def result(self) -> Estimate:
         """The estimates of the steps done so far: ``outputs`` ``n_eff`` (R, K) and, when the motion model runs an

@@ -320,11 +320,14 @@ def imu_features(a: SessionArrays, att_cfg: AttitudeConfig, det_cfg: StepDetecto
 
 def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det_cfg: StepDetectorConfig,
                   need_imu: bool = True, mag_offset: np.ndarray | None = None,
-                  imu: tuple[np.ndarray | None, np.ndarray] | None = None):
+                  imu: tuple[np.ndarray | None, np.ndarray] | None = None, start: int = 0, stop: int | None = None,
+                  heading: float = 0.0):
     """Yield (t_k, ctrl, obs) for every step of a session (batch path). Also returns AHRS quaternions.
 
     Returns ``(steps, q)`` with ``steps`` a list and ``q`` (T, 4) the AHRS orientation at IMU times
-    (``None`` without IMU or when the motion model does not need it).
+    (``None`` without IMU or when the motion model does not need it). ``start``, ``stop``: only the steps
+    ``start`` to ``stop - 1`` (``heading``: the heading of the step before ``start``, its ``ctrl["heading"]``, which a
+    window without IMU keeps), the same as those of the full list.
     """
     ts = step_times(a.t_start, a.t_end, rate_hz)
     q = None
@@ -335,9 +338,9 @@ def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det
     bounds_rssi = np.searchsorted(a.rssi_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right")
     bounds_fix = np.searchsorted(a.fix_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right")
     out = []
-    heading = 0.0
-    prev_t = a.t_start
-    for k, t in enumerate(ts):
+    prev_t = a.t_start if start == 0 else ts[start - 1]
+    for k in range(start, len(ts) if stop is None else min(stop, len(ts))):
+        t = ts[k]
         if need_imu and q is not None:
             s = slice(bounds_imu[k], bounds_imu[k + 1])
             wa, wq, n_steps = a.acc[s], q[s], int(step_flags[s].sum())
