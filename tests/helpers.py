@@ -231,12 +231,14 @@ def import_graph(root: Path = SRC, skip=()) -> dict[str, set[str]]:
 class RowModel:
     """A deterministic stand-in inertial network (:class:`blenav.filters.inertial_odometry.VelocityModel`), row by row
     (so a batch of 512 and a batch of 1 agree to the bit): the velocity from the window's mean accelerations and its
-    last gyro sample, the log variance from their spread; ``frame``: world or heading."""
+    last gyro sample, the log variance from their spread; ``frame``: world or heading; ``yaw``: the attitude's own or
+    the gyroscope's held to it (blenav.filters.yaw_hold)."""
 
-    def __init__(self, frame: str):
+    def __init__(self, frame: str, yaw: str = "attitude"):
         from blenav.features.inertial import InertialGrid
 
-        self.grid, self.key, self.frame = InertialGrid(rate_hz=50.0, window_s=1.0, stride_s=0.5), "row", frame
+        self.grid, self.frame, self.yaw = InertialGrid(rate_hz=50.0, window_s=1.0, stride_s=0.5), frame, yaw
+        self.key = f"row-{yaw}"
 
     def predict(self, W):
         W = np.asarray(W, np.float64)

@@ -151,6 +151,17 @@ def test_odometry_argument_equals_an_odometry_csv(tiny_dataset):
     with pytest.raises(ValueError, match="unknown key"):
         RealWalkPF("x", None, motion={"_target_": "blenav.filters.motion.OdometryIncrement"},
                    odometry={"heading": "ahrs", "rate_hz": 10})
+    with pytest.raises(ValueError, match="odometry.yaw must be one of"):
+        RealWalkPF("x", None, motion={"_target_": "blenav.filters.motion.OdometryIncrement"},
+                   odometry={"heading": "ahrs", "yaw": "compass"})
+    held = RealWalkPF("PDR-AHRS-held", None, motion={"_target_": "blenav.filters.motion.OdometryIncrement",
+                                                     "theta0": 0.0},
+                      map={"init": "groundtruth"}, filter={"n_particles": 50, "rate_hz": 1.0},
+                      odometry={"heading": "ahrs", "step_length": 0.7, "yaw": "gyro"})
+    inputs = RunInputs(cache={})
+    odo_held, odo = held.odometry_for(s, inputs), pdr.odometry_for(s, inputs)
+    assert len(odo_held) == len(odo)  # the held yaw's track is its own cache entry, not the attitude's
+    assert {k[3] for k in inputs.cache if isinstance(k, tuple) and k[0] == "rw-pdr"} == {"attitude", "gyro"}
 
 
 def test_ahrs_odometry_reads_the_pdr_rows_ahrs(tmp_path):

@@ -40,10 +40,10 @@ def _stream(walk, model, attitude, mag_offset=None):
     return np.array([[t, *xy, var] for t, xy, var in pts])
 
 
-@pytest.mark.parametrize("frame", ["world", "heading"])
+@pytest.mark.parametrize("frame,yaw", [("world", "attitude"), ("heading", "attitude"), ("world", "gyro")])
 @pytest.mark.parametrize("attitude", ["orientation", "ahrs"])
-def test_streaming_lio_is_the_batch_track(walk, attitude, frame):
-    model = RowModel(frame)
+def test_streaming_lio_is_the_batch_track(walk, attitude, frame, yaw):
+    model = RowModel(frame, yaw)
     ref = lio_odometry(walk, model, attitude)[["t", "x", "y", "var"]].to_numpy()
     off = hard_iron_offset(SessionArrays.from_session(walk, AnchorTable.empty()), AttitudeConfig())
     got = _stream(walk, model, attitude, off)

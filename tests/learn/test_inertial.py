@@ -246,12 +246,13 @@ def test_heading_frame_run_exports_and_runs(trained, tmp_path):
                   "data.frame=heading", "trainer.budget.max_steps=10", "trainer.enable_progress_bar=false",
                   "model=inertial_resnet"))
     io = export(compose("export", f"ckpt={run / 'last.ckpt'}", f"out={tmp_path / 'io'}"))
-    assert json.loads((io / "meta.json").read_text())["input_frame"] == "heading"
+    meta = json.loads((io / "meta.json").read_text())
+    assert meta["input_frame"] == "heading" and meta["attitude"]["yaw"] == "gyro"  # data.yaw's default
     model = InertialModel(io)
     s = next(iter(Dataset.open(trained["data"]).sessions()))
     odo = model.odometry(s)
     net, _ = load_inertial(run / "last.ckpt")
-    _, X, _ = session_frame_imu(s, model.grid, "auto")
+    _, X, _ = session_frame_imu(s, model.grid, "auto", yaw=model.yaw)  # the runtime holds the yaw as training did
     W, psi = heading_frame(windows(X, model.grid))
     with torch.no_grad():
         out = net(torch.from_numpy(W)).numpy()

@@ -155,7 +155,8 @@ def test_a_walk_without_imu_is_smoothed_under_a_random_walk(walks, tmp_path):
                                         ({"motion": {"sigma": 1.0}}, "motion: unknown key"),
                                         ({"layers": {"scale": [1.0]}}, "layers: unknown key"),
                                         ({"fix_outlier": 0.0}, "fix_outlier"), ({"grid": {"max_step_m": 0.5}}, "max_step_m"),
-                                        ({"odometry": {"heading": "compass"}}, "heading")])
+                                        ({"odometry": {"heading": "compass"}}, "heading"),
+                                        ({"odometry": {"yaw": "magnetometer"}}, "odometry.yaw")])
 def test_settings_are_checked(bad, match):
     with pytest.raises(ValueError, match=match):
         FusedWalk("x", **bad)

@@ -24,17 +24,28 @@ from .attitude import AttitudeConfig, StreamingAttitude
 from .pdr_odometry import HEADINGS, attitude_track, resolve_heading
 from .quaternions import quat_to_matrix
 from .steps import StepDetectorConfig
+from .yaw_hold import YAW_SOURCES, StreamingYawHold
 
-__all__ = ["VelocityModel", "world_frame_imu", "session_frame_imu", "lio_odometry", "StreamingLio", "LIVE_ATTITUDES"]
+__all__ = ["VelocityModel", "model_yaw", "world_frame_imu", "session_frame_imu", "lio_odometry", "StreamingLio",
+           "LIVE_ATTITUDES"]
 
 
 class VelocityModel(Protocol):
     grid: InertialGrid
     key: str  # identifies the model's weights (a cache key part: the same key, the same velocities)
     frame: str  # blenav.features.inertial.FRAMES: heading (turn each window, turn the velocity back) or world
+    # optional: yaw (YAW_SOURCES), the attitude's yaw the network was trained with; "attitude" where absent
 
     def predict(self, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(K, n_window, 15) float32 -> (velocity (K, 2) m/s, log variance (K, 2))."""
+
+
+def model_yaw(model) -> str:
+    """The yaw source (:data:`YAW_SOURCES`) ``model`` was trained with: its ``yaw``, ``attitude`` where it has none."""
+    yaw = getattr(model, "yaw", None) or "attitude"
+    if yaw not in YAW_SOURCES:
+        raise ValueError(f"inertial model: yaw {yaw!r}, not one of {YAW_SOURCES}")
+    return yaw
 
 
 def _attitude_at(q_t: np.ndarray, q: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -71,19 +82,20 @@ def world_frame_imu(imu_t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, q_t: np
 
 
 def session_frame_imu(session, grid: InertialGrid, attitude: str = "auto", att: AttitudeConfig | None = None,
-                      steps: StepDetectorConfig | None = None, cache: dict | None = None, keep: bool = True
-                      ) -> tuple[np.ndarray, np.ndarray, str]:
+                      steps: StepDetectorConfig | None = None, cache: dict | None = None, keep: bool = True,
+                      yaw: str = "attitude") -> tuple[np.ndarray, np.ndarray, str]:
     """The session's IMU in the attitude's gravity-aligned frame on ``grid``'s rate: (t (N,) s, X (N, 15) float32,
     the attitude source used). :class:`MissingStream` without IMU data or the attitude source. ``cache``: the
-    attitude (an AHRS run) is kept there, and the result too unless ``keep`` is false."""
+    attitude (an AHRS run) is kept there, and the result too unless ``keep`` is false. ``yaw``: the attitude's own
+    or the gyroscope's held to it (:func:`blenav.filters.pdr_odometry.attitude_track`)."""
     imu = session.imu
     if len(imu) < 2:
         raise MissingStream(f"session {session.id} has no IMU data, which the inertial odometry needs")
     source = resolve_heading(session, attitude)
-    key = ("lio-frame", session.id, source, grid.rate_hz, repr(att), repr(steps))
+    key = ("lio-frame", session.id, source, yaw, grid.rate_hz, repr(att), repr(steps))
     if cache is not None and key in cache:
         return cache[key]
-    q_t, q = attitude_track(session, source, att, steps, cache)
+    q_t, q = attitude_track(session, source, att, steps, cache, yaw)
     t, X = world_frame_imu(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float),
                            imu[["gx", "gy", "gz"]].to_numpy(float), q_t, q, grid.rate_hz)
     out = (t, X, source)
@@ -95,12 +107,14 @@ def session_frame_imu(session, grid: InertialGrid, attitude: str = "auto", att: 
 def lio_odometry(session, model: VelocityModel, attitude: str = "auto", att: AttitudeConfig | None = None,
                  steps: StepDetectorConfig | None = None, cache: dict | None = None, batch: int = 512) -> pd.DataFrame:
     """The learned odometry track of ``session`` (DataFrame t, x, y, var: s, m from 0, m^2), ``model`` run on every
-    window (``batch`` at a time). :class:`MissingStream` without IMU data, the attitude, or a full stride of IMU."""
-    key = ("lio-odometry", session.id, model.key, attitude, repr(att), repr(steps))
+    window (``batch`` at a time), its yaw as the model was trained (``model.yaw``, :data:`YAW_SOURCES`; ``attitude``
+    for a model that does not say). :class:`MissingStream` without IMU data, the attitude, or a full stride of IMU."""
+    yaw = model_yaw(model)
+    key = ("lio-odometry", session.id, model.key, attitude, yaw, repr(att), repr(steps))
     if cache is not None and key in cache:
         return cache[key]
     # the attitude (an AHRS run) through the cache; the rotated IMU itself is not kept once the track is
-    t, X, _ = session_frame_imu(session, model.grid, attitude, att, steps, cache, keep=False)
+    t, X, _ = session_frame_imu(session, model.grid, attitude, att, steps, cache, keep=False, yaw=yaw)
     W = windows(X, model.grid)
     psi = np.zeros(len(W))
     if model.frame == "heading":
@@ -140,9 +154,11 @@ class StreamingLio:
     (device -> world, w x y z) at or before each IMU sample (IMU samples before the first one wait for it, as the
     batch path takes the first sample for them), or ``ahrs``, :class:`StreamingAttitude` on the pushed IMU and
     ``push_mag(t, mag)`` with ``mag_offset`` (uT; the batch path fits it on the whole walk, a phone has its own
-    calibration). With the batch path's attitude the points are :func:`lio_odometry`'s (the same resampling to
-    ``model.grid``, windows, frames and integration; tests/filters/test_streaming_lio.py; an IMU time stamp repeated
-    on a grid time is the one exception: the batch interpolation takes the later sample there). Per sample O(1): one
+    calibration); with a model trained on the gyroscope's yaw (``yaw: gyro``) that attitude is held sample by sample
+    (:class:`blenav.filters.yaw_hold.StreamingYawHold`). With the batch path's attitude the points are
+    :func:`lio_odometry`'s (the same resampling to ``model.grid``, windows, frames and integration;
+    tests/filters/test_streaming_lio.py; an IMU time stamp repeated on a grid time is the one exception: the batch
+    interpolation takes the later sample there). Per sample O(1): one
     network run per stride, on one window; a jump of the IMU clock by more than :data:`MAX_GAP_S` is refused (a gap
     would cost a network run per stride of it), as is an ``orientation`` attitude whose rotation vector has not come
     after :data:`MAX_GAP_S` of IMU."""
@@ -152,6 +168,7 @@ class StreamingLio:
             raise ValueError(f"live inertial odometry: attitude must be one of {LIVE_ATTITUDES}, got {attitude!r}")
         self.model, self.attitude, self.grid = model, attitude, model.grid
         self.ahrs = StreamingAttitude(att or AttitudeConfig(), mag_offset=mag_offset) if attitude == "ahrs" else None
+        self.hold = StreamingYawHold() if model_yaw(model) == "gyro" else None  # every IMU sample, in order
         self._q: np.ndarray | None = None
         self._waiting: list[tuple] = []  # IMU samples before the first orientation sample
         self._prev: tuple[float, np.ndarray] | None = None  # the last IMU sample, rotated (t, raw (15,))
@@ -194,6 +211,8 @@ class StreamingLio:
         return self._sample(float(t), acc, gyr, self._q)
 
     def _sample(self, t: float, acc: np.ndarray, gyr: np.ndarray, q: np.ndarray) -> list[tuple]:
+        if self.hold is not None:
+            q = self.hold.update(t, gyr, q)
         R = quat_to_matrix(q[None])  # (1, 3, 3), as world_frame_imu rotates every sample
         a_w = np.einsum("tij,tj->ti", R, acc[None])
         g_w = np.einsum("tij,tj->ti", R, gyr[None])

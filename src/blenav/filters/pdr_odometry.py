@@ -23,6 +23,7 @@ from .measurement import AnchorTable
 from .motion_pdr import pdr_track
 from .runner import session_imu
 from .steps import SessionArrays, StepDetectorConfig, detect_steps
+from .yaw_hold import YAW_SOURCES, hold_yaw
 
 __all__ = ["HEADINGS", "HEADING_SOURCES", "DEFAULT_STEP_M", "pdr_odometry", "fit_step_length", "fitted_step_length", "attitude_track",
            "resolve_heading"]
@@ -43,11 +44,24 @@ def resolve_heading(session, heading: str) -> str:
 
 
 def attitude_track(session, heading: str, att: AttitudeConfig | None = None, steps: StepDetectorConfig | None = None,
-                   cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   cache: dict | None = None, yaw: str = "attitude") -> tuple[np.ndarray, np.ndarray]:
     """(q_t (Q,) s, q (Q, 4) w, x, y, z): the device->world orientation of ``session`` from ``heading``:
     ``orientation`` (the phone's rotation vector, orientation.csv), ``ahrs`` (blenav's Madgwick AHRS, the PDR motion
     model's, hard-iron offset per ``att``), ``auto`` (:func:`resolve_heading`) or ``groundtruth`` (the ground truth's
-    orientation: simulated walks, for training only). :class:`MissingStream` when the source is absent."""
+    orientation: simulated walks, for training only). :class:`MissingStream` when the source is absent.
+
+    ``yaw``: ``attitude`` (the source's own yaw) or ``gyro`` (:func:`blenav.filters.yaw_hold.hold_yaw`: the gyroscope's
+    yaw held to the source's running mean; the track is then at the IMU times)."""
+    if yaw not in YAW_SOURCES:
+        raise ValueError(f"yaw must be one of {YAW_SOURCES}, got {yaw!r}")
+    if yaw == "gyro":
+        q_t, q = attitude_track(session, heading, att, steps, cache)
+        imu = session.imu
+        if len(imu) < 2:
+            raise MissingStream(f"session {session.id} has no IMU data, which the gyroscope's yaw needs")
+        imu_t = imu["t"].to_numpy(float)
+        i = np.clip(np.searchsorted(q_t, imu_t, side="right") - 1, 0, len(q_t) - 1)  # as world_frame_imu samples it
+        return imu_t, hold_yaw(imu_t, imu[["gx", "gy", "gz"]].to_numpy(float), q[i])
     heading = resolve_heading(session, heading)
     att, steps = att or AttitudeConfig(), steps or StepDetectorConfig()
     if heading == "orientation":
@@ -85,21 +99,22 @@ def _step_flags(session, steps: StepDetectorConfig | None, cache: dict | None) -
 
 def pdr_odometry(session, heading: str = "orientation", step_length: float = DEFAULT_STEP_M,
                  att: AttitudeConfig | None = None, steps: StepDetectorConfig | None = None,
-                 cache: dict | None = None) -> pd.DataFrame:
+                 cache: dict | None = None, yaw: str = "attitude") -> pd.DataFrame:
     """The session's PDR odometry (DataFrame t, x, y: s, world-aligned m from 0), as ``odometry.csv`` holds it.
+    ``yaw``: the heading source's own yaw or the gyroscope's held to it (:func:`attitude_track`).
 
     Raises :class:`MissingStream` without IMU data or (``heading='orientation'``) without orientation.csv."""
     if heading not in HEADING_SOURCES:
         raise ValueError(f"odometry.heading must be one of {HEADING_SOURCES}, got {heading!r}")
     heading = resolve_heading(session, heading)
     att, steps = att or AttitudeConfig(), steps or StepDetectorConfig()
-    key = ("rw-pdr", session.id, heading, float(step_length), repr(att), repr(steps))
+    key = ("rw-pdr", session.id, heading, yaw, float(step_length), repr(att), repr(steps))
     if cache is not None and key in cache:
         return cache[key]
     imu = session.imu
     if len(imu) < 2:
         raise MissingStream(f"session {session.id} has no IMU data, which the PDR odometry needs")
-    q_t, q = attitude_track(session, heading, att, steps, cache)
+    q_t, q = attitude_track(session, heading, att, steps, cache, yaw)
     t, xy = pdr_track(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), q_t, q, step_length, steps,
                       flags=_step_flags(session, steps, cache))
     df = pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1]})

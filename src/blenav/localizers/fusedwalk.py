@@ -60,6 +60,7 @@ from blenav.crf.smoother import Layers, forward_backward, viterbi
 from blenav.crf.walk_graph import GraphSettings
 from blenav.errors import MissingStream
 from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADING_SOURCES, fitted_step_length, pdr_odometry, resolve_heading
+from blenav.filters.yaw_hold import YAW_SOURCES
 
 from .base import NO_IO_MODEL, Estimate, FixConsumer, InertialModelConsumer, Localizer, Trained, attach_inertial
 from .inputs import RunInputs
@@ -182,7 +183,8 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         self.roles = [str(r) for r in (fix_roles or [])]
         if not self.roles:
             raise ValueError(f"method {name!r}: fix_roles names no role of the experiment's fixes block")
-        odo = _block(name, "odometry", odometry, {"source": "auto", "heading": "auto", "step_length": None})
+        odo = _block(name, "odometry", odometry, {"source": "auto", "heading": "auto", "step_length": None,
+                                                  "yaw": "attitude"})
         self.source = str(odo.get("source", "auto"))
         if self.source not in ("auto", "pdr", "lio"):
             raise ValueError(f"method {name!r}: odometry.source must be auto, pdr or lio, got {self.source!r}")
@@ -192,6 +194,9 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADING_SOURCES}, got "
                              f"{self.heading!r}")
         self.step_length = odo.get("step_length")
+        self.yaw = str(odo.get("yaw", "attitude"))
+        if self.yaw not in YAW_SOURCES:
+            raise ValueError(f"method {name!r}: odometry.yaw must be one of {YAW_SOURCES}, got {self.yaw!r}")
         g = _block(name, "grid", grid, {"cell_m": 1.0, "max_step_m": 3.0})
         self.cell_m, self.max_step_m = float(g["cell_m"]), float(g["max_step_m"])
         self.dt_s = float(dt_s)
@@ -332,7 +337,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         lio = self.io_model if self.source in ("auto", "lio") else None
         if self.io_reason is not None:  # source lio without a model, or a model given that cannot be used
             raise MissingStream(self.io_reason)
-        key = ("fused-walk", session.id, role, digest.hexdigest(), self._step(), self.heading, lio.key if lio else None, self.cell_m,
+        key = ("fused-walk", session.id, role, digest.hexdigest(), self._step(), self.heading, self.yaw, lio.key if lio else None, self.cell_m,
                self.max_step_m,
                self.dt_s, self.sigma0, self.sigma_per, self.no_odometry_sigma, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
                self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", self.fix_weight,
@@ -352,7 +357,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                 odo = lio.odometry(session, cache=inputs.cache)  # in the attitude it was trained in
                 heading = f"learned ({resolve_heading(session, lio.attitude)} frame)"
             else:
-                odo = pdr_odometry(session, heading, self._step(), cache=inputs.cache)
+                odo = pdr_odometry(session, heading, self._step(), cache=inputs.cache, yaw=self.yaw)
         except MissingStream as exc:  # no IMU (or no heading): the fixes alone, under a random walk at walking pace
             odo, heading = None, f"none ({exc}; random walk of {self.no_odometry_sigma:g} m per node)"
         grid, log_prior, n_prior, rmap, (sdist, snear) = self._floor_model(session, inputs.cache)

@@ -39,6 +39,7 @@ import pandas as pd
 
 from blenav.errors import MissingStream
 from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADING_SOURCES, fitted_step_length, pdr_odometry
+from blenav.filters.yaw_hold import YAW_SOURCES
 from blenav.localizers.base import NO_IO_MODEL, Estimate, InertialModelConsumer, Trained, attach_inertial
 from blenav.localizers.inputs import RunInputs
 from blenav.localizers.particle import ParticleFilterLocalizer
@@ -55,10 +56,12 @@ class RealWalkPF(ParticleFilterLocalizer, Trained, InertialModelConsumer):
     def __init__(self, name: str, shared=None, odometry=None, **pf):
         super().__init__(name, shared, **pf)
         odo = dict(odometry or {})
-        unknown = set(odo) - {"source", "heading", "step_length", "attitude"}
+        unknown = set(odo) - {"source", "heading", "step_length", "attitude", "yaw"}
         if unknown:
             raise ValueError(f"method {name!r}, odometry: unknown key(s) {sorted(unknown)}; known: source, heading, "
-                             f"step_length, attitude")
+                             f"step_length, attitude, yaw")
+        if odo.get("yaw", "attitude") not in YAW_SOURCES:
+            raise ValueError(f"method {name!r}: odometry.yaw must be one of {YAW_SOURCES}, got {odo['yaw']!r}")
         self.odometry = odo if odometry is not None else None
         if self.odometry is not None and self.odometry.get("heading", "orientation") not in HEADING_SOURCES:
             raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADING_SOURCES}, got "
@@ -97,7 +100,7 @@ class RealWalkPF(ParticleFilterLocalizer, Trained, InertialModelConsumer):
                 raise MissingStream(self.io_reason)
             return self.io_model.odometry(session, self.odometry.get("attitude"), cache=inputs.cache)
         return pdr_odometry(session, self.odometry.get("heading", "orientation"), self._step(), self.method.attitude,
-                            self.method.steps, inputs.cache)
+                            self.method.steps, inputs.cache, self.odometry.get("yaw", "attitude"))
 
     def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         est = super().run(session, n_runs, seed, inputs)

@@ -55,8 +55,10 @@ def inertial_markdown(floors: dict[str, dict], sim_only: dict[str, dict], runs: 
             f"{_f(_get(s, 'LIO', 'error_m', 'mean') if s else None)} |")
     lines += ["", "Where the segment error comes from (test walks; length: mean | |p(b) - p(a)| - |g(b) - g(a)| |, how much a "
               "row over- or under-shoots; heading: median angle between its displacement and the surveyed one, segments of "
-              "2 m or more). The heading of both rows is the phone's rotation vector (magnetic north): the network "
-              "corrects how far the walker went far more than which way.", "",
+              "2 m or more). PDR's heading is the phone's rotation vector (magnetic north); LIO's, for a model trained "
+              "with `data.yaw: gyro` (the default since 2026-11-27), the gyroscope's yaw held to the rotation vector's "
+              "running mean (blenav.filters.yaw_hold), which follows the turns without the magnetic field's local "
+              "wander but keeps the rotation vector's offset over the walk (the gyroscope has no north).", "",
               "| floor | row | segment error | length error | heading error |", "|---|---|---|---|---|"]
     for fl in sorted(floors):
         for row in ("PDR (rotation vector)", "LIO", "LIO+map"):

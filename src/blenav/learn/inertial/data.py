@@ -2,8 +2,8 @@
 them.
 
 Walks. Every labelled session with an IMU of ``data.path`` and ``data.extra_paths`` (only ``data.sessions`` when
-given): its IMU in the gravity-aligned frame of its attitude (``data.attitude``; ``data.dense_attitude`` for walks with
-a dense ground-truth orientation, e.g. simulated ones), resampled and cut into windows
+given): its IMU in the gravity-aligned frame of its attitude (``data.attitude``, its yaw per ``data.yaw``;
+``data.dense_attitude`` for walks with a dense ground-truth orientation, e.g. simulated ones), resampled and cut into windows
 (:mod:`blenav.features.inertial`; :func:`blenav.filters.inertial_odometry.session_frame_imu`).
 
 Segments (no invented positions). A segment is a stretch [a, b] of a walk whose displacement is known: between two
@@ -32,6 +32,7 @@ from blenav.errors import MissingStream
 from blenav.features.inertial import (CHANNELS, FRAMES, InertialGrid, cut, heading_frame, n_windows, padded,
                                       segment_weights, turn_pairs)
 from blenav.filters.inertial_odometry import session_frame_imu
+from blenav.filters.yaw_hold import YAW_SOURCES
 
 from ..common.sessions import labelled_sessions
 from .data_config import InertialDataConfig
@@ -178,6 +179,8 @@ class InertialDataModule(L.LightningDataModule):
         self.grid = InertialGrid(cfg.rate_hz, cfg.window_s, cfg.stride_s)
         if cfg.frame not in FRAMES:
             raise ValueError(f"data.frame must be one of {FRAMES}, got {cfg.frame!r}")
+        if cfg.yaw not in YAW_SOURCES:
+            raise ValueError(f"data.yaw must be one of {YAW_SOURCES}, got {cfg.yaw!r}")
         self.walks: dict[str, list[Walk]] = {}
         self.segments: dict[str, Segments] = {}
         self.sets: dict[str, SegmentSet] = {}
@@ -188,13 +191,13 @@ class InertialDataModule(L.LightningDataModule):
         c = self.cfg
         dense = not s.groundtruth_sparse
         source = c.dense_attitude if (dense and c.dense_attitude) else c.attitude
-        try:
-            t, X, used = session_frame_imu(s, self.grid, source)
+        try:  # a ground-truth orientation is exact: its yaw is kept
+            t, X, used = session_frame_imu(s, self.grid, source, yaw=c.yaw if source == c.attitude else "attitude")
         except MissingStream as exc:
             if source == c.attitude:
                 raise
             log.info("session %s: %s; its frame from data.attitude=%s", s.id, exc, c.attitude)
-            t, X, used = session_frame_imu(s, self.grid, c.attitude)
+            t, X, used = session_frame_imu(s, self.grid, c.attitude, yaw=c.yaw)
         K = n_windows(len(X), self.grid)
         seg = walk_segments(s, self.grid, float(t[0]), K, c)
         if not K or not len(seg[0]):

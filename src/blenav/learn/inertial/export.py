@@ -78,7 +78,7 @@ def parity(net: InertialNet, path: Path, extra: torch.Tensor | None = None) -> d
 
 
 def real_windows(data: str | None, grid: InertialGrid, attitude: str = "auto", frame: str = "world", walks: int = 4,
-                 n: int = 256) -> torch.Tensor | None:
+                 n: int = 256, yaw: str = "attitude") -> torch.Tensor | None:
     """Up to ``n`` windows of the first ``walks`` walks with an IMU of the dataset ``data`` (the export's ``data=DIR``,
     given by the user: nothing is read that a checkpoint names), as the network sees them (turned into their heading
     frames for ``frame: heading``); None without ``data``."""
@@ -94,7 +94,7 @@ def real_windows(data: str | None, grid: InertialGrid, attitude: str = "auto", f
         if len(out) >= walks:
             break
         try:
-            _, X, _ = session_frame_imu(s, grid, attitude)
+            _, X, _ = session_frame_imu(s, grid, attitude, yaw=yaw)
         except MissingStream:
             continue
         W = windows(X, grid)
@@ -135,8 +135,9 @@ def export_inertial(net: InertialNet, meta: dict, out: str | Path, opset: int = 
                    {"imu": {0: "batch"}, "velocity": {0: "batch"}, "log_var": {0: "batch"}}, opset, props,
                    f"blenav inertial odometry ({type(net).__name__}): IMU window -> velocity and log variance")
         grid_obj = InertialGrid(**grid)
-        worst = parity(net, path, real_windows(data, grid_obj, (meta.get("attitude") or {}).get("attitude", "auto"),
-                                               info["input_frame"]))
+        att = meta.get("attitude") or {}
+        worst = parity(net, path, real_windows(data, grid_obj, att.get("attitude", "auto"), info["input_frame"],
+                                               yaw=att.get("yaw") or "attitude"))
         if not all(v <= TOL for v in worst.values()):
             raise RuntimeError(f"{out}: onnxruntime differs from PyTorch ({worst}) beyond {TOL:g}; export rejected")
     except Exception:

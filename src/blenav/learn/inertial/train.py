@@ -53,7 +53,7 @@ def build_meta(model: dict, dm: InertialDataModule, counts: dict) -> dict:
     c = dm.cfg
     return {"kind": KIND, "model": model, "grid": dm.grid.as_dict(), "channels": list(CHANNELS), "frame": FRAME,
             "input_frame": c.frame,
-            "attitude": {"attitude": c.attitude, "dense_attitude": c.dense_attitude},
+            "attitude": {"attitude": c.attitude, "dense_attitude": c.dense_attitude, "yaw": c.yaw},
             "outputs": "velocity (vx, vy) m/s over the window's last stride, log variance (log vx^2, log vy^2)",
             "datasets": c.paths, "sessions": sorted(s.id for v in dm.sessions.values() for s in v),
             "val_sessions": sorted(s.id for s in dm.sessions.get("val", [])),
