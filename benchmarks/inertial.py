@@ -65,8 +65,8 @@ def main() -> None:
         growth.append(np.diff(odo["var"].to_numpy(float)) / np.diff(odo["t"].to_numpy(float)))
         imu = s.imu
         t, acc, gyr = imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), imu[["gx", "gy", "gz"]].to_numpy(float)
-        q_t, q = attitude_track(s, model.attitude, cache=cache)
-        _, X = world_frame_imu(t, acc, gyr, q_t, q, g.rate_hz)
+        q_t, q = attitude_track(s, model.attitude, cache=cache)  # what the phone pushes (its rotation vector)
+        _, X = world_frame_imu(t, acc, gyr, *attitude_track(s, model.attitude, cache=cache, yaw=model.yaw), g.rate_hz)
         a = time.perf_counter()
         W = windows(X, g)
         W, psi = heading_frame(W) if model.frame == "heading" else (W, None)
@@ -119,7 +119,7 @@ def main() -> None:
 
         net, _ = load_inertial(args.ckpt)
         s = walks[0]
-        q_t, q = attitude_track(s, model.attitude)
+        q_t, q = attitude_track(s, model.attitude, yaw=model.yaw)
         imu = s.imu
         _, X = world_frame_imu(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float),
                                imu[["gx", "gy", "gz"]].to_numpy(float), q_t, q, g.rate_hz)
@@ -147,6 +147,7 @@ class _Graph:
 
     def __init__(self, like: InertialModel, sess, tag: str):
         self.grid, self.frame, self.sess, self.key = like.grid, like.frame, sess, f"{tag}:{like.key}"
+        self.yaw = like.yaw
 
     def predict(self, W):
         return tuple(self.sess.run(["velocity", "log_var"], {"imu": np.ascontiguousarray(W, np.float32)}))
@@ -182,7 +183,7 @@ def int8(model: InertialModel, walks: list) -> None:
                 odo = lio_odometry(s, m, model.attitude, cache=cache)
                 seg[name].append(segment_errors(odo["t"].to_numpy(float), odo[["x", "y"]].to_numpy(float)[None],
                                                 gt["t"].to_numpy(float), gt[["x", "y"]].to_numpy(float))["err"][0])
-            _, X, _ = session_frame_imu(s, g, model.attitude, cache=cache)  # the walk's windows: the velocity difference and one window's latency
+            _, X, _ = session_frame_imu(s, g, model.attitude, cache=cache, yaw=model.yaw)  # the walk's windows: the velocity difference and one window's latency
             W = heading_frame(windows(X, g))[0] if model.frame == "heading" else windows(X, g)
             dv = max(dv, float(np.abs(graphs["float"].predict(W)[0] - graphs["int8"].predict(W)[0]).max()))
             for name, m in graphs.items():

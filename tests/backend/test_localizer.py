@@ -117,6 +117,10 @@ def test_a_bias_feedback_resumes_the_ahrs_with_a_whole_runs_numbers(sim, monkeyp
         return run
 
     resumed = drive()
+    early = BatchRun(m, s, 1, 7)
+    early.advance(early.arrays.t_start + 12.0)
+    with pytest.raises(ValueError, match="before the last step done"):  # steps done are not made again
+        early.correct_imu(early.arrays.t_start + 5.0, np.zeros(3), np.zeros(3))
     monkeypatch.setattr(runner, "resumable", lambda cfg: False)  # every correction runs the AHRS whole
     whole = drive()
     assert resumed.q is not None and np.ptp(resumed.q[:, 3]) > 0

@@ -82,3 +82,25 @@ def test_a_constant_offset_stays_and_a_right_attitude_is_unchanged():
     held = hold_yaw(t, gyr, q)
     np.testing.assert_allclose(_yaw(held), _yaw(q), atol=np.radians(0.3))
     assert hold_yaw(t[:1], gyr[:1], q[:1]).shape == (1, 4)
+
+
+def test_the_window_bounds_a_gyro_bias_and_streams_to_the_bit():
+    """A gyroscope biased by b about the vertical: the held yaw lags the attitude's mean by about b W / 2 over a window
+    of W seconds, not b t / 2 as a mean over the whole session would; live and batch agree with a window shorter than
+    the walk."""
+    t, gyr, psi, pitch, roll = _walk(n=6000)  # 120 s
+    q = _quat(psi, pitch, roll)
+    b = 0.002  # rad/s about the device z, which the 10 deg pitch keeps near the vertical
+    biased = gyr + np.array([0.0, 0.0, b])
+    from blenav.filters.quaternions import qconj
+    from blenav.filters.yaw_hold import _twist_z
+
+    for window in (10.0, 30.0):
+        held = hold_yaw(t, biased, q, window)
+        err = np.degrees(np.abs(_twist_z(qmul(held, qconj(q)))))
+        assert err[t > 2 * window].max() < np.degrees(b * window / 2) * 1.3 + 0.1
+        h = StreamingYawHold(window)
+        got = np.array([h.update(t[i], biased[i], q[i]) for i in range(len(t))])
+        np.testing.assert_array_equal(got, held)
+    whole = np.degrees(np.abs(_twist_z(qmul(hold_yaw(t, biased, q, 1e9), qconj(q)))))
+    assert whole[-1] > np.degrees(b * t[-1] / 2) * 0.8  # the mean over everything lags ever more

@@ -248,6 +248,10 @@ def test_heading_frame_run_exports_and_runs(trained, tmp_path):
     io = export(compose("export", f"ckpt={run / 'last.ckpt'}", f"out={tmp_path / 'io'}"))
     meta = json.loads((io / "meta.json").read_text())
     assert meta["input_frame"] == "heading" and meta["attitude"]["yaw"] == "gyro"  # data.yaw's default
+    edited = shutil.copytree(io, tmp_path / "io_edited")  # meta.json told another yaw after export: refused
+    (edited / "meta.json").write_text(json.dumps({**meta, "attitude": {**meta["attitude"], "yaw": "attitude"}}))
+    with pytest.raises(ValueError, match="attitude"):
+        InertialModel(edited)
     model = InertialModel(io)
     s = next(iter(Dataset.open(trained["data"]).sessions()))
     odo = model.odometry(s)
@@ -270,6 +274,24 @@ def test_resume_with_another_contract_refused(trained, tmp_path):
     with pytest.raises(ValueError, match="grid"):
         train(compose("train", "experiment=inertial", f"data.path={trained['data']}", f"out={run}", "plots=false",
                       "data.stride_s=1.0", "trainer.budget.max_steps=70", "trainer.enable_progress_bar=false"))
+    with pytest.raises(ValueError, match="data.yaw"):
+        train(compose("train", "experiment=inertial", f"data.path={trained['data']}", f"out={run}", "plots=false",
+                      "data.yaw=attitude", "trainer.budget.max_steps=70", "trainer.enable_progress_bar=false"))
+
+
+def test_a_checkpoint_from_before_data_yaw_resumes_with_the_attitudes_own_yaw(tmp_path, monkeypatch):
+    """A checkpoint whose meta has no attitude.yaw trained on the attitude's own yaw: data.yaw=attitude resumes it,
+    the default (gyro) is refused naming data.yaw."""
+    from blenav.learn.inertial import train as T
+
+    (tmp_path / T.LAST).write_bytes(b"")
+    old = {"kind": "inertial", "grid": {"g": 1}, "channels": ["a"], "input_frame": "world", "model": {"net": "tcn"},
+           "attitude": {"attitude": "auto", "dense_attitude": "groundtruth"}}
+    monkeypatch.setattr(T, "read_checkpoint", lambda path, what: {"blenav": old})
+    meta = {**old, "attitude": {**old["attitude"], "yaw": "attitude"}}
+    T.check_resume(tmp_path, meta)
+    with pytest.raises(ValueError, match=r"data.yaw \('attitude', now 'gyro'\)"):
+        T.check_resume(tmp_path, {**old, "attitude": {**old["attitude"], "yaw": "gyro"}})
 
 
 def test_memory_of_a_strangers_grid_or_clock_is_bounded():

@@ -59,14 +59,17 @@ def world_frame_imu(imu_t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, q_t: np
     """The IMU rotated into the attitude's gravity-aligned frame and resampled (module doc).
 
     ``imu_t`` (T,) s increasing; ``acc`` (T, 3) m/s^2 incl. gravity, ``gyr`` (T, 3) rad/s, device frame; ``q_t``
-    (Q,) s, ``q`` (Q, 4) device -> world (w, x, y, z). Returns (t (N,) s on the grid from imu_t[0], X (N, 15) float32
-    in :data:`CHANNELS` order)."""
+    (Q,) s, ``q`` (Q, 4) device -> world (w, x, y, z); an attitude at the IMU's own times (``q_t`` is ``imu_t``: the
+    AHRS, the held yaw) gives each sample its own, also where a time repeats. Returns (t (N,) s on the grid from
+    imu_t[0], X (N, 15) float32 in :data:`CHANNELS` order)."""
     imu_t = np.asarray(imu_t, float)
     if len(imu_t) < 2:
         raise ValueError("inertial odometry: fewer than two IMU samples")
     if not len(q_t):
         raise ValueError("inertial odometry: the attitude track is empty")
-    R = quat_to_matrix(_attitude_at(np.asarray(q_t, float), np.asarray(q, float), imu_t))
+    q_t, q = np.asarray(q_t, float), np.asarray(q, float)
+    own = len(q_t) == len(imu_t) and np.array_equal(q_t, imu_t)  # one attitude per sample, as the live path has
+    R = quat_to_matrix(q if own else _attitude_at(q_t, q, imu_t))
     a_w = np.einsum("tij,tj->ti", R, np.asarray(acc, float))
     g_w = np.einsum("tij,tj->ti", R, np.asarray(gyr, float))
     a_w[:, 2] -= GRAVITY
@@ -211,6 +214,14 @@ class StreamingLio:
         return self._sample(float(t), acc, gyr, self._q)
 
     def _sample(self, t: float, acc: np.ndarray, gyr: np.ndarray, q: np.ndarray) -> list[tuple]:
+        if self._prev is not None:  # refused before anything (the held yaw included) takes the sample in
+            tp = self._prev[0]
+            if t < tp:
+                raise ValueError(f"live inertial odometry: IMU time goes backwards: {t} after {tp}")
+            if t - tp > MAX_GAP_S:
+                raise ValueError(f"live inertial odometry: the IMU's time jumps from {tp:.3f} s to {t:.3f} s (more "
+                                 f"than {MAX_GAP_S:g} s without a sample; times in seconds?): split the recording at "
+                                 "the gap")
         if self.hold is not None:
             q = self.hold.update(t, gyr, q)
         R = quat_to_matrix(q[None])  # (1, 3, 3), as world_frame_imu rotates every sample
@@ -226,14 +237,9 @@ class StreamingLio:
             self.n = 1
             return [(t, np.zeros(2), 0.0)]
         tp, rp = self._prev
-        if not t > tp:
-            if t < tp:
-                raise ValueError(f"live inertial odometry: IMU time goes backwards: {t} after {tp}")
-            self._prev = (t, raw)  # a repeated time stamp: the later sample, as the batch interpolation takes it
+        if not t > tp:  # a repeated time stamp: the later sample, as the batch interpolation takes it
+            self._prev = (t, raw)
             return out
-        if t - tp > MAX_GAP_S:
-            raise ValueError(f"live inertial odometry: the IMU's time jumps from {tp:.3f} s to {t:.3f} s (more than "
-                             f"{MAX_GAP_S:g} s without a sample; times in seconds?): split the recording at the gap")
         while True:  # the grid samples in (tp, t], interpolated as np.interp over the whole walk does
             g = self.t0 + self.n / rate
             if g > t:

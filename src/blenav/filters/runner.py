@@ -307,6 +307,8 @@ class BatchRun:
         are made again as :meth:`advance` reaches them."""
         if not self.method.needs_imu or not len(self.arrays.imu_t):
             return
+        if self.k and t_from < self.ts[self.k - 1]:  # the steps done keep their controls: nothing before them moves
+            raise ValueError(f"correct_imu: t_from {t_from} s is before the last step done ({self.ts[self.k - 1]} s)")
         a = self.arrays
         after = a.imu_t > t_from
         acc, gyr = a.acc.copy(), a.gyr.copy()

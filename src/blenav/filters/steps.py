@@ -334,20 +334,24 @@ def session_steps(a: SessionArrays, rate_hz: float, att_cfg: AttitudeConfig, det
     step_flags = np.zeros(len(a.imu_t), bool)
     if need_imu and len(a.imu_t):
         q, step_flags = imu if imu is not None else imu_features(a, att_cfg, det_cfg, mag_offset)
-    bounds_imu = np.searchsorted(a.imu_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right") if need_imu else None
-    bounds_rssi = np.searchsorted(a.rssi_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right")
-    bounds_fix = np.searchsorted(a.fix_t, np.concatenate([[a.t_start - 1e-9], ts]), side="right")
+    stop = len(ts) if stop is None else min(stop, len(ts))
+    # the window edges of the steps asked for only (edge i - start is step i's left edge)
+    edges = np.concatenate([[a.t_start - 1e-9], ts])[start:stop + 1]
+    bounds_imu = np.searchsorted(a.imu_t, edges, side="right") if need_imu else None
+    bounds_rssi = np.searchsorted(a.rssi_t, edges, side="right")
+    bounds_fix = np.searchsorted(a.fix_t, edges, side="right")
     out = []
     prev_t = a.t_start if start == 0 else ts[start - 1]
-    for k in range(start, len(ts) if stop is None else min(stop, len(ts))):
+    for k in range(start, stop):
         t = ts[k]
+        i = k - start
         if need_imu and q is not None:
-            s = slice(bounds_imu[k], bounds_imu[k + 1])
+            s = slice(bounds_imu[i], bounds_imu[i + 1])
             wa, wq, n_steps = a.acc[s], q[s], int(step_flags[s].sum())
         else:
             wa, wq, n_steps = np.zeros((0, 3)), np.zeros((0, 4)), 0
-        r = slice(bounds_rssi[k], bounds_rssi[k + 1])
-        f = slice(bounds_fix[k], bounds_fix[k + 1])
+        r = slice(bounds_rssi[i], bounds_rssi[i + 1])
+        f = slice(bounds_fix[i], bounds_fix[i + 1])
         fixes = pack_fixes(a.fix_xy[f], a.fix_std[f], a.fix_source[f]) if f.stop > f.start else None
         ctrl, obs, heading = window_step(wa, wq, n_steps, _odo_at(a.odo_t, a.odo, prev_t), _odo_at(a.odo_t, a.odo, t),
                                          a.rssi_idx[r], a.rssi[r], heading, att_cfg.median_window, fixes, float(t),

@@ -128,7 +128,8 @@ def export_inertial(net: InertialNet, meta: dict, out: str | Path, opset: int = 
         "model": meta.get("model"), "datasets": meta.get("datasets"), "counts": meta.get("counts"),
         "data_hash": meta.get("data_hash"), "blenav_version": blenav_version(),
     }
-    props = json_props(info, ("kind", "grid", "channels", "frame", "input_frame", "units", "normalisation", "blenav_version"))
+    props = json_props(info, ("kind", "grid", "channels", "frame", "input_frame", "attitude", "units", "normalisation",
+                              "blenav_version"))
     path = out / INERTIAL_ONNX
     try:
         trace_onnx(_Graph(net), (torch.zeros(2, net.n_window, 15),), path, ["imu"], ["velocity", "log_var"],

@@ -101,7 +101,12 @@ def check_resume(out, meta: dict) -> None:
     old = read_checkpoint(ck, "inertial odometry").get("blenav") or {}
     if old.get("kind") != meta.get("kind"):
         raise ValueError(f"{ck}: a {old.get('kind') or 'crossphone'} run, not an inertial odometry one; choose another out=")
-    differ = [k for k in RESUME_KEYS if old.get(k) != meta.get(k)]
+    differ = [k for k in RESUME_KEYS if k != "attitude" and old.get(k) != meta.get(k)]
+    # a checkpoint from before data.yaw trained on the attitude's own yaw (data.yaw=attitude resumes it)
+    was, now = dict(old.get("attitude") or {}), dict(meta.get("attitude") or {})
+    was.setdefault("yaw", "attitude")
+    differ += [f"data.{k} ({was.get(k)!r}, now {now.get(k)!r})" for k in sorted(set(was) | set(now))
+               if was.get(k) != now.get(k)]
     if (old.get("model") or {}).get("net") != (meta.get("model") or {}).get("net"):
         differ.append("model.net")
     if differ:
