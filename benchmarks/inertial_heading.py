@@ -8,7 +8,7 @@ floor's test walks (the split of ``experiment=realwalks``) with each yaw source,
   per walk could give: what the walk-constant part of the rotation vector's error costs.
 
 The tracks are the odometry itself (:func:`blenav.filters.inertial_odometry.lio_odometry`,
-:func:`blenav.filters.pdr_odometry.pdr_odometry` with the default 0.7 m step), not the PF rows of the evaluation (whose
+:func:`blenav.filters.pdr_odometry.pdr_odometry` with the default 0.7 m step, ``DEFAULT_STEP_M``), not the PF rows of the evaluation (whose
 cloud's mean adds a few centimetres). Segment error: |(p(b) - p(a)) - (g(b) - g(a))| per waypoint segment, mean (m);
 heading: the median absolute angle of the segments of 2 m or more (deg).
 
@@ -26,8 +26,7 @@ from blenav.eval.config import parse_eval_config
 from blenav.eval.metrics import MIN_SEGMENT_FOR_ANGLE_M, pool_segment_errors, segment_errors
 from blenav.eval.sessions import open_dataset, scored_sessions, train_test
 from blenav.filters.inertial_odometry import lio_odometry
-from blenav.filters.pdr_odometry import attitude_track, pdr_track
-from blenav.filters.steps import detect_steps
+from blenav.filters.pdr_odometry import DEFAULT_STEP_M, pdr_odometry
 from blenav.runtime.inertial import InertialModel
 
 
@@ -44,16 +43,6 @@ def _turned(track, angle_deg: float):
     return out
 
 
-def _pdr(session, yaw: str):
-    import pandas as pd
-
-    q_t, q = attitude_track(session, "orientation", yaw=yaw)
-    imu = session.imu
-    t, xy = pdr_track(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float), q_t, q, 0.7, None,
-                      flags=detect_steps(imu["t"].to_numpy(float), imu[["ax", "ay", "az"]].to_numpy(float)))
-    return pd.DataFrame({"t": t, "x": xy[:, 0], "y": xy[:, 1]})
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("io_dir")
@@ -63,6 +52,7 @@ def main() -> None:
     ds = open_dataset(cfg)
     _, test = train_test(cfg, ds, scored_sessions(cfg, ds))
     model = InertialModel(args.io_dir)
+    trained = model.yaw  # its own; each row below sets the yaw it runs with
     rows: dict[str, list] = {}
     for s in test:
         gt = s.groundtruth
@@ -70,15 +60,17 @@ def main() -> None:
             continue
         for yaw in ("attitude", "gyro"):
             model.yaw = yaw
-            seg = _segments(lio_odometry(s, model), gt)
+            track = lio_odometry(s, model)
+            seg = _segments(track, gt)
             rows.setdefault(f"LIO, yaw {yaw}", []).append(seg)
-            rows.setdefault(f"PDR, yaw {yaw}", []).append(_segments(_pdr(s, yaw), gt))
+            rows.setdefault(f"PDR, yaw {yaw}", []).append(
+                _segments(pdr_odometry(s, "orientation", DEFAULT_STEP_M, yaw=yaw), gt))
             long = seg["true"] >= MIN_SEGMENT_FOR_ANGLE_M
             if yaw == "gyro" and long.any():
                 off = float(np.median(seg["angle"][0, long]))
-                rows.setdefault("LIO, yaw gyro + walk offset (oracle)", []).append(
-                    _segments(_turned(lio_odometry(s, model), -off), gt))
-    print(f"{args.data}: {len(test)} test walks, model {args.io_dir} (trained with yaw {InertialModel(args.io_dir).yaw})")
+                rows.setdefault("LIO, yaw gyro + walk offset (oracle)", []).append(_segments(_turned(track, -off), gt))
+    model.yaw = trained
+    print(f"{args.data}: {len(test)} test walks, model {args.io_dir} (trained with yaw {trained})")
     print(f"{'track':40s} {'segment mean':>12s} {'length':>7s} {'heading':>8s} {'segments':>8s}")
     for name, segs in rows.items():
         r = pool_segment_errors(segs)

@@ -43,6 +43,12 @@ import numpy as np
 from blenav.limits import check_file_size, max_model_bytes
 
 
+#: the exported localizer's per-fix std output (a LocNet with a std head, issue 29), m
+STD_OUTPUT = "std_m"
+#: the smallest std (m) a fix may state: a foreign graph's smaller (or 1e-9) std is raised to it, so no fix's inverse
+#: variance can overwhelm a filter's particles (a sub-decimetre fingerprint fix is not a thing)
+MIN_FIX_STD_M = 0.1
+
 def session(path: str | Path, threads: int = 1):
     """onnxruntime session of ``path``: CPU, ``threads`` intra-op threads, 1 inter-op thread, sequential."""
     import onnxruntime as ort

@@ -21,7 +21,7 @@ from blenav.limits import check_memory
 from blenav.features.inertial import GRAVITY, InertialGrid, heading_frame, integrate, rotate_velocity, windows
 
 from .attitude import AttitudeConfig, StreamingAttitude
-from .pdr_odometry import HEADINGS, attitude_track, resolve_heading
+from .pdr_odometry import HEADINGS, attitude_at, attitude_track, resolve_heading
 from .quaternions import quat_to_matrix
 from .steps import StepDetectorConfig
 from .yaw_hold import YAW_SOURCES, StreamingYawHold
@@ -48,12 +48,6 @@ def model_yaw(model) -> str:
     return yaw
 
 
-def _attitude_at(q_t: np.ndarray, q: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(len(t), 4): the attitude sample at or before each time (the first one before the track starts)."""
-    i = np.clip(np.searchsorted(q_t, t, side="right") - 1, 0, len(q_t) - 1)
-    return q[i]
-
-
 def world_frame_imu(imu_t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, q_t: np.ndarray, q: np.ndarray,
                     rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """The IMU rotated into the attitude's gravity-aligned frame and resampled (module doc).
@@ -69,7 +63,7 @@ def world_frame_imu(imu_t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, q_t: np
         raise ValueError("inertial odometry: the attitude track is empty")
     q_t, q = np.asarray(q_t, float), np.asarray(q, float)
     own = len(q_t) == len(imu_t) and np.array_equal(q_t, imu_t)  # one attitude per sample, as the live path has
-    R = quat_to_matrix(q if own else _attitude_at(q_t, q, imu_t))
+    R = quat_to_matrix(q if own else attitude_at(q_t, q, imu_t))
     a_w = np.einsum("tij,tj->ti", R, np.asarray(acc, float))
     g_w = np.einsum("tij,tj->ti", R, np.asarray(gyr, float))
     a_w[:, 2] -= GRAVITY

@@ -25,7 +25,7 @@ from .runner import session_imu
 from .steps import SessionArrays, StepDetectorConfig, detect_steps
 from .yaw_hold import YAW_SOURCES, hold_yaw
 
-__all__ = ["HEADINGS", "HEADING_SOURCES", "DEFAULT_STEP_M", "pdr_odometry", "fit_step_length", "fitted_step_length", "attitude_track",
+__all__ = ["HEADINGS", "HEADING_SOURCES", "DEFAULT_STEP_M", "pdr_odometry", "fit_step_length", "fitted_step_length", "attitude_at", "attitude_track",
            "resolve_heading"]
 
 HEADINGS = ("orientation", "ahrs")
@@ -41,6 +41,13 @@ def resolve_heading(session, heading: str) -> str:
     if heading != "auto":
         return heading
     return "orientation" if (session.root / "orientation.csv").is_file() else "ahrs"
+
+
+def attitude_at(q_t: np.ndarray, q: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(len(t), 4): the attitude sample of the track (``q_t`` (Q,) s increasing, ``q`` (Q, 4)) at or before each time
+    ``t``, the first one before the track starts (as a phone's latest rotation vector at each IMU sample)."""
+    i = np.clip(np.searchsorted(q_t, t, side="right") - 1, 0, len(q_t) - 1)
+    return q[i]
 
 
 def attitude_track(session, heading: str, att: AttitudeConfig | None = None, steps: StepDetectorConfig | None = None,
@@ -60,8 +67,7 @@ def attitude_track(session, heading: str, att: AttitudeConfig | None = None, ste
         if len(imu) < 2:
             raise MissingStream(f"session {session.id} has no IMU data, which the gyroscope's yaw needs")
         imu_t = imu["t"].to_numpy(float)
-        i = np.clip(np.searchsorted(q_t, imu_t, side="right") - 1, 0, len(q_t) - 1)  # as world_frame_imu samples it
-        return imu_t, hold_yaw(imu_t, imu[["gx", "gy", "gz"]].to_numpy(float), q[i])
+        return imu_t, hold_yaw(imu_t, imu[["gx", "gy", "gz"]].to_numpy(float), attitude_at(q_t, q, imu_t))
     heading = resolve_heading(session, heading)
     att, steps = att or AttitudeConfig(), steps or StepDetectorConfig()
     if heading == "orientation":

@@ -81,7 +81,7 @@ from pathlib import Path
 import numpy as np
 
 from blenav.errors import MissingStream
-from blenav.runtime.calibration import std_scale_fit
+from blenav.runtime.calibration import coverage, std_scale_fit
 from blenav.features import fingerprints as FP
 
 from . import knn as KNN
@@ -96,7 +96,8 @@ MODELS = ("knn", "locnet", "transnet_locnet")
 #: the networks' fix covariance: none, the validation walks' RMS error, the std head's own calibrated sigma, or a
 #: std model of that sigma and the scan's distance to the survey
 NET_COVS = ("none", "validation", "predicted", "calibrated")
-#: validation windows needed to fit ``net_cov: calibrated``'s std model (fewer: the head's sigma)
+#: errors needed to fit a std model (``net_cov: calibrated``'s validation windows, fewer: the head's sigma;
+#: ``fix_std: calibrated``'s out-of-fold fixes, fewer: no model)
 MIN_STD_FIT = 10
 #: features kept by ``max_features: auto`` for TransNet+LocNet (its SSL loss holds b x F x F x H values)
 NET_MAX_FEATURES = 256
@@ -341,8 +342,8 @@ class FingerprintLocalizer(Localizer, Trained):
             return None
         err, spread, d1 = KNN.out_of_fold(S, xy, walk_of, setting, is_ble, self.cfg.fill_dbm, self.cov_floor_m,
                                           folds=folds, seed=self.seed)
-        if len(err) < 10:
-            info["fix_std"] = f"neighbours: {len(err)} out-of-fold fixes (need 10) to calibrate"
+        if len(err) < MIN_STD_FIT:
+            info["fix_std"] = f"neighbours: {len(err)} out-of-fold fixes (need {MIN_STD_FIT}) to calibrate"
             return None
         model = KNN.fit_std_model(err, spread, d1)
         sd = model.std(spread, d1)
@@ -371,7 +372,7 @@ class FingerprintLocalizer(Localizer, Trained):
         if self.net_cov in ("predicted", "calibrated"):  # each fix's own sigma (LocNet's std head) + cov_floor_m^2;
             # calibrated comes here when too few validation windows fit its model
             if "fix_std" not in rep:
-                raise ValueError(f"method {self.name!r}: net_cov: predicted needs a LocNet with a std head "
+                raise ValueError(f"method {self.name!r}: net_cov: {self.net_cov} needs a LocNet with a std head "
                                  f"(net.locnet.std_head: true)")
             info["fix_std"] = rep["fix_std"]
 
@@ -416,10 +417,7 @@ class FingerprintLocalizer(Localizer, Trained):
 
         def features(Sq):
             xy_q, sigma = net_predict(Sq)
-            Q = KNN.represent(Sq, "cosine", is_ble, 1.0, self.cfg.fill_dbm)
-            d2 = np.concatenate([KNN._sqdist(Q[i:i + 512], X, bb).min(axis=1) for i in range(0, len(Q), 512)]
-                                or [np.zeros(0)])  # bounded memory: 512 x N distances at a time
-            return xy_q, sigma, np.sqrt(d2)
+            return xy_q, sigma, KNN.nearest_distance(KNN.represent(Sq, "cosine", is_ble, 1.0, self.cfg.fill_dbm), X, bb)
 
         xy_v, sigma_v, d1_v = features(S[val])
         err = np.hypot(*(xy_v - xy[val]).T)
@@ -428,9 +426,7 @@ class FingerprintLocalizer(Localizer, Trained):
         scale, fit = std_scale_fit(err, stated)
         info["fix_std"] = {"model": "log std = c0 + c1 log(1 + sigma of the std head) + c2 d1 (signal distance to "
                                     "the training windows), fitted on the validation walks' errors; + cov_floor_m",
-                           "c": list(model.c), "windows": int(len(err)),
-                           "coverage_1sigma": float(np.mean(err <= stated)),
-                           "coverage_2sigma": float(np.mean(err <= 2.0 * stated)),
+                           "c": list(model.c), "windows": int(len(err)), **coverage(err, stated),
                            "rank_correlation": fit.get("rank_correlation"),
                            "ml_scale": None if "uncalibrated" in fit else scale}
 

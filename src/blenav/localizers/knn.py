@@ -89,6 +89,14 @@ def _sqdist(A: np.ndarray, B: np.ndarray, bb: np.ndarray | None = None) -> np.nd
     return np.maximum(np.einsum("nf,nf->n", A, A)[:, None] + bb[None] - 2.0 * A @ B.T, 0.0)
 
 
+def nearest_distance(Q: np.ndarray, X: np.ndarray, bb: np.ndarray | None = None, chunk: int = 512) -> np.ndarray:
+    """(K,) the Euclidean distance of each row of Q (K, D) to the nearest row of X (N, D), ``chunk`` x N distances at a
+    time (bounded memory); ``bb``: X's squared norms when already computed."""
+    bb = np.einsum("nf,nf->n", X, X) if bb is None else bb
+    d2 = [_sqdist(Q[i:i + chunk], X, bb).min(axis=1) for i in range(0, len(Q), chunk)]
+    return np.sqrt(np.concatenate(d2) if d2 else np.zeros(0))
+
+
 def neighbours(Q: np.ndarray, X: np.ndarray, kmax: int) -> tuple[np.ndarray, np.ndarray]:
     """(idx (K, k), d2 (K, k)): the k = min(kmax, N) nearest rows of X (N, D) to each row of Q (K, D), nearest first,
     squared Euclidean distances (ties by row order)."""

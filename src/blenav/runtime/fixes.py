@@ -26,7 +26,7 @@ import numpy as np
 
 from blenav.features.windows import WindowConfig, session_windows
 
-from .calibration import std_scale_fit
+from .calibration import coverage, std_scale_fit
 from .onnx_localizer import OnnxLocalizer
 
 log = logging.getLogger("blenav.runtime.fixes")
@@ -44,17 +44,16 @@ def _predict_windows(model: OnnxLocalizer, session):
 
 def _fixes(model: OnnxLocalizer, session):
     """(t (F,), xy (F, 2), std (F,) m or None, number of windows without any beacon heard) for one session; a std
-    that is not a finite positive number (a float32 overflow of the graph) is written as unknown (NaN), counted in the
-    log."""
+    the graph gave as no finite positive number (a float32 overflow) is unknown (NaN,
+    :meth:`~blenav.runtime.onnx_localizer.LocalizerSession.predict_windows_std`), counted in the log."""
     win, xy, std = _predict_windows(model, session)
     ok = np.isfinite(xy).all(axis=1)
     if std is not None:
         std = std[ok]
-        bad = ~(np.isfinite(std) & (std > 0))
+        bad = ~np.isfinite(std)
         if bad.any():
             log.warning("session %s: %d of %d fixes have no finite positive std from %s; written as unknown",
                         session.id, int(bad.sum()), len(std), model.path)
-            std = np.where(bad, np.nan, std)
     return win.t[ok], xy[ok], std, int((~ok).sum())
 
 
@@ -130,8 +129,7 @@ def calibrate_model_fixes(dataset, model_path: str | Path, session_ids=None) -> 
         err, sd = np.linalg.norm(np.concatenate(errors), axis=1), np.concatenate(stds)
         fine = np.isfinite(sd) & (sd > 0)
         scale, fit = std_scale_fit(err, sd)
-        out["stated_std"] = {"fixes": int(fine.sum()), "coverage_1sigma": float(np.mean(err[fine] <= sd[fine])),
-                             "coverage_2sigma": float(np.mean(err[fine] <= 2.0 * sd[fine])),
+        out["stated_std"] = {"fixes": int(fine.sum()), **coverage(err[fine], sd[fine]),
                              "ml_scale": scale if "uncalibrated" not in fit else None,
                              "rank_correlation": fit.get("rank_correlation")} if fine.any() else None
     return out

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from blenav.features.windows import beacon_order, rssi_to_u
-from blenav.onnx_io import check_weights, read_metadata, session
+from blenav.onnx_io import MIN_FIX_STD_M, STD_OUTPUT, check_weights, read_metadata, session
 
 _EXAMPLES = 5
 
@@ -49,7 +49,7 @@ class LocalizerSession:
         s, h = sess.get_inputs()[0].shape, sess.get_inputs()[1].shape
         self.n_beacons, self.history = int(s[1]), int(s[2])
         self.layers, self.hidden = int(h[0]), int(h[2])
-        self._has_std = "std_m" in {o.name for o in sess.get_outputs()}
+        self._has_std = STD_OUTPUT in {o.name for o in sess.get_outputs()}
         if self.n_beacons != len(self.beacons):
             raise ValueError(f"{self.path}: graph reads {self.n_beacons} beacons, metadata lists {len(self.beacons)}")
 
@@ -91,10 +91,12 @@ class LocalizerSession:
         return self.predict_windows_std(S, std=False)[0]
 
     def predict_windows_std(self, S: np.ndarray, std: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-        """:meth:`predict_windows` and the graph's std per fix (K,) m (NaN where no beacon was heard; None for a
-        graph without ``std_m`` or with ``std`` false)."""
+        """:meth:`predict_windows` and the graph's std per fix (K,) m (None for a graph without ``std_m`` or with
+        ``std`` false): NaN where no beacon was heard and where the graph's std is not a finite positive number (a
+        float32 overflow: unknown), at least :data:`~blenav.onnx_io.MIN_FIX_STD_M` elsewhere (a foreign graph's
+        outputs are data)."""
         S = np.ascontiguousarray(S, dtype=np.float32)
-        names = ["xy", "std_m"] if std and self.has_std else ["xy"]
+        names = ["xy", STD_OUTPUT] if std and self.has_std else ["xy"]
         if len(S) == 0:
             return np.zeros((0, 2)), np.zeros(0) if len(names) > 1 else None
         z = np.zeros((self.layers, len(S), self.hidden), np.float32)  # h0 = c0 = 0, read-only inputs
@@ -105,6 +107,9 @@ class LocalizerSession:
         silent = ~self.heard(S)
         for a in out:
             a[silent] = np.nan
+        if len(out) > 1:
+            sd = out[1]
+            out[1] = np.where(np.isfinite(sd) & (sd > 0), np.maximum(sd, MIN_FIX_STD_M), np.nan)
         return out[0], out[1] if len(out) > 1 else None
 
 

@@ -53,14 +53,13 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from blenav.onnx_io import blenav_version, json_props, max_diff, session
+from blenav.onnx_io import STD_OUTPUT, blenav_version, json_props, max_diff, session
 
 from ..common.onnx_export import DEFAULT_OPSET, trace_onnx
 
 TOL = 1e-4  # max abs difference between onnxruntime and PyTorch outputs (metres and state units)
 INPUT_NAMES = ("S", "h0", "c0")
 OUTPUT_NAMES = ("xy", "h", "c")
-STD_OUTPUT = "std_m"  # the std head's output (appended after OUTPUT_NAMES)
 INPUT_TRANSFORM = ("per packet u = max(rssi_dbm + offset_db, floor_u); per step and beacon the mean of u over its "
                    "packets, 0 when not heard; S rows in beacons order, columns oldest..newest step; feed u as it "
                    "is (the graph divides by u_scale itself)")

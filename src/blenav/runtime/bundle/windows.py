@@ -64,7 +64,7 @@ class WindowFixer:
         xy = xy[0]
         if not np.isfinite(xy).all():
             return None
-        sd = float(std[0]) if std is not None and np.isfinite(std[0]) and std[0] > 0 else None
+        sd = float(std[0]) if std is not None and np.isfinite(std[0]) else None  # NaN: the graph's std unknown
         return (self.t0 + (k + 1) / self.hz, float(xy[0]), float(xy[1]), sd)
 
     def advance(self, t: float) -> list[tuple]:
