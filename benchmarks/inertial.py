@@ -79,7 +79,7 @@ def main() -> None:
         # AHRS with the walk's hard-iron offset as the batch fits it)
         source = resolve_heading(s, model.attitude)  # the reference track's own source
         off = hard_iron_offset(SessionArrays.from_session(s, AnchorTable.empty()), AttitudeConfig())
-        lio = StreamingLio(model, source, mag_offset=off)
+        lio = StreamingLio(model, source, mag_offset=off, gyro_calibrated=s.gyro_calibrated)
         ev = [(float(tm), 1, qq) for tm, qq in zip(q_t, q)] if source == "orientation" else \
             [(float(tm), 0, m) for tm, m in zip(s.mag["t"].to_numpy(float), s.mag[["mx", "my", "mz"]].to_numpy(float))]
         ev += [(float(tm), 2, i) for i, tm in enumerate(t)]

@@ -20,6 +20,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from helpers import make_tiny_dataset
@@ -217,6 +218,21 @@ def test_results_json_is_written_atomically(tmp_path, monkeypatch):
     ino = path.stat().st_ino
     write_json(path, {"methods": {"new": 2.0}})  # replaced, not rewritten in place: a reader sees one or the other
     assert json.loads(path.read_text()) == {"methods": {"new": 2.0}} and path.stat().st_ino != ino
+
+
+def test_results_json_is_strict_json(tmp_path):
+    """A NaN or infinity anywhere in a report (Python or numpy, nested) is written as null: the file parses with a
+    strict JSON reader, and finite numbers are kept to the bit."""
+    from blenav.eval.common import write_json
+
+    path = write_json(tmp_path / "results.json", {"a": float("nan"), "b": [1.5, np.float32("inf"), (np.nan, 2)],
+                                                  "c": np.array([0.25, -np.inf]), "d": {"e": np.float64(0.1)}})
+
+    def refuse(name):
+        raise ValueError(f"{name} in strict JSON")
+
+    got = json.loads(path.read_text(), parse_constant=refuse)
+    assert got == {"a": None, "b": [1.5, None, [None, 2]], "c": [0.25, None], "d": {"e": 0.1}}
 
 
 def test_tables_go_through_the_atomic_writer():

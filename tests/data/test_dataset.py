@@ -116,6 +116,7 @@ def test_unknown_building_id(tiny_dataset):
 @pytest.mark.parametrize("changes,rule", [
     ({"building": "castle"}, "session-building"), ({"floor": 2}, "session-floor"),
     ({"carrier": "drone"}, "session-carrier"), ({"labelled": "yes please"}, "session-labelled"),
+    ({"gyro_calibrated": "yes"}, "session-gyro-calibrated"),
 ])
 def test_session_yaml_errors(tiny_dataset, changes, rule):
     edit_yaml(tiny_dataset / S / "session.yaml", **changes)
@@ -519,3 +520,14 @@ def test_foreign_dataset_reads_expected_values(foreign_dataset):
     assert s2.visual["yaw"].tolist() == [1.5708]
     assert s2.duration_s == pytest.approx(0.5)
     assert not s2.has("imu") and not s2.has("rssi")
+
+
+@pytest.mark.parametrize("changes,calibrated", [
+    ({}, False),  # no word of it, no phone's rotation vector: a raw gyroscope
+    ({"orientation_frame": "enu-magnetic"}, True),  # Android's rotation vector comes with its calibrated gyroscope
+    ({"orientation_frame": "enu-magnetic", "gyro_calibrated": False}, False),  # the file's word wins
+    ({"gyro_calibrated": True}, True),
+])
+def test_gyro_calibrated_is_the_files_word_or_the_phones(tiny_dataset, changes, calibrated):
+    edit_yaml(tiny_dataset / S / "session.yaml", **changes)
+    assert Dataset.open(tiny_dataset).session("walk0").gyro_calibrated is calibrated

@@ -459,6 +459,7 @@ def test_session_yaml_missing_key(tiny_dataset, key):
     ({"carrier": None}, "session-carrier"),
     ({"labelled": "maybe"}, "session-labelled"),
     ({"labelled": 1}, "session-labelled"),
+    ({"gyro_calibrated": "true"}, "session-gyro-calibrated"),
 ], ids=lambda v: str(v) if not isinstance(v, dict) else ",".join(f"{k}={v[k]!r}" for k in v))
 def test_session_yaml_values(tiny_dataset, changes, rule):
     edit_yaml(tiny_dataset / S / "session.yaml", **changes)

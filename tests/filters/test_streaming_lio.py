@@ -3,6 +3,8 @@ track, point for point, with either attitude and either input frame."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -23,8 +25,8 @@ def walk(tmp_path_factory):
     return ds.session(ds.session_ids[0])
 
 
-def _stream(walk, model, attitude, mag_offset=None):
-    lio = StreamingLio(model, attitude, mag_offset=mag_offset)
+def _stream(walk, model, attitude, mag_offset=None, gyro_calibrated=None):
+    lio = StreamingLio(model, attitude, mag_offset=mag_offset, gyro_calibrated=gyro_calibrated)
     ev = [(float(t), 1, np.array(q)) for t, *q in walk.orientation[["t", "qw", "qx", "qy", "qz"]].itertuples(index=False)]
     ev += [(float(t), 0, np.array(m)) for t, *m in walk.mag[["t", "mx", "my", "mz"]].itertuples(index=False)]
     ev += [(float(r.t), 2, np.array([r.ax, r.ay, r.az]), np.array([r.gx, r.gy, r.gz]))
@@ -49,6 +51,21 @@ def test_streaming_lio_is_the_batch_track(walk, attitude, frame, yaw):
     got = _stream(walk, model, attitude, off)
     assert len(ref) > 40 and got.shape == ref.shape
     np.testing.assert_array_equal(got, ref)
+
+
+@pytest.mark.parametrize("calibrated", [True, False])
+@pytest.mark.parametrize("attitude", ["orientation", "ahrs"])
+def test_auto_yaw_follows_the_sessions_gyroscope_live_and_batch(walk, attitude, calibrated):
+    """A model trained with ``yaw: auto`` holds the yaw of a session whose gyroscope is calibrated and keeps the
+    attitude's of a raw one: batch (session.yaml ``gyro_calibrated``) and live (``gyro_calibrated=``) alike."""
+    s = replace(walk, meta={**walk.meta, "gyro_calibrated": calibrated})
+    ref = lio_odometry(s, RowModel("world", "auto"), attitude)[["t", "x", "y", "var"]].to_numpy()
+    same = lio_odometry(s, RowModel("world", "gyro" if calibrated else "attitude"), attitude)
+    other = lio_odometry(s, RowModel("world", "attitude" if calibrated else "gyro"), attitude)
+    np.testing.assert_array_equal(same[["t", "x", "y", "var"]].to_numpy(), ref)
+    assert np.abs(other[["x", "y"]].to_numpy() - ref[:, 1:3]).max() > 1e-6
+    off = hard_iron_offset(SessionArrays.from_session(s, AnchorTable.empty()), AttitudeConfig())
+    np.testing.assert_array_equal(_stream(s, RowModel("world", "auto"), attitude, off, calibrated), ref)
 
 
 def test_streaming_lio_waits_for_its_attitude_and_refuses_bad_input(walk):

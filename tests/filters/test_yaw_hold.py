@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from blenav.filters.quaternions import qmul, quat_to_matrix
-from blenav.filters.yaw_hold import StreamingYawHold, hold_yaw
+from blenav.filters.yaw_hold import StreamingYawHold, hold_yaw, resolve_yaw
 
 
 def _quat(yaw, pitch, roll):
@@ -104,3 +104,12 @@ def test_the_window_bounds_a_gyro_bias_and_streams_to_the_bit():
         np.testing.assert_array_equal(got, held)
     whole = np.degrees(np.abs(_twist_z(qmul(hold_yaw(t, biased, q, 1e9), qconj(q)))))
     assert whole[-1] > np.degrees(b * t[-1] / 2) * 0.8  # the mean over everything lags ever more
+
+
+def test_auto_holds_only_a_calibrated_gyroscope():
+    """``auto``: the gyroscope's yaw where it is calibrated, the attitude's own for a raw (biased) one; an explicit
+    source is kept whatever the gyroscope; anything else is refused."""
+    assert resolve_yaw("auto", True) == "gyro" and resolve_yaw("auto", False) == "attitude"
+    assert resolve_yaw("gyro", False) == "gyro" and resolve_yaw("attitude", True) == "attitude"
+    with pytest.raises(ValueError, match="yaw must be one of"):
+        resolve_yaw("compass", True)

@@ -52,6 +52,7 @@ def test_floor_folder_imports_and_validates(floor, tmp_path):
     s = ds.session("mall_F1_walkA")
     assert s.meta["device_model"] == "ACME X1" and s.labelled and s.groundtruth_sparse
     assert s.meta["sensor_time_offset_s"] == 0.0
+    assert s.meta["gyro_calibrated"] is True and s.gyro_calibrated  # TYPE_GYROSCOPE: Android's bias-corrected rates
     # ground truth: the three waypoints, nothing interpolated, positions as written
     gt = s.groundtruth
     np.testing.assert_allclose(gt[["x", "y"]].to_numpy(), [[5, 5], [15, 6], [20, 8]])

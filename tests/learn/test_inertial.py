@@ -247,7 +247,7 @@ def test_heading_frame_run_exports_and_runs(trained, tmp_path):
                   "model=inertial_resnet"))
     io = export(compose("export", f"ckpt={run / 'last.ckpt'}", f"out={tmp_path / 'io'}"))
     meta = json.loads((io / "meta.json").read_text())
-    assert meta["input_frame"] == "heading" and meta["attitude"]["yaw"] == "gyro"  # data.yaw's default
+    assert meta["input_frame"] == "heading" and meta["attitude"]["yaw"] == "auto"  # data.yaw's default
     edited = shutil.copytree(io, tmp_path / "io_edited")  # meta.json told another yaw after export: refused
     (edited / "meta.json").write_text(json.dumps({**meta, "attitude": {**meta["attitude"], "yaw": "attitude"}}))
     with pytest.raises(ValueError, match="attitude"):
@@ -281,7 +281,7 @@ def test_resume_with_another_contract_refused(trained, tmp_path):
 
 def test_a_checkpoint_from_before_data_yaw_resumes_with_the_attitudes_own_yaw(tmp_path, monkeypatch):
     """A checkpoint whose meta has no attitude.yaw trained on the attitude's own yaw: data.yaw=attitude resumes it,
-    the default (gyro) is refused naming data.yaw."""
+    another yaw is refused naming data.yaw."""
     from blenav.learn.inertial import train as T
 
     (tmp_path / T.LAST).write_bytes(b"")

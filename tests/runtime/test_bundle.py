@@ -393,7 +393,8 @@ print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "
     ref_o = np.array([[e.t, e.x, e.y] for e in b.run_session(so, seed=0)])
     ori = [("ori", float(r.t), np.array([r.qw, r.qx, r.qy, r.qz])) for r in so.orientation.itertuples(index=False)]
     events = sorted(ori + [e for e in replay(so) if e[0] != "odo"], key=lambda e: (e[1], e[0] != "ori"))
-    live = b.localizer(s.building, seed=0, keep_fixes=None)
+    # the simulator's gyroscope is raw (session.yaml gyro_calibrated: false): the app says so, as the batch path reads
+    live = b.localizer(s.building, seed=0, keep_fixes=None, gyro_calibrated=so.gyro_calibrated)
     rows = []
     for ev in events:
         rows += live.push_orientation(ev[1], ev[2]) if ev[0] == "ori" else live.push_event(ev)
@@ -408,6 +409,8 @@ print(json.dumps({{"rc": rc, "heavy": sorted(m for m in ("torch", "lightning", "
             mute.push_rssi(float(r0.t) + 0.1 * k, str(r0.anchor_id), float(r0.rssi))
     with pytest.raises(ValueError, match="runs none"):
         plain.localizer(s.building, attitude="ahrs")
+    with pytest.raises(ValueError, match="runs none"):
+        plain.localizer(s.building, gyro_calibrated=True)
     imu0 = s.imu.iloc[0]
     again = b.localizer(s.building, seed=0)
     again.push_imu(float(imu0.t), imu0[["ax", "ay", "az"]].to_numpy(float), imu0[["gx", "gy", "gz"]].to_numpy(float))

@@ -46,6 +46,9 @@ def check_session_meta(path: Path, doc: dict, buildings: dict) -> list[Issue]:
                             f"groundtruth_kind {doc['groundtruth_kind']!r} is not one of {GROUNDTRUTH_KINDS}"))
     if "labelled" in doc and not isinstance(doc["labelled"], bool):
         issues.append(error(path, "session-labelled", f"labelled must be true or false, got {doc['labelled']!r}"))
+    if "gyro_calibrated" in doc and not isinstance(doc["gyro_calibrated"], bool):
+        issues.append(error(path, "session-gyro-calibrated",
+                            f"gyro_calibrated must be true or false, got {doc['gyro_calibrated']!r}"))
     b = doc.get("building")
     if b is not None or "building" in doc:
         bld = buildings.get(str(b)) if b is not None else None
@@ -157,6 +160,16 @@ class Session:
         a trajectory sampled along the walk: consumers that need a position at every instant interpolate between
         them (:meth:`positions_at`) and say so."""
         return self.meta.get("groundtruth_kind", "trajectory") == "waypoints"
+
+    @property
+    def gyro_calibrated(self) -> bool:
+        """Whether imu.csv's gyroscope has its bias removed (session.yaml ``gyro_calibrated``; absent: true for a
+        session with Android's rotation vector, ``orientation_frame: enu-magnetic``, whose phone reports the
+        bias-corrected ``TYPE_GYROSCOPE``, else false). What :func:`blenav.filters.yaw_hold.resolve_yaw` reads."""
+        v = self.meta.get("gyro_calibrated")
+        if v is None:
+            return self.meta.get("orientation_frame") == "enu-magnetic"
+        return bool(v)
 
     @property
     def floor(self) -> Floor:

@@ -58,6 +58,21 @@ def write_text(path: Path, text: str) -> Path:
     return path
 
 
+def finite_json(obj):
+    """``obj`` with every NaN or infinite number (Python or numpy, in dicts, lists, tuples and arrays) as None: what
+    strict JSON can hold (``NaN`` is not JSON; other readers refuse it). Other values as they are."""
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite_json(obj.tolist())
+    if isinstance(obj, (float, np.floating)) and not np.isfinite(obj):
+        return None
+    return obj
+
+
 def write_json(path: Path, obj) -> Path:
-    """``obj`` as indented JSON (numpy values converted, :func:`json_default`), written atomically (:func:`write_text`)."""
-    return write_text(path, json.dumps(obj, indent=1, default=json_default))
+    """``obj`` as indented, strict JSON (numpy values converted, :func:`json_default`; a non-finite number written as
+    null, :func:`finite_json`), written atomically (:func:`write_text`)."""
+    return write_text(path, json.dumps(finite_json(obj), indent=1, default=json_default, allow_nan=False))

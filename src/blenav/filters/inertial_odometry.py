@@ -24,7 +24,7 @@ from .attitude import AttitudeConfig, StreamingAttitude
 from .pdr_odometry import HEADINGS, attitude_at, attitude_track, resolve_heading
 from .quaternions import quat_to_matrix
 from .steps import StepDetectorConfig
-from .yaw_hold import YAW_SOURCES, StreamingYawHold
+from .yaw_hold import YAW_SOURCES, StreamingYawHold, resolve_yaw
 
 __all__ = ["VelocityModel", "model_yaw", "world_frame_imu", "session_frame_imu", "lio_odometry", "StreamingLio",
            "LIVE_ATTITUDES"]
@@ -151,8 +151,10 @@ class StreamingLio:
     (device -> world, w x y z) at or before each IMU sample (IMU samples before the first one wait for it, as the
     batch path takes the first sample for them), or ``ahrs``, :class:`StreamingAttitude` on the pushed IMU and
     ``push_mag(t, mag)`` with ``mag_offset`` (uT; the batch path fits it on the whole walk, a phone has its own
-    calibration); with a model trained on the gyroscope's yaw (``yaw: gyro``) that attitude is held sample by sample
-    (:class:`blenav.filters.yaw_hold.StreamingYawHold`). With the batch path's attitude the points are
+    calibration); with a model trained on the gyroscope's yaw (``yaw: gyro``, or ``auto`` with ``gyro_calibrated``:
+    whether the pushed gyroscope has its bias removed, as the batch path's ``session.gyro_calibrated``; None: true for
+    the ``orientation`` attitude, Android's rotation vector coming with its calibrated gyroscope) that attitude is
+    held sample by sample (:class:`blenav.filters.yaw_hold.StreamingYawHold`). With the batch path's attitude the points are
     :func:`lio_odometry`'s (the same resampling to ``model.grid``, windows, frames and integration;
     tests/filters/test_streaming_lio.py; an IMU time stamp repeated on a grid time is the one exception: the batch
     interpolation takes the later sample there). Per sample O(1): one
@@ -160,12 +162,15 @@ class StreamingLio:
     would cost a network run per stride of it), as is an ``orientation`` attitude whose rotation vector has not come
     after :data:`MAX_GAP_S` of IMU."""
 
-    def __init__(self, model: VelocityModel, attitude: str, att: AttitudeConfig | None = None, mag_offset=None):
+    def __init__(self, model: VelocityModel, attitude: str, att: AttitudeConfig | None = None, mag_offset=None,
+                 gyro_calibrated: bool | None = None):
         if attitude not in LIVE_ATTITUDES:
             raise ValueError(f"live inertial odometry: attitude must be one of {LIVE_ATTITUDES}, got {attitude!r}")
         self.model, self.attitude, self.grid = model, attitude, model.grid
         self.ahrs = StreamingAttitude(att or AttitudeConfig(), mag_offset=mag_offset) if attitude == "ahrs" else None
-        self.hold = StreamingYawHold() if model_yaw(model) == "gyro" else None  # every IMU sample, in order
+        calibrated = attitude == "orientation" if gyro_calibrated is None else bool(gyro_calibrated)
+        held = resolve_yaw(model_yaw(model), calibrated) == "gyro"
+        self.hold = StreamingYawHold() if held else None  # every IMU sample, in order
         self._q: np.ndarray | None = None
         self._waiting: list[tuple] = []  # IMU samples before the first orientation sample
         self._prev: tuple[float, np.ndarray] | None = None  # the last IMU sample, rotated (t, raw (15,))

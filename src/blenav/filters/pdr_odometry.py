@@ -23,7 +23,7 @@ from .measurement import AnchorTable
 from .motion_pdr import pdr_track
 from .runner import session_imu
 from .steps import SessionArrays, StepDetectorConfig, detect_steps
-from .yaw_hold import YAW_SOURCES, hold_yaw
+from .yaw_hold import hold_yaw, resolve_yaw
 
 __all__ = ["HEADINGS", "HEADING_SOURCES", "DEFAULT_STEP_M", "pdr_odometry", "fit_step_length", "fitted_step_length", "attitude_at", "attitude_track",
            "resolve_heading"]
@@ -57,10 +57,10 @@ def attitude_track(session, heading: str, att: AttitudeConfig | None = None, ste
     model's, hard-iron offset per ``att``), ``auto`` (:func:`resolve_heading`) or ``groundtruth`` (the ground truth's
     orientation: simulated walks, for training only). :class:`MissingStream` when the source is absent.
 
-    ``yaw``: ``attitude`` (the source's own yaw) or ``gyro`` (:func:`blenav.filters.yaw_hold.hold_yaw`: the gyroscope's
-    yaw held to the source's running mean; the track is then at the IMU times)."""
-    if yaw not in YAW_SOURCES:
-        raise ValueError(f"yaw must be one of {YAW_SOURCES}, got {yaw!r}")
+    ``yaw``: ``attitude`` (the source's own yaw), ``gyro`` (:func:`blenav.filters.yaw_hold.hold_yaw`: the gyroscope's
+    yaw held to the source's running mean; the track is then at the IMU times) or ``auto`` (``gyro`` where the
+    session's gyroscope is calibrated, ``session.gyro_calibrated``, else ``attitude``)."""
+    yaw = resolve_yaw(yaw, bool(getattr(session, "gyro_calibrated", False)))
     if yaw == "gyro":
         q_t, q = attitude_track(session, heading, att, steps, cache)
         imu = session.imu

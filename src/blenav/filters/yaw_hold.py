@@ -17,6 +17,12 @@ sample times the interval to the next. The window bounds what a gyroscope bias b
 about b W / 2 (0.001 rad/s: 3.4 deg with W = 120 s), however long the session; the ILC walks (15-114 s) all fit in it.
 On the ILC test walks (leave-one-floor-out networks) the learned odometry's segment error goes from 1.47 / 1.33 / 1.33
 to 1.37 / 1.25 / 1.32 m, F1 / F2 / B1 (``benchmarks/inertial_heading.py``; docs/inertial.md).
+
+The hold assumes a **calibrated** gyroscope (Android's ``TYPE_GYROSCOPE``, its bias removed by the phone). A raw MEMS
+gyroscope's bias (0.01 rad/s is common, the simulator's default) makes the held yaw lag the mean by tens of degrees
+within the window, far worse than the attitude's own yaw (the AHRS estimates the bias against the magnetometer). The
+source ``auto`` (:func:`resolve_yaw`) therefore holds where the session says its gyroscope is calibrated (session.yaml
+``gyro_calibrated``, :attr:`blenav.data.session.Session.gyro_calibrated`) and keeps the attitude's yaw elsewhere.
 """
 
 from __future__ import annotations
@@ -27,12 +33,23 @@ import numpy as np
 
 from .quaternions import qconj, qmul, quat_to_matrix
 
-__all__ = ["YAW_SOURCES", "WINDOW_S", "hold_yaw", "StreamingYawHold"]
+__all__ = ["YAW_SOURCES", "WINDOW_S", "resolve_yaw", "hold_yaw", "StreamingYawHold"]
 
-#: where an attitude track's yaw comes from: the attitude itself, or the gyroscope held to its running mean
-YAW_SOURCES = ("attitude", "gyro")
+#: where an attitude track's yaw comes from: the attitude itself, the gyroscope held to its running mean, or ``auto``:
+#: the gyroscope where it is calibrated, else the attitude (:func:`resolve_yaw`)
+YAW_SOURCES = ("attitude", "gyro", "auto")
 #: seconds of the attitude's running mean (the bias bound of the module doc)
 WINDOW_S = 120.0
+
+
+def resolve_yaw(yaw: str, gyro_calibrated: bool) -> str:
+    """The yaw source a track runs with: ``yaw`` itself, or for ``auto`` ``gyro`` when ``gyro_calibrated`` (the
+    hold's assumption, module doc) and ``attitude`` otherwise. ValueError for a source not in :data:`YAW_SOURCES`."""
+    if yaw not in YAW_SOURCES:
+        raise ValueError(f"yaw must be one of {YAW_SOURCES}, got {yaw!r}")
+    if yaw == "auto":
+        return "gyro" if gyro_calibrated else "attitude"
+    return yaw
 
 
 def _twist_z(dq: np.ndarray) -> np.ndarray:

@@ -56,7 +56,8 @@ def inertial_markdown(floors: dict[str, dict], sim_only: dict[str, dict], runs: 
     lines += ["", "Where the segment error comes from (test walks; length: mean | |p(b) - p(a)| - |g(b) - g(a)| |, how much a "
               "row over- or under-shoots; heading: median angle between its displacement and the surveyed one, segments of "
               "2 m or more). PDR's heading is the phone's rotation vector (magnetic north); LIO's, for a model trained "
-              "with `data.yaw: gyro` (the default since 2026-11-27), the gyroscope's yaw held to the rotation vector's "
+              "with `data.yaw: auto` (the default; the hold on these phones' calibrated gyroscopes), the gyroscope's yaw "
+              "held to the rotation vector's "
               "running mean (blenav.filters.yaw_hold), which follows the turns without the magnetic field's local "
               "wander but keeps the rotation vector's offset over the walk (the gyroscope has no north).", "",
               "| floor | row | segment error | length error | heading error |", "|---|---|---|---|---|"]

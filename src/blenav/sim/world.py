@@ -188,7 +188,9 @@ def simulate_session(cfg: SimConfig, w: World, i: int, duration_s: float, ss: np
                                                "z": traj.xyz[gi, 2], "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2],
                                                "qz": q[:, 3]})
     meta = {"building": w.id, "floor": 0, "device_model": profile.name, "carrier": carrier, "labelled": labelled,
-            "notes": f"blenav-sim {cfg.name}, session {i}", "receiver_brand": profile.brand}
+            "notes": f"blenav-sim {cfg.name}, session {i}", "receiver_brand": profile.brand,
+            # a gyroscope with a bias (the default: a raw MEMS gyro) is not calibrated (blenav.filters.yaw_hold)
+            "gyro_calibrated": bool(cfg.imu.gyro_bias_std == 0 and cfg.imu.gyro_bias_rw == 0)}
     return meta, streams
 
 

@@ -63,7 +63,8 @@ What is written
   ``start_unix_ms``, ``sensor_time_offset_s``, ``records`` (rows per record type read).
 
   - ``imu.csv``: TYPE_ACCELEROMETER (m/s^2 incl. gravity) and TYPE_GYROSCOPE (rad/s), Android device frame
-    (the format's frame; no conversion). **Time alignment**: when both streams have the same timestamps (all
+    (the format's frame; no conversion). TYPE_GYROSCOPE is the phone's bias-corrected stream: session.yaml
+    ``gyro_calibrated: true``. **Time alignment**: when both streams have the same timestamps (all
     walks of the sample: the app logs them together) rows are paired; otherwise the gyroscope is linearly
     interpolated at the accelerometer times and accelerometer samples outside the gyroscope's time span are
     dropped (counted).

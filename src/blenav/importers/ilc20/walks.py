@@ -241,7 +241,7 @@ def _walk_meta(w: Walk, site: str, floor: str, stem: str, labelled: bool, wp_t: 
     sid = _SESSION_ID_RE.sub("-", f"{site}_{floor}_{stem}")
     meta = {"building": site, "floor": floor, "device_model": f"{brand} {model}".strip() or "unknown",
             "carrier": "pedestrian", "labelled": labelled, "groundtruth_kind": "waypoints",
-            "orientation_frame": "enu-magnetic",
+            "orientation_frame": "enu-magnetic", "gyro_calibrated": True,  # TYPE_GYROSCOPE: bias removed by Android
             "notes": ("Indoor Location Competition 2.0 walk; ground truth = surveyed waypoints only"
                       + ("" if labelled else f"; {len(wp_t)} waypoint(s), fewer than two: unlabelled")),
             "receiver_brand": brand, "android": h.get("AndroidName", ""),

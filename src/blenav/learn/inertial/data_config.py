@@ -33,9 +33,10 @@ class InertialDataConfig:
     # walks with dense ground truth and its orientation (simulated walks): train in the ground truth's frame
     # (groundtruth; its targets are then exact) or in `attitude`'s (null)
     dense_attitude: str | None = "groundtruth"
-    # the attitude's yaw: its own (attitude) or the gyroscope's held to its running mean (gyro, blenav.filters.yaw_hold:
-    # indoors the magnetometer's heading wanders from place to place, the gyroscope turns with the phone)
-    yaw: str = "gyro"
+    # the attitude's yaw: its own (attitude), the gyroscope's held to its running mean (gyro, blenav.filters.yaw_hold:
+    # indoors the magnetometer's heading wanders from place to place, the gyroscope turns with the phone), or auto:
+    # gyro for a session whose gyroscope is calibrated (session.yaml gyro_calibrated: a phone's), else attitude
+    yaw: str = "auto"
     frame: str = "world"  # world (the attitude's frame, random yaws in training) | heading (each window's heading frame)
     rate_hz: float = 50.0  # the network's IMU rate (the IMU is resampled to it)
     window_s: float = 2.0  # seconds of IMU per window

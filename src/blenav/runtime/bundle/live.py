@@ -52,15 +52,17 @@ class BundleLocalizer:
     (:class:`blenav.runtime.bundle.live_inertial.InertialFeed`) once the app pushes IMU samples, with magnetometer
     samples (blenav's AHRS, hard-iron offset ``mag_offset``) or its rotation vector (:meth:`push_orientation`);
     ``attitude``: ``orientation``, ``ahrs`` or ``auto`` (default: the model's own; ``auto``: the rotation vector when
-    one comes before the first IMU sample). An app that runs the model itself pushes the track with
-    :meth:`push_odometry` instead (one or the other per stream). Until the stream shows which, and while the bundle
+    one comes before the first IMU sample); ``gyro_calibrated``: whether the pushed gyroscope has its bias removed
+    (Android's ``TYPE_GYROSCOPE``: true), which decides the yaw of a model trained with ``data.yaw: auto`` as
+    ``session.yaml gyro_calibrated`` does in batch (default: true with the rotation vector, else false). An app that
+    runs the model itself pushes the track with :meth:`push_odometry` instead (one or the other per stream). Until the stream shows which, and while the bundle
     makes the odometry, the other samples wait until a later IMU sample has made the odometry up to them (one IMU
     period; at most ``MAX_HOLD_S`` = 10 s, then an error saying what to push), so the filter sees every stream in
     replay's order and gives :meth:`Bundle.run_session`'s rows."""
 
     def __init__(self, bundle, building, floor=None, seed: int = 0, start_xy=None, start_theta=None,
                  t_start: float | None = None, mag_offset=None, keep_fixes: int | None = 1000, method=None,
-                 attitude: str | None = None):
+                 attitude: str | None = None, gyro_calibrated: bool | None = None):
         bundle.check_building(building)
         fid = floor if floor is not None else next(iter(building.floors))
         self._ctx = SimpleNamespace(id="live", building=building, meta={"floor": fid}, floor=building.floor(fid))
@@ -79,10 +81,10 @@ class BundleLocalizer:
         if bundle.inertial is not None and self.method.needs_odometry:
             from .live_inertial import InertialFeed
 
-            self._lio = InertialFeed(bundle.inertial, attitude or bundle.inertial.attitude, mag_offset)
-        elif attitude is not None:
-            raise ValueError("attitude= is the attitude of a bundle's learned inertial odometry (inertial/, with settings "
-                             "that read odometry): this bundle runs none")
+            self._lio = InertialFeed(bundle.inertial, attitude or bundle.inertial.attitude, mag_offset, gyro_calibrated)
+        elif attitude is not None or gyro_calibrated is not None:
+            raise ValueError("attitude= and gyro_calibrated= are settings of a bundle's learned inertial odometry "
+                             "(inertial/, with settings that read odometry): this bundle runs none")
         if self._init == "groundtruth" and self._start_xy is None:
             raise ValueError("the bundle's settings start at a known position (map.init: groundtruth): pass start_xy")
 

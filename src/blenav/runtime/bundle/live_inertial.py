@@ -38,10 +38,11 @@ class InertialFeed:
     odometry already handed on (pushed late) is handed on at once and joins the filter's current step (:attr:`late`
     counts them)."""
 
-    def __init__(self, model, attitude: str = "auto", mag_offset=None):
+    def __init__(self, model, attitude: str = "auto", mag_offset=None, gyro_calibrated: bool | None = None):
         if attitude not in HEADING_SOURCES:
             raise ValueError(f"attitude must be one of {HEADING_SOURCES}, got {attitude!r}")
         self.model, self.attitude, self.mag_offset = model, attitude, mag_offset
+        self.gyro_calibrated = gyro_calibrated  # StreamingLio's: whether the pushed gyroscope is bias-corrected
         self.lio: StreamingLio | None = None
         self.source: str | None = None  # "imu": the bundle makes the odometry; "pushed": the app does
         self.late = 0
@@ -51,7 +52,7 @@ class InertialFeed:
 
     def _make(self, attitude: str) -> None:
         """Start the odometry in ``attitude`` (the magnetometer samples so far queued for its AHRS)."""
-        self.lio = StreamingLio(self.model, attitude, mag_offset=self.mag_offset)
+        self.lio = StreamingLio(self.model, attitude, mag_offset=self.mag_offset, gyro_calibrated=self.gyro_calibrated)
         for t, m in self._mags if attitude == "ahrs" else []:
             self.lio.push_mag(t, m)
         self._mags = []
