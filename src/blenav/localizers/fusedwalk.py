@@ -184,7 +184,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         if not self.roles:
             raise ValueError(f"method {name!r}: fix_roles names no role of the experiment's fixes block")
         odo = _block(name, "odometry", odometry, {"source": "auto", "heading": "auto", "step_length": None,
-                                                  "yaw": "attitude"})
+                                                  "yaw": "auto"})
         self.source = str(odo.get("source", "auto"))
         if self.source not in ("auto", "pdr", "lio"):
             raise ValueError(f"method {name!r}: odometry.source must be auto, pdr or lio, got {self.source!r}")
@@ -194,7 +194,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADING_SOURCES}, got "
                              f"{self.heading!r}")
         self.step_length = odo.get("step_length")
-        self.yaw = str(odo.get("yaw", "attitude"))
+        self.yaw = str(odo.get("yaw", "auto"))
         if self.yaw not in YAW_SOURCES:
             raise ValueError(f"method {name!r}: odometry.yaw must be one of {YAW_SOURCES}, got {self.yaw!r}")
         g = _block(name, "grid", grid, {"cell_m": 1.0, "max_step_m": 3.0})
