@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables crossphone-sweep mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables backend-robust mapping-curve realwalks-tables inertial-tables regression-check clean-demo
+.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables crossphone-sweep mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables backend-robust backend-robust-lio mapping-curve realwalks-tables inertial-tables regression-check clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -360,6 +360,8 @@ BR_RUNS ?= 5
 BR_ARGS ?=
 BR_DATA ?= data/sim/backend_robust
 BR_OUT  ?= data/results/backend_robust
+BR_DOC  ?= docs/results/backend_robust.md
+BR_TITLE ?= The back-end on buildings and channels it was not tuned to (make backend-robust, $(BR_RUNS) runs)
 BR_EVAL  = $(BIN)/blenav eval overwrite=true runs=$(BR_RUNS) only=IMU,F-end,B-end progress=false plots=false report=false
 backend-robust: $(STAMP)
 	test -e $(BR_DATA)/office_ch/dataset.yaml || $(BIN)/blenav sim sim=office_45x55 seed=5 out=$(BR_DATA)/office_ch \
@@ -381,13 +383,25 @@ backend-robust: $(STAMP)
 	    src=$(BR_DATA)/$$d; [ $$d = office ] && src=$(BACKEND_DATA); \
 	    $(BR_EVAL) experiment=backend_000 data=$$src out=$(BR_OUT)/$$d $(BR_ARGS); \
 	    $(BR_EVAL) experiment=mapnoise_000 data=$$src out=$(BR_OUT)/$${d}_noise $(BR_ARGS); done
-	$(BIN)/blenav tables backend docs/results/backend_robust.md \
-	    "The back-end on buildings and channels it was not tuned to (make backend-robust, $(BR_RUNS) runs)" \
+	$(BIN)/blenav tables backend $(BR_DOC) "$(BR_TITLE)" \
 	    "office 45x55, walls 7 dB, body 10 dB, exponent 2.6, shadowing 5 dB=$(BR_OUT)/office_ch,$(BR_OUT)/office_ch_noise" \
 	    "campus floor, walls 6 dB, body 8 dB, exponent 2.4=$(BR_OUT)/campus_ch,$(BR_OUT)/campus_ch_noise" \
 	    "procedural building, walls 5 dB, shadowing 6 dB, exponent 2.0=$(BR_OUT)/proc_ch,$(BR_OUT)/proc_ch_noise" \
 	    "office annex, 7 walks by six phones of other brands, walls 6 dB, body 9 dB, exponent 2.4, shadowing 4.5 dB=$(BR_OUT)/annex,$(BR_OUT)/annex_noise" \
 	    "office 45x55 of backend-tables (preset channel)=$(BR_OUT)/office,$(BR_OUT)/office_noise"
+
+# Issue 31 in the back-end: the same runs with a learned inertial odometry's between-factors (io_model=), the model
+# trained on simulated walks of another building (sim=small, 12 walks of 120 s; ~3 min), docs/results/backend_robust_lio.md
+BR_IO ?= data/runs/backend_io_onnx
+backend-robust-lio: $(STAMP)
+	test -e $(BR_IO)/meta.json || { \
+	  $(BIN)/blenav-sim sim=small seed=21 out=data/sim/backend_io_walks duration_s=120 sessions=12 overwrite=true \
+	      progress=false 'sim.carriers=[pedestrian]' && \
+	  $(BIN)/python train.py experiment=inertial data=data/sim/backend_io_walks out=data/runs/backend_io && \
+	  $(BIN)/python export.py ckpt=data/runs/backend_io/last.ckpt out=$(BR_IO); }
+	$(MAKE) backend-robust BR_ARGS=io_model=$(BR_IO) BR_OUT=data/results/backend_robust_lio \
+	    BR_DOC=docs/results/backend_robust_lio.md \
+	    "BR_TITLE=The back-end with a learned inertial odometry's between-factors (make backend-robust-lio, $(BR_RUNS) runs)"
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md

@@ -56,6 +56,37 @@ def test_backend_localizer_smooths_the_runs_and_maps_the_beacons(sim):
     assert max(rmse(p) for p in est.position) < 6.0
 
 
+def test_a_learned_odometry_adds_between_factors_when_given(sim):
+    """io_model= (issue 31): attached, the closed loop's smoothings take the odometry's displacements (the note says
+    so, the track moves, the cache key differs); not given, or odometry.enabled=false, 000's back-end; a model that
+    cannot be loaded makes the method unavailable with the reason."""
+    from helpers import RowModel
+
+    from blenav.data import Dataset
+    from blenav.localizers.base import RunInputs
+
+    ds = Dataset.open(sim)
+    s = ds.session(ds.session_ids[0])
+    plain = _method(sim)
+    assert plain.attach_io_model(None, None) is None and plain.io_model is None
+    ref = plain.run(s, 1, 0, RunInputs())
+    loc = _method(sim)
+    assert loc.attach_io_model("IO", lambda path, loader: RowModel("world")) is None
+    assert loc._key(s, 1, 0) != plain._key(s, 1, 0)
+    est = loc.run(s, 1, 0, RunInputs())
+    assert any("learned inertial odometry between keyframes" in n for n in est.notes)
+    assert not any("learned inertial odometry" in n for n in ref.notes)
+    assert np.isfinite(est.position).all() and np.abs(est.position - ref.position).max() > 1e-3
+
+    def broken(path, loader):
+        raise ValueError("not an export")
+
+    assert "io_model=IO cannot be used: not an export" in _method(sim).attach_io_model("IO", broken)
+    off = _method(sim)
+    off.cfg.odometry.enabled = False
+    assert off.attach_io_model("IO", broken) is None and off.io_model is None
+
+
 def test_backend_localizer_without_imu_is_skipped_not_failed(tmp_path):
     from helpers import make_tiny_dataset
 

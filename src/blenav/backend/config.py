@@ -252,6 +252,19 @@ class LoopConfig:
 
 
 @dataclass
+class OdometryConfig:
+    """Between-factors from a learned inertial odometry (issue 31), where the back-end is given one (``io_model=``):
+    the track's displacement between consecutive keyframes, x, y in the world frame, its variance the track's own
+    times ``var_scale`` (a network's stated variance is overconfident on a walk unlike its training walks: 30 was
+    chosen on two simulated offices, docs/results-000-002.md), z held by ``z_sigma_m``."""
+
+    enabled: bool = True  # false: the odometry is not used even when given
+    var_scale: float = 30.0  # the track's variance times this
+    z_sigma_m: float = 0.05  # m per sqrt(s), vertical displacement std (a walk on one floor)
+    min_sigma_m: float = 0.01  # m, floor of the x, y std of one keyframe interval
+
+
+@dataclass
 class BackendConfig:
     """The radio-inertial smoother of 000 (sec. IV-D, Problem 3) and its mapping mode."""
 
@@ -262,6 +275,7 @@ class BackendConfig:
     solver: SolverConfig = field(default_factory=SolverConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
 
 
 def load_backend_config(path: str | Path | None = None, overrides: list[str] | None = None,
@@ -299,3 +313,7 @@ def check_combinations(cfg: BackendConfig) -> None:
             raise ValueError("backend: range.refit_channel and range.estimate_offset both estimate the receiver's "
                              "offset; choose one")
     mapping_kernel(cfg.mapping.robust, "backend: mapping.robust")
+    oc = cfg.odometry
+    if not (oc.var_scale > 0 and oc.z_sigma_m > 0 and oc.min_sigma_m > 0):
+        raise ValueError(f"backend: odometry.var_scale, z_sigma_m and min_sigma_m must be > 0 (got {oc.var_scale}, "
+                         f"{oc.z_sigma_m}, {oc.min_sigma_m})")

@@ -1,6 +1,7 @@
 """The pieces of the radio-inertial graph's factors (:mod:`blenav.backend.graph`): GTSAM's IMU preintegration
 between keyframes, the assignment of ranges to keyframes and their selection (gate, median, nearest beacons),
-the robust noise models, and the error of the range factor with the receiver's RSSI offset. GTSAM is imported
+the robust noise models, the error of the range factor with the receiver's RSSI offset, and the between-factors of a
+learned inertial odometry. GTSAM is imported
 when one of them is called (:func:`load_gtsam`), not with this module.
 """
 
@@ -10,10 +11,10 @@ import numpy as np
 import pandas as pd
 
 from .config import Combine, RobustKernel
-from .graph_types import ImuSamples
+from .graph_types import ImuSamples, OdometryTrack
 
 __all__ = ["load_gtsam", "preintegration_params", "integration_pieces", "preintegrate", "nearest_keyframe",
-           "select_ranges", "robust_noise", "offset_range_error"]
+           "select_ranges", "robust_noise", "offset_range_error", "odometry_increments", "odometry_factor"]
 
 
 def load_gtsam():
@@ -134,3 +135,40 @@ def offset_range_error(r: float, gamma: float, this, values, H) -> np.ndarray:
         H[2] = np.array([[-scale * d * np.log(10.0) / (10.0 * gamma)]])
     return np.array([scale * d - r])
 
+
+
+def odometry_increments(track: OdometryTrack, kf_t: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The odometry's displacement into each keyframe: row k (k >= 1) from keyframe k-1 to k, the track
+    interpolated at both times. Returns (d (K, 3) world m, z 0; var (K, 3) m^2 per axis: the track's variance
+    increment times ``cfg.var_scale``, floored at ``cfg.min_sigma_m``^2, z ``cfg.z_sigma_m``^2 per second; ok (K,):
+    both times inside the track, row 0 False). ``cfg``: :class:`~blenav.backend.config.OdometryConfig`."""
+    kf_t = np.asarray(kf_t, float)
+    K = len(kf_t)
+    x = np.interp(kf_t, track.t, track.xy[:, 0])
+    y = np.interp(kf_t, track.t, track.xy[:, 1])
+    v = np.interp(kf_t, track.t, track.var)
+    inside = (kf_t >= track.t[0]) & (kf_t <= track.t[-1])
+    ok = np.zeros(K, bool)
+    ok[1:] = inside[1:] & inside[:-1]
+    d = np.zeros((K, 3))
+    var = np.zeros((K, 3))
+    d[1:, 0], d[1:, 1] = np.diff(x), np.diff(y)
+    var[1:, :2] = np.maximum(np.diff(v) * float(cfg.var_scale), float(cfg.min_sigma_m) ** 2)[:, None]
+    var[1:, 2] = float(cfg.z_sigma_m) ** 2 * np.diff(kf_t)
+    return d, var, ok
+
+
+def odometry_factor(key_a, key_b, rot_a, rot_b, d: np.ndarray, var: np.ndarray):
+    """GTSAM's BetweenFactorPose3 of a world-frame displacement ``d`` (3,) m with per-axis variance ``var`` (3,) m^2
+    between poses ``key_a`` and ``key_b`` whose attitudes are ``rot_a`` / ``rot_b`` (gtsam.Rot3, the AHRS the graph's
+    attitude priors hold): the relative pose (R_a^T R_b, R_a^T d), the relative rotation left free (100 rad^2: the
+    attitude priors and the IMU constrain it). Its error Logmap(measured^-1 T_a^-1 T_b) is then, at those attitudes,
+    R_b^T (t_b - t_a - d): the world residual in b's frame, so the covariance is the world one turned into it
+    (R_b^T S R_b)."""
+    gtsam = load_gtsam()
+    Ra, Rb = rot_a.matrix(), rot_b.matrix()
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = np.eye(3) * 100.0  # rad^2: rotation part unconstrained by this factor
+    cov[3:, 3:] = Rb.T @ np.diag(np.asarray(var, float)) @ Rb
+    return gtsam.BetweenFactorPose3(key_a, key_b, gtsam.Pose3(rot_a.between(rot_b), Ra.T @ np.asarray(d, float)),
+                                    gtsam.noiseModel.Gaussian.Covariance(cov))

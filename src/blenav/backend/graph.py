@@ -60,7 +60,6 @@ offset range error) in :mod:`blenav.backend.factors`.
 
 from __future__ import annotations
 
-import re
 import time
 from functools import partial
 
@@ -68,10 +67,13 @@ import numpy as np
 import pandas as pd
 
 from .config import BackendConfig, ChannelRefit, Solver
-from .factors import (load_gtsam, nearest_keyframe, offset_range_error, preintegrate, preintegration_params,
-                      robust_noise, select_ranges)
+from .factors import (load_gtsam, nearest_keyframe, odometry_factor, odometry_increments, offset_range_error,
+                      preintegrate, preintegration_params, robust_noise, select_ranges)
 from .channel import channel_of, refit_ranges
-from .graph_types import BackendFailure, BackendResult, BeaconPriors, ImuSamples, Keyframes, RangeObs, describe_key
+from blenav.filters.quaternions import quat_to_matrix
+
+from .graph_types import (BackendFailure, BackendResult, BeaconPriors, ImuSamples, Keyframes, OdometryTrack, RangeObs,
+                          describe_key, first_line, symbol_in)
 
 __all__ = ["RadioInertialGraph", "smooth"]
 
@@ -84,13 +86,15 @@ class RadioInertialGraph:
 
     def __init__(self, cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors,
                  beacon_init: np.ndarray | None = None, pims: list | None = None, offset_prior_db: float = 0.0,
-                 offset_init_db: float | None = None, cloud: Keyframes | None = None):
+                 offset_init_db: float | None = None, cloud: Keyframes | None = None,
+                 odometry: OdometryTrack | None = None):
         """``beacon_init`` (A, 3) world m: initial beacon positions, also used by the range gate (default: the
         prior means; a second pass gives the first pass's estimate); ``pims``: the preintegrated IMU of these
         keyframe times, when already computed (a second pass); ``offset_prior_db`` / ``offset_init_db``: prior
         mean and initial value of the receiver offset (``range.estimate_offset``); ``cloud``: the keyframes whose
         positions and ``cov`` are the front-end's (``priors.front_end_cloud``; default ``kf``; a second pass gives
-        the first pass's input, so the prior stays the filter's, not the previous solution's)."""
+        the first pass's input, so the prior stays the filter's, not the previous solution's); ``odometry``: a learned
+        inertial odometry's track, its displacements between keyframes as between-factors (``odometry.enabled``)."""
         gtsam = load_gtsam()
         self.gtsam = gtsam
         self.cfg, self.kf, self.beacons = cfg, kf, beacons
@@ -101,6 +105,8 @@ class RadioInertialGraph:
         if cfg.range.estimate_offset and ranges.gamma is None:
             raise ValueError("range.estimate_offset needs the path-loss exponent of the ranges (RangeObs.gamma)")
         self.gamma = ranges.gamma
+        self.odo = None if odometry is None or not cfg.odometry.enabled else \
+            odometry_increments(odometry, kf.t, cfg.odometry)  # (d, var, ok) per keyframe
         self.notes: list[str] = []
         self.failures: list[BackendFailure] = []
         K = len(kf.t)
@@ -159,7 +165,7 @@ class RadioInertialGraph:
         self.n_ranges = np.bincount(self._range_j, minlength=len(beacons.ids))
         self._pending: dict[int, list[tuple[int, float]]] = {}
         self.in_graph = np.zeros(len(beacons.ids), bool)
-        self.rots = [gtsam.Rot3(R) for R in _quat_to_matrix(kf.q)]
+        self.rots = [gtsam.Rot3(R) for R in quat_to_matrix(kf.q)]
 
     # ---------------------------------------------------------------- inputs
     def _check_inputs(self, imu: ImuSamples, ranges: RangeObs) -> None:
@@ -215,6 +221,8 @@ class RadioInertialGraph:
         else:
             g.add(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self.pims[k - 1]))
             g.add(gtsam.PoseRotationPrior3D(X(k), self.rots[k], self.attitude_noise))
+            if self.odo is not None and self.odo[2][k]:  # the learned odometry's displacement from k-1
+                g.add(odometry_factor(X(k - 1), X(k), self.rots[k - 1], self.rots[k], self.odo[0][k], self.odo[1][k]))
         if self.cloud_cov is not None and np.isfinite(self.cloud_cov[k]).all():  # the filter's cloud (and height)
             mean = np.array([self.cloud.position[k, 0], self.cloud.position[k, 1], cfg.range.device_z])
             g.add(gtsam.PoseTranslationPrior3D(X(k), gtsam.Point3(mean),
@@ -351,7 +359,7 @@ class RadioInertialGraph:
             if qr:
                 self._fail("lm", exc, None)
                 return None
-            self.notes.append(f"LM with Cholesky failed ({_first_line(exc)}); retried with QR")
+            self.notes.append(f"LM with Cholesky failed ({first_line(exc)}); retried with QR")
             return self._lm(graph, initial, qr=True)
         self.notes.append(f"LM{' (QR)' if qr else ''}: {opt.iterations()} iterations, error "
                           f"{graph.error(initial):.4g} -> {graph.error(estimate):.4g}")
@@ -382,10 +390,10 @@ class RadioInertialGraph:
         return isam.marginalCovariance
 
     def _fail(self, stage: str, exc: RuntimeError, k: int | None) -> None:
-        sym = _symbol_in(str(exc))
+        sym = symbol_in(str(exc))
         key = describe_key(sym, self.kf.t, self.beacons.ids)
         t = float(self.kf.t[k]) if k is not None else None
-        self.failures.append(BackendFailure(stage, key, t, _first_line(exc)))
+        self.failures.append(BackendFailure(stage, key, t, first_line(exc)))
 
     def _collect(self, estimate, last_good: int, cov) -> BackendResult:
         """Arrays from the estimate for keyframes 0..last_good, the front-end's values after (a failure)."""
@@ -445,37 +453,16 @@ class RadioInertialGraph:
         return res
 
 
-_KEY_RE = re.compile(r"Symbol:\s*([A-Za-z])(\d+)")
-
-
-def _symbol_in(message: str) -> str | None:
-    """The key GTSAM's exception ``message`` names ('Symbol: l3' -> 'l3', read by :func:`describe_key`), or None."""
-    m = _KEY_RE.search(message)
-    return f"{m.group(1)}{m.group(2)}" if m else None
-
-
-def _first_line(exc: BaseException) -> str:
-    """The first two non-empty lines of a GTSAM exception's message, joined (its type's name when empty)."""
-    lines = [s.strip() for s in str(exc).splitlines() if s.strip()]
-    return " ".join(lines[:2]) if lines else type(exc).__name__
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    from blenav.filters.quaternions import quat_to_matrix
-
-    return quat_to_matrix(q)
-
-
 def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors,
-           offset_prior_db: float = 0.0) -> BackendResult:
+           offset_prior_db: float = 0.0, odometry: OdometryTrack | None = None) -> BackendResult:
     """Build the graph of one session and solve it with ``cfg.solver.method``; never raises on a GTSAM failure
     (see :class:`BackendResult`.failures). ``ValueError`` for inputs it cannot use at all (no IMU, < 2
     keyframes, non-finite front-end values). ``offset_prior_db``: prior mean of the receiver offset when
-    ``range.estimate_offset``."""
+    ``range.estimate_offset``; ``odometry``: a learned inertial odometry's track (between-factors)."""
     t0 = time.perf_counter()
     if len(kf.t) < 2:
         raise ValueError(f"the back-end needs at least 2 keyframes, got {len(kf.t)}")
-    graph = RadioInertialGraph(cfg, kf, imu, ranges, beacons, offset_prior_db=offset_prior_db)
+    graph = RadioInertialGraph(cfg, kf, imu, ranges, beacons, offset_prior_db=offset_prior_db, odometry=odometry)
     res = graph.solve()
     passes = int(cfg.solver.passes) if Solver(cfg.solver.method) == Solver.lm else 1  # iSAM2 is online: one pass
     ranges0, channel = ranges, None  # range.refit_channel: the ranges as measured, the channel fitted so far
@@ -491,7 +478,7 @@ def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs,
             res.notes.append(note)
         off0 = res.offset_db if np.isfinite(res.offset_db) else None
         graph = RadioInertialGraph(cfg, again, imu, ranges, beacons, beacon_init=init, pims=graph.pims,
-                                   offset_prior_db=offset_prior_db, offset_init_db=off0, cloud=kf)
+                                   offset_prior_db=offset_prior_db, offset_init_db=off0, cloud=kf, odometry=odometry)
         res, notes = graph.solve(), res.notes
         res.notes = notes + [f"pass {p + 2}: " + n for n in res.notes]
         if channel is not None:  # the fit of the measured ranges: the channel's exponent and level

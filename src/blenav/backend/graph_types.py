@@ -5,12 +5,14 @@ names in its failure messages read back into words (:func:`describe_key`). Plain
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
-__all__ = ["Keyframes", "ImuSamples", "RangeObs", "BeaconPriors", "BackendFailure", "BackendResult", "describe_key"]
+__all__ = ["Keyframes", "ImuSamples", "OdometryTrack", "RangeObs", "BeaconPriors", "BackendFailure", "BackendResult",
+           "describe_key", "symbol_in", "first_line"]
 
 
 # ------------------------------------------------------------------------------------------------ inputs
@@ -49,6 +51,26 @@ class ImuSamples:
     t: np.ndarray
     acc: np.ndarray
     gyr: np.ndarray
+
+
+@dataclass
+class OdometryTrack:
+    """A learned inertial odometry's track (:func:`blenav.filters.inertial_odometry.lio_odometry`): t (T,) s
+    increasing; xy (T, 2) world m from its start (its frame: the attitude's, as the keyframes' q); var (T,) m^2 per
+    axis, accumulated from the start (the increment between two times is the variance of that displacement)."""
+
+    t: np.ndarray
+    xy: np.ndarray
+    var: np.ndarray
+
+    def __post_init__(self):
+        self.t = np.asarray(self.t, float)
+        self.xy = np.asarray(self.xy, float).reshape(len(self.t), 2)
+        self.var = np.asarray(self.var, float).reshape(len(self.t))
+        if len(self.t) < 2 or np.any(np.diff(self.t) <= 0):
+            raise ValueError("an odometry track needs at least 2 points at increasing times")
+        if not (np.isfinite(self.xy).all() and np.isfinite(self.var).all()):
+            raise ValueError("non-finite odometry track")
 
 
 @dataclass
@@ -136,3 +158,18 @@ def describe_key(symbol: str | None, kf_t: np.ndarray | None = None, beacon_ids=
     if what and kf_t is not None and idx < len(kf_t):
         return f"{what} of keyframe {idx} at t={kf_t[idx]:.2f} s ({symbol})"
     return symbol
+
+
+_KEY_RE = re.compile(r"Symbol:\s*([A-Za-z])(\d+)")
+
+
+def symbol_in(message: str) -> str | None:
+    """The key GTSAM's exception ``message`` names ('Symbol: l3' -> 'l3', read by :func:`describe_key`), or None."""
+    m = _KEY_RE.search(message)
+    return f"{m.group(1)}{m.group(2)}" if m else None
+
+
+def first_line(exc: BaseException) -> str:
+    """The first two non-empty lines of a GTSAM exception's message, joined (its type's name when empty)."""
+    lines = [s.strip() for s in str(exc).splitlines() if s.strip()]
+    return " ".join(lines[:2]) if lines else type(exc).__name__

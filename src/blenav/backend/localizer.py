@@ -23,6 +23,10 @@ mean over back-ends when ``per_run``), ``smoothed`` (R, K, 2), ``front_end`` (R,
 residual), ``attitude`` (the front-end's AHRS), ``backend_s`` (R or 1,) seconds of back-end, ``feedbacks`` (int),
 ``backend_failures`` (list of str). Back-end failures never stop a run: where the back-end has no estimate the
 front-end's stands (see :class:`~blenav.backend.graph_types.BackendResult`).
+
+Given a learned inertial odometry (``io_model=``, issue 31), every smoothing also takes its displacements between
+keyframes as between-factors (``backend.odometry``); the front-end is unchanged (its IMU proposal). Without one the
+back-end is 000's.
 """
 
 from __future__ import annotations
@@ -36,16 +40,19 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from blenav.errors import MissingStream
+from blenav.filters.inertial_odometry import lio_odometry
 from blenav.filters.measurement import PathLossRange
-from blenav.localizers.base import Estimate, Localizer, PathLossCalibrated, RunInputs
+from blenav.localizers.base import (Estimate, InertialModelConsumer, Localizer, PathLossCalibrated, RunInputs,
+                                    attach_inertial)
 
 from .config import load_backend_config
+from .graph_types import OdometryTrack
 from .inputs import beacon_priors, path_loss_model, session_attitude, session_imu, session_ranges
 from .loop import run_closed_loop
 from .mapping import mean_map
 
 
-class BackendLocalizer(Localizer, PathLossCalibrated):
+class BackendLocalizer(Localizer, PathLossCalibrated, InertialModelConsumer):
     """Particle-filter front-end, then the smoothing back-end of 000 (sec. IV-D) on every run."""
 
     def __init__(self, name: str, shared=None, front_end: Any = None, backend: Any = None, per_run: bool = False,
@@ -71,12 +78,34 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
                              f"(the closed-loop filter, F.-end), got {estimate!r}")
         self.estimate = estimate
         self.range_from_front_end = bool(range_from_front_end)
+        self.io_model = None  # a learned inertial odometry (io_model=): its displacements as between-factors
 
     @property
     def uses_floor_plan(self) -> bool:
         return self.front.uses_floor_plan
 
     # ------------------------------------------------------------------ capabilities
+    def attach_io_model(self, path: str | None, load) -> str | None:
+        """The odometry of ``path`` for the between-factors (``backend.odometry``); without one, 000's back-end. A
+        model given that cannot be used makes the method unavailable with the reason (never dropped in silence)."""
+        if not path or not self.cfg.odometry.enabled:
+            self.io_model = None
+            return None
+        self.io_model, why = attach_inertial(path, load)
+        return why
+
+    def _odometry(self, session, inputs: RunInputs) -> tuple[OdometryTrack | None, str | None]:
+        """(the learned odometry's track of ``session`` or None, a note)."""
+        if self.io_model is None:
+            return None, None
+        try:
+            tr = lio_odometry(session, self.io_model, cache=inputs.cache)
+            track = OdometryTrack(tr["t"].to_numpy(float), tr[["x", "y"]].to_numpy(float), tr["var"].to_numpy(float))
+        except (MissingStream, ValueError) as exc:
+            return None, f"back-end: no learned odometry between-factors ({exc})"
+        return track, (f"back-end: learned inertial odometry between keyframes ({len(track.t)} points, variance x "
+                       f"{self.cfg.odometry.var_scale:g})")
+
     def wants_path_loss_fit(self) -> bool:
         return self.front.wants_path_loss_fit()
 
@@ -120,7 +149,7 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
         a = session.building.anchors_of("ble")
         fp = hashlib.sha1(np.ascontiguousarray(a[["x", "y", "z"]].to_numpy(float)).tobytes()).hexdigest()
         return ("closed-loop", session.id, int(n_runs), int(seed), self.per_run, self.range_from_front_end,
-                self._settings, repr(self.cfg), fp)
+                self._settings, repr(self.cfg), fp, getattr(self.io_model, "key", None))
 
     def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         """The closed loop on ``session`` (computed once per session for F-end / B-end pairs); ``wall_s`` is the
@@ -139,13 +168,14 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
     def _compute(self, session, n_runs: int, seed: int, inputs: RunInputs) -> tuple:
         t0 = time.perf_counter()
         imu, ranges, beacons, att = self._inputs(session, inputs)
+        odometry, odo_note = self._odometry(session, inputs)
         method = self.front.method
         loops = ([(n_runs, seed)] if not self.per_run
                  else [(1, int(s)) for s in np.random.SeedSequence(seed).generate_state(n_runs)])
         fronts, smooths, biases, maps, secs, fails, notes, events, offsets = [], [], [], [], [], [], [], [], []
         n_feedbacks = 0
         for i, (R, sd) in enumerate(loops):
-            out = run_closed_loop(method, session, R, sd, self.cfg, imu, ranges, beacons, att, inputs.cache)
+            out = run_closed_loop(method, session, R, sd, self.cfg, imu, ranges, beacons, att, inputs.cache, odometry)
             f = out.front
             fronts.append(f.position)
             events += f.events
@@ -163,7 +193,7 @@ class BackendLocalizer(Localizer, PathLossCalibrated):
             n_feedbacks += len(out.feedbacks)
             fails += [f"run {i}: {x}" if self.per_run else x for x in out.failures]
             if i == 0:
-                notes += [f"back-end: {n}" for n in out.notes]
+                notes += [f"back-end: {n}" for n in out.notes] + ([odo_note] if odo_note else [])
         front = np.concatenate(fronts)
         smoothed = np.concatenate(smooths)
         bias = np.concatenate(biases)

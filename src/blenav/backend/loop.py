@@ -35,7 +35,7 @@ from blenav.filters.runner import BatchRun
 
 from .config import BackendConfig
 from .graph import smooth
-from .graph_types import BackendResult, BeaconPriors, ImuSamples, RangeObs
+from .graph_types import BackendResult, BeaconPriors, ImuSamples, OdometryTrack, RangeObs
 from .inputs import keyframes_from_front_end
 
 
@@ -106,12 +106,13 @@ def map_frame(anchors: pd.DataFrame, prior: BeaconPriors) -> pd.DataFrame:
 
 def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: BackendConfig, imu: ImuSamples,
                     ranges: RangeObs, beacons: BeaconPriors, attitude: tuple[np.ndarray, np.ndarray],
-                    cache: dict | None = None) -> LoopOutcome:
+                    cache: dict | None = None, odometry: OdometryTrack | None = None) -> LoopOutcome:
     """Front-end ``method`` on ``session`` (R runs, ``seed``) with the back-end of ``cfg`` in the loop.
 
     ``imu``: the session's raw IMU; ``ranges``: its RSSI as ranges (the front-end's path loss); ``beacons``: the
     map's BLE anchors as priors; ``attitude`` (t (T,), q (T, 4)): the AHRS for keyframe attitudes when the
-    front-end has none of its own (a random-walk filter)."""
+    front-end has none of its own (a random-walk filter); ``odometry``: a learned inertial odometry's track, whose
+    displacements every smoothing (windows and final) takes as between-factors (``backend.odometry``)."""
     lc = cfg.loop
     run = BatchRun(method, session, n_runs, seed, cache=cache)
     anchors = session.building.anchors_of("ble")
@@ -135,7 +136,7 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
         bias_applied[k0:run.k] = applied
         if not run.done and lc.enabled:
             fb, prior = _feedback(run, cfg, imu, ranges, prior, anchors, attitude, t_next, feed_bias, notes, failures,
-                                  feedbacks[-1].offset_db if feedbacks else 0.0)
+                                  feedbacks[-1].offset_db if feedbacks else 0.0, odometry)
             if fb is not None:
                 feedbacks.append(fb)
                 backend_s += fb.solve_s
@@ -148,7 +149,7 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
     t1 = time.perf_counter()
     try:
         kf, kf_notes = keyframes_from_front_end(front.t, front.position, q_t, q, cfg, cov=front.cov)
-        smoothed = smooth(cfg, kf, _corrected(run, imu), ranges, beacons)
+        smoothed = smooth(cfg, kf, _corrected(run, imu), ranges, beacons, odometry=odometry)
         notes += kf_notes + smoothed.notes
         failures += [str(f) for f in smoothed.failures]
     except ValueError as exc:
@@ -164,7 +165,7 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
 
 def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeObs, prior: BeaconPriors,
               anchors: pd.DataFrame, attitude, t_now: float, feed_bias: bool, notes: list, failures: list,
-              offset_db: float = 0.0) -> tuple[Feedback | None, BeaconPriors]:
+              offset_db: float = 0.0, odometry: OdometryTrack | None = None) -> tuple[Feedback | None, BeaconPriors]:
     """One window of the loop at ``t_now``: smooth the last ``loop.window_s`` of keyframes with ``prior`` as the
     beacon map (and ``offset_db``, the receiver offset so far, as the offset's prior mean), feed the optimized
     beacons, the bias increment and the receiver offset back to ``run``. Returns (the feedback or None when the
@@ -183,7 +184,8 @@ def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeO
     when = f"window ending {t_now - float(run.arrays.t_start):.0f} s"
     t1 = time.perf_counter()
     try:
-        out = smooth(cfg, kf, w_imu, w_ranges, prior, offset_prior_db=offset_db if np.isfinite(offset_db) else 0.0)
+        out = smooth(cfg, kf, w_imu, w_ranges, prior, offset_prior_db=offset_db if np.isfinite(offset_db) else 0.0,
+                     odometry=odometry)
     except ValueError as exc:  # inputs the window cannot use (e.g. no IMU in it): no feedback this time
         notes.append(f"{when}: no feedback ({exc})")
         return None, prior
