@@ -362,6 +362,7 @@ BR_DATA ?= data/sim/backend_robust
 BR_OUT  ?= data/results/backend_robust
 BR_DOC  ?= docs/results/backend_robust.md
 BR_TITLE ?= The back-end on buildings and channels it was not tuned to (make backend-robust, $(BR_RUNS) runs)
+BR_CMD  ?= make backend-robust
 BR_EVAL  = $(BIN)/blenav eval overwrite=true runs=$(BR_RUNS) only=IMU,F-end,B-end progress=false plots=false report=false
 backend-robust: $(STAMP)
 	test -e $(BR_DATA)/office_ch/dataset.yaml || $(BIN)/blenav sim sim=office_45x55 seed=5 out=$(BR_DATA)/office_ch \
@@ -383,7 +384,7 @@ backend-robust: $(STAMP)
 	    src=$(BR_DATA)/$$d; [ $$d = office ] && src=$(BACKEND_DATA); \
 	    $(BR_EVAL) experiment=backend_000 data=$$src out=$(BR_OUT)/$$d $(BR_ARGS); \
 	    $(BR_EVAL) experiment=mapnoise_000 data=$$src out=$(BR_OUT)/$${d}_noise $(BR_ARGS); done
-	$(BIN)/blenav tables backend $(BR_DOC) "$(BR_TITLE)" \
+	$(BIN)/blenav tables backend --made-by "$(BR_CMD)" $(BR_DOC) "$(BR_TITLE)" \
 	    "office 45x55, walls 7 dB, body 10 dB, exponent 2.6, shadowing 5 dB=$(BR_OUT)/office_ch,$(BR_OUT)/office_ch_noise" \
 	    "campus floor, walls 6 dB, body 8 dB, exponent 2.4=$(BR_OUT)/campus_ch,$(BR_OUT)/campus_ch_noise" \
 	    "procedural building, walls 5 dB, shadowing 6 dB, exponent 2.0=$(BR_OUT)/proc_ch,$(BR_OUT)/proc_ch_noise" \
@@ -399,8 +400,8 @@ backend-robust-lio: $(STAMP)
 	      progress=false 'sim.carriers=[pedestrian]' && \
 	  $(BIN)/python train.py experiment=inertial data=data/sim/backend_io_walks out=data/runs/backend_io && \
 	  $(BIN)/python export.py ckpt=data/runs/backend_io/last.ckpt out=$(BR_IO); }
-	$(MAKE) backend-robust BR_ARGS=io_model=$(BR_IO) BR_OUT=data/results/backend_robust_lio \
-	    BR_DOC=docs/results/backend_robust_lio.md \
+	$(MAKE) -o $(STAMP) backend-robust BR_ARGS=io_model=$(BR_IO) BR_OUT=data/results/backend_robust_lio \
+	    BR_DOC=docs/results/backend_robust_lio.md "BR_CMD=make backend-robust-lio" \
 	    "BR_TITLE=The back-end with a learned inertial odometry's between-factors (make backend-robust-lio, $(BR_RUNS) runs)"
 
 realism: $(STAMP)

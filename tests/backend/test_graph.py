@@ -361,7 +361,7 @@ def test_odometry_increments_are_the_tracks_differences_at_the_keyframes():
     np.testing.assert_allclose(d[3], [1.5, 1.0, 0.0])  # (2.5, 2) - (1, 1)
     np.testing.assert_allclose(var[2], [0.1, 0.1, 0.04])  # (0.015 - 0.005) x 10; z 0.2^2 x 1 s
     np.testing.assert_allclose(var[3], [0.0505, 0.0505, 0.04])  # (0.02005 - 0.015) x 10
-    np.testing.assert_allclose(var[4], [0.01, 0.01, 0.004])  # 1e-5 x 10 floored at 0.1^2; z 0.04 x 0.1 s
+    np.testing.assert_allclose(var[4], [0.01, 0.01, 0.01])  # 1e-5 x 10 and z 0.04 x 0.1 s, floored at 0.1^2
 
 
 def test_odometry_factor_error_is_the_displacement_in_the_first_poses_frame():

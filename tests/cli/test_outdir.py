@@ -226,13 +226,14 @@ def test_results_json_is_strict_json(tmp_path):
     from blenav.eval.common import write_json
 
     path = write_json(tmp_path / "results.json", {"a": float("nan"), "b": [1.5, np.float32("inf"), (np.nan, 2)],
-                                                  "c": np.array([0.25, -np.inf]), "d": {"e": np.float64(0.1)}})
+                                                  "c": np.array([0.25, -np.inf]), "d": {"e": np.float64(0.1)},
+                                                  "f": np.bool_(True), "g": np.int64(3)})
 
     def refuse(name):
         raise ValueError(f"{name} in strict JSON")
 
     got = json.loads(path.read_text(), parse_constant=refuse)
-    assert got == {"a": None, "b": [1.5, None, [None, 2]], "c": [0.25, None], "d": {"e": 0.1}}
+    assert got == {"a": None, "b": [1.5, None, [None, 2]], "c": [0.25, None], "d": {"e": 0.1}, "f": True, "g": 3}
 
 
 def test_tables_go_through_the_atomic_writer():

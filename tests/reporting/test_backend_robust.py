@@ -27,3 +27,14 @@ def test_table_ratios_changes_and_beacons_by_how_often_heard(tmp_path):
     assert "| office | 4.00 | 3.50 | 3.00 | 0.86 ok | 4.00 | 3.60 (+20 %) | 3.60 -> 2.40 (33 %) |" in md
     assert "| building, channel | 0-9 | 200+ |" in md
     assert "| office | 3.00 -> 3.00 (4) | 4.00 -> 2.00 (6) |" in md
+
+
+@pytest.mark.parametrize("made_by", [None, "make backend-robust-lio"])
+def test_the_command_line_says_which_command_made_the_page(tmp_path, made_by):
+    from blenav.cli.tables import _main
+
+    _results(tmp_path / "t", {"IMU": 4.0, "F-end": 3.5, "B-end": 3.0})
+    out = tmp_path / "page.md"
+    flag = ["--made-by", made_by] if made_by else []
+    assert _main(["backend", *flag, str(out), "Title", f"office={tmp_path / 't'}"]) == 0
+    assert f"made by `{made_by or 'make backend-robust'}`" in out.read_text()

@@ -140,7 +140,7 @@ def offset_range_error(r: float, gamma: float, this, values, H) -> np.ndarray:
 def odometry_increments(track: OdometryTrack, kf_t: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The odometry's displacement into each keyframe: row k (k >= 1) from keyframe k-1 to k, the track
     interpolated at both times. Returns (d (K, 3) world m, z 0; var (K, 3) m^2 per axis: the track's variance
-    increment times ``cfg.var_scale``, floored at ``cfg.min_sigma_m``^2, z ``cfg.z_sigma_m``^2 per second; ok (K,):
+    increment times ``cfg.var_scale``, z ``cfg.z_sigma_m``^2 per second, each floored at ``cfg.min_sigma_m``^2; ok (K,):
     both times inside the track, row 0 False). ``cfg``: :class:`~blenav.backend.config.OdometryConfig`."""
     kf_t = np.asarray(kf_t, float)
     K = len(kf_t)
@@ -154,7 +154,7 @@ def odometry_increments(track: OdometryTrack, kf_t: np.ndarray, cfg) -> tuple[np
     var = np.zeros((K, 3))
     d[1:, 0], d[1:, 1] = np.diff(x), np.diff(y)
     var[1:, :2] = np.maximum(np.diff(v) * float(cfg.var_scale), float(cfg.min_sigma_m) ** 2)[:, None]
-    var[1:, 2] = float(cfg.z_sigma_m) ** 2 * np.diff(kf_t)
+    var[1:, 2] = np.maximum(float(cfg.z_sigma_m) ** 2 * np.diff(kf_t), float(cfg.min_sigma_m) ** 2)
     return d, var, ok
 
 

@@ -57,7 +57,10 @@ class ImuSamples:
 class OdometryTrack:
     """A learned inertial odometry's track (:func:`blenav.filters.inertial_odometry.lio_odometry`): t (T,) s
     increasing; xy (T, 2) world m from its start (its frame: the attitude's, as the keyframes' q); var (T,) m^2 per
-    axis, accumulated from the start (the increment between two times is the variance of that displacement)."""
+    axis, accumulated from the start (the increment between two times is the variance of that displacement). Its
+    attitude is the one the model was trained in (the phone's rotation vector or blenav's AHRS with default settings);
+    the keyframes' is the front-end's AHRS: both magnetic-north ENU, so a front-end with tuned AHRS settings turns one
+    against the other by their heading difference."""
 
     t: np.ndarray
     xy: np.ndarray

@@ -99,7 +99,8 @@ class BackendLocalizer(Localizer, PathLossCalibrated, InertialModelConsumer):
         if self.io_model is None:
             return None, None
         try:
-            tr = lio_odometry(session, self.io_model, cache=inputs.cache)
+            m = self.io_model  # fed in the attitude it was trained in (an export says; a stand-in: auto)
+            tr = lio_odometry(session, m, getattr(m, "attitude", None) or "auto", cache=inputs.cache)
             track = OdometryTrack(tr["t"].to_numpy(float), tr[["x", "y"]].to_numpy(float), tr["var"].to_numpy(float))
         except (MissingStream, ValueError) as exc:
             return None, f"back-end: no learned odometry between-factors ({exc})"

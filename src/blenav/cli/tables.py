@@ -24,7 +24,7 @@ from .common import display_prog, guarded, pop_debug, subcommand_args
 PROG = "python -m blenav.cli.tables"
 USAGE = (f"usage: {PROG} merge OUT.md TITLE RUN[:PREFIX] [RUN[:PREFIX] ...] | leaderboard OUT.md TITLE RUN [RUN ...] "
          f"| crf TABLE1_OUT FIG12_OUT OUT.md | feng RESULTS.json OUT.md [COMMAND] "
-         f"| backend OUT.md TITLE LABEL=TRUE_RUN[,NOISE_RUN] [...]")
+         f"| backend [--made-by CMD] OUT.md TITLE LABEL=TRUE_RUN[,NOISE_RUN] [...]")
 
 
 def _main(argv: list[str]) -> int:
@@ -46,10 +46,13 @@ def _main(argv: list[str]) -> int:
 
         write_page(Path(args[0]), Path(args[1]), args[2] if len(args) > 2 else "")
         print(f"wrote {args[1]}")
-    elif cmd == "backend" and len(args) >= 3:
+    elif cmd == "backend" and len(args) >= 3 + 2 * (args[0] == "--made-by"):
         from blenav.reporting.backend_robust import write_backend_table
 
-        print(write_backend_table(Path(args[0]), args[1], args[2:], command="make backend-robust"))
+        made_by = "make backend-robust"  # the command the page says made it
+        if args[0] == "--made-by":
+            made_by, args = args[1], args[2:]
+        print(write_backend_table(Path(args[0]), args[1], args[2:], command=made_by))
     else:
         print(USAGE.replace(PROG, display_prog(PROG)), file=sys.stderr)
         return 2

@@ -163,13 +163,9 @@ class Session:
 
     @property
     def gyro_calibrated(self) -> bool:
-        """Whether imu.csv's gyroscope has its bias removed (session.yaml ``gyro_calibrated``; absent: true for a
-        session with Android's rotation vector, ``orientation_frame: enu-magnetic``, whose phone reports the
-        bias-corrected ``TYPE_GYROSCOPE``, else false). What :func:`blenav.filters.yaw_hold.resolve_yaw` reads."""
-        v = self.meta.get("gyro_calibrated")
-        if v is None:
-            return self.meta.get("orientation_frame") == "enu-magnetic"
-        return bool(v)
+        """Whether imu.csv's gyroscope has its bias removed (:func:`gyro_calibrated_of` its session.yaml). What
+        :func:`blenav.filters.yaw_hold.resolve_yaw` reads."""
+        return gyro_calibrated_of(self.meta)
 
     @property
     def floor(self) -> Floor:
@@ -256,6 +252,15 @@ class Session:
             z = gt["z"].to_numpy(float) if "z" in gt and not gt["z"].isna().all() else np.zeros(len(tt))
             cols.append(np.interp(t, tt, z))
         return np.stack(cols, axis=-1)
+
+
+def gyro_calibrated_of(meta: dict) -> bool:
+    """session.yaml ``gyro_calibrated``; absent: true for a session with Android's rotation vector
+    (``orientation_frame: enu-magnetic``), whose phone reports the bias-corrected ``TYPE_GYROSCOPE``, else false."""
+    v = meta.get("gyro_calibrated")
+    if v is None:
+        return meta.get("orientation_frame") == "enu-magnetic"
+    return bool(v)
 
 
 def check_session_in_building(session: Session) -> None:

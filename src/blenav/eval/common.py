@@ -67,7 +67,9 @@ def finite_json(obj):
         return [finite_json(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return finite_json(obj.tolist())
-    if isinstance(obj, (float, np.floating)) and not np.isfinite(obj):
+    if isinstance(obj, np.generic):  # numpy bool / int / float scalars as Python values
+        obj = obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
         return None
     return obj
 

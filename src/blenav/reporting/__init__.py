@@ -14,3 +14,9 @@ the README keeps a generated block between hand-written text, through the one sp
 Layer: above :mod:`blenav.eval` (it reads the evaluations' results and uses their helpers), below the command lines
 (:mod:`blenav.cli.realwalks`, :mod:`blenav.cli.tables`), which parse the arguments and compose configs.
 """
+
+
+def num(v, nd: int = 2, none: str = "-") -> str:
+    """``v`` with ``nd`` decimals, or ``none`` where a results.json holds null (a statistic over nothing: strict JSON
+    writes a NaN as null, :func:`blenav.eval.common.finite_json`)."""
+    return none if v is None else f"{v:.{nd}f}"

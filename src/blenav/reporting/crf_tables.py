@@ -15,6 +15,8 @@ from pathlib import Path
 
 from blenav.eval.common import write_text
 
+from . import num
+
 __all__ = ["table1", "fig12", "ordering", "write"]
 
 MODS = ["IMU", "RTT", "BLE", "RTT+IMU", "BLE+IMU", "RTT+BLE", "RTT+BLE+IMU"]
@@ -58,8 +60,8 @@ def fig12(res: dict) -> list[str]:
             out.append(f"| {name} | skipped: {'; '.join(sorted(set(m.get('skipped', {}).values())))} | | | | | |")
             continue
         e = m["error_m"]
-        out.append(f"| {name} | {e['mean']:.2f} | {e['median']:.2f} | {e['p75']:.2f} | {e['p90']:.2f} | {e['max']:.2f} | "
-                   f"{m['realtime_factor']:.0f} |")
+        out.append(f"| {name} | {num(e['mean'])} | {num(e['median'])} | {num(e['p75'])} | {num(e['p90'])} | "
+                   f"{num(e['max'])} | {num(m['realtime_factor'], 0)} |")
     return out
 
 

@@ -22,6 +22,8 @@ import numpy as np
 from blenav.eval.common import write_text
 from blenav.eval.feng_rtt import ENVS, range_errors, scan_counts
 
+from . import num
+
 __all__ = ["findings", "render", "write_page"]
 
 
@@ -68,7 +70,7 @@ def findings(methods: dict, ranges: list[dict] | None) -> list[str]:
 def render(results: dict, ranges: list[dict] | None = None, command: str = "", scans: dict | None = None) -> str:
     """The page's markdown (``scans``: test session -> number of scans, the denominator of the share localized)."""
     methods = results["methods"]
-    out = [f"# Real WiFi RTT: the Feng et al. test points (issue 15 sec. 3)", ""]
+    out = ["# Real WiFi RTT: the Feng et al. test points (issue 15 sec. 3)", ""]
     if command:
         out += ["Reproduce (imports ../shared/data/raw/feng_wifi_rtt, evaluates, writes this page):", "",
                 "```bash", command, "```", ""]
@@ -107,7 +109,7 @@ def render(results: dict, ranges: list[dict] | None = None, command: str = "", s
             e = ps["error_m"]
             c = cov.get(sid)
             total = (scans or {}).get(sid, c[1] if c else None)
-            cells.append(f"{e['mean']:.2f} | {e['median']:.2f} | {e['p90']:.2f} | "
+            cells.append(f"{num(e['mean'])} | {num(e['median'])} | {num(e['p90'])} | "
                          + (f"{c[0]}/{total}" if c else ""))
         out.append(f"| {name} | " + " | ".join(cells) + " |")
     out.append("")

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from . import num
 from .splice import splice
 
 __all__ = ["ROWS", "priors_table", "priors_verdicts", "write_priors"]
@@ -52,7 +53,7 @@ def _err(results: dict, key: str) -> dict | None:
 
 
 def _cell(e: dict | None) -> str:
-    return f"{e['mean']:.2f} / {e['p90']:.2f}" if e else "-"
+    return f"{num(e['mean'])} / {num(e['p90'])}" if e else "-"
 
 
 def priors_table(main: dict[str, dict], other: dict[str, dict]) -> str:
@@ -75,9 +76,11 @@ def priors_verdicts(floor: str, main: dict, other: dict) -> list[str]:
         if not (h and s and o):
             out.append(f"{floor}, {what}: not all three rows ran")
             continue
-        best = min((h["mean"], "heuristic map PF"), (s["mean"], "procedural prior"), (o["mean"], "other-floors prior"))
-        out.append(f"{floor}, {what}: heuristic map PF {h['mean']:.2f} m, procedural prior {s['mean']:.2f} m, "
-                   f"other-floors prior {o['mean']:.2f} m -> {best[1]} best")
+        scored = [(v, k) for v, k in ((h["mean"], "heuristic map PF"), (s["mean"], "procedural prior"),
+                                      (o["mean"], "other-floors prior")) if v is not None]
+        best = min(scored)[1] if scored else "none scored"
+        out.append(f"{floor}, {what}: heuristic map PF {num(h['mean'])} m, procedural prior {num(s['mean'])} m, "
+                   f"other-floors prior {num(o['mean'])} m -> {best} best")
     return out
 
 
