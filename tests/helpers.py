@@ -239,6 +239,13 @@ class RowModel:
 
         self.grid, self.frame, self.yaw = InertialGrid(rate_hz=50.0, window_s=1.0, stride_s=0.5), frame, yaw
         self.key = f"row-{yaw}"
+        self.attitude = "auto"  # the attitude it "was trained in", as an export says (blenav.runtime.inertial)
+
+    def odometry(self, session, attitude: str | None = None, cache: dict | None = None):
+        """The track, as :meth:`blenav.runtime.inertial.InertialModel.odometry` gives it."""
+        from blenav.filters.inertial_odometry import lio_odometry
+
+        return lio_odometry(session, self, attitude or self.attitude, cache=cache)
 
     def predict(self, W):
         W = np.asarray(W, np.float64)

@@ -136,7 +136,6 @@ def offset_range_error(r: float, gamma: float, this, values, H) -> np.ndarray:
     return np.array([scale * d - r])
 
 
-
 def odometry_increments(track: OdometryTrack, kf_t: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The odometry's displacement into each keyframe: row k (k >= 1) from keyframe k-1 to k, the track
     interpolated at both times. Returns (d (K, 3) world m, z 0; var (K, 3) m^2 per axis: the track's variance

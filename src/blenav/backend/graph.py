@@ -66,12 +66,12 @@ from functools import partial
 import numpy as np
 import pandas as pd
 
+from blenav.filters.quaternions import quat_to_matrix
+
 from .config import BackendConfig, ChannelRefit, Solver
 from .factors import (load_gtsam, nearest_keyframe, odometry_factor, odometry_increments, offset_range_error,
                       preintegrate, preintegration_params, robust_noise, select_ranges)
 from .channel import channel_of, refit_ranges
-from blenav.filters.quaternions import quat_to_matrix
-
 from .graph_types import (BackendFailure, BackendResult, BeaconPriors, ImuSamples, Keyframes, OdometryTrack, RangeObs,
                           describe_key, first_line, symbol_in)
 

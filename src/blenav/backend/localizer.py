@@ -40,7 +40,6 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from blenav.errors import MissingStream
-from blenav.filters.inertial_odometry import lio_odometry
 from blenav.filters.measurement import PathLossRange
 from blenav.localizers.base import (Estimate, InertialModelConsumer, Localizer, PathLossCalibrated, RunInputs,
                                     attach_inertial)
@@ -99,8 +98,7 @@ class BackendLocalizer(Localizer, PathLossCalibrated, InertialModelConsumer):
         if self.io_model is None:
             return None, None
         try:
-            m = self.io_model  # fed in the attitude it was trained in (an export says; a stand-in: auto)
-            tr = lio_odometry(session, m, getattr(m, "attitude", None) or "auto", cache=inputs.cache)
+            tr = self.io_model.odometry(session, cache=inputs.cache)  # in the attitude it was trained in
             track = OdometryTrack(tr["t"].to_numpy(float), tr[["x", "y"]].to_numpy(float), tr["var"].to_numpy(float))
         except (MissingStream, ValueError) as exc:
             return None, f"back-end: no learned odometry between-factors ({exc})"

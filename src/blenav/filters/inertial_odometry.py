@@ -24,7 +24,7 @@ from .attitude import AttitudeConfig, StreamingAttitude
 from .pdr_odometry import HEADINGS, attitude_at, attitude_track, resolve_heading
 from .quaternions import quat_to_matrix
 from .steps import StepDetectorConfig
-from .yaw_hold import YAW_SOURCES, StreamingYawHold, resolve_yaw
+from .yaw_hold import StreamingYawHold, check_yaw, resolve_yaw
 
 __all__ = ["VelocityModel", "model_yaw", "world_frame_imu", "session_frame_imu", "lio_odometry", "StreamingLio",
            "LIVE_ATTITUDES"]
@@ -42,10 +42,7 @@ class VelocityModel(Protocol):
 
 def model_yaw(model) -> str:
     """The yaw source (:data:`YAW_SOURCES`) ``model`` was trained with: its ``yaw``, ``attitude`` where it has none."""
-    yaw = getattr(model, "yaw", None) or "attitude"
-    if yaw not in YAW_SOURCES:
-        raise ValueError(f"inertial model: yaw {yaw!r}, not one of {YAW_SOURCES}")
-    return yaw
+    return check_yaw(getattr(model, "yaw", None) or "attitude", "inertial model: yaw")
 
 
 def world_frame_imu(imu_t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, q_t: np.ndarray, q: np.ndarray,

@@ -61,9 +61,7 @@ def attitude_track(session, heading: str, att: AttitudeConfig | None = None, ste
     ``yaw``: ``attitude`` (the source's own yaw), ``gyro`` (:func:`blenav.filters.yaw_hold.hold_yaw`: the gyroscope's
     yaw held to the source's running mean; the track is then at the IMU times) or ``auto`` (``gyro`` where the
     session's gyroscope is calibrated, ``session.gyro_calibrated``, else ``attitude``)."""
-    calibrated = getattr(session, "gyro_calibrated", None)  # a Session's; a stand-in's from its meta, the same rule
-    yaw = resolve_yaw(yaw, gyro_calibrated_of(getattr(session, "meta", None) or {}) if calibrated is None
-                      else bool(calibrated))
+    yaw = resolve_yaw(yaw, gyro_calibrated_of(getattr(session, "meta", None) or {}))  # Session.gyro_calibrated's rule
     if yaw == "gyro":
         q_t, q = attitude_track(session, heading, att, steps, cache)
         imu = session.imu

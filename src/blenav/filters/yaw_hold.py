@@ -33,7 +33,7 @@ import numpy as np
 
 from .quaternions import qconj, qmul, quat_to_matrix
 
-__all__ = ["YAW_SOURCES", "WINDOW_S", "resolve_yaw", "hold_yaw", "StreamingYawHold"]
+__all__ = ["YAW_SOURCES", "WINDOW_S", "check_yaw", "resolve_yaw", "hold_yaw", "StreamingYawHold"]
 
 #: where an attitude track's yaw comes from: the attitude itself, the gyroscope held to its running mean, or ``auto``:
 #: the gyroscope where it is calibrated, else the attitude (:func:`resolve_yaw`)
@@ -42,12 +42,18 @@ YAW_SOURCES = ("attitude", "gyro", "auto")
 WINDOW_S = 120.0
 
 
+def check_yaw(yaw, what: str = "yaw") -> str:
+    """``yaw`` when it is one of :data:`YAW_SOURCES` (a config's, a method's, an export's), else ValueError naming
+    ``what`` (the key it came from)."""
+    if yaw not in YAW_SOURCES:
+        raise ValueError(f"{what} must be one of {YAW_SOURCES}, got {yaw!r}")
+    return str(yaw)
+
+
 def resolve_yaw(yaw: str, gyro_calibrated: bool) -> str:
     """The yaw source a track runs with: ``yaw`` itself, or for ``auto`` ``gyro`` when ``gyro_calibrated`` (the
     hold's assumption, module doc) and ``attitude`` otherwise. ValueError for a source not in :data:`YAW_SOURCES`."""
-    if yaw not in YAW_SOURCES:
-        raise ValueError(f"yaw must be one of {YAW_SOURCES}, got {yaw!r}")
-    if yaw == "auto":
+    if check_yaw(yaw) == "auto":
         return "gyro" if gyro_calibrated else "attitude"
     return yaw
 

@@ -60,7 +60,7 @@ from blenav.crf.smoother import Layers, forward_backward, viterbi
 from blenav.crf.walk_graph import GraphSettings
 from blenav.errors import MissingStream
 from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADING_SOURCES, fitted_step_length, pdr_odometry, resolve_heading
-from blenav.filters.yaw_hold import YAW_SOURCES
+from blenav.filters.yaw_hold import check_yaw
 
 from .base import NO_IO_MODEL, Estimate, FixConsumer, InertialModelConsumer, Localizer, Trained, attach_inertial
 from .inputs import RunInputs
@@ -194,9 +194,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADING_SOURCES}, got "
                              f"{self.heading!r}")
         self.step_length = odo.get("step_length")
-        self.yaw = str(odo.get("yaw", "auto"))
-        if self.yaw not in YAW_SOURCES:
-            raise ValueError(f"method {name!r}: odometry.yaw must be one of {YAW_SOURCES}, got {self.yaw!r}")
+        self.yaw = check_yaw(odo.get("yaw", "auto"), f"method {name!r}: odometry.yaw")
         g = _block(name, "grid", grid, {"cell_m": 1.0, "max_step_m": 3.0})
         self.cell_m, self.max_step_m = float(g["cell_m"]), float(g["max_step_m"])
         self.dt_s = float(dt_s)

@@ -39,7 +39,7 @@ import pandas as pd
 
 from blenav.errors import MissingStream
 from blenav.filters.pdr_odometry import DEFAULT_STEP_M, HEADING_SOURCES, fitted_step_length, pdr_odometry
-from blenav.filters.yaw_hold import YAW_SOURCES
+from blenav.filters.yaw_hold import check_yaw
 from blenav.localizers.base import NO_IO_MODEL, Estimate, InertialModelConsumer, Trained, attach_inertial
 from blenav.localizers.inputs import RunInputs
 from blenav.localizers.particle import ParticleFilterLocalizer
@@ -60,8 +60,7 @@ class RealWalkPF(ParticleFilterLocalizer, Trained, InertialModelConsumer):
         if unknown:
             raise ValueError(f"method {name!r}, odometry: unknown key(s) {sorted(unknown)}; known: source, heading, "
                              f"step_length, attitude, yaw")
-        if odo.get("yaw", "attitude") not in YAW_SOURCES:
-            raise ValueError(f"method {name!r}: odometry.yaw must be one of {YAW_SOURCES}, got {odo['yaw']!r}")
+        check_yaw(odo.get("yaw", "attitude"), f"method {name!r}: odometry.yaw")
         self.odometry = odo if odometry is not None else None
         if self.odometry is not None and self.odometry.get("heading", "orientation") not in HEADING_SOURCES:
             raise ValueError(f"method {name!r}: odometry.heading must be one of {HEADING_SOURCES}, got "

@@ -15,6 +15,8 @@ from pathlib import Path
 
 from blenav.eval.common import write_text
 
+from . import num
+
 __all__ = ["inertial_markdown", "write_inertial"]
 
 def _get(results: dict, row: str, *keys):
@@ -25,7 +27,7 @@ def _get(results: dict, row: str, *keys):
 
 
 def _f(v, nd: int = 2) -> str:
-    return "--" if v is None else f"{v:.{nd}f}"
+    return num(v, nd, "--")
 
 
 def inertial_markdown(floors: dict[str, dict], sim_only: dict[str, dict], runs: dict | None, command: str) -> str:

@@ -127,7 +127,7 @@ def calibrate_model_fixes(dataset, model_path: str | Path, session_ids=None) -> 
     out = {**fix_error_stats(errors), "sessions": used, "trained_on": overlap}
     if stds:
         err, sd = np.linalg.norm(np.concatenate(errors), axis=1), np.concatenate(stds)
-        fine = np.isfinite(sd) & (sd > 0)
+        fine = np.isfinite(sd)  # predict_windows_std: a std is unknown (NaN) or at least MIN_FIX_STD_M
         scale, fit = std_scale_fit(err, sd)
         out["stated_std"] = {"fixes": int(fine.sum()), **coverage(err[fine], sd[fine]),
                              "ml_scale": scale if "uncalibrated" not in fit else None,

@@ -63,7 +63,7 @@ class InertialModel:
         #: the attitude source the network was trained in (the default of :meth:`odometry`): one a deployed phone has
         #: (never ``groundtruth``, the simulated walks' training-only source), checked here, before any session
         from blenav.filters.pdr_odometry import HEADING_SOURCES  # what odometry() will read
-        from blenav.filters.yaw_hold import YAW_SOURCES
+        from blenav.filters.yaw_hold import check_yaw
 
         att = meta.get("attitude") or {}
         self.attitude = str((att.get("attitude") if isinstance(att, dict) else None) or "auto")
@@ -71,9 +71,8 @@ class InertialModel:
             raise ValueError(f"{where}: attitude {self.attitude!r}, not one a phone has at run time "
                              f"({', '.join(HEADING_SOURCES)})")
         #: the attitude's yaw the network was trained with (blenav.filters.yaw_hold); an export without it: its own
-        self.yaw = str((att.get("yaw") if isinstance(att, dict) else None) or "attitude")
-        if self.yaw not in YAW_SOURCES:
-            raise ValueError(f"{where}: attitude.yaw {self.yaw!r}, not one of {YAW_SOURCES}")
+        self.yaw = check_yaw((att.get("yaw") if isinstance(att, dict) else None) or "attitude",
+                             f"{where}: attitude.yaw")
         self.key += f":yaw={self.yaw}"  # the same weights fed another yaw make another track
         self.sess = session(paths[0], threads)
         props = read_metadata(self.sess)  # the contract the graph was exported with: meta.json must say the same

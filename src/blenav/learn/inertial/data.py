@@ -32,7 +32,7 @@ from blenav.errors import MissingStream
 from blenav.features.inertial import (CHANNELS, FRAMES, InertialGrid, cut, heading_frame, n_windows, padded,
                                       segment_weights, turn_pairs)
 from blenav.filters.inertial_odometry import session_frame_imu
-from blenav.filters.yaw_hold import YAW_SOURCES
+from blenav.filters.yaw_hold import check_yaw
 
 from ..common.sessions import labelled_sessions
 from .data_config import InertialDataConfig
@@ -179,8 +179,7 @@ class InertialDataModule(L.LightningDataModule):
         self.grid = InertialGrid(cfg.rate_hz, cfg.window_s, cfg.stride_s)
         if cfg.frame not in FRAMES:
             raise ValueError(f"data.frame must be one of {FRAMES}, got {cfg.frame!r}")
-        if cfg.yaw not in YAW_SOURCES:
-            raise ValueError(f"data.yaw must be one of {YAW_SOURCES}, got {cfg.yaw!r}")
+        check_yaw(cfg.yaw, "data.yaw")
         self.walks: dict[str, list[Walk]] = {}
         self.segments: dict[str, Segments] = {}
         self.sets: dict[str, SegmentSet] = {}
