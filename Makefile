@@ -7,7 +7,7 @@ BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.blenav-installed
 DEMO   ?= data/demo
 
-.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables crossphone-sweep mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables backend-robust backend-robust-lio mapping-curve realwalks-tables inertial-tables regression-check clean-demo
+.PHONY: install demo test test-slow test-all bench realism feng-tables paper-tables crossphone-tables crossphone-sweep mapprior-tables mapprior-planerr selfcal-tables crf-tables backend-tables backend-robust backend-robust-lio backend-robust-vars mapping-curve realwalks-tables inertial-tables regression-check clean-demo
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -403,6 +403,14 @@ backend-robust-lio: $(STAMP)
 	$(MAKE) -o $(STAMP) backend-robust BR_ARGS=io_model=$(BR_IO) BR_OUT=data/results/backend_robust_lio \
 	    BR_DOC=docs/results/backend_robust_lio.md "BR_CMD=make backend-robust-lio" \
 	    "BR_TITLE=The back-end with a learned inertial odometry's between-factors (make backend-robust-lio, $(BR_RUNS) runs)"
+
+# Issue 32: the same runs with the receiver offset and the path-loss exponent as variables of the graph (F-end and
+# B-end; off by default), docs/results/backend_robust_vars.md (~11 min)
+BR_VARS = $(foreach m,B-end F-end,$(foreach k,estimate_offset estimate_exponent,+methods.$(m).backend.range.$(k)=true))
+backend-robust-vars: $(STAMP)
+	$(MAKE) -o $(STAMP) backend-robust "BR_ARGS=$(BR_VARS)" BR_OUT=data/results/backend_robust_vars \
+	    BR_DOC=docs/results/backend_robust_vars.md "BR_CMD=make backend-robust-vars" \
+	    "BR_TITLE=The back-end with the receiver offset and the path-loss exponent as graph variables (make backend-robust-vars, $(BR_RUNS) runs)"
 
 realism: $(STAMP)
 	$(BIN)/python benchmarks/sim_realism.py --out docs/sim_realism.md

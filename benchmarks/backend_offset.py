@@ -3,10 +3,11 @@
 
 One simulated 384 s office walk and a copy whose RSSI reads 10 dB low (every row of rssi.csv shifted); the path
 loss fitted on the normal walk, the IMU front-end run on each, then the back-end (LM) on the first
-``--window`` seconds: plain, with the offset variable, with the channel refit (level; line). Printed: the offset
-estimate (the variable's with its std; the refit's level and exponent), the smoothed RMSE against the ground
-truth, and the solve time (the offset variable's range factors are GTSAM CustomFactors with a Python error
-function: several times slower than RangeFactor3D; the refit is a second LM pass on plain range factors).
+``--window`` seconds: plain, with the offset variable, with the offset and the exponent as variables
+(``range.estimate_exponent``), with the channel refit (level; line). Printed: the offset estimate (the variables'
+with their std; the refit's level and exponent), the smoothed RMSE against the ground truth, and the solve time (the
+variables' range factors are GTSAM CustomFactors with a Python error function, ``range.channel_group`` keyframes'
+ranges to one factor; the refit is a second LM pass on plain range factors).
 
     .venv/bin/python benchmarks/backend_offset.py [--window 60]
 """
@@ -61,8 +62,10 @@ def main() -> None:
             apply_fit(m.measurements, fit)
             front = run_session(m, s, 1, seed=0)
             att = session_attitude(s)
-            for mode in ("none", "variable", "refit level", "refit line"):
-                cfg = load_backend_config(overrides=["solver.method=lm", f"range.estimate_offset={mode == 'variable'}",
+            for mode in ("none", "variable", "variables", "refit level", "refit line"):
+                cfg = load_backend_config(overrides=["solver.method=lm",
+                                                     f"range.estimate_offset={mode.startswith('variable')}",
+                                                     f"range.estimate_exponent={mode == 'variables'}",
                                                      f"range.refit_channel={mode.split()[-1] if 'refit' in mode else 'none'}",
                                                      f"range.a_x={fit.a_x}", f"range.gamma={fit.gamma}",
                                                      f"range.d0={fit.d0}"])
@@ -77,8 +80,10 @@ def main() -> None:
                 gt = s.positions_at(kf.t)
                 rmse = float(np.sqrt(np.mean(np.sum((res.position[:, :2] - gt) ** 2, -1))))
                 off = "-"
-                if mode == "variable":
+                if mode.startswith("variable"):
                     off = f"{res.offset_db:+.2f} +- {res.offset_std_db:.2f}"
+                    if mode == "variables":
+                        off += f" (exponent {res.channel_exponent:.2f} +- {res.channel_exponent_std:.2f})"
                 elif np.isfinite(res.channel_offset_db):
                     off = f"{res.channel_offset_db:+.2f} (exponent {res.channel_exponent:.2f})"
                 print(f"{name:10s} {mode:>15s} {off:>24s} {rmse:9.2f} {dt:9.2f}")

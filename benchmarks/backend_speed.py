@@ -7,7 +7,9 @@ update shorter than the keyframe interval). Printed: wall and CPU seconds with t
 iSAM2 update times (median, p99, max) against the keyframe interval, the closed loop's back-end seconds, peak
 RSS of the process, and the load average (a shared machine is slower).
 
-    .venv/bin/python benchmarks/backend_speed.py [--duration 384] [--keyframe-every 1]
+    .venv/bin/python benchmarks/backend_speed.py [--duration 384] [--keyframe-every 1] [--set KEY=VALUE ...]
+
+``--set``: a back-end setting for every mode (conf/backend/default.yaml keys, e.g. ``range.estimate_offset=true``).
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=384.0)
     ap.add_argument("--keyframe-every", type=int, default=1)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a back-end setting for every mode (repeatable), e.g. range.estimate_offset=true")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "office"
@@ -56,7 +60,8 @@ def main() -> None:
         apply_fit(m.measurements, fit_sessions([s]))
         front = run_session(m, s, 1, seed=0)
         base = _rss_mib()
-        cfg = load_backend_config(overrides=[f"solver.keyframe_every={args.keyframe_every}"])
+        common = [f"solver.keyframe_every={args.keyframe_every}", *args.set]
+        cfg = load_backend_config(overrides=common)
         anchors = s.building.anchors_of("ble")
         beacons = beacon_priors(anchors, cfg.priors.beacon_sigma_m, cfg.priors.beacon_sigma_z_m)
         ranges = session_ranges(s, beacons, path_loss_model(cfg), anchors)
@@ -64,11 +69,12 @@ def main() -> None:
         att = session_attitude(s)
         kf, _ = keyframes_from_front_end(front.t, front.position, *att, cfg)
         interval = float(np.median(np.diff(kf.t)))
+        print(f"settings: {' '.join(args.set) or 'defaults'}")
         print(f"session {args.duration:.0f} s: {len(kf.t)} keyframes ({interval:.2f} s apart), {len(imu.t):,} IMU "
               f"samples, {len(ranges.t):,} ranges to {len(beacons.ids)} beacons")
         print(f"{'mode':22s} {'wall [s]':>9s} {'/ budget':>9s} {'vs paper':>9s} {'CPU [s]':>8s} {'load':>5s}")
         for name, over in (("batch (LM, 2 passes)", ["solver.method=lm"]), ("online (iSAM2)", ["solver.method=isam2"])):
-            c = load_backend_config(overrides=[f"solver.keyframe_every={args.keyframe_every}", *over])
+            c = load_backend_config(overrides=[*common, *over])
             t0, c0 = time.perf_counter(), time.process_time()
             res = smooth(c, kf, imu, ranges, beacons)
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -80,7 +86,7 @@ def main() -> None:
                 print(f"  iSAM2 update per keyframe: median {np.median(u) * 1e3:.1f} ms, p99 "
                       f"{np.percentile(u, 99) * 1e3:.1f} ms, max {u.max() * 1e3:.1f} ms against the {interval * 1e3:.0f} "
                       f"ms keyframe interval: {late} of {len(u)} updates slower than real time")
-        loop_cfg = load_backend_config(overrides=["solver.method=lm", f"solver.keyframe_every={args.keyframe_every}"])
+        loop_cfg = load_backend_config(overrides=[*common, "solver.method=lm"])
         t0 = time.perf_counter()
         lo = run_closed_loop(m, s, 1, 0, loop_cfg, imu, ranges, beacons, att)
         wall = time.perf_counter() - t0

@@ -233,47 +233,6 @@ def test_backend_yaml_is_the_schema_and_its_defaults():
 
 
 # --------------------------------------------------------------------------------------------- receiver offset
-def test_offset_range_factor_is_gtsams_range_factor_at_zero_offset():
-    """offset_range_error with delta = 0 has RangeFactor3D's error and Jacobians (pose, beacon); its delta
-    Jacobian matches a central difference."""
-    from functools import partial
-
-    from gtsam.symbol_shorthand import L, O
-
-    from blenav.backend.factors import offset_range_error
-
-    rng = np.random.default_rng(3)
-    noise = gtsam.noiseModel.Isotropic.Sigma(1, 0.7)
-    for _ in range(5):
-        pose = gtsam.Pose3(gtsam.Rot3.Ypr(*rng.uniform(-np.pi, np.pi, 3)), rng.uniform(-5, 5, 3))
-        lm, r, gam = rng.uniform(-5, 5, 3), float(rng.uniform(1, 8)), float(rng.uniform(1.5, 3.0))
-        vals = gtsam.Values()
-        vals.insert(X(0), pose)
-        vals.insertPoint3(L(0), lm)
-        vals.insert(O(0), np.zeros(1))
-        ref = gtsam.RangeFactor3D(X(0), L(0), r, noise)
-        mine = gtsam.CustomFactor(noise, [X(0), L(0), O(0)], partial(offset_range_error, r, gam))
-        assert mine.error(vals) == pytest.approx(ref.error(vals), rel=1e-12)
-        Jr, Jm = ref.linearize(vals), mine.linearize(vals)
-        Ar, Am = Jr.jacobian()[0], Jm.jacobian()[0]
-        np.testing.assert_allclose(Am[:, :9], Ar, atol=1e-10)
-        h = 1e-6  # delta column against a central difference of the whitened error
-        e = [np.sqrt(2 * mine.error(_with_offset(vals, s * h))) * np.sign(_raw(mine, vals, s * h)) for s in (1, -1)]
-        np.testing.assert_allclose(Am[0, 9], (e[0] - e[1]) / (2 * h), rtol=1e-5)
-
-
-def _with_offset(vals, delta):
-    from gtsam.symbol_shorthand import O
-
-    v = gtsam.Values(vals)
-    v.update(O(0), np.array([delta]))
-    return v
-
-
-def _raw(factor, vals, delta):
-    return float(factor.unwhitenedError(_with_offset(vals, delta))[0])
-
-
 def test_the_graph_recovers_a_receiver_reading_10_db_low():
     """Exact trajectory and beacons; every range converted from an RSSI 10 dB too low (gamma 2: ranges x 3.16):
     with range.estimate_offset the smoother finds delta = -10 dB and keeps the trajectory."""

@@ -127,6 +127,10 @@ class RangeConfig:
     estimate_offset: bool = False  # the receiver's RSSI offset delta (dB) as a variable O(0): range factors
     #   ||p - l|| 10^(-delta / (10 gamma)) - r (a receiver reading delta dB high sees every range shortened)
     offset_sigma_db: float = 10.0  # dB, prior std of delta (prior mean 0, or the previous window's estimate)
+    estimate_exponent: bool = False  # with estimate_offset: the channel's path-loss exponent as a variable E(0), the
+    #   ratio b to the ranges' gamma (range r_hat = d0 (d / d0)^b 10^(-delta / (10 gamma)))
+    exponent_sigma: float = 0.3  # prior std of b (prior mean 1: the ranges' own exponent)
+    channel_group: int = 10  # keyframes per factor of the channel's ranges (LM; iSAM2: one per keyframe)
     refit_channel: ChannelRefit = ChannelRefit.none  # LM passes after the first: every range through the channel
     #   refitted on the previous pass's distances (blenav.backend.channel, a line in log range: none | level | line)
 
@@ -185,6 +189,8 @@ class SolverConfig:
     relinearize_accel_bias: float = 0.02  # m/s^2
     relinearize_gyro_bias: float = 0.002  # rad/s
     relinearize_beacon_m: float = 0.5  # m
+    relinearize_offset_db: float = 0.5  # dB: the receiver offset (range.estimate_offset); it touches every range factor
+    relinearize_exponent: float = 0.02  # the exponent ratio (range.estimate_exponent)
     relinearize_skip: int = 1  # iSAM2: check relinearization every N updates (GTSAM's default: 10)
     passes: int = 2  # LM only (iSAM2 is online: one pass): passes in all; each after the first starts from the
     #   previous solution, whose trajectory and beacons re-gate the ranges
@@ -312,6 +318,13 @@ def check_combinations(cfg: BackendConfig) -> None:
         if rc.estimate_offset:
             raise ValueError("backend: range.refit_channel and range.estimate_offset both estimate the receiver's "
                              "offset; choose one")
+    if rc.estimate_exponent and not rc.estimate_offset:
+        raise ValueError("backend: range.estimate_exponent needs range.estimate_offset=true (a channel of unknown "
+                         "exponent has an unknown level too: the two are estimated together)")
+    if int(rc.channel_group) < 1:
+        raise ValueError(f"backend: range.channel_group must be >= 1 (got {rc.channel_group})")
+    if not rc.exponent_sigma > 0:
+        raise ValueError(f"backend: range.exponent_sigma must be > 0 (got {rc.exponent_sigma})")
     mapping_kernel(cfg.mapping.robust, "backend: mapping.robust")
     oc = cfg.odometry
     if not (oc.var_scale > 0 and oc.z_sigma_m > 0 and oc.min_sigma_m > 0):

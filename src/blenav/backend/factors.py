@@ -1,7 +1,8 @@
 """The pieces of the radio-inertial graph's factors (:mod:`blenav.backend.graph`): GTSAM's IMU preintegration
 between keyframes, the assignment of ranges to keyframes and their selection (gate, median, nearest beacons),
-the robust noise models, the error of the range factor with the receiver's RSSI offset, and the between-factors of a
-learned inertial odometry. GTSAM is imported
+the robust noise models, the errors of the range factors with the receiver's RSSI offset and the path-loss exponent
+as variables (many ranges to one vectorised factor), and the between-factors of a learned inertial
+odometry. GTSAM is imported
 when one of them is called (:func:`load_gtsam`), not with this module.
 """
 
@@ -14,7 +15,8 @@ from .config import Combine, RobustKernel
 from .graph_types import ImuSamples, OdometryTrack
 
 __all__ = ["load_gtsam", "preintegration_params", "integration_pieces", "preintegrate", "nearest_keyframe",
-           "select_ranges", "robust_noise", "offset_range_error", "odometry_increments", "odometry_factor"]
+           "select_ranges", "robust_noise", "kernel_loss", "channel_range_error", "channel_range_factor",
+           "odometry_increments", "odometry_factor"]
 
 
 def load_gtsam():
@@ -112,28 +114,96 @@ def robust_noise(kind: RobustKernel, k: float, sigma: float, dim: int = 1):
     return gtsam.noiseModel.Robust.Create(make[kind](), base)
 
 
-def offset_range_error(r: float, gamma: float, this, values, H) -> np.ndarray:
-    """Range residual with the receiver's RSSI offset delta (dB, key 3): e = ||t - l|| 10^(-delta / (10 gamma)) - r.
+def kernel_loss(kind: RobustKernel, k: float, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rho (n,), weight (n,)) of the M-estimator ``kind`` of width ``k`` at whitened errors ``u`` (n,): GTSAM's
+    ``noiseModel.mEstimator`` definitions (Huber, Cauchy, Geman-McClure, DCS with Phi = k^2; tests compare them),
+    weight = rho'(u) / u."""
+    u = np.asarray(u, float)
+    a2 = u * u
+    kind, k = RobustKernel(kind), float(k)
+    if kind == RobustKernel.none:
+        return 0.5 * a2, np.ones_like(u)
+    if kind == RobustKernel.huber:
+        a = np.abs(u)
+        inner = a <= k
+        return np.where(inner, 0.5 * a2, k * a - 0.5 * k * k), np.where(inner, 1.0, k / np.maximum(a, 1e-300))
+    if kind == RobustKernel.cauchy:
+        return 0.5 * k * k * np.log1p(a2 / (k * k)), k * k / (k * k + a2)
+    if kind == RobustKernel.geman_mcclure:
+        return 0.5 * k * k * a2 / (k * k + a2), k ** 4 / (k * k + a2) ** 2
+    c = k * k  # DCS: Phi
+    inner = a2 <= c
+    return (np.where(inner, 0.5 * a2, c * (3.0 * a2 - c) / (2.0 * (c + a2))),
+            np.where(inner, 1.0, (2.0 * c / (c + a2)) ** 2))
 
-    A receiver that reads delta dB above the path-loss model sees every range converted from its RSSI shortened by
-    10^(-delta / (10 gamma)) (000 sec. IV-B's conversion r = d0 10^((a_X - rssi) / (10 gamma))). Keys: X (Pose3),
-    L (Point3), O (1-D). Jacobians: d e / d pose = [0, s u^T R] (GTSAM's Pose3 tangent: rotation, then
-    translation in the body frame), d e / d l = -s u^T, d e / d delta = -s d ln(10) / (10 gamma), with u the unit
-    vector from l to t and s the scale. With delta = 0 it is GTSAM's RangeFactor3D (tests/backend/test_graph.py)."""
+
+def channel_range_error(r: np.ndarray, pcol: np.ndarray, col: np.ndarray, gamma: float, d0: float, sigma: float,
+                        kind: RobustKernel, k: float, exponent: bool, this, values, H) -> np.ndarray:
+    """Ranges through the channel's variables, many in one GTSAM CustomFactor (:func:`channel_range_factor` builds
+    it): GTSAM hands every call of a Python error function a copy of all the graph's values, so one call per range
+    costs more than the solve; one per keyframe, or per group of keyframes, does not.
+
+    Keys: the poses X_1..X_P (Pose3), the beacons L_1..L_B (Point3), O (1-D, the receiver's RSSI offset delta,
+    dB), and with ``exponent`` E (1-D, b = the channel's path-loss exponent over the ranges' ``gamma``). Range i
+    (r[i] m, from pose ``pcol[i]`` to beacon ``col[i]``) is predicted as r_hat = d0 (d / d0)^b 10^(-delta / (10
+    gamma)), d = ||t - l|| (000 sec. IV-B's conversion r = d0 10^((a_X - rssi) / (10 gamma)) of an RSSI read by a
+    receiver delta dB hot through a channel of exponent b gamma; b = 1, delta = 0: RangeFactor3D's). The
+    M-estimator ``kind`` (width ``k`` sigmas) acts per range, inside: the returned error is sigma sign(u) sqrt(2
+    rho(u)) with u = (r_hat - r) / sigma, so that the factor's whitened squared norm over 2 (noise
+    ``Isotropic(sigma)``) is the sum of rho over its ranges, as with one robust factor per range; its Jacobian is
+    that of this expression (rho'(u) / sqrt(2 rho(u)) times r_hat's). Jacobians of r_hat: pose [0, g u^T R]
+    (GTSAM's Pose3 tangent), beacon -g u^T, g = d r_hat / d d = b r_hat / d; delta -r_hat ln(10) / (10 gamma);
+    b r_hat ln(d / d0)."""
     keys = this.keys()
-    pose = values.atPose3(keys[0])
-    l = np.asarray(values.atPoint3(keys[1]), float)
-    delta = float(values.atVector(keys[2])[0])
-    t = np.asarray(pose.translation(), float)
-    diff = t - l
-    d = max(float(np.sqrt(diff @ diff)), 1e-9)
-    scale = 10.0 ** (-delta / (10.0 * gamma))
+    n_p, n_b = int(pcol.max()) + 1, int(col.max()) + 1
+    poses = [values.atPose3(keys[i]) for i in range(n_p)]
+    T = np.array([p.translation() for p in poses], float).reshape(n_p, 3)
+    L = np.array([values.atPoint3(keys[n_p + j]) for j in range(n_b)], float).reshape(n_b, 3)
+    delta = float(values.atVector(keys[n_p + n_b])[0])
+    b = float(values.atVector(keys[n_p + n_b + 1])[0]) if exponent else 1.0
+    diff = T[pcol] - L[col]  # (m, 3)
+    d = np.maximum(np.sqrt(np.einsum("ij,ij->i", diff, diff)), 1e-9)
+    rhat = d0 * (d / d0) ** b * 10.0 ** (-delta / (10.0 * gamma))
+    u = (rhat - r) / sigma
+    rho, w = kernel_loss(kind, k, u)
+    root = np.sqrt(2.0 * rho)
     if H is not None:
-        u = diff / d
-        H[0] = np.concatenate([np.zeros(3), scale * (u @ pose.rotation().matrix())]).reshape(1, 6)
-        H[1] = (-scale * u).reshape(1, 3)
-        H[2] = np.array([[-scale * d * np.log(10.0) / (10.0 * gamma)]])
-    return np.array([scale * d - r])
+        m = len(r)
+        small = root < 1e-9  # the limit of w |u| / sqrt(2 rho) at u -> 0 is 1 for every kernel
+        slope = np.where(small, 1.0, w * np.abs(u) / np.where(small, 1.0, root))  # de / d r_hat
+        gu = (slope * b * rhat / d)[:, None] * (diff / d[:, None])  # de / dt = -de / dl, (m, 3)
+        for i, pose in enumerate(poses):
+            Hi = np.zeros((m, 6))
+            rows = pcol == i
+            Hi[rows, 3:] = gu[rows] @ pose.rotation().matrix()
+            H[i] = Hi
+        for j in range(n_b):
+            Hj = np.zeros((m, 3))
+            rows = col == j
+            Hj[rows] = -gu[rows]
+            H[n_p + j] = Hj
+        H[n_p + n_b] = (-slope * rhat * np.log(10.0) / (10.0 * gamma))[:, None]
+        if exponent:
+            H[n_p + n_b + 1] = (slope * rhat * np.log(d / d0))[:, None]
+    return sigma * np.sign(u) * root
+
+
+def channel_range_factor(pose_keys: list, beacon_keys: list, offset_key, exponent_key, r: np.ndarray, gamma: float,
+                         d0: float, sigma: float, kind: RobustKernel, k: float):
+    """One CustomFactor (:func:`channel_range_error`) for the ranges r (m,) m from the poses ``pose_keys`` (m,) to
+    the beacons ``beacon_keys`` (m,) (repeats allowed), with the receiver offset ``offset_key`` and, unless None, the
+    exponent ratio ``exponent_key``; range noise ``sigma`` m inside the M-estimator ``kind`` of width ``k``."""
+    from functools import partial
+
+    gtsam = load_gtsam()
+    upose, pcol = np.unique(np.asarray(pose_keys, np.int64), return_inverse=True)
+    ubeacon, col = np.unique(np.asarray(beacon_keys, np.int64), return_inverse=True)
+    keys = [int(x) for x in upose] + [int(x) for x in ubeacon] + [offset_key] + \
+        ([exponent_key] if exponent_key is not None else [])
+    noise = gtsam.noiseModel.Isotropic.Sigma(len(r), float(sigma))
+    return gtsam.CustomFactor(noise, keys, partial(channel_range_error, np.asarray(r, float), pcol, col, float(gamma),
+                                                   float(d0), float(sigma), RobustKernel(kind), float(k),
+                                                   exponent_key is not None))
 
 
 def odometry_increments(track: OdometryTrack, kf_t: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

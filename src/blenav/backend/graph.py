@@ -6,6 +6,8 @@ Variables (keys from ``gtsam.symbol_shorthand``), one set per keyframe k at the 
 * ``V(k)``: velocity in the world frame, (3,) m/s;
 * ``B(k)``: IMU bias, ``gtsam.imuBias.ConstantBias`` (accelerometer m/s^2, gyroscope rad/s);
 * ``L(j)``: position of BLE beacon j (row j of the anchor table), ``Point3`` world m.
+* ``O(0)``, ``E(0)`` (``range.estimate_offset`` / ``estimate_exponent``): the receiver's RSSI offset (dB) and the
+  channel's path-loss exponent over the ranges' (:mod:`blenav.backend.channel_vars`), one each for the session.
 
 Factors, the terms of the MAP problem eq. (3) of 000, X* = argmin ||r_0||^2_{Sigma_0} + ||r_{0:T}||^2_{Sigma_r}:
 
@@ -47,31 +49,28 @@ Failures never reach the caller: :func:`smooth` returns a :class:`BackendResult`
 the key (``describe_key``: 'beacon ble-003 (l3)', 'pose of keyframe 17 at t=1.80 s (x17)') GTSAM's
 ``IndeterminantLinearSystemException`` (a ``RuntimeError`` in Python) points at. A failed iSAM2 update
 hands the whole session to batch LM with QR (noted); where no estimate exists at all, the trajectory keeps
-the front-end's values. Guards before solving: every beacon variable
-has a prior; a beacon with fewer than ``range.min_ranges`` ranges keeps no range factor (its ranges are
-buffered, online, until it has enough; reported); non-finite inputs are dropped (reported); initial
-velocities are clipped to ``init.max_speed_mps`` (reported); a keyframe interval without IMU samples is
-bridged by holding the last sample (reported).
+the front-end's values. Guards before solving: every beacon variable has a prior; a beacon with fewer than
+``range.min_ranges`` ranges keeps no range factor (its ranges are buffered, online, until it has enough;
+reported); non-finite inputs are dropped (reported); initial velocities are clipped to ``init.max_speed_mps``
+(reported); a keyframe interval without IMU samples is bridged by holding the last sample (reported).
 
-Layout: this module holds the graph (:class:`RadioInertialGraph`) and :func:`smooth`; its inputs and result types
-are in :mod:`blenav.backend.graph_types`, the factors' pieces (preintegration, range selection, noise models, the
-offset range error) in :mod:`blenav.backend.factors`.
+Layout: the graph (:class:`RadioInertialGraph`) and :func:`smooth` here; inputs and result types in
+:mod:`blenav.backend.graph_types`, the factors' pieces in :mod:`blenav.backend.factors`.
 """
 
 from __future__ import annotations
 
 import time
-from functools import partial
-
 import numpy as np
 import pandas as pd
 
 from blenav.filters.quaternions import quat_to_matrix
 
 from .config import BackendConfig, ChannelRefit, Solver
-from .factors import (load_gtsam, nearest_keyframe, odometry_factor, odometry_increments, offset_range_error,
-                      preintegrate, preintegration_params, robust_noise, select_ranges)
+from .factors import (load_gtsam, nearest_keyframe, odometry_factor, odometry_increments, preintegrate,
+                      preintegration_params, robust_noise, select_ranges)
 from .channel import channel_of, refit_ranges
+from .channel_vars import ChannelVariables
 from .graph_types import (BackendFailure, BackendResult, BeaconPriors, ImuSamples, Keyframes, OdometryTrack, RangeObs,
                           describe_key, first_line, symbol_in)
 
@@ -87,23 +86,26 @@ class RadioInertialGraph:
     def __init__(self, cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors,
                  beacon_init: np.ndarray | None = None, pims: list | None = None, offset_prior_db: float = 0.0,
                  offset_init_db: float | None = None, cloud: Keyframes | None = None,
-                 odometry: OdometryTrack | None = None):
+                 odometry: OdometryTrack | None = None, exponent_prior: float = 1.0,
+                 exponent_init: float | None = None):
         """``beacon_init`` (A, 3) world m: initial beacon positions, also used by the range gate (default: the
         prior means; a second pass gives the first pass's estimate); ``pims``: the preintegrated IMU of these
         keyframe times, when already computed (a second pass); ``offset_prior_db`` / ``offset_init_db``: prior
         mean and initial value of the receiver offset (``range.estimate_offset``); ``cloud``: the keyframes whose
         positions and ``cov`` are the front-end's (``priors.front_end_cloud``; default ``kf``; a second pass gives
         the first pass's input, so the prior stays the filter's, not the previous solution's); ``odometry``: a learned
-        inertial odometry's track, its displacements between keyframes as between-factors (``odometry.enabled``)."""
+        inertial odometry's track, its displacements between keyframes as between-factors (``odometry.enabled``);
+        ``exponent_prior`` / ``exponent_init``: prior mean and initial value of the exponent ratio b
+        (``range.estimate_exponent``)."""
         gtsam = load_gtsam()
         self.gtsam = gtsam
         self.cfg, self.kf, self.beacons = cfg, kf, beacons
         self.cloud = kf if cloud is None else cloud
         self.beacon_init = np.asarray(beacons.xyz if beacon_init is None else beacon_init, float)
-        self.offset_prior_db = float(offset_prior_db)
-        self.offset_init_db = self.offset_prior_db if offset_init_db is None else float(offset_init_db)
         if cfg.range.estimate_offset and ranges.gamma is None:
             raise ValueError("range.estimate_offset needs the path-loss exponent of the ranges (RangeObs.gamma)")
+        self.channel = ChannelVariables(cfg.range, ranges.gamma, offset_prior_db, offset_init_db, exponent_prior,
+                                        exponent_init) if cfg.range.estimate_offset else None
         self.gamma = ranges.gamma
         self.odo = None if odometry is None or not cfg.odometry.enabled else \
             odometry_increments(odometry, kf.t, cfg.odometry)  # (d, var, ok) per keyframe
@@ -164,6 +166,7 @@ class RadioInertialGraph:
         self._bounds = np.searchsorted(self._range_k, np.arange(K + 1), side="left")
         self.n_ranges = np.bincount(self._range_j, minlength=len(beacons.ids))
         self._pending: dict[int, list[tuple[int, float]]] = {}
+        self._defer: list | None = None  # ranges held for the channel factors (batch solver)
         self.in_graph = np.zeros(len(beacons.ids), bool)
         self.rots = [gtsam.Rot3(R) for R in quat_to_matrix(kf.q)]
 
@@ -212,12 +215,8 @@ class RadioInertialGraph:
             g.add(gtsam.PriorFactorVector(V(0), kf.velocity[0], self.start_velocity_noise))
             g.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(kf.bias[0, :3], kf.bias[0, 3:]),
                                                 self.start_bias_noise))
-            if cfg.range.estimate_offset:  # the receiver's RSSI offset, one for the session
-                from gtsam.symbol_shorthand import O
-
-                v.insert(O(0), np.array([self.offset_init_db]))
-                g.add(gtsam.PriorFactorVector(O(0), np.array([self.offset_prior_db]),
-                                              gtsam.noiseModel.Isotropic.Sigma(1, cfg.range.offset_sigma_db)))  # dB
+            if self.channel is not None:  # the receiver's RSSI offset (and the exponent), one for the session
+                self.channel.add_variables(g, v)
         else:
             g.add(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self.pims[k - 1]))
             g.add(gtsam.PoseRotationPrior3D(X(k), self.rots[k], self.attitude_noise))
@@ -231,29 +230,39 @@ class RadioInertialGraph:
             target = np.array([kf.position[k, 0], kf.position[k, 1], cfg.range.device_z])
             g.add(gtsam.PoseTranslationPrior3D(X(k), gtsam.Point3(target), self.height_noise))
         lo, hi = self._bounds[k], self._bounds[k + 1]
+        held: list[tuple[int, int, float]] = []  # (keyframe, beacon, range) for the channel factors
         for j, r in zip(self._range_j[lo:hi].tolist(), self._range_r[lo:hi].tolist()):
             if self.in_graph[j]:
-                g.add(self._range_factor(k, j, r))
+                self._range_factor(g, held, k, j, r)
                 continue
             pend = self._pending.setdefault(j, [])
             pend.append((k, r))
             if len(pend) >= cfg.range.min_ranges:  # determined enough: the beacon enters with its prior
                 self._add_beacon(j, g, v)
                 for kk, rr in pend:
-                    g.add(self._range_factor(kk, j, rr))
+                    self._range_factor(g, held, kk, j, rr)
                 del self._pending[j]
+        self._channel_factors(g, held)
         return g, v
 
-    def _range_factor(self, k: int, j: int, r: float):
-        """GTSAM's RangeFactor3D ||p_k - l_j|| - r, or with ``range.estimate_offset`` the same range scaled by the
-        receiver offset (:func:`offset_range_error`)."""
-        gtsam = self.gtsam
-        from gtsam.symbol_shorthand import L, O, X
+    def _range_factor(self, g, held: list, k: int, j: int, r: float) -> None:
+        """GTSAM's RangeFactor3D ||p_k - l_j|| - r added to ``g``; with ``range.estimate_offset`` the range is held
+        for :meth:`_channel_factors` instead."""
+        if self.cfg.range.estimate_offset:
+            held.append((k, j, r))
+            return
+        from gtsam.symbol_shorthand import L, X
 
-        if not self.cfg.range.estimate_offset:
-            return gtsam.RangeFactor3D(X(k), L(j), r, self.range_noise)
-        return gtsam.CustomFactor(self.range_noise, [X(k), L(j), O(0)],
-                                  partial(offset_range_error, float(r), float(self.gamma)))
+        g.add(self.gtsam.RangeFactor3D(X(k), L(j), r, self.range_noise))
+
+    def _channel_factors(self, g, held: list) -> None:
+        """The ``held`` ranges through the channel's variables (:class:`ChannelVariables`), one factor per keyframe;
+        while the batch solver builds its graph (``_defer``) they are kept until every keyframe is in, so that one
+        factor spans ``range.channel_group`` keyframes (each factor's Python call costs a copy of all values)."""
+        if self._defer is not None:
+            self._defer.extend(held)
+        elif self.channel is not None:
+            self.channel.add_factors(g, held)
 
     def _add_beacon(self, j: int, g, v) -> None:
         gtsam = self.gtsam
@@ -287,6 +296,8 @@ class RadioInertialGraph:
         thresholds.insert(("v", np.full(3, float(sc.relinearize_velocity_mps))))
         thresholds.insert(("b", np.r_[np.full(3, sc.relinearize_accel_bias), np.full(3, sc.relinearize_gyro_bias)]))
         thresholds.insert(("l", np.full(3, float(sc.relinearize_beacon_m))))
+        thresholds.insert(("o", np.full(1, float(sc.relinearize_offset_db))))  # the channel's variables: each
+        thresholds.insert(("e", np.full(1, float(sc.relinearize_exponent))))  # relinearizes every range factor
         params.setRelinearizeThreshold(thresholds)
         params.relinearizeSkip = int(sc.relinearize_skip)
         isam = gtsam.ISAM2(params)
@@ -338,10 +349,14 @@ class RadioInertialGraph:
         gtsam = self.gtsam
         graph = gtsam.NonlinearFactorGraph()
         initial = gtsam.Values()
+        self._defer = []  # the channel factors, grouped over keyframes once all are in
         for k in range(len(self.kf.t)):
             g, v = self.keyframe_factors(k)
             graph.push_back(g)
             initial.insert(v)
+        held, self._defer = self._defer, None
+        if self.channel is not None:
+            self.channel.add_factors(graph, held, self.cfg.range.channel_group)
         return self._batch(graph, initial, qr=str(self.cfg.solver.factorization) == "qr")
 
     def _lm(self, graph, initial, qr: bool):
@@ -440,29 +455,24 @@ class RadioInertialGraph:
                               f"{', '.join(few[:8])}{' ...' if len(few) > 8 else ''}")
         bmap = pd.DataFrame(rows, columns=["anchor_id", "x", "y", "z", "std_m", "n_ranges", "n_heard", "status"])
         res = BackendResult(kf.t.copy(), pos, vel, q, bias, pos.copy(), bmap, np.full(K, np.nan))
-        if self.cfg.range.estimate_offset and estimate is not None:
-            from gtsam.symbol_shorthand import O
-
-            if estimate.exists(O(0)):
-                res.offset_db = float(estimate.atVector(O(0))[0])
-                if cov is not None:
-                    try:
-                        res.offset_std_db = float(np.sqrt(np.asarray(cov(O(0)))[0, 0]))
-                    except RuntimeError as exc:
-                        self._fail("marginals", exc, None)
+        if self.channel is not None:
+            self.channel.read(estimate, cov, res, self._fail)
         return res
 
 
 def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors,
-           offset_prior_db: float = 0.0, odometry: OdometryTrack | None = None) -> BackendResult:
+           offset_prior_db: float = 0.0, odometry: OdometryTrack | None = None,
+           exponent_prior: float = 1.0) -> BackendResult:
     """Build the graph of one session and solve it with ``cfg.solver.method``; never raises on a GTSAM failure
     (see :class:`BackendResult`.failures). ``ValueError`` for inputs it cannot use at all (no IMU, < 2
     keyframes, non-finite front-end values). ``offset_prior_db``: prior mean of the receiver offset when
-    ``range.estimate_offset``; ``odometry``: a learned inertial odometry's track (between-factors)."""
+    ``range.estimate_offset``; ``odometry``: a learned inertial odometry's track (between-factors); ``exponent_prior``:
+    prior mean of the exponent ratio when ``range.estimate_exponent``."""
     t0 = time.perf_counter()
     if len(kf.t) < 2:
         raise ValueError(f"the back-end needs at least 2 keyframes, got {len(kf.t)}")
-    graph = RadioInertialGraph(cfg, kf, imu, ranges, beacons, offset_prior_db=offset_prior_db, odometry=odometry)
+    graph = RadioInertialGraph(cfg, kf, imu, ranges, beacons, offset_prior_db=offset_prior_db, odometry=odometry,
+                               exponent_prior=exponent_prior)
     res = graph.solve()
     passes = int(cfg.solver.passes) if Solver(cfg.solver.method) == Solver.lm else 1  # iSAM2 is online: one pass
     ranges0, channel = ranges, None  # range.refit_channel: the ranges as measured, the channel fitted so far
@@ -477,8 +487,11 @@ def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs,
                                                  init, ranges0, channel)
             res.notes.append(note)
         off0 = res.offset_db if np.isfinite(res.offset_db) else None
+        b0 = res.channel_exponent / graph.gamma if cfg.range.estimate_exponent and np.isfinite(
+            res.channel_exponent) else None  # the variable's ratio (refit_channel's exponent is not a variable)
         graph = RadioInertialGraph(cfg, again, imu, ranges, beacons, beacon_init=init, pims=graph.pims,
-                                   offset_prior_db=offset_prior_db, offset_init_db=off0, cloud=kf, odometry=odometry)
+                                   offset_prior_db=offset_prior_db, offset_init_db=off0, cloud=kf, odometry=odometry,
+                                   exponent_prior=exponent_prior, exponent_init=b0)
         res, notes = graph.solve(), res.notes
         res.notes = notes + [f"pass {p + 2}: " + n for n in res.notes]
         if channel is not None:  # the fit of the measured ranges: the channel's exponent and level

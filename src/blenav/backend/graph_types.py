@@ -141,7 +141,9 @@ class BackendResult:
     n_factors: int = 0
     offset_db: float = float("nan")  # the receiver's RSSI offset (range.estimate_offset), dB
     offset_std_db: float = float("nan")
-    channel_exponent: float = float("nan")  # range.refit_channel: the channel's path-loss exponent refitted
+    channel_exponent: float = float("nan")  # range.refit_channel: the channel's path-loss exponent refitted; with
+    #   range.estimate_exponent the variable's (b times the ranges' gamma)
+    channel_exponent_std: float = float("nan")  # range.estimate_exponent: its marginal std
     channel_offset_db: float = float("nan")  # ... and its level against the range model's a_x, dB
 
     @property
