@@ -48,64 +48,69 @@ def _values(rng, n_pose=2, n_beacon=3, delta=0.0, b=None):
     return vals
 
 
-def test_channel_factor_at_zero_offset_is_gtsams_range_factors():
-    """delta = 0, no exponent, no kernel: the grouped factor's error is the sum of RangeFactor3D's, and its pose and
-    beacon Jacobian rows are theirs (whitened by the same sigma)."""
+@pytest.mark.parametrize("kind", KERNELS)
+def test_channel_factor_at_zero_offset_is_gtsams_robust_range_factors(kind):
+    """delta = 0, no exponent: the grouped factor's error is the sum of robust RangeFactor3D's (one per range, the
+    same kernel inside the same sigma), and its linearization (right-hand side and the pose and beacon Jacobian rows)
+    is theirs: GTSAM's reweighted system, residuals inside and outside the kernel's width."""
+    from blenav.backend.factors import robust_noise
+
     rng = np.random.default_rng(4)
     sigma = 0.7
     vals = _values(rng)
     pk, bk = [X(0), X(1), X(0), X(1), X(1)], [L(0), L(0), L(2), L(1), L(2)]
-    r = rng.uniform(1, 8, len(pk))
-    mine = channel_range_factor(pk, bk, O(0), None, r, 2.0, 1.78, sigma, RobustKernel.none, 1.345)
-    noise = gtsam.noiseModel.Isotropic.Sigma(1, sigma)
-    refs = [gtsam.RangeFactor3D(p, b, float(x), noise) for p, b, x in zip(pk, bk, r)]
+    d = np.array([np.linalg.norm(vals.atPose3(p).translation() - vals.atPoint3(b)) for p, b in zip(pk, bk)])
+    r = d + sigma * np.array([0.2, -3.0, 0.5, 4.0, -0.1])  # whitened residuals inside and outside the width
+    mine = channel_range_factor(pk, bk, O(0), None, r, 2.0, 1.78, sigma, kind, 1.345)
+    refs = [gtsam.RangeFactor3D(p, b, float(x), robust_noise(kind, 1.345, sigma)) for p, b, x in zip(pk, bk, r)]
     assert mine.error(vals) == pytest.approx(sum(f.error(vals) for f in refs), rel=1e-12)
-    A = mine.linearize(vals).jacobian()[0]  # columns: X0 (6), X1 (6), L0, L1, L2 (3 each), O
+    A, rhs = mine.linearize(vals).jacobian()  # columns: X0 (6), X1 (6), L0, L1, L2 (3 each), O
     col = {X(0): 0, X(1): 6, L(0): 12, L(1): 15, L(2): 18}
     for i, f in enumerate(refs):
-        Ar = f.linearize(vals).jacobian()[0]
+        Ar, br = f.linearize(vals).jacobian()
+        assert rhs[i] == pytest.approx(br[0], rel=1e-10, abs=1e-12)
         np.testing.assert_allclose(A[i, col[pk[i]]:col[pk[i]] + 6], Ar[0, :6], atol=1e-10)
         np.testing.assert_allclose(A[i, col[bk[i]]:col[bk[i]] + 3], Ar[0, 6:], atol=1e-10)
+        others = [c for key, c in col.items() if key not in (pk[i], bk[i])]
+        assert all(not A[i, c:c + (6 if c < 12 else 3)].any() for c in others)
 
 
-@pytest.mark.parametrize("kind", [RobustKernel.huber, RobustKernel.cauchy, RobustKernel.dcs])
-def test_channel_factor_jacobian_is_its_errors_derivative(kind):
-    """Offset, exponent, a beacon and a pose's translation: the linearized (whitened) Jacobian against central
-    differences of the whitened error, residuals inside and outside the kernel's width."""
+def test_channel_factor_jacobian_is_its_errors_derivative():
+    """No kernel: the linearized (whitened) Jacobian of every key against central differences of the whitened error
+    (offset, exponent, each beacon axis, each pose's rotation and translation in its tangent space)."""
     rng = np.random.default_rng(7)
-    sigma = 0.5
     vals = _values(rng, delta=-3.0, b=1.3)
     pk, bk = [X(0), X(1), X(0), X(1)], [L(0), L(1), L(2), L(2)]
     r = rng.uniform(0.5, 12, len(pk))
-    f = channel_range_factor(pk, bk, O(0), E(0), r, 1.72, 1.78, sigma, kind, 1.345)
-    A, bvec = f.linearize(vals).jacobian()  # b = -whitened error
-    assert np.abs(bvec).max() > 1.345  # some residuals outside the kernel's width
-
-    def whitened(v):
-        return f.whitenedError(v)
-
+    f = channel_range_factor(pk, bk, O(0), E(0), r, 1.72, 1.78, 0.5, RobustKernel.none, 1.345)
+    A = f.linearize(vals).jacobian()[0]  # columns: X0, X1 (6 each), L0, L1, L2 (3 each), O, E
     h = 1e-6
-    checks = {"O": (O(0), 21), "E": (E(0), 22)}  # columns: X0, X1 (6 each), L0, L1, L2 (3 each), O, E
-    for key, c in checks.values():
+
+    def central(perturb):
         vp, vm = gtsam.Values(vals), gtsam.Values(vals)
-        x0 = vals.atVector(key)
-        vp.update(key, x0 + h)
-        vm.update(key, x0 - h)
-        np.testing.assert_allclose(A[:, c], (whitened(vp) - whitened(vm)) / (2 * h), rtol=1e-5, atol=1e-7)
-    for axis in range(3):  # beacon L1 (columns 15..17: X0, X1, L0, L1, L2 in key order)
-        vp, vm = gtsam.Values(vals), gtsam.Values(vals)
-        p0 = np.asarray(vals.atPoint3(L(1)), float)
-        dp = np.eye(3)[axis] * h
-        for v, sgn in ((vp, 1), (vm, -1)):
-            v.erase(L(1))
-            v.insertPoint3(L(1), p0 + sgn * dp)
-        np.testing.assert_allclose(A[:, 15 + axis], (whitened(vp) - whitened(vm)) / (2 * h), rtol=1e-5, atol=1e-7)
-    for axis in range(3, 6):  # X0's translation in its tangent space
-        vp, vm = gtsam.Values(vals), gtsam.Values(vals)
-        xi = np.eye(6)[axis] * h
-        vp.update(X(0), vals.atPose3(X(0)).retract(xi))
-        vm.update(X(0), vals.atPose3(X(0)).retract(-xi))
-        np.testing.assert_allclose(A[:, axis], (whitened(vp) - whitened(vm)) / (2 * h), rtol=1e-5, atol=1e-7)
+        perturb(vp, h)
+        perturb(vm, -h)
+        return (f.whitenedError(vp) - f.whitenedError(vm)) / (2 * h)
+
+    def vector(key):
+        return lambda v, e: v.update(key, vals.atVector(key) + e)
+
+    def point(key, axis):
+        def go(v, e):
+            p0 = np.asarray(vals.atPoint3(key), float)
+            v.erase(key)
+            v.insertPoint3(key, p0 + np.eye(3)[axis] * e)
+        return go
+
+    def pose(key, axis):
+        return lambda v, e: v.update(key, vals.atPose3(key).retract(np.eye(6)[axis] * e))
+
+    cols = [(vector(O(0)), 21), (vector(E(0)), 22)]
+    cols += [(point(L(j), a), 12 + 3 * j + a) for j in range(3) for a in range(3)]
+    cols += [(pose(X(i), a), 6 * i + a) for i in range(2) for a in range(6)]
+    for perturb, c in cols:
+        np.testing.assert_allclose(A[:, c], central(perturb), rtol=1e-5, atol=1e-7)
+    assert not A[:, [0, 1, 2, 6, 7, 8]].any()  # a range does not see the pose's rotation
 
 
 @pytest.mark.parametrize("method", ["lm", "isam2"])

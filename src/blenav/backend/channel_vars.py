@@ -46,7 +46,7 @@ class ChannelVariables:
 
         rc = self.rc
         k, j, r = (np.array(c) for c in zip(*held))
-        grp = k // max(int(group), 1)
+        grp = k // int(group)
         for gi in np.unique(grp).tolist():
             m = grp == gi
             g.add(channel_range_factor([X(x) for x in k[m].tolist()], [L(x) for x in j[m].tolist()], O(0),

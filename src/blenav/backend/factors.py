@@ -148,12 +148,14 @@ def channel_range_error(r: np.ndarray, pcol: np.ndarray, col: np.ndarray, gamma:
     (r[i] m, from pose ``pcol[i]`` to beacon ``col[i]``) is predicted as r_hat = d0 (d / d0)^b 10^(-delta / (10
     gamma)), d = ||t - l|| (000 sec. IV-B's conversion r = d0 10^((a_X - rssi) / (10 gamma)) of an RSSI read by a
     receiver delta dB hot through a channel of exponent b gamma; b = 1, delta = 0: RangeFactor3D's). The
-    M-estimator ``kind`` (width ``k`` sigmas) acts per range, inside: the returned error is sigma sign(u) sqrt(2
-    rho(u)) with u = (r_hat - r) / sigma, so that the factor's whitened squared norm over 2 (noise
-    ``Isotropic(sigma)``) is the sum of rho over its ranges, as with one robust factor per range; its Jacobian is
-    that of this expression (rho'(u) / sqrt(2 rho(u)) times r_hat's). Jacobians of r_hat: pose [0, g u^T R]
-    (GTSAM's Pose3 tangent), beacon -g u^T, g = d r_hat / d d = b r_hat / d; delta -r_hat ln(10) / (10 gamma);
-    b r_hat ln(d / d0)."""
+    M-estimator ``kind`` (width ``k`` sigmas) acts per range, inside, as GTSAM's robust noise model acts on a
+    factor of one range: the error (``values`` alone: what the solvers' cost reads) is sigma sign(u) sqrt(2 rho(u))
+    with u = (r_hat - r) / sigma, so that the factor's whitened squared norm over 2 (noise ``Isotropic(sigma)``) is
+    the sum of rho over its ranges; linearized (``H`` given), each range's error and Jacobian row are those of the
+    plain range times sqrt(w(u)), GTSAM's iteratively reweighted system (``Robust.WhitenSystem``), so that the
+    steps and the marginals are those of one robust RangeFactor3D per range (tests/backend/test_channel_factor.py).
+    Jacobians of r_hat: pose [0, g u^T R] (GTSAM's Pose3 tangent), beacon -g u^T, g = d r_hat / d d = b r_hat / d;
+    delta -r_hat ln(10) / (10 gamma); b r_hat ln(d / d0)."""
     keys = this.keys()
     n_p, n_b = int(pcol.max()) + 1, int(col.max()) + 1
     poses = [values.atPose3(keys[i]) for i in range(n_p)]
@@ -166,26 +168,24 @@ def channel_range_error(r: np.ndarray, pcol: np.ndarray, col: np.ndarray, gamma:
     rhat = d0 * (d / d0) ** b * 10.0 ** (-delta / (10.0 * gamma))
     u = (rhat - r) / sigma
     rho, w = kernel_loss(kind, k, u)
-    root = np.sqrt(2.0 * rho)
-    if H is not None:
-        m = len(r)
-        small = root < 1e-9  # the limit of w |u| / sqrt(2 rho) at u -> 0 is 1 for every kernel
-        slope = np.where(small, 1.0, w * np.abs(u) / np.where(small, 1.0, root))  # de / d r_hat
-        gu = (slope * b * rhat / d)[:, None] * (diff / d[:, None])  # de / dt = -de / dl, (m, 3)
-        for i, pose in enumerate(poses):
-            Hi = np.zeros((m, 6))
-            rows = pcol == i
-            Hi[rows, 3:] = gu[rows] @ pose.rotation().matrix()
-            H[i] = Hi
-        for j in range(n_b):
-            Hj = np.zeros((m, 3))
-            rows = col == j
-            Hj[rows] = -gu[rows]
-            H[n_p + j] = Hj
-        H[n_p + n_b] = (-slope * rhat * np.log(10.0) / (10.0 * gamma))[:, None]
-        if exponent:
-            H[n_p + n_b + 1] = (slope * rhat * np.log(d / d0))[:, None]
-    return sigma * np.sign(u) * root
+    if H is None:
+        return sigma * np.sign(u) * np.sqrt(2.0 * rho)
+    m, sw = len(r), np.sqrt(w)
+    gu = (sw * b * rhat / d)[:, None] * (diff / d[:, None])  # sqrt(w) d r_hat / dt = -sqrt(w) d r_hat / dl, (m, 3)
+    for i, pose in enumerate(poses):
+        Hi = np.zeros((m, 6))
+        rows = pcol == i
+        Hi[rows, 3:] = gu[rows] @ pose.rotation().matrix()
+        H[i] = Hi
+    for j in range(n_b):
+        Hj = np.zeros((m, 3))
+        rows = col == j
+        Hj[rows] = -gu[rows]
+        H[n_p + j] = Hj
+    H[n_p + n_b] = (-sw * rhat * np.log(10.0) / (10.0 * gamma))[:, None]
+    if exponent:
+        H[n_p + n_b + 1] = (sw * rhat * np.log(d / d0))[:, None]
+    return sw * (rhat - r)
 
 
 def channel_range_factor(pose_keys: list, beacon_keys: list, offset_key, exponent_key, r: np.ndarray, gamma: float,

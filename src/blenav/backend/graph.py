@@ -61,6 +61,7 @@ Layout: the graph (:class:`RadioInertialGraph`) and :func:`smooth` here; inputs 
 from __future__ import annotations
 
 import time
+
 import numpy as np
 import pandas as pd
 
@@ -242,27 +243,19 @@ class RadioInertialGraph:
                 for kk, rr in pend:
                     self._range_factor(g, held, kk, j, rr)
                 del self._pending[j]
-        self._channel_factors(g, held)
+        if self.channel is not None and self._defer is not None:  # the batch solver: held until every keyframe is
+            self._defer.extend(held)  # in, one factor per range.channel_group keyframes (each call copies all values)
+        elif self.channel is not None:
+            self.channel.add_factors(g, held)
         return g, v
 
     def _range_factor(self, g, held: list, k: int, j: int, r: float) -> None:
-        """GTSAM's RangeFactor3D ||p_k - l_j|| - r added to ``g``; with ``range.estimate_offset`` the range is held
-        for :meth:`_channel_factors` instead."""
-        if self.cfg.range.estimate_offset:
+        """GTSAM's RangeFactor3D ||p_k - l_j|| - r into ``g``; with ``range.estimate_offset`` the range is held for the
+        channel's factors (:class:`ChannelVariables`, one per keyframe or per ``range.channel_group`` keyframes)."""
+        if self.channel is not None:
             held.append((k, j, r))
-            return
-        from gtsam.symbol_shorthand import L, X
-
-        g.add(self.gtsam.RangeFactor3D(X(k), L(j), r, self.range_noise))
-
-    def _channel_factors(self, g, held: list) -> None:
-        """The ``held`` ranges through the channel's variables (:class:`ChannelVariables`), one factor per keyframe;
-        while the batch solver builds its graph (``_defer``) they are kept until every keyframe is in, so that one
-        factor spans ``range.channel_group`` keyframes (each factor's Python call costs a copy of all values)."""
-        if self._defer is not None:
-            self._defer.extend(held)
-        elif self.channel is not None:
-            self.channel.add_factors(g, held)
+        else:
+            g.add(self.gtsam.RangeFactor3D(self.gtsam.symbol("x", k), self.gtsam.symbol("l", j), r, self.range_noise))
 
     def _add_beacon(self, j: int, g, v) -> None:
         gtsam = self.gtsam
@@ -350,11 +343,14 @@ class RadioInertialGraph:
         graph = gtsam.NonlinearFactorGraph()
         initial = gtsam.Values()
         self._defer = []  # the channel factors, grouped over keyframes once all are in
-        for k in range(len(self.kf.t)):
-            g, v = self.keyframe_factors(k)
-            graph.push_back(g)
-            initial.insert(v)
-        held, self._defer = self._defer, None
+        try:
+            for k in range(len(self.kf.t)):
+                g, v = self.keyframe_factors(k)
+                graph.push_back(g)
+                initial.insert(v)
+            held = self._defer
+        finally:
+            self._defer = None
         if self.channel is not None:
             self.channel.add_factors(graph, held, self.cfg.range.channel_group)
         return self._batch(graph, initial, qr=str(self.cfg.solver.factorization) == "qr")

@@ -50,6 +50,7 @@ class Feedback:
     bias_increment: np.ndarray
     solve_s: float
     offset_db: float = float("nan")
+    exponent_ratio: float = float("nan")  # the channel's exponent over the ranges' (NaN unless range.estimate_exponent)
 
 
 @dataclass
@@ -136,7 +137,8 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
         bias_applied[k0:run.k] = applied
         if not run.done and lc.enabled:
             fb, prior = _feedback(run, cfg, imu, ranges, prior, anchors, attitude, t_next, feed_bias, notes, failures,
-                                  feedbacks[-1].offset_db if feedbacks else 0.0, odometry)
+                                  feedbacks[-1].offset_db if feedbacks else 0.0, odometry,
+                                  feedbacks[-1].exponent_ratio if feedbacks else 1.0)
             if fb is not None:
                 feedbacks.append(fb)
                 backend_s += fb.solve_s
@@ -165,10 +167,12 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
 
 def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeObs, prior: BeaconPriors,
               anchors: pd.DataFrame, attitude, t_now: float, feed_bias: bool, notes: list, failures: list,
-              offset_db: float = 0.0, odometry: OdometryTrack | None = None) -> tuple[Feedback | None, BeaconPriors]:
+              offset_db: float = 0.0, odometry: OdometryTrack | None = None,
+              exponent_ratio: float = 1.0) -> tuple[Feedback | None, BeaconPriors]:
     """One window of the loop at ``t_now``: smooth the last ``loop.window_s`` of keyframes with ``prior`` as the
-    beacon map (and ``offset_db``, the receiver offset so far, as the offset's prior mean), feed the optimized
-    beacons, the bias increment and the receiver offset back to ``run``. Returns (the feedback or None when the
+    beacon map (and ``offset_db`` / ``exponent_ratio``, the receiver offset and the exponent ratio so far, as their
+    priors' means), feed the optimized beacons, the bias increment and the receiver offset back to ``run`` (the
+    exponent stays the graph's: the filter's range model keeps its own). Returns (the feedback or None when the
     window gave none, the next window's beacon priors)."""
     lc = cfg.loop
     res = run.result()
@@ -185,7 +189,7 @@ def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeO
     t1 = time.perf_counter()
     try:
         out = smooth(cfg, kf, w_imu, w_ranges, prior, offset_prior_db=offset_db if np.isfinite(offset_db) else 0.0,
-                     odometry=odometry)
+                     odometry=odometry, exponent_prior=exponent_ratio if np.isfinite(exponent_ratio) else 1.0)
     except ValueError as exc:  # inputs the window cannot use (e.g. no IMU in it): no feedback this time
         notes.append(f"{when}: no feedback ({exc})")
         return None, prior
@@ -205,7 +209,8 @@ def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeO
         run.correct_imu(float(res.t[-1]), inc[:3], inc[3:])
     if np.isfinite(out.offset_db):
         run.set_receiver_offset(out.offset_db)
-    return Feedback(float(res.t[-1]), moved, inc, dt, out.offset_db), prior
+    ratio = out.channel_exponent / w_ranges.gamma if cfg.range.estimate_exponent and w_ranges.gamma else np.nan
+    return Feedback(float(res.t[-1]), moved, inc, dt, out.offset_db, float(ratio)), prior
 
 
 def _attitude(run: BatchRun, attitude) -> tuple[np.ndarray, np.ndarray]:
