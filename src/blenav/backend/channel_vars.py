@@ -14,15 +14,21 @@ from .factors import channel_range_factor, load_gtsam
 class ChannelVariables:
     """O(0) and, with ``rc.estimate_exponent``, E(0) of one graph. ``rc``: the :class:`~blenav.backend.config.
     RangeConfig`; ``gamma``: the ranges' path-loss exponent (RangeObs.gamma); prior means and initial values of the
-    offset (dB) and of the exponent ratio b (prior std ``rc.offset_sigma_db``, ``rc.exponent_sigma``)."""
+    offset (dB) and of the channel's exponent (None: ``gamma``, the ranges' own), the exponent held in the graph as
+    its ratio b to ``gamma`` (prior std ``rc.offset_sigma_db``, ``rc.exponent_sigma`` on b).
+
+    While a batch graph is built (:meth:`defer` ... :meth:`flush`), the ranges :meth:`add_factors` is handed wait, so
+    that one factor spans ``rc.channel_group`` keyframes (every Python call of a factor copies all the graph's values:
+    fewer, larger factors cost less)."""
 
     def __init__(self, rc, gamma: float, offset_prior_db: float = 0.0, offset_init_db: float | None = None,
-                 exponent_prior: float = 1.0, exponent_init: float | None = None):
+                 exponent_prior: float | None = None, exponent_init: float | None = None):
         self.rc, self.gamma = rc, float(gamma)
         self.offset_prior_db = float(offset_prior_db)
         self.offset_init_db = self.offset_prior_db if offset_init_db is None else float(offset_init_db)
-        self.exponent_prior = float(exponent_prior)
-        self.exponent_init = self.exponent_prior if exponent_init is None else float(exponent_init)
+        self.ratio_prior = 1.0 if exponent_prior is None else float(exponent_prior) / self.gamma
+        self.ratio_init = self.ratio_prior if exponent_init is None else float(exponent_init) / self.gamma
+        self._held: list | None = None  # ranges waiting for flush (a batch graph being built)
 
     def add_variables(self, g, v) -> None:
         """Insert O(0) (and E(0)) into ``v`` with their priors into ``g`` (once, with the first keyframe)."""
@@ -33,13 +39,25 @@ class ChannelVariables:
         g.add(gtsam.PriorFactorVector(O(0), np.array([self.offset_prior_db]),
                                       gtsam.noiseModel.Isotropic.Sigma(1, self.rc.offset_sigma_db)))  # dB
         if self.rc.estimate_exponent:
-            v.insert(E(0), np.array([self.exponent_init]))
-            g.add(gtsam.PriorFactorVector(E(0), np.array([self.exponent_prior]),
+            v.insert(E(0), np.array([self.ratio_init]))
+            g.add(gtsam.PriorFactorVector(E(0), np.array([self.ratio_prior]),
                                           gtsam.noiseModel.Isotropic.Sigma(1, self.rc.exponent_sigma)))
+
+    def defer(self) -> None:
+        """From now until :meth:`flush`, :meth:`add_factors` keeps its ranges."""
+        self._held = []
+
+    def flush(self, g) -> None:
+        """The ranges kept since :meth:`defer` into ``g``, one factor per ``rc.channel_group`` keyframes."""
+        held, self._held = self._held or [], None
+        self.add_factors(g, held, int(self.rc.channel_group))
 
     def add_factors(self, g, held: list[tuple[int, int, float]], group: int = 1) -> None:
         """The ``held`` ranges (keyframe, beacon row, range m) into ``g``, one factor per ``group`` keyframes (the
-        M-estimator ``rc.robust`` acting per range inside it)."""
+        M-estimator ``rc.robust`` acting per range inside it); kept instead while deferred."""
+        if self._held is not None:
+            self._held.extend(held)
+            return
         if not held:
             return
         from gtsam.symbol_shorthand import E, L, O, X

@@ -130,9 +130,9 @@ class RangeConfig:
     estimate_exponent: bool = False  # with estimate_offset: the channel's path-loss exponent as a variable E(0), the
     #   ratio b to the ranges' gamma (range r_hat = d0 (d / d0)^b 10^(-delta / (10 gamma)))
     exponent_sigma: float = 0.3  # prior std of b (prior mean 1: the ranges' own exponent)
-    channel_group: int = 30  # keyframes per factor of the channel's ranges (LM; iSAM2: one per keyframe): 10 / 30 / 100:
-    #   19.3 / 9.4 / 11.8 s for the 384 s session of benchmarks/backend_speed.py (each call copies all values; 100:
-    #   dense cliques)
+    channel_group: int = 30  # keyframes per factor of the channel's ranges (LM; iSAM2: one per keyframe): 10 / 30 /
+    #   100: batch 19.3 / 9.4 / 11.8 s on the 384 s session of benchmarks/backend_speed.py (each Python call copies
+    #   all the values; 100: dense cliques)
     refit_channel: ChannelRefit = ChannelRefit.none  # LM passes after the first: every range through the channel
     #   refitted on the previous pass's distances (blenav.backend.channel, a line in log range: none | level | line)
 

@@ -140,8 +140,9 @@ def kernel_loss(kind: RobustKernel, k: float, u: np.ndarray) -> tuple[np.ndarray
 def channel_range_error(r: np.ndarray, pcol: np.ndarray, col: np.ndarray, gamma: float, d0: float, sigma: float,
                         kind: RobustKernel, k: float, exponent: bool, this, values, H) -> np.ndarray:
     """Ranges through the channel's variables, many in one GTSAM CustomFactor (:func:`channel_range_factor` builds
-    it): GTSAM hands every call of a Python error function a copy of all the graph's values, so one call per range
-    costs more than the solve; one per keyframe, or per group of keyframes, does not.
+    it): GTSAM's optimizers hand every Python error call a copy of all the graph's values, so one call per range
+    costs more than the solve; one per keyframe, or per group of keyframes, does not (``lm_split`` of
+    benchmarks/backend_speed.py).
 
     Keys: the poses X_1..X_P (Pose3), the beacons L_1..L_B (Point3), O (1-D, the receiver's RSSI offset delta,
     dB), and with ``exponent`` E (1-D, b = the channel's path-loss exponent over the ranges' ``gamma``). Range i

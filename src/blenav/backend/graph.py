@@ -87,7 +87,7 @@ class RadioInertialGraph:
     def __init__(self, cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors,
                  beacon_init: np.ndarray | None = None, pims: list | None = None, offset_prior_db: float = 0.0,
                  offset_init_db: float | None = None, cloud: Keyframes | None = None,
-                 odometry: OdometryTrack | None = None, exponent_prior: float = 1.0,
+                 odometry: OdometryTrack | None = None, exponent_prior: float | None = None,
                  exponent_init: float | None = None):
         """``beacon_init`` (A, 3) world m: initial beacon positions, also used by the range gate (default: the
         prior means; a second pass gives the first pass's estimate); ``pims``: the preintegrated IMU of these
@@ -96,8 +96,8 @@ class RadioInertialGraph:
         positions and ``cov`` are the front-end's (``priors.front_end_cloud``; default ``kf``; a second pass gives
         the first pass's input, so the prior stays the filter's, not the previous solution's); ``odometry``: a learned
         inertial odometry's track, its displacements between keyframes as between-factors (``odometry.enabled``);
-        ``exponent_prior`` / ``exponent_init``: prior mean and initial value of the exponent ratio b
-        (``range.estimate_exponent``)."""
+        ``exponent_prior`` / ``exponent_init``: prior mean and initial value of the channel's path-loss exponent
+        (``range.estimate_exponent``; None: the ranges' own)."""
         gtsam = load_gtsam()
         self.gtsam = gtsam
         self.cfg, self.kf, self.beacons = cfg, kf, beacons
@@ -107,7 +107,6 @@ class RadioInertialGraph:
             raise ValueError("range.estimate_offset needs the path-loss exponent of the ranges (RangeObs.gamma)")
         self.channel = ChannelVariables(cfg.range, ranges.gamma, offset_prior_db, offset_init_db, exponent_prior,
                                         exponent_init) if cfg.range.estimate_offset else None
-        self.gamma = ranges.gamma
         self.odo = None if odometry is None or not cfg.odometry.enabled else \
             odometry_increments(odometry, kf.t, cfg.odometry)  # (d, var, ok) per keyframe
         self.notes: list[str] = []
@@ -167,7 +166,6 @@ class RadioInertialGraph:
         self._bounds = np.searchsorted(self._range_k, np.arange(K + 1), side="left")
         self.n_ranges = np.bincount(self._range_j, minlength=len(beacons.ids))
         self._pending: dict[int, list[tuple[int, float]]] = {}
-        self._defer: list | None = None  # ranges held for the channel factors (batch solver)
         self.in_graph = np.zeros(len(beacons.ids), bool)
         self.rots = [gtsam.Rot3(R) for R in quat_to_matrix(kf.q)]
 
@@ -243,9 +241,7 @@ class RadioInertialGraph:
                 for kk, rr in pend:
                     self._range_factor(g, held, kk, j, rr)
                 del self._pending[j]
-        if self.channel is not None and self._defer is not None:  # the batch solver: held until every keyframe is
-            self._defer.extend(held)  # in, one factor per range.channel_group keyframes (each call copies all values)
-        elif self.channel is not None:
+        if self.channel is not None:
             self.channel.add_factors(g, held)
         return g, v
 
@@ -338,22 +334,21 @@ class RadioInertialGraph:
         res.n_factors = int(graph.size())
         return res
 
-    def _solve_lm(self) -> BackendResult:
-        gtsam = self.gtsam
-        graph = gtsam.NonlinearFactorGraph()
-        initial = gtsam.Values()
-        self._defer = []  # the channel factors, grouped over keyframes once all are in
-        try:
-            for k in range(len(self.kf.t)):
-                g, v = self.keyframe_factors(k)
-                graph.push_back(g)
-                initial.insert(v)
-            held = self._defer
-        finally:
-            self._defer = None
+    def batch_graph(self):
+        """(NonlinearFactorGraph, Values): every keyframe's factors and initial values, what LM solves."""
+        graph, initial = self.gtsam.NonlinearFactorGraph(), self.gtsam.Values()
+        if self.channel is not None:  # its ranges into factors spanning keyframes, once every keyframe is in
+            self.channel.defer()
+        for k in range(len(self.kf.t)):
+            g, v = self.keyframe_factors(k)
+            graph.push_back(g)
+            initial.insert(v)
         if self.channel is not None:
-            self.channel.add_factors(graph, held, self.cfg.range.channel_group)
-        return self._batch(graph, initial, qr=str(self.cfg.solver.factorization) == "qr")
+            self.channel.flush(graph)
+        return graph, initial
+
+    def _solve_lm(self) -> BackendResult:
+        return self._batch(*self.batch_graph(), qr=str(self.cfg.solver.factorization) == "qr")
 
     def _lm(self, graph, initial, qr: bool):
         """Levenberg-Marquardt on the whole graph; the estimate, or None after a failure (recorded)."""
@@ -458,12 +453,12 @@ class RadioInertialGraph:
 
 def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs, beacons: BeaconPriors,
            offset_prior_db: float = 0.0, odometry: OdometryTrack | None = None,
-           exponent_prior: float = 1.0) -> BackendResult:
+           exponent_prior: float | None = None) -> BackendResult:
     """Build the graph of one session and solve it with ``cfg.solver.method``; never raises on a GTSAM failure
     (see :class:`BackendResult`.failures). ``ValueError`` for inputs it cannot use at all (no IMU, < 2
     keyframes, non-finite front-end values). ``offset_prior_db``: prior mean of the receiver offset when
     ``range.estimate_offset``; ``odometry``: a learned inertial odometry's track (between-factors); ``exponent_prior``:
-    prior mean of the exponent ratio when ``range.estimate_exponent``."""
+    prior mean of the channel's exponent when ``range.estimate_exponent`` (None: the ranges' own)."""
     t0 = time.perf_counter()
     if len(kf.t) < 2:
         raise ValueError(f"the back-end needs at least 2 keyframes, got {len(kf.t)}")
@@ -483,11 +478,10 @@ def smooth(cfg: BackendConfig, kf: Keyframes, imu: ImuSamples, ranges: RangeObs,
                                                  init, ranges0, channel)
             res.notes.append(note)
         off0 = res.offset_db if np.isfinite(res.offset_db) else None
-        b0 = res.channel_exponent / graph.gamma if cfg.range.estimate_exponent and np.isfinite(
-            res.channel_exponent) else None  # the variable's ratio (refit_channel's exponent is not a variable)
+        e0 = res.channel_exponent if cfg.range.estimate_exponent and np.isfinite(res.channel_exponent) else None
         graph = RadioInertialGraph(cfg, again, imu, ranges, beacons, beacon_init=init, pims=graph.pims,
                                    offset_prior_db=offset_prior_db, offset_init_db=off0, cloud=kf, odometry=odometry,
-                                   exponent_prior=exponent_prior, exponent_init=b0)
+                                   exponent_prior=exponent_prior, exponent_init=e0)
         res, notes = graph.solve(), res.notes
         res.notes = notes + [f"pass {p + 2}: " + n for n in res.notes]
         if channel is not None:  # the fit of the measured ranges: the channel's exponent and level

@@ -50,7 +50,7 @@ class Feedback:
     bias_increment: np.ndarray
     solve_s: float
     offset_db: float = float("nan")
-    exponent_ratio: float = float("nan")  # the channel's exponent over the ranges' (NaN unless range.estimate_exponent)
+    exponent: float = float("nan")  # the channel's path-loss exponent (NaN unless range.estimate_exponent)
 
 
 @dataclass
@@ -138,7 +138,7 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
         if not run.done and lc.enabled:
             fb, prior = _feedback(run, cfg, imu, ranges, prior, anchors, attitude, t_next, feed_bias, notes, failures,
                                   feedbacks[-1].offset_db if feedbacks else 0.0, odometry,
-                                  feedbacks[-1].exponent_ratio if feedbacks else 1.0)
+                                  feedbacks[-1].exponent if feedbacks else np.nan)
             if fb is not None:
                 feedbacks.append(fb)
                 backend_s += fb.solve_s
@@ -168,12 +168,12 @@ def run_closed_loop(method: Method, session, n_runs: int, seed: int, cfg: Backen
 def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeObs, prior: BeaconPriors,
               anchors: pd.DataFrame, attitude, t_now: float, feed_bias: bool, notes: list, failures: list,
               offset_db: float = 0.0, odometry: OdometryTrack | None = None,
-              exponent_ratio: float = 1.0) -> tuple[Feedback | None, BeaconPriors]:
+              exponent: float = np.nan) -> tuple[Feedback | None, BeaconPriors]:
     """One window of the loop at ``t_now``: smooth the last ``loop.window_s`` of keyframes with ``prior`` as the
-    beacon map (and ``offset_db`` / ``exponent_ratio``, the receiver offset and the exponent ratio so far, as their
-    priors' means), feed the optimized beacons, the bias increment and the receiver offset back to ``run`` (the
-    exponent stays the graph's: the filter's range model keeps its own). Returns (the feedback or None when the
-    window gave none, the next window's beacon priors)."""
+    beacon map (and ``offset_db`` / ``exponent``, the receiver offset and the channel's exponent so far, as their
+    priors' means; NaN: the ranges' own exponent), feed the optimized beacons, the bias increment and the receiver
+    offset back to ``run`` (the exponent stays the graph's: the filter's range model keeps its own). Returns (the
+    feedback or None when the window gave none, the next window's beacon priors)."""
     lc = cfg.loop
     res = run.result()
     w0 = t_now - float(lc.window_s) if lc.window_s is not None else -np.inf
@@ -189,7 +189,7 @@ def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeO
     t1 = time.perf_counter()
     try:
         out = smooth(cfg, kf, w_imu, w_ranges, prior, offset_prior_db=offset_db if np.isfinite(offset_db) else 0.0,
-                     odometry=odometry, exponent_prior=exponent_ratio if np.isfinite(exponent_ratio) else 1.0)
+                     odometry=odometry, exponent_prior=exponent if np.isfinite(exponent) else None)
     except ValueError as exc:  # inputs the window cannot use (e.g. no IMU in it): no feedback this time
         notes.append(f"{when}: no feedback ({exc})")
         return None, prior
@@ -209,8 +209,8 @@ def _feedback(run: BatchRun, cfg: BackendConfig, imu: ImuSamples, ranges: RangeO
         run.correct_imu(float(res.t[-1]), inc[:3], inc[3:])
     if np.isfinite(out.offset_db):
         run.set_receiver_offset(out.offset_db)
-    ratio = out.channel_exponent / w_ranges.gamma if cfg.range.estimate_exponent and w_ranges.gamma else np.nan
-    return Feedback(float(res.t[-1]), moved, inc, dt, out.offset_db, float(ratio)), prior
+    exponent = out.channel_exponent if cfg.range.estimate_exponent else np.nan  # the variable's, not a refit's
+    return Feedback(float(res.t[-1]), moved, inc, dt, out.offset_db, exponent), prior
 
 
 def _attitude(run: BatchRun, attitude) -> tuple[np.ndarray, np.ndarray]:
