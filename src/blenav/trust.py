@@ -40,7 +40,7 @@ TARGETS: frozenset[str] = frozenset({
     "blenav.localizers.FixTrackLocalizer", "blenav.localizers.fixtrack.FixTrackLocalizer",
     "blenav.localizers.centroid.WeightedCentroidLocalizer",
     "blenav.localizers.crf.CrfLocalizer",
-    "blenav.localizers.fingerprint.FingerprintLocalizer",
+    "blenav.localizers.fingerprint.FingerprintLocalizer", "blenav.localizers.crowd.CrowdFingerprint",
     "blenav.localizers.ranging.GridL1Localizer", "blenav.localizers.ranging.GridL2Localizer",
     "blenav.localizers.ranging.SrlsLocalizer",
     "blenav.backend.localizer.BackendLocalizer",

@@ -25,7 +25,7 @@ def test_parse_types_every_node_of_an_experiment():
     assert isinstance(c.split, SplitConfig) and (c.split.train_fraction, c.split.seed) == (0.5, 0)
     assert c.split.given == {"train_fraction": 0.5, "seed": 0}  # results.json repeats the keys as given
     assert isinstance(c.fixes, FixesConfig) and c.fixes.rate_hz == 2.0 and c.fixes.sparse_beacons == 4
-    assert set(c.fixes.roles) == {"wifi", "ble", "both"} and c.fixes.per_role
+    assert set(c.fixes.roles) == {"wifi", "ble", "both", "both_crowd", "ble_crowd"} and c.fixes.per_role
     assert c.fixes.compute["wifi"] == c.methods["knn_wifi"]  # ${methods.knn_wifi} resolved once, at parsing
     assert c.scoring.hold_ends is True and c.data.path == "/nonexistent"
     assert c.experiment.evaluator_target == "blenav.eval.trajectory.TrajectoryEvaluator"

@@ -270,7 +270,9 @@ def test_one_fix_localizer_per_node_shared_with_its_row(tmp_path):
     loc = prov.localizers
     assert loc["wifi"] is methods["KNN-WiFi"] and loc["again"] is loc["wifi"]
     assert loc["ble"] is methods["KNN-BLE"] and loc["both"] is methods["KNN-WiFi+BLE"]
-    assert len(prov.methods) == 3  # each localizer once
+    assert loc["both_crowd"] is methods["KNN-WiFi+BLE+crowd"]  # the crowds' own rows (issue 30)
+    assert loc["ble_crowd"] is methods["KNN-BLE+crowd"]
+    assert len(prov.methods) == 5  # each localizer once
 
 
 def test_train_ids_and_table_rows_come_from_the_experiment(tmp_path):

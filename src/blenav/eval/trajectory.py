@@ -17,6 +17,7 @@ from blenav.errors import EvalError
 from blenav.limits import LimitError, check_range
 from blenav.localizers.inputs import RunInputs
 
+from . import batch as B
 from . import beacon_map as BM
 from . import harness as H
 from . import sessions as S
@@ -72,8 +73,10 @@ class TrajectoryEvaluator(Evaluator):
         # every stream and floor plan read before the first method: no method's memory counts them
         res.dropped = H.dropped_rows(sessions)
         outcomes: dict[str, H.MethodOutcome] = {}
+        prepared: dict[int, dict | None] = {}  # the transductive localizers prepared so far (blenav.eval.batch)
         with H.Progress(cfg.progress, len(methods) * len(sessions)) as progress:
             for name, method in methods.items():
+                B.prepare_transductive(name, method, provider, outcomes, sessions, inputs, prepared)
                 with PeakMemory(cfg.peak_memory) as mem:  # rss | tracemalloc | none
                     oc = H.run_method(name, method, sessions, runs, cfg.seed, cfg.init_s, inputs, progress, bmap,
                                       hold_ends=cfg.scoring.hold_ends, fixes=provider)
@@ -83,9 +86,12 @@ class TrajectoryEvaluator(Evaluator):
                 m.training = training.get(name)
                 if oc.metrics:
                     outcomes[name] = oc
+        key_of = {id(m): k for k, m in every.items()}  # every role under its own source, shared localizers too
+        for oid, info in prepared.items():  # what each crowd was built from, beside its training report
+            if info is not None and isinstance(training.get(key_of.get(oid)), dict):
+                training[key_of[oid]]["crowd"] = info
         if provider is not None:
             res.fixes = provider.describe()
-            key_of = {id(m): k for k, m in every.items()}  # every role under its own source, shared localizers too
             fix_training = {provider.computed_source(r): training[key_of[id(m)]]
                             for r, m in provider.localizers.items() if training.get(key_of.get(id(m))) is not None}
             if fix_training:

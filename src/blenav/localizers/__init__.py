@@ -5,10 +5,10 @@ A new method is one class deriving from :class:`Localizer`, one YAML file in ``c
 """
 
 from .base import (Estimate, FixConsumer, InertialModelConsumer, Localizer, ModelConsumer, PathLossCalibrated, Trained,
-                   build_localizer)
+                   Transductive, build_localizer)
 from .fixtrack import FixTrackLocalizer
 from .inputs import Fixes, RoleFixes, RunInputs
 from .particle import ParticleFilterLocalizer
 
 __all__ = ["Estimate", "FixConsumer", "FixTrackLocalizer", "Fixes", "InertialModelConsumer", "Localizer", "ModelConsumer", "Trained",
-           "ParticleFilterLocalizer", "PathLossCalibrated", "RoleFixes", "RunInputs", "build_localizer"]
+           "ParticleFilterLocalizer", "PathLossCalibrated", "RoleFixes", "RunInputs", "Transductive", "build_localizer"]

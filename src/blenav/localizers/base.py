@@ -17,7 +17,9 @@ Methods that need something from the evaluation declare it by deriving from a ca
 * :class:`ModelConsumer`: a trained model given by path (``model_path``);
 * :class:`InertialModelConsumer`: a learned inertial odometry given by path (``io_model``);
 * :class:`Trained`: a method that learns from the dataset's own labelled train sessions (fingerprinting:
-  KNN, LocNet on WiFi/BLE scans) before it is run on the scored ones (the experiment's ``split``).
+  KNN, LocNet on WiFi/BLE scans) before it is run on the scored ones (the experiment's ``split``);
+* :class:`Transductive`: a method (or the localizer of a fix role) that reads another row's estimates on the scored
+  sessions, never their ground truth, before it runs (the crowd-sourced survey, :mod:`blenav.localizers.crowd`).
 
 A method that cannot run on a session (a stream it needs is absent, a model was not given) raises
 :class:`~blenav.errors.MissingStream` with the reason; the harness then lists the session under
@@ -33,7 +35,7 @@ from blenav.filters.estimate import Estimate
 from .inputs import Fixes, RoleFixes, RunInputs
 
 __all__ = ["Estimate", "RunInputs", "Fixes", "RoleFixes", "Localizer", "PathLossCalibrated",
-           "FixConsumer", "ModelConsumer", "InertialModelConsumer", "Trained", "build_localizer", "attach_inertial",
+           "FixConsumer", "ModelConsumer", "InertialModelConsumer", "Trained", "Transductive", "build_localizer", "attach_inertial",
            "NO_IO_MODEL"]
 
 class Localizer:
@@ -126,6 +128,19 @@ def attach_inertial(path: str | None, load) -> tuple[object | None, str | None]:
         return load(path, load_inertial_model), None
     except (OSError, ValueError, ImportError) as exc:
         return None, f"io_model={path} cannot be used: {exc}"
+
+
+class Transductive:
+    """A method, or the localizer of a fix role, that reads the estimates another row made on the scored sessions
+    (never their ground truth) before it runs: :attr:`batch_labels` is that row's label. The evaluation calls
+    :meth:`prepare_batch` once, after that row ran on every scored session and before anything reads this one."""
+
+    batch_labels: str = ""
+
+    def prepare_batch(self, sessions: list, estimates: dict, inputs: RunInputs | None = None) -> dict | None:
+        """Take the labels row's ``estimates`` (session id -> :class:`Estimate`) of the scored ``sessions``; returns
+        a report (or None)."""
+        raise NotImplementedError
 
 
 class Trained:

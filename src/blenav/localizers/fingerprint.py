@@ -105,10 +105,11 @@ NET_MAX_FEATURES = 256
 
 class _FloorModel:
     """A fitted model of one floor: columns (feature -> column), predict(S) -> (xy (K, 2) m, cov (K, 2, 2) or
-    None)."""
+    None); ``by_walk``: predict(S, exclude=session id) leaves out that walk's own reference windows
+    (:mod:`blenav.localizers.crowd`)."""
 
-    def __init__(self, columns: dict[str, int], predict):
-        self.columns, self.predict = columns, predict
+    def __init__(self, columns: dict[str, int], predict, by_walk: bool = False):
+        self.columns, self.predict, self.by_walk = columns, predict, bool(by_walk)
 
 
 def knn_model(S: np.ndarray, xy: np.ndarray, k: int, weights: str, cov_floor_m: float, metric: str = "cosine"):
@@ -322,7 +323,7 @@ class FingerprintLocalizer(Localizer, Trained):
         if self.cv is None:
             best = KNN.KnnSetting(self.metric, self.k, self.weights, 1.0)
             return KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m,
-                           self._std_model(S, xy, walk_of, best, is_ble, info, CV_GRID["folds"]))
+                           self._std_model(S, xy, walk_of, best, is_ble, info, CV_GRID["folds"]), walk_of=walk_of)
         ble_w = self.cv["ble_weight"] if self.cfg.features == "both" else [1.0]
         settings = KNN.grid(self.cv["metric"], self.cv["k"], self.cv["weights"], ble_w)
         waypoints = [(s.groundtruth["t"].to_numpy(float), s.groundtruth[["x", "y"]].to_numpy(float)) for s in used]
@@ -334,7 +335,7 @@ class FingerprintLocalizer(Localizer, Trained):
         log.info("%s: cross-validated KNN setting %s (%.2f m)", self.name, best,
                  min(r["cv_error_m"] for r in table))
         return KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m,
-                       self._std_model(S, xy, walk_of, best, is_ble, info, self.cv["folds"]))
+                       self._std_model(S, xy, walk_of, best, is_ble, info, self.cv["folds"]), walk_of=walk_of)
 
     def _std_model(self, S, xy, walk_of, setting, is_ble, info, folds):
         """The calibrated std model (``fix_std: calibrated``) of ``setting`` on these train windows, or None."""
@@ -455,7 +456,7 @@ class FingerprintLocalizer(Localizer, Trained):
         if not w.heard.any():
             raise MissingStream(f"session {session.id}: no {self.cfg.features} source of the training walks heard")
         S, t = w.S[w.heard], w.t[w.heard]
-        xy, cov = fm.predict(S)
+        xy, cov = fm.predict(S, exclude=session.id) if fm.by_walk else fm.predict(S)
         if not np.isfinite(xy).all():
             raise ValueError(f"{self.name}: non-finite position on session {session.id}")
         R = int(n_runs)

@@ -261,42 +261,64 @@ def fit_std_model(err: np.ndarray, spread: np.ndarray, d1: np.ndarray) -> StdMod
 
 
 def out_of_fold(S: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, setting: KnnSetting, is_ble: np.ndarray,
-                fill_dbm: float, cov_floor_m: float, folds: int = 5, seed: int = 0
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                fill_dbm: float, cov_floor_m: float, folds: int = 5, seed: int = 0,
+                extra: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(errors (N,) m, spread (N,), d1 (N,)): every window of the fitted walks predicted by ``setting`` fitted on the
-    other folds' walks (the same seeded deal of the walks as :func:`cross_validate`), against its own label."""
+    other folds' walks (the same seeded deal of the walks as :func:`cross_validate`), against its own label.
+    ``extra``: (S_e (M, F, H), xy_e (M, 2)) windows in every fold's reference set besides the other folds' (the
+    crowd's pseudo-labelled windows, :mod:`blenav.localizers.crowd`), never predicted themselves."""
     folds, fold = deal_folds(int(walk_of.max()) + 1 if len(walk_of) else 0, folds, seed)
     X = represent(S, setting.metric, is_ble, setting.ble_weight, fill_dbm)
+    Xe, xye = (np.zeros((0, X.shape[1])), np.zeros((0, 2))) if extra is None or not len(extra[0]) else \
+        (represent(extra[0], setting.metric, is_ble, setting.ble_weight, fill_dbm), np.asarray(extra[1], float))
     err, spread, d1 = np.full(len(S), np.nan), np.zeros(len(S)), np.zeros(len(S))
     for f in range(folds):
         te = fold[walk_of] == f
         if not te.any() or te.all():
             continue
-        idx, d2 = _nearest(_sqdist(X[te], X[~te]), setting.k)
-        est, cov = combine(idx, d2, xy[~te], setting.k, setting.weights, cov_floor_m)
+        idx, d2 = _nearest(_sqdist(X[te], np.concatenate([X[~te], Xe])), setting.k)
+        est, cov = combine(idx, d2, np.concatenate([xy[~te], xye]), setting.k, setting.weights, cov_floor_m)
         err[te] = np.hypot(*(est - xy[te]).T)
         spread[te], d1[te] = std_features(idx, d2, cov, cov_floor_m)
     ok = np.isfinite(err)
     return err[ok], spread[ok], d1[ok]
 
 
-def fit(S: np.ndarray, xy: np.ndarray, setting: KnnSetting, is_ble: np.ndarray, fill_dbm: float,
-        cov_floor_m: float, std_model: StdModel | None = None):
-    """predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)) of a KNN on windows S (N, F, H) with labels xy (N, 2); the
-    covariance is the neighbours' (:func:`combine`) or, with ``std_model``, its std^2 I."""
-    X = represent(S, setting.metric, is_ble, setting.ble_weight, fill_dbm)
-    bb = np.einsum("nf,nf->n", X, X)  # X's squared norms, once for every query
+class KnnModel:
+    """A fitted KNN (:func:`fit`): ``model(Sq)`` -> (xy (K, 2) m, cov (K, 2, 2) m^2) of windows Sq (K, F, H). It keeps
+    what it was fitted on (``S``, ``xy``, ``setting``, ``std_model``, ``walk_of`` (N,) the train walk index of each
+    window when known; ``groups`` (N,) str: the walk each reference window comes from, "" for the surveyed ones), so
+    that ``model(Sq, exclude=g)`` leaves out group g's windows (a crowd-labelled walk is never its own neighbour)."""
 
-    def predict(Sq):
-        Q = represent(Sq, setting.metric, is_ble, setting.ble_weight, fill_dbm)
+    def __init__(self, S, xy, setting: KnnSetting, is_ble, fill_dbm: float, cov_floor_m: float,
+                 std_model: StdModel | None = None, groups: np.ndarray | None = None,
+                 walk_of: np.ndarray | None = None):
+        self.S, self.xy, self.setting, self.is_ble = S, np.asarray(xy, float), setting, np.asarray(is_ble, bool)
+        self.fill_dbm, self.cov_floor_m, self.std_model = float(fill_dbm), float(cov_floor_m), std_model
+        self.groups = np.full(len(S), "", object) if groups is None else np.asarray(groups, object)
+        self.walk_of = walk_of
+        self.X = represent(S, setting.metric, self.is_ble, setting.ble_weight, self.fill_dbm)
+        self.bb = np.einsum("nf,nf->n", self.X, self.X)  # X's squared norms, once for every query
+
+    def __call__(self, Sq, exclude: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        st = self.setting
+        keep = None if exclude is None else np.flatnonzero(self.groups != exclude)
+        X, bb, xy = (self.X, self.bb, self.xy) if keep is None else (self.X[keep], self.bb[keep], self.xy[keep])
+        Q = represent(Sq, st.metric, self.is_ble, st.ble_weight, self.fill_dbm)
         out_xy, out_cov = np.zeros((len(Q), 2)), np.zeros((len(Q), 2, 2))
         for i in range(0, len(Q), 512):  # bounded memory: 512 x N distances at a time
-            idx, d2 = _nearest(_sqdist(Q[i:i + 512], X, bb), setting.k)
-            est, cov = combine(idx, d2, xy, setting.k, setting.weights, cov_floor_m)
-            if std_model is not None:
-                sd = std_model.std(*std_features(idx, d2, cov, cov_floor_m))
+            idx, d2 = _nearest(_sqdist(Q[i:i + 512], X, bb), st.k)
+            est, cov = combine(idx, d2, xy, st.k, st.weights, self.cov_floor_m)
+            if self.std_model is not None:
+                sd = self.std_model.std(*std_features(idx, d2, cov, self.cov_floor_m))
                 cov = (sd**2)[:, None, None] * np.eye(2)
             out_xy[i:i + 512], out_cov[i:i + 512] = est, cov
         return out_xy, out_cov
 
-    return predict
+
+def fit(S: np.ndarray, xy: np.ndarray, setting: KnnSetting, is_ble: np.ndarray, fill_dbm: float,
+        cov_floor_m: float, std_model: StdModel | None = None, walk_of: np.ndarray | None = None) -> KnnModel:
+    """predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)) of a KNN on windows S (N, F, H) with labels xy (N, 2); the
+    covariance is the neighbours' (:func:`combine`) or, with ``std_model``, its std^2 I (:class:`KnnModel`, which
+    keeps ``walk_of`` (N,), the walk index of each window, for a refit)."""
+    return KnnModel(S, xy, setting, is_ble, fill_dbm, cov_floor_m, std_model, walk_of=walk_of)

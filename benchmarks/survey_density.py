@@ -1,0 +1,82 @@
+"""How much of the fingerprints' error is the survey's density (issue 29 / 30): a KNN on a floor's WiFi + BLE windows,
+scored on the test walks' windows (label: the waypoint interpolation at the window's time, as the KNN rows' training
+labels), with three reference sets:
+
+* ``survey``: the train walks' windows (the KNN rows' own);
+* ``+ others, true labels`` (an oracle bound, not a method: it reads the other test walks' ground truth): every other
+  test walk's windows labelled by their waypoint interpolation; what a survey twice as dense would give;
+* ``+ others, ROW's labels`` (with ``--eval OUT --row ROW``): the other test walks' windows labelled by a row's
+  trajectory of an evaluation of the same floor (``OUT/<session>/trajectories/<ROW>.tum``; fused-offline: no ground
+  truth), as :class:`blenav.localizers.crowd.CrowdFingerprint` does (without its label filter and std).
+
+A walk's own windows are never in its reference set. Setting: ``--k`` neighbours, uniform weights, the ``powed``
+metric, BLE part weight 0.25 (KNN-WiFi+BLE's cross-validated choice on F1).
+
+    .venv/bin/python benchmarks/survey_density.py FLOOR_DATA [--eval OUT --row fused-offline]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from blenav.cli.realwalks import experiment_config
+from blenav.eval.config import parse_eval_config
+from blenav.eval.sessions import open_dataset, scored_sessions, train_test
+from blenav.features import fingerprints as FP
+from blenav.localizers import knn as KNN
+
+CFG = FP.FingerprintConfig(features="both", wifi_age_ref="scan", wifi_time="heard")
+
+
+def _labelled(session, columns):
+    w, _ = FP.label_windows(session, FP.session_windows(session, columns, CFG))
+    ok = w.heard & np.isfinite(w.xy).all(axis=1)
+    return w.S[ok], w.xy[ok], w.t[ok]
+
+
+def _track_at(path: Path, t: np.ndarray) -> np.ndarray:
+    tr = np.loadtxt(path, ndmin=2)  # TUM: t x y z qx qy qz qw
+    return np.column_stack([np.interp(t, tr[:, 0], tr[:, 1]), np.interp(t, tr[:, 0], tr[:, 2])])
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("data")
+    p.add_argument("--eval", type=Path, help="an evaluation's output folder on the same floor")
+    p.add_argument("--row", default="fused-offline", help="the row of --eval whose trajectories label the others")
+    p.add_argument("--k", type=int, default=5)
+    args = p.parse_args()
+    cfg = parse_eval_config(experiment_config(f"data={args.data}"))
+    ds = open_dataset(cfg)
+    train, test = train_test(cfg, ds, scored_sessions(cfg, ds))
+    tables, used = FP.readable(train, CFG)
+    names = FP.vocabulary(tables, 1)
+    columns = {n: i for i, n in enumerate(names)}
+    is_ble = np.array([n.startswith("ble:") for n in names])
+    setting = KNN.KnnSetting("powed", args.k, "uniform", 0.25)
+    S, xy = (np.concatenate(a) for a in zip(*[_labelled(s, columns)[:2] for s in used]))
+    walks = [_labelled(s, columns) for s in test]
+    sets = {"survey": None, "+ others, true labels (oracle bound)": [w[1] for w in walks]}
+    if args.eval is not None:
+        sets[f"+ others, {args.row}'s labels"] = [_track_at(args.eval / s.id / "trajectories" / f"{args.row}.tum", w[2])
+                                                 for s, w in zip(test, walks)]
+    print(f"{args.data}: {len(used)} train walks ({len(S)} windows), {len(test)} test walks "
+          f"({sum(len(w[0]) for w in walks)} windows); KNN {setting}")
+    for name, labels in sets.items():
+        err = []
+        for i, (Sq, xyq, _) in enumerate(walks):
+            if not len(Sq):
+                continue
+            others = [j for j in range(len(walks)) if j != i] if labels is not None else []
+            model = KNN.fit(np.concatenate([S] + [walks[j][0] for j in others]),
+                            np.concatenate([xy] + [labels[j] for j in others]), setting, is_ble, CFG.fill_dbm, 1.0)
+            err.append(np.hypot(*(model(Sq)[0] - xyq).T))
+        e = np.concatenate(err)
+        print(f"{name:42s} mean {e.mean():6.2f}  median {np.median(e):6.2f}  p90 {np.percentile(e, 90):6.2f} m")
+
+
+if __name__ == "__main__":
+    main()
