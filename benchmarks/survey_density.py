@@ -9,8 +9,9 @@ labels), with three reference sets:
   trajectory of an evaluation of the same floor (``OUT/<session>/trajectories/<ROW>.tum``; fused-offline: no ground
   truth), as :class:`blenav.localizers.crowd.CrowdFingerprint` does (without its label filter and std).
 
-A walk's own windows are never in its reference set. Setting: ``--k`` neighbours, uniform weights, the ``powed``
-metric, BLE part weight 0.25 (KNN-WiFi+BLE's cross-validated choice on F1).
+A walk's own windows are never in its reference set (the KNN's ``exclude``, as the crowd's). Setting: the one
+cross-validated on the train walks over the KNN rows' grid (``blenav.localizers.fingerprint.CV_GRID``, as
+KNN-WiFi+BLE chooses it), printed with the results.
 
     .venv/bin/python benchmarks/survey_density.py FLOOR_DATA [--eval OUT --row fused-offline]
 """
@@ -27,6 +28,8 @@ from blenav.eval.config import parse_eval_config
 from blenav.eval.sessions import open_dataset, scored_sessions, train_test
 from blenav.features import fingerprints as FP
 from blenav.localizers import knn as KNN
+from blenav.localizers.crowd import track_labels
+from blenav.localizers.fingerprint import CV_GRID
 
 CFG = FP.FingerprintConfig(features="both", wifi_age_ref="scan", wifi_time="heard")
 
@@ -37,9 +40,10 @@ def _labelled(session, columns):
     return w.S[ok], w.xy[ok], w.t[ok]
 
 
-def _track_at(path: Path, t: np.ndarray) -> np.ndarray:
+def _track_labels(path: Path, t: np.ndarray) -> np.ndarray:
+    """The TUM trajectory ``path`` at times t (K,) s (held at its ends, as the scoring holds them)."""
     tr = np.loadtxt(path, ndmin=2)  # TUM: t x y z qx qy qz qw
-    return np.column_stack([np.interp(t, tr[:, 0], tr[:, 1]), np.interp(t, tr[:, 0], tr[:, 2])])
+    return track_labels(np.clip(t, tr[0, 0], tr[-1, 0]), tr[:, 0], tr[:, 1:3])[1]
 
 
 def main() -> None:
@@ -47,7 +51,6 @@ def main() -> None:
     p.add_argument("data")
     p.add_argument("--eval", type=Path, help="an evaluation's output folder on the same floor")
     p.add_argument("--row", default="fused-offline", help="the row of --eval whose trajectories label the others")
-    p.add_argument("--k", type=int, default=5)
     args = p.parse_args()
     cfg = parse_eval_config(experiment_config(f"data={args.data}"))
     ds = open_dataset(cfg)
@@ -56,25 +59,26 @@ def main() -> None:
     names = FP.vocabulary(tables, 1)
     columns = {n: i for i, n in enumerate(names)}
     is_ble = np.array([n.startswith("ble:") for n in names])
-    setting = KNN.KnnSetting("powed", args.k, "uniform", 0.25)
-    S, xy = (np.concatenate(a) for a in zip(*[_labelled(s, columns)[:2] for s in used]))
+    survey = [_labelled(s, columns) for s in used]
+    S, xy, T = (np.concatenate(a) for a in zip(*survey))
+    walk_of = np.concatenate([np.full(len(w[0]), i) for i, w in enumerate(survey)])
+    waypoints = [(s.groundtruth["t"].to_numpy(float), s.groundtruth[["x", "y"]].to_numpy(float)) for s in used]
+    settings = KNN.grid(CV_GRID["metric"], CV_GRID["k"], CV_GRID["weights"], CV_GRID["ble_weight"])
+    setting, _ = KNN.cross_validate(S, xy, T, walk_of, waypoints, settings, is_ble, CFG.fill_dbm, CV_GRID["folds"])
     walks = [_labelled(s, columns) for s in test]
     sets = {"survey": None, "+ others, true labels (oracle bound)": [w[1] for w in walks]}
     if args.eval is not None:
-        sets[f"+ others, {args.row}'s labels"] = [_track_at(args.eval / s.id / "trajectories" / f"{args.row}.tum", w[2])
-                                                 for s, w in zip(test, walks)]
+        sets[f"+ others, {args.row}'s labels"] = [
+            _track_labels(args.eval / s.id / "trajectories" / f"{args.row}.tum", w[2]) for s, w in zip(test, walks)]
     print(f"{args.data}: {len(used)} train walks ({len(S)} windows), {len(test)} test walks "
-          f"({sum(len(w[0]) for w in walks)} windows); KNN {setting}")
+          f"({sum(len(w[0]) for w in walks)} windows); KNN {setting} (cross-validated on the train walks)")
     for name, labels in sets.items():
-        err = []
-        for i, (Sq, xyq, _) in enumerate(walks):
-            if not len(Sq):
-                continue
-            others = [j for j in range(len(walks)) if j != i] if labels is not None else []
-            model = KNN.fit(np.concatenate([S] + [walks[j][0] for j in others]),
-                            np.concatenate([xy] + [labels[j] for j in others]), setting, is_ble, CFG.fill_dbm, 1.0)
-            err.append(np.hypot(*(model(Sq)[0] - xyq).T))
-        e = np.concatenate(err)
+        groups = [np.full(len(w[0]), s.id, object) for s, w in zip(test, walks)] if labels is not None else []
+        model = KNN.fit(np.concatenate([S] + ([w[0] for w in walks] if labels is not None else [])),
+                        np.concatenate([xy] + (labels or [])), setting, is_ble, CFG.fill_dbm, 1.0,
+                        groups=np.concatenate([np.full(len(S), "", object)] + groups))
+        e = np.concatenate([np.hypot(*(model(w[0], exclude=s.id)[0] - w[1]).T) for s, w in zip(test, walks)
+                            if len(w[0])])
         print(f"{name:42s} mean {e.mean():6.2f}  median {np.median(e):6.2f}  p90 {np.percentile(e, 90):6.2f} m")
 
 

@@ -31,7 +31,7 @@ def test_knn_model_leaves_out_one_walk_exactly():
     S, xy = _windows(rng, 40), rng.uniform(0, 50, (40, 2))
     groups = np.array([""] * 20 + ["w1"] * 10 + ["w2"] * 10, object)
     Q = _windows(rng, 7)
-    full = KNN.KnnModel(S, xy, SETTING, np.zeros(6, bool), -100.0, 1.0, groups=groups)
+    full = KNN.fit(S, xy, SETTING, np.zeros(6, bool), -100.0, 1.0, groups=groups)
     keep = groups != "w1"
     ref = KNN.fit(S[keep], xy[keep], SETTING, np.zeros(6, bool), -100.0, 1.0)
     for a, b in zip(full(Q, exclude="w1"), ref(Q)):
@@ -91,8 +91,6 @@ def test_crowd_labels_reach_the_other_walks_never_the_walk_itself(coded):
 def test_a_walk_without_the_stream_stays_out_of_the_crowd(coded, monkeypatch):
     """A scored walk that lacks the localizer's stream (a BLE crowd, a walk without rssi.csv) is left out of the crowd,
     not an error."""
-    import blenav.localizers.crowd as crowd
-
     A, B, C = (coded.session(f"mall_F1_walk{c}") for c in "ABC")
     loc = CrowdFingerprint("KNN+crowd", k=2, fix_std="calibrated", crowd={"labels": "fused-offline"})
     loc.fit([A])
@@ -100,10 +98,30 @@ def test_a_walk_without_the_stream_stays_out_of_the_crowd(coded, monkeypatch):
     def no_stream(*a, **k):
         raise MissingStream("no rssi.csv")
 
-    monkeypatch.setattr(crowd, "crowd_windows", no_stream)
+    monkeypatch.setattr(FingerprintLocalizer, "heard_windows", no_stream)
     info = loc.prepare_batch([B, C], {B.id: _estimate(B, 7.0), C.id: _estimate(C, 5.0)})
     assert info["floors"]["mall/F1"] == {"walks": 0, "windows": 0}
+    monkeypatch.undo()
     np.testing.assert_allclose(loc.run(C, 1, seed=0).position[0, :, 1], 5.0)
+
+
+def test_a_scored_walk_is_read_once(coded, monkeypatch):
+    """The windows prepare_batch reads for the crowd are the ones run localizes: each scored walk's readings are
+    windowed once (FP.session_windows), and a walk run again is read afresh."""
+    import blenav.features.fingerprints as FP
+
+    A, B, C = (coded.session(f"mall_F1_walk{c}") for c in "ABC")
+    loc = CrowdFingerprint("KNN+crowd", k=2, fix_std="calibrated", crowd={"labels": "fused-offline"})
+    loc.fit([A])
+    calls = []
+    real = FP.session_windows
+    monkeypatch.setattr(FP, "session_windows", lambda s, *a, **k: calls.append(s.id) or real(s, *a, **k))
+    loc.prepare_batch([B, C], {B.id: _estimate(B, 7.0), C.id: _estimate(C, 5.0)})
+    first = loc.run(B, 1, seed=0).position
+    loc.run(C, 1, seed=0)
+    assert sorted(calls) == sorted([B.id, C.id])
+    np.testing.assert_array_equal(loc.run(B, 1, seed=0).position, first)
+    assert calls.count(B.id) == 2
 
 
 def test_crowd_settings_are_checked():

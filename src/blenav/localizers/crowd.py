@@ -12,7 +12,7 @@ of that walk at the window's time (``crowd.labels``: ``fused-offline``, which us
 * the KNN setting is the one cross-validated on the train walks (as the plain KNN's);
 * each fix's std (``fix_std: calibrated``) is refitted with the crowd in the reference set: the train walks' windows
   predicted by the other folds' walks *plus the crowd*, against their surveyed labels
-  (:func:`blenav.localizers.knn.out_of_fold` with ``extra``), then times ``crowd.std_scale``: a train walk finds
+  (:func:`blenav.localizers.knn.out_of_fold_represented` with ``extra``), then times ``crowd.std_scale``: a train walk finds
   surveyed neighbours, a scored walk off the survey mostly crowd ones, whose labels carry the labels row's error, so
   the refit alone states too small a std there (chosen on the train walks: docs/results-ilc20.md).
 
@@ -38,18 +38,16 @@ from .fingerprint import CV_GRID, MIN_STD_FIT, FingerprintLocalizer, _FloorModel
 
 log = logging.getLogger("blenav.localizers.crowd")
 
-__all__ = ["CrowdFingerprint", "crowd_windows"]
+__all__ = ["CrowdFingerprint", "track_labels"]
 
 
-def crowd_windows(session, columns: dict[str, int], cfg: FP.FingerprintConfig, t: np.ndarray, xy: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """(S (M, F, H), xy (M, 2) m): the windows of ``session`` in ``columns`` that heard something and end inside the
-    estimate's span, labelled by the estimate (``t`` (T,) s increasing, ``xy`` (T, 2) m, finite) interpolated
-    linearly at their end times."""
-    w = FP.session_windows(session, columns, cfg)
-    keep = w.heard & (w.t >= t[0]) & (w.t <= t[-1])
-    tw = w.t[keep]
-    return w.S[keep], np.column_stack([np.interp(tw, t, xy[:, 0]), np.interp(tw, t, xy[:, 1])])
+def track_labels(tw: np.ndarray, t: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(inside (K,) bool, labels (inside.sum(), 2) m): the window end times ``tw`` (K,) s that lie inside an
+    estimate's span, and the estimate (``t`` (T,) s increasing, ``xy`` (T, 2) m, finite) interpolated linearly
+    there."""
+    inside = (tw >= t[0]) & (tw <= t[-1])
+    ti = tw[inside]
+    return inside, np.column_stack([np.interp(ti, t, xy[:, 0]), np.interp(ti, t, xy[:, 1])])
 
 
 class CrowdFingerprint(FingerprintLocalizer, Transductive):
@@ -80,6 +78,7 @@ class CrowdFingerprint(FingerprintLocalizer, Transductive):
         self.batch_labels = labels
         self._survey: dict[str, _FloorModel] = {}
         self._prepared = False
+        self._windows: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # session id -> heard windows, read once
 
     def fit(self, sessions: list, inputs=None) -> dict:
         report = super().fit(sessions, inputs)
@@ -91,9 +90,10 @@ class CrowdFingerprint(FingerprintLocalizer, Transductive):
         has into the reference set of its floor; refit each floor's std model with them. Returns per floor: walks,
         windows, and the std model's out-of-fold coverage."""
         info: dict = {"labels": self.batch_labels, "floors": {}}
+        self._windows = {}
         for key, fm in self._survey.items():
             base = fm.predict
-            S, xy, groups = [], [], []
+            X, xy, groups = [], [], []
             for s in sessions:
                 est = estimates.get(s.id)
                 if est is None or FP.floor_of(s) != key or not len(est.t):
@@ -106,39 +106,38 @@ class CrowdFingerprint(FingerprintLocalizer, Transductive):
                 if ok.sum() < 1:
                     continue
                 try:
-                    Sc, xyc = crowd_windows(s, fm.columns, self.cfg, np.asarray(est.t, float)[ok], pos[ok])
+                    S, tw = self._windows[s.id] = self.heard_windows(s, fm.columns)
                 except MissingStream:  # the walk lacks this localizer's stream (no rssi.csv for a BLE crowd)
                     continue
-                if not len(Sc):
+                inside, xyc = track_labels(tw, np.asarray(est.t, float)[ok], pos[ok])
+                if not inside.any():
                     continue
-                S.append(Sc)
+                X.append(base.represent(S[inside]))
                 xy.append(xyc)
-                groups.append(np.full(len(Sc), s.id, object))
-            n = int(sum(len(a) for a in S))
+                groups.append(np.full(len(xyc), s.id, object))
+            n = int(sum(len(a) for a in X))
             if not n:
                 self.floors[key] = fm
                 info["floors"][key] = {"walks": 0, "windows": 0}
                 continue
-            Sc, xyc = np.concatenate(S), np.concatenate(xy)
-            std_model, cov_info = self._crowd_std(base, Sc, xyc)
-            model = KNN.KnnModel(np.concatenate([base.S, Sc]), np.concatenate([base.xy, xyc]), base.setting,
-                                 base.is_ble, base.fill_dbm, base.cov_floor_m, std_model,
-                                 groups=np.concatenate([base.groups, *groups]))
-            self.floors[key] = _FloorModel(fm.columns, model, by_walk=True)
-            info["floors"][key] = {"walks": len(S), "windows": n, "survey_windows": int(len(base.S)), **cov_info}
+            Xc, xyc = np.concatenate(X), np.concatenate(xy)
+            std_model, cov_info = self._crowd_std(base, Xc, xyc)
+            self.floors[key] = _FloorModel(fm.columns, base.extended(Xc, xyc, np.concatenate(groups), std_model))
+            info["floors"][key] = {"walks": len(X), "windows": n, "survey_windows": int(len(base.X)), **cov_info}
             log.info("%s: %s survey of %d windows + %d windows of %d walks labelled by %s", self.name, key,
-                     len(base.S), n, len(S), self.batch_labels)
+                     len(base.X), n, len(X), self.batch_labels)
         self._prepared = True
         return info
 
-    def _crowd_std(self, base: KNN.KnnModel, Sc: np.ndarray, xyc: np.ndarray):
-        """The std model refitted with the crowd in every fold's reference set (module doc), and its coverage; the
-        survey's own model where there are too few train windows to refit it."""
+    def _crowd_std(self, base: KNN.KnnModel, Xc: np.ndarray, xyc: np.ndarray):
+        """The std model refitted with the crowd (Xc (M, D) represented, labels xyc (M, 2) m) in every fold's
+        reference set (module doc), and its coverage; the survey's own model where there are too few train windows
+        to refit it."""
         if base.std_model is None or base.walk_of is None:
             return base.std_model, {}
         folds = self.cv["folds"] if self.cv is not None else CV_GRID["folds"]
-        err, spread, d1 = KNN.out_of_fold(base.S, base.xy, base.walk_of, base.setting, base.is_ble, base.fill_dbm,
-                                          base.cov_floor_m, folds=folds, seed=self.seed, extra=(Sc, xyc))
+        err, spread, d1 = KNN.out_of_fold_represented(base.X, base.xy, base.walk_of, base.setting, base.cov_floor_m,
+                                                      folds=folds, seed=self.seed, extra=(Xc, xyc))
         if len(err) < MIN_STD_FIT:
             return base.std_model, {}
         fitted = KNN.fit_std_model(err, spread, d1)
@@ -146,6 +145,12 @@ class CrowdFingerprint(FingerprintLocalizer, Transductive):
         r = err / model.std(spread, d1)
         return model, {"fix_std_c": list(model.c), "out_of_fold_error_m": float(np.mean(err)),
                        "coverage_1sigma": float(np.mean(r <= 1.0)), "coverage_2sigma": float(np.mean(r <= 2.0))}
+
+    def heard_windows(self, session, columns: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`FingerprintLocalizer.heard_windows`, read once: a scored walk's windows read by
+        :meth:`prepare_batch` are handed over (and forgotten) when the walk is run."""
+        cached = self._windows.pop(session.id, None)
+        return cached if cached is not None else super().heard_windows(session, columns)
 
     def run(self, session, n_runs: int, seed: int, inputs=None):
         if not self._prepared:

@@ -105,11 +105,16 @@ NET_MAX_FEATURES = 256
 
 class _FloorModel:
     """A fitted model of one floor: columns (feature -> column), predict(S) -> (xy (K, 2) m, cov (K, 2, 2) or
-    None); ``by_walk``: predict(S, exclude=session id) leaves out that walk's own reference windows
-    (:mod:`blenav.localizers.crowd`)."""
+    None); a :class:`~blenav.localizers.knn.KnnModel` predict is called with ``exclude=`` the session's id (a
+    crowd-labelled walk's own reference windows left out: :mod:`blenav.localizers.crowd`)."""
 
-    def __init__(self, columns: dict[str, int], predict, by_walk: bool = False):
-        self.columns, self.predict, self.by_walk = columns, predict, bool(by_walk)
+    def __init__(self, columns: dict[str, int], predict):
+        self.columns, self.predict = columns, predict
+
+    def __call__(self, S: np.ndarray, session_id: str):
+        if isinstance(self.predict, KNN.KnnModel):
+            return self.predict(S, exclude=session_id)
+        return self.predict(S)
 
 
 def knn_model(S: np.ndarray, xy: np.ndarray, k: int, weights: str, cov_floor_m: float, metric: str = "cosine"):
@@ -321,9 +326,10 @@ class FingerprintLocalizer(Localizer, Trained):
         :class:`blenav.localizers.knn.StdModel` fitted on the same walks' out-of-fold errors."""
         is_ble = np.array([n.startswith("ble:") for n in names])
         if self.cv is None:
-            best = KNN.KnnSetting(self.metric, self.k, self.weights, 1.0)
-            return KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m,
-                           self._std_model(S, xy, walk_of, best, is_ble, info, CV_GRID["folds"]), walk_of=walk_of)
+            model = KNN.fit(S, xy, KNN.KnnSetting(self.metric, self.k, self.weights, 1.0), is_ble, self.cfg.fill_dbm,
+                            self.cov_floor_m, walk_of=walk_of)
+            model.std_model = self._std_model(model, info, CV_GRID["folds"])
+            return model
         ble_w = self.cv["ble_weight"] if self.cfg.features == "both" else [1.0]
         settings = KNN.grid(self.cv["metric"], self.cv["k"], self.cv["weights"], ble_w)
         waypoints = [(s.groundtruth["t"].to_numpy(float), s.groundtruth[["x", "y"]].to_numpy(float)) for s in used]
@@ -334,15 +340,17 @@ class FingerprintLocalizer(Localizer, Trained):
                                 "the other folds' walks", "table": table}
         log.info("%s: cross-validated KNN setting %s (%.2f m)", self.name, best,
                  min(r["cv_error_m"] for r in table))
-        return KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m,
-                       self._std_model(S, xy, walk_of, best, is_ble, info, self.cv["folds"]), walk_of=walk_of)
+        model = KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m, walk_of=walk_of)
+        model.std_model = self._std_model(model, info, self.cv["folds"])
+        return model
 
-    def _std_model(self, S, xy, walk_of, setting, is_ble, info, folds):
-        """The calibrated std model (``fix_std: calibrated``) of ``setting`` on these train windows, or None."""
+    def _std_model(self, model: KNN.KnnModel, info: dict, folds: int):
+        """The calibrated std model (``fix_std: calibrated``) of the KNN ``model`` (its train windows, their walks and
+        its setting: :func:`blenav.localizers.knn.out_of_fold_represented`), or None."""
         if self.fix_std != "calibrated":
             return None
-        err, spread, d1 = KNN.out_of_fold(S, xy, walk_of, setting, is_ble, self.cfg.fill_dbm, self.cov_floor_m,
-                                          folds=folds, seed=self.seed)
+        err, spread, d1 = KNN.out_of_fold_represented(model.X, model.xy, model.walk_of, model.setting,
+                                                      model.cov_floor_m, folds=folds, seed=self.seed)
         if len(err) < MIN_STD_FIT:
             info["fix_std"] = f"neighbours: {len(err)} out-of-fold fixes (need {MIN_STD_FIT}) to calibrate"
             return None
@@ -439,6 +447,17 @@ class FingerprintLocalizer(Localizer, Trained):
         return predict
 
     # ------------------------------------------------------------------ running
+    def heard_windows(self, session, columns: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
+        """(S (K, F, H), t (K,) s): the windows of ``session`` on ``columns`` that heard something, as :meth:`run`
+        localizes them (``beacons``: BLE readings of the other beacons left out)."""
+        rd = None
+        if self.beacons is not None:
+            rd = FP.readings(session, self.cfg)
+            keep = {f"ble:{b}" for b in self.beacons}
+            rd = rd[(rd["kind"] != "ble") | rd["feature"].isin(keep)]
+        w = FP.session_windows(session, columns, self.cfg, rd)
+        return w.S[w.heard], w.t[w.heard]
+
     def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         t0 = time.perf_counter()
         key = FP.floor_of(session)
@@ -447,16 +466,10 @@ class FingerprintLocalizer(Localizer, Trained):
                 f"has no model for floor {key} (trained: {sorted(self.floors)})"
             raise MissingStream(f"{self.name} {why}")
         fm = self.floors[key]
-        rd = None
-        if self.beacons is not None:
-            rd = FP.readings(session, self.cfg)
-            keep = {f"ble:{b}" for b in self.beacons}
-            rd = rd[(rd["kind"] != "ble") | rd["feature"].isin(keep)]
-        w = FP.session_windows(session, fm.columns, self.cfg, rd)
-        if not w.heard.any():
+        S, t = self.heard_windows(session, fm.columns)
+        if not len(t):
             raise MissingStream(f"session {session.id}: no {self.cfg.features} source of the training walks heard")
-        S, t = w.S[w.heard], w.t[w.heard]
-        xy, cov = fm.predict(S, exclude=session.id) if fm.by_walk else fm.predict(S)
+        xy, cov = fm(S, session.id)
         if not np.isfinite(xy).all():
             raise ValueError(f"{self.name}: non-finite position on session {session.id}")
         R = int(n_runs)

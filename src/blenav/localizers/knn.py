@@ -266,12 +266,23 @@ def out_of_fold(S: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, setting: Knn
     """(errors (N,) m, spread (N,), d1 (N,)): every window of the fitted walks predicted by ``setting`` fitted on the
     other folds' walks (the same seeded deal of the walks as :func:`cross_validate`), against its own label.
     ``extra``: (S_e (M, F, H), xy_e (M, 2)) windows in every fold's reference set besides the other folds' (the
-    crowd's pseudo-labelled windows, :mod:`blenav.localizers.crowd`), never predicted themselves."""
+    crowd's pseudo-labelled windows, :mod:`blenav.localizers.crowd`), never predicted themselves. The windows
+    represented for ``setting``, then :func:`out_of_fold_represented`."""
+    rep = (lambda A: represent(A, setting.metric, is_ble, setting.ble_weight, fill_dbm))
+    ext = None if extra is None or not len(extra[0]) else (rep(extra[0]), extra[1])
+    return out_of_fold_represented(rep(S), xy, walk_of, setting, cov_floor_m, folds, seed, ext)
+
+
+def out_of_fold_represented(X: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, setting: KnnSetting,
+                            cov_floor_m: float, folds: int = 5, seed: int = 0,
+                            extra: tuple[np.ndarray, np.ndarray] | None = None
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`out_of_fold` of windows already represented for ``setting`` (:func:`represent`): X (N, D), ``extra``
+    (X_e (M, D), xy_e (M, 2)) or None."""
     folds, fold = deal_folds(int(walk_of.max()) + 1 if len(walk_of) else 0, folds, seed)
-    X = represent(S, setting.metric, is_ble, setting.ble_weight, fill_dbm)
     Xe, xye = (np.zeros((0, X.shape[1])), np.zeros((0, 2))) if extra is None or not len(extra[0]) else \
-        (represent(extra[0], setting.metric, is_ble, setting.ble_weight, fill_dbm), np.asarray(extra[1], float))
-    err, spread, d1 = np.full(len(S), np.nan), np.zeros(len(S)), np.zeros(len(S))
+        (np.asarray(extra[0], float), np.asarray(extra[1], float))
+    err, spread, d1 = np.full(len(X), np.nan), np.zeros(len(X)), np.zeros(len(X))
     for f in range(folds):
         te = fold[walk_of] == f
         if not te.any() or te.all():
@@ -286,25 +297,41 @@ def out_of_fold(S: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, setting: Knn
 
 class KnnModel:
     """A fitted KNN (:func:`fit`): ``model(Sq)`` -> (xy (K, 2) m, cov (K, 2, 2) m^2) of windows Sq (K, F, H). It keeps
-    what it was fitted on (``S``, ``xy``, ``setting``, ``std_model``, ``walk_of`` (N,) the train walk index of each
-    window when known; ``groups`` (N,) str: the walk each reference window comes from, "" for the surveyed ones), so
-    that ``model(Sq, exclude=g)`` leaves out group g's windows (a crowd-labelled walk is never its own neighbour)."""
+    what it was fitted on: ``X`` (N, D) the reference windows represented for ``setting`` (:func:`represent`; the raw
+    windows are not kept), ``xy``, ``setting``, ``std_model``, ``walk_of`` (N,) the train walk index of each window
+    when known, ``groups`` (N,) str the walk each reference window comes from ("" for the surveyed ones), so that
+    ``model(Sq, exclude=g)`` leaves out group g's windows (a crowd-labelled walk is never its own neighbour)."""
 
-    def __init__(self, S, xy, setting: KnnSetting, is_ble, fill_dbm: float, cov_floor_m: float,
+    def __init__(self, X, xy, setting: KnnSetting, is_ble, fill_dbm: float, cov_floor_m: float,
                  std_model: StdModel | None = None, groups: np.ndarray | None = None,
                  walk_of: np.ndarray | None = None):
-        self.S, self.xy, self.setting, self.is_ble = S, np.asarray(xy, float), setting, np.asarray(is_ble, bool)
+        self.X, self.xy, self.setting, self.is_ble = np.asarray(X, float), np.asarray(xy, float), setting, \
+            np.asarray(is_ble, bool)
         self.fill_dbm, self.cov_floor_m, self.std_model = float(fill_dbm), float(cov_floor_m), std_model
-        self.groups = np.full(len(S), "", object) if groups is None else np.asarray(groups, object)
+        self.groups = np.full(len(self.X), "", object) if groups is None else np.asarray(groups, object)
         self.walk_of = walk_of
-        self.X = represent(S, setting.metric, self.is_ble, setting.ble_weight, self.fill_dbm)
         self.bb = np.einsum("nf,nf->n", self.X, self.X)  # X's squared norms, once for every query
+
+    def represent(self, S: np.ndarray) -> np.ndarray:
+        """(K, D): windows S (K, F, H) on this model's representation (:func:`represent`)."""
+        st = self.setting
+        return represent(S, st.metric, self.is_ble, st.ble_weight, self.fill_dbm)
+
+    def extended(self, Xe: np.ndarray, xye: np.ndarray, groups: np.ndarray, std_model: StdModel | None
+                 ) -> "KnnModel":
+        """A model of the same setting whose reference set also holds Xe (M, D) (already represented) labelled xye
+        (M, 2) m, from walks ``groups`` (M,) str, with ``std_model`` (the train walks' ``walk_of`` kept)."""
+        X = np.concatenate([self.X, np.asarray(Xe, float)])
+        return KnnModel(X, np.concatenate([self.xy, np.asarray(xye, float)]), self.setting, self.is_ble, self.fill_dbm,
+                        self.cov_floor_m, std_model, np.concatenate([self.groups, np.asarray(groups, object)]),
+                        self.walk_of)
 
     def __call__(self, Sq, exclude: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         st = self.setting
-        keep = None if exclude is None else np.flatnonzero(self.groups != exclude)
-        X, bb, xy = (self.X, self.bb, self.xy) if keep is None else (self.X[keep], self.bb[keep], self.xy[keep])
-        Q = represent(Sq, st.metric, self.is_ble, st.ble_weight, self.fill_dbm)
+        drop = None if exclude is None else self.groups == exclude
+        X, bb, xy = (self.X, self.bb, self.xy) if drop is None or not drop.any() else \
+            (self.X[~drop], self.bb[~drop], self.xy[~drop])
+        Q = self.represent(Sq)
         out_xy, out_cov = np.zeros((len(Q), 2)), np.zeros((len(Q), 2, 2))
         for i in range(0, len(Q), 512):  # bounded memory: 512 x N distances at a time
             idx, d2 = _nearest(_sqdist(Q[i:i + 512], X, bb), st.k)
@@ -317,8 +344,10 @@ class KnnModel:
 
 
 def fit(S: np.ndarray, xy: np.ndarray, setting: KnnSetting, is_ble: np.ndarray, fill_dbm: float,
-        cov_floor_m: float, std_model: StdModel | None = None, walk_of: np.ndarray | None = None) -> KnnModel:
-    """predict: S (K, F, H) -> (xy (K, 2), cov (K, 2, 2)) of a KNN on windows S (N, F, H) with labels xy (N, 2); the
-    covariance is the neighbours' (:func:`combine`) or, with ``std_model``, its std^2 I (:class:`KnnModel`, which
-    keeps ``walk_of`` (N,), the walk index of each window, for a refit)."""
-    return KnnModel(S, xy, setting, is_ble, fill_dbm, cov_floor_m, std_model, walk_of=walk_of)
+        cov_floor_m: float, std_model: StdModel | None = None, walk_of: np.ndarray | None = None,
+        groups: np.ndarray | None = None) -> KnnModel:
+    """The :class:`KnnModel` of ``setting`` on windows S (N, F, H) with labels xy (N, 2): predict S (K, F, H) ->
+    (xy (K, 2), cov (K, 2, 2)), the covariance the neighbours' (:func:`combine`) or, with ``std_model``, its std^2 I;
+    ``walk_of`` (N,): the walk index of each window (for a refit); ``groups`` (N,): :class:`KnnModel`'s."""
+    X = represent(S, setting.metric, np.asarray(is_ble, bool), setting.ble_weight, fill_dbm)
+    return KnnModel(X, xy, setting, is_ble, fill_dbm, cov_floor_m, std_model, groups=groups, walk_of=walk_of)
