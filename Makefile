@@ -47,14 +47,17 @@ demo: $(STAMP)
 	@echo "  models; bundle_*.csv: the torch-free track; leaderboard/: results.md, leaderboard_cdf.png, trajectories)"
 	@echo "open in a browser (works offline): $(DEMO)/report/leaderboard/report.html"
 
+# the default suite on TEST_WORKERS processes (pytest-xdist, tests dealt as workers free up): under 10 min
+# on this 2-core machine (README "Quick start"); TEST_WORKERS=0 runs it in one process
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
 
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -q -m ""
+	$(BIN)/python -m pytest -q -m "" -n $(TEST_WORKERS) --dist worksteal
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/sim_speed.py

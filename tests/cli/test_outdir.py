@@ -257,6 +257,35 @@ def test_tables_go_through_the_atomic_writer():
 
 
 # ------------------------------------------------------------------------------------ signals
+_HELD = """
+import signal, sys, time
+from numba.core.compiler_lock import global_compiler_lock
+from blenav.cli.common import Terminated, install_signal_handlers
+install_signal_handlers()
+n = 0
+try:
+    with global_compiler_lock:  # as while numba compiles a kernel in the main thread
+        signal.raise_signal(getattr(signal, sys.argv[1]))
+        for _ in range(200000):  # bytecode on bytecode: a handler that raised would have raised here
+            n += 1
+        print("compiled", flush=True)
+    time.sleep(10)
+    print("not raised", flush=True)
+except (KeyboardInterrupt, Terminated) as exc:
+    print("raised after the compile:", type(exc).__name__, n, flush=True)
+"""
+
+
+@pytest.mark.parametrize("sig, exc", [("SIGINT", "KeyboardInterrupt"), ("SIGTERM", "Terminated")])
+def test_a_signal_during_a_numba_compile_is_raised_when_it_is_over(sig, exc):
+    """A signal that arrives while numba holds its compile lock (LLVM calling back into Python from C, where an
+    exception is swallowed and the process then segfaulted) is not raised inside it, and is raised as soon as the
+    lock is free."""
+    p = subprocess.run([sys.executable, "-c", _HELD, sig], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.split("\n")[:2] == ["compiled", f"raised after the compile: {exc} 200000"], p.stdout
+
+
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["SIGINT", "SIGTERM"])
 def test_an_interrupted_evaluation_says_so_in_one_line_and_leaves_nothing(two_walks, tmp_path, sig, code):
     out = tmp_path / "o"
@@ -308,7 +337,7 @@ def test_sigterm_raises_terminated_and_the_guard_exits_143(capsys):
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(5)  # the handler raises here
 
-    old = signal.getsignal(signal.SIGTERM)
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         with pytest.raises(SystemExit) as info:
             guarded("prog", body, False)
@@ -321,7 +350,8 @@ def test_sigterm_raises_terminated_and_the_guard_exits_143(capsys):
                 done = True
         assert done
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 def test_a_signal_that_became_a_c_functions_error_still_exits_as_the_signal(capsys):

@@ -30,6 +30,7 @@ def eval_cmd(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "blenav", "eval", *args], capture_output=True, text=True, timeout=600)
 
 
+@pytest.mark.slow  # scale-out end to end (17-28 s here): make test-slow
 def test_two_worker_fan_out_over_methods_equals_the_serial_run(tmp_path):
     data = simulate_small(tmp_path / "d", 8, 60, 2)
     common = ["experiment=mapfusion_002", f"data={data}", "runs=2", "progress=false", "plots=false"]

@@ -142,6 +142,7 @@ def test_static_survey_drawn_as_points_and_legend_inside_the_figure(tmp_path):
     assert fig.axes[0].yaxis.label.get_window_extent(fig.canvas.get_renderer()).x0 >= 0  # and the y label
 
 
+@pytest.mark.slow  # scale-out end to end (17-28 s here): make test-slow
 def test_fleet_as_a_hydra_multirun_then_merged(tiny, tmp_path):
     """blenav-eval -m ... data=A,B with the joblib launcher: one output folder per dataset, merged into one
     table by python -m blenav.cli.tables leaderboard (only the fast centroid row kept)."""

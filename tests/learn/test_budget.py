@@ -174,6 +174,7 @@ def test_the_training_dict_lands_in_results_json(two_phones, tmp_path):
     assert (tmp_path / "o" / "runs" / "locnet" / "training.json").is_file()
 
 
+@pytest.mark.slow  # scale-out end to end (17-28 s here): make test-slow
 def test_optuna_sweep_command_finds_and_records_the_best_trial(two_phones, tmp_path):
     """The documented `-m` command, two tiny trials: each trial's config lies beside its checkpoint and
     best_trial.yaml names the best (lowest best_val_err_m) one."""

@@ -31,6 +31,7 @@ def _test_error(run: Path) -> float:
     return float(rows[0]["test/err_m"])
 
 
+@pytest.mark.slow  # scale-out end to end (17-28 s here): make test-slow
 def test_two_process_ddp_on_cpu_with_gloo(two_phones, tmp_path):
     p = _train(f"data={two_phones}", f"out={tmp_path / 'run'}", "trainer.devices=2", "trainer.strategy=ddp", *TINY,
                cwd=tmp_path)

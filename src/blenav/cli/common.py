@@ -10,7 +10,8 @@ line (or ``BLENAV_DEBUG=1``) shows the traceback of known errors too.
 Ctrl-C (SIGINT, ``KeyboardInterrupt``) and SIGTERM (:class:`Terminated`, raised by the handler
 :func:`install_signal_handlers` installs) end as one line ``PROG: interrupted[; what was cleaned up]`` with
 exit code 130 / 143 (128 + the signal's number); the cleanup (``finally`` blocks, ``except BaseException``)
-runs first and may say what it did with ``exc.add_note(...)``.
+runs first and may say what it did with ``exc.add_note(...)``. A signal that arrives while numba compiles a kernel
+is raised when the compile is over (:func:`_on_signal`).
 
 Hydra entry points (:func:`run_hydra`) also check the overrides before Hydra runs
 (:func:`blenav.configs.check_overrides`): an unknown key, with or without ``+``, fails with the nearest
@@ -59,15 +60,40 @@ class Terminated(BaseException):
 INTERRUPT_EXIT = {KeyboardInterrupt: 128 + signal.SIGINT, Terminated: 128 + signal.SIGTERM}
 
 
-def _raise_terminated(signum, frame) -> None:
+def _numba_compile_lock():
+    """numba's global compiler lock (held while a kernel compiles or loads from its cache), or None before numba
+    is imported (nothing to wait for then; importing it here would cost every command half a second)."""
+    mod = sys.modules.get("numba.core.compiler_lock")
+    return None if mod is None else mod.global_compiler_lock
+
+
+def _raise_when_compiled(signum: int) -> None:
+    """In a helper thread: wait until numba's compile in the main thread is over, then send ``signum`` again."""
+    with _numba_compile_lock():
+        pass
+    signal.raise_signal(signum)
+
+
+def _on_signal(signum, frame) -> None:
+    """SIGINT raises ``KeyboardInterrupt``, SIGTERM :class:`Terminated`, except while numba compiles in the main
+    thread: LLVM calls back into Python from C then (its object cache), an exception raised in such a callback is
+    swallowed ("Exception ignored on calling ctypes callback function") and leaves the compile half-done, and the
+    process segfaults instead of cleaning up. The signal is then sent again once the compile lock is free."""
+    lock = _numba_compile_lock()
+    if lock is not None and lock.is_locked():
+        threading.Thread(target=_raise_when_compiled, args=(signum,), daemon=True).start()
+        return
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt()
     raise Terminated(f"signal {signum}")
 
 
 def install_signal_handlers() -> None:
-    """SIGTERM raises :class:`Terminated` (Python's own SIGINT handler raises ``KeyboardInterrupt``); only in the
-    main thread, where Python runs signal handlers."""
+    """SIGINT and SIGTERM raise ``KeyboardInterrupt`` / :class:`Terminated` (:func:`_on_signal`); only in the main
+    thread, where Python runs signal handlers."""
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _raise_terminated)
+        for s in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(s, _on_signal)
 
 
 @contextmanager
