@@ -72,3 +72,29 @@ def test_crossphone_sweep_pools_per_device_means(monkeypatch):
     m = {"per_device": {"a": {"mean": 1.0, "n": 3}, "b": {"mean": 3.0, "n": 1}, "c": {"mean": 9.0, "n": 5}}}
     assert sweep.pooled(m, ["a", "b", "zz"]) == pytest.approx(1.5)  # (3 * 1 + 1 * 3) / 4, unknown devices skipped
     assert math.isnan(sweep.pooled(m, ["zz"]))
+
+
+def test_pooled_map_sees_a_walk_along_another_track_and_scores_against_the_truth(monkeypatch, tmp_path):
+    """benchmarks/pooled_map.py: a walk seen along another track has that track as its ground truth (z and
+    orientation its own, interpolated) and every other stream its own; the map error is the mean horizontal distance
+    of the BLE rows from x_true / y_true."""
+    import numpy as np
+    import pandas as pd
+
+    from blenav.data import Dataset
+    from helpers import make_tiny_dataset
+
+    mod = _load("pooled_map", monkeypatch)
+    s = next(iter(Dataset.open(make_tiny_dataset(tmp_path / "d")).sessions(None, labelled=True)))
+    gt = s.groundtruth
+    t = gt["t"].to_numpy(float)
+    np.savetxt(tmp_path / "t.tum", np.column_stack([t, gt["x"] + 1.0, gt["y"] - 2.0, np.zeros((len(t), 4)),
+                                                    np.ones(len(t))]))
+    v = mod.tracked(s, tmp_path / "t.tum")
+    np.testing.assert_allclose(v.groundtruth[["x", "y"]].to_numpy(), gt[["x", "y"]].to_numpy() + [1.0, -2.0])
+    np.testing.assert_allclose(v.groundtruth["z"].to_numpy(), gt["z"].to_numpy())
+    pd.testing.assert_frame_equal(v.rssi, s.rssi)
+    assert v.id == s.id and v.labelled and v.positions_at(t[:1])[0, 0] == pytest.approx(gt["x"].iloc[0] + 1.0)
+    a = pd.DataFrame({"anchor_id": ["b1", "b2", "ap"], "kind": ["ble", "ble", "wifi_rtt"], "x": [0.0, 3.0, 9.0],
+                      "y": [0.0, 4.0, 9.0], "x_true": [0.0, 0.0, 0.0], "y_true": [0.0, 0.0, 0.0]})
+    assert mod.map_error(a, a) == pytest.approx(2.5)  # (0 + 5) / 2, the AP not counted
