@@ -12,8 +12,8 @@ tracks on the wrong map (no ground truth), the estimator ``blenav map``'s RSSI-d
     .venv/bin/python benchmarks/pooled_map.py map WRONG --eval OUT [--prior-sigma-m 3]
 
 ``perturb``: a copy of DATASET whose BLE anchors are moved by N(0, noise^2) per horizontal axis, **one draw for
-every walk** (:func:`blenav.eval.beacon_map.perturb` with one session index; ``experiment=mapnoise_000`` draws one
-per walk and run instead), anchors.csv's x_true / y_true kept to score it. ``beacon_map.source=given`` makes the
+every walk** (:func:`blenav.eval.beacon_map.perturb` with ``per_walk: false``; ``experiment=mapnoise_000`` draws
+one per walk and run by default), anchors.csv's x_true / y_true kept to score it. ``beacon_map.source=given`` makes the
 front-end run on that wrong map (backend_000's default, ``true``, reads x_true / y_true where a dataset has them). ``map``: the map estimated from every walk
 pooled, from each walk alone (the mean of their errors), and from every walk pooled on its true track;
 printed: the mean horizontal error of the given and the estimated maps over every BLE beacon (a beacon the estimator
@@ -72,9 +72,9 @@ def map_error(beacons: pd.DataFrame, anchors: pd.DataFrame) -> float:
 def cmd_perturb(args) -> None:
     shutil.copytree(args.dataset, args.out)
     ds = Dataset.open(args.out)
-    cfg = BeaconMapConfig(source="true", noise_m=args.noise_m, vertical=False, seed=args.seed)
+    cfg = BeaconMapConfig(source="true", noise_m=args.noise_m, vertical=False, per_walk=False, seed=args.seed)
     for bid in ds.building_ids:
-        b = perturb(ds.building(bid), cfg, 0, 0)  # one draw (session index 0, run 0) for every walk
+        b = perturb(ds.building(bid), cfg, 0, 0)  # run 0's draw, the same for every walk
         path = Path(args.out) / "buildings" / bid / "anchors.csv"
         b.anchors.to_csv(path, index=False)
         print(f"{path}: BLE anchors moved, mean error {map_error(b.anchors, b.anchors):.2f} m")

@@ -38,6 +38,22 @@ def test_perturbation_is_per_run_paired_and_of_the_stated_size(tmp_path):
     np.testing.assert_array_equal(rtt[0], rtt[1])
 
 
+def test_one_draw_per_run_for_every_walk_without_per_walk(tmp_path):
+    """per_walk: false: sessions 0 and 5 of run r get the same map (runs still differ); per_walk: true (the default)
+    gives them different ones, session 0's map unchanged by the option."""
+    s = _building(tmp_path)
+    shared = BM.BeaconMapConfig(noise_m=3.0, vertical=False, seed=4, per_walk=False)
+    own = BM.BeaconMapConfig(noise_m=3.0, vertical=False, seed=4)
+
+    def xy(cfg, si, r):
+        return BM.perturb(s.building, cfg, si, r).anchors_of("ble")[["x", "y"]].to_numpy(float)
+
+    np.testing.assert_array_equal(xy(shared, 0, 1), xy(shared, 5, 1))
+    assert not np.allclose(xy(shared, 0, 1), xy(shared, 0, 2))
+    assert not np.allclose(xy(own, 0, 1), xy(own, 5, 1))
+    np.testing.assert_array_equal(xy(own, 0, 1), xy(shared, 0, 1))
+
+
 def test_map_error_and_source():
     truth = pd.DataFrame({"x": [0.0, 10.0], "y": [0.0, 0.0]}, index=pd.Index(["a", "b"]))
     m = pd.DataFrame({"anchor_id": ["a", "b", "c"], "x": [3.0, 10.0, 99.0], "y": [4.0, 0.0, 0.0]})

@@ -8,10 +8,13 @@
       noise_m: 0.0      # per-axis std (m) of a perturbation drawn anew for every run (000 sec. VI: N(0, 3 I),
                         #   "up to 3 x 3 m away along each axis": 3 m)
       vertical: true    # perturb z as well (000 perturbs in 3-D)
+      per_walk: true    # a draw per walk and run; false: run r gives every walk the same draw (one deployed map)
       seed: 0
 
 With ``noise_m > 0`` every run of every method is a separate call on the session with its own perturbed map;
-run r of session i gets the same map for every method (paired comparison).
+run r of session i gets the same map for every method (paired comparison); with ``per_walk: false`` every session
+of run r gets it (a building's walks then share one wrong map, as a deployment's do: what pooling the walks to
+correct it needs, ``benchmarks/pooled_map.py``).
 
 Metrics: for a method whose estimate has ``outputs['beacon_map']``, ``beacon_error_m = {prior, optimized}``: the
 mean horizontal distance over beacons and runs between the true positions (``x_true, y_true`` when the dataset
@@ -41,6 +44,7 @@ class BeaconMapConfig:
     source: str = "given"  # given | true
     noise_m: float = 0.0  # m, per axis, per run
     vertical: bool = True
+    per_walk: bool = True  # a draw per (session, run); false: per run, shared by every session
     seed: int = 0
 
     def __post_init__(self):
@@ -155,8 +159,8 @@ def by_heard(rows: pd.DataFrame | list[pd.DataFrame]) -> list[dict]:
 
 def perturb(building, cfg: BeaconMapConfig, session_index: int, run: int):
     """``building`` with every BLE anchor moved by N(0, noise_m^2) per axis (z too when ``vertical``), seeded by
-    (seed, session, run); the stated ``std_m`` is kept."""
-    rng = np.random.default_rng([int(cfg.seed), int(session_index), int(run)])
+    (seed, session, run), or by (seed, run) without ``per_walk``; the stated ``std_m`` is kept."""
+    rng = np.random.default_rng([int(cfg.seed), int(session_index) if cfg.per_walk else 0, int(run)])
     a = building.anchors.copy()
     ble = (a["kind"] == "ble").to_numpy() if "kind" in a else np.ones(len(a), bool)
     cols = ["x", "y", "z"] if cfg.vertical else ["x", "y"]
