@@ -35,8 +35,8 @@ from blenav.filters.estimate import Estimate
 from .inputs import Fixes, RoleFixes, RunInputs
 
 __all__ = ["Estimate", "RunInputs", "Fixes", "RoleFixes", "Localizer", "PathLossCalibrated",
-           "FixConsumer", "ModelConsumer", "InertialModelConsumer", "Trained", "Transductive", "build_localizer", "attach_inertial",
-           "NO_IO_MODEL"]
+           "FixConsumer", "ModelConsumer", "InertialModelConsumer", "Trained", "Transductive", "build_localizer",
+           "attach_inertial", "NO_IO_MODEL"]
 
 class Localizer:
     """Base of every localization method: a name, and ``run``.

@@ -320,11 +320,11 @@ class KnnModel:
     def extended(self, Xe: np.ndarray, xye: np.ndarray, groups: np.ndarray, std_model: StdModel | None
                  ) -> "KnnModel":
         """A model of the same setting whose reference set also holds Xe (M, D) (already represented) labelled xye
-        (M, 2) m, from walks ``groups`` (M,) str, with ``std_model`` (the train walks' ``walk_of`` kept)."""
+        (M, 2) m, from walks ``groups`` (M,) str, with ``std_model``; no ``walk_of`` (its rows are not all train
+        windows: a refit reads the model it extends)."""
         X = np.concatenate([self.X, np.asarray(Xe, float)])
         return KnnModel(X, np.concatenate([self.xy, np.asarray(xye, float)]), self.setting, self.is_ble, self.fill_dbm,
-                        self.cov_floor_m, std_model, np.concatenate([self.groups, np.asarray(groups, object)]),
-                        self.walk_of)
+                        self.cov_floor_m, std_model, np.concatenate([self.groups, np.asarray(groups, object)]))
 
     def __call__(self, Sq, exclude: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         st = self.setting
