@@ -357,8 +357,11 @@ leaderboard: $(STAMP)
 # Issue 32: the back-end on buildings and channels it was not tuned to. Three simulated buildings, each with a BLE
 # channel other than the presets' (stronger walls and body shadowing, other exponents and shadowing), 2 walks of
 # 240 s; an office annex walked 7 x 240 s by six phones of brands the other sets do not use, on another channel
-# (like the check from outside of issue 32); and the 384 s office of backend-tables; on each backend_000 (true map) and mapnoise_000 (every beacon moved
-# by N(0, 3^2) m), BR_RUNS runs, the IMU filter, F-end and B-end; docs/results/backend_robust.md.
+# (like the check from outside of issue 32); the campus floor's channel walked 7 x 240 s (6 labelled); and the 384 s
+# office of backend-tables; on each backend_000 (true map) and mapnoise_pooled (mapnoise_000, every beacon moved by
+# N(0, 3^2) m, with one draw per run for every walk), BR_RUNS runs, the IMU filter, F-end and B-end, and on the wrong
+# map F-end+pool / B-end+pool (BR_POOL: the map pooled from every walk, blenav.backend.pooled);
+# docs/results/backend_robust.md (35 min).
 BR_RUNS ?= 5
 BR_ARGS ?=
 BR_DATA ?= data/sim/backend_robust
@@ -366,7 +369,9 @@ BR_OUT  ?= data/results/backend_robust
 BR_DOC  ?= docs/results/backend_robust.md
 BR_TITLE ?= The back-end on buildings and channels it was not tuned to (make backend-robust, $(BR_RUNS) runs)
 BR_CMD  ?= make backend-robust
-BR_EVAL  = $(BIN)/blenav eval overwrite=true runs=$(BR_RUNS) only=IMU,F-end,B-end progress=false plots=false report=false
+BR_POOL ?= ,F-end+pool,B-end+pool
+BR_NOISE ?= mapnoise_pooled
+BR_EVAL  = $(BIN)/blenav eval overwrite=true runs=$(BR_RUNS) progress=false plots=false report=false
 backend-robust: $(STAMP)
 	test -e $(BR_DATA)/office_ch/dataset.yaml || $(BIN)/blenav sim sim=office_45x55 seed=5 out=$(BR_DATA)/office_ch \
 	    duration_s=240 sessions=2 progress=false 'sim.carriers=[pedestrian]' sim.ble.wall_db=7 sim.ble.body_db=10 \
@@ -381,17 +386,22 @@ backend-robust: $(STAMP)
 	    out=$(BR_DATA)/annex duration_s=240 sessions=7 progress=false 'sim.carriers=[pedestrian]' \
 	    'sim.receivers=[mi-9,mi-9t-pro,mate-20-pro,honor-20-pro,honor-view-20,pixel-3axl]' sim.ble.wall_db=6 \
 	    sim.ble.body_db=9 sim.ble.path_loss_exponent=2.4 sim.ble.shadow_std_db=4.5
+	test -e $(BR_DATA)/campus_walks/dataset.yaml || $(BIN)/blenav sim sim=campus_floor seed=6 \
+	    out=$(BR_DATA)/campus_walks duration_s=240 sessions=7 progress=false 'sim.carriers=[pedestrian]' \
+	    sim.ble.wall_db=6 sim.ble.body_db=8 sim.ble.path_loss_exponent=2.4
 	test -e $(BACKEND_DATA)/dataset.yaml || $(BIN)/blenav sim sim=office_45x55 seed=0 out=$(BACKEND_DATA) \
 	    duration_s=384 sessions=1 progress=false
-	set -e; for d in office_ch campus_ch proc_ch annex office; do \
+	set -e; for d in office_ch campus_ch proc_ch annex campus_walks office; do \
 	    src=$(BR_DATA)/$$d; [ $$d = office ] && src=$(BACKEND_DATA); \
-	    $(BR_EVAL) experiment=backend_000 data=$$src out=$(BR_OUT)/$$d $(BR_ARGS); \
-	    $(BR_EVAL) experiment=mapnoise_000 data=$$src out=$(BR_OUT)/$${d}_noise $(BR_ARGS); done
+	    $(BR_EVAL) experiment=backend_000 data=$$src out=$(BR_OUT)/$$d only=IMU,F-end,B-end $(BR_ARGS); \
+	    $(BR_EVAL) experiment=$(BR_NOISE) data=$$src out=$(BR_OUT)/$${d}_noise only=IMU,F-end,B-end$(BR_POOL) \
+	        $(BR_ARGS); done
 	$(BIN)/blenav tables backend --made-by "$(BR_CMD)" $(BR_DOC) "$(BR_TITLE)" \
 	    "office 45x55, walls 7 dB, body 10 dB, exponent 2.6, shadowing 5 dB=$(BR_OUT)/office_ch,$(BR_OUT)/office_ch_noise" \
 	    "campus floor, walls 6 dB, body 8 dB, exponent 2.4=$(BR_OUT)/campus_ch,$(BR_OUT)/campus_ch_noise" \
 	    "procedural building, walls 5 dB, shadowing 6 dB, exponent 2.0=$(BR_OUT)/proc_ch,$(BR_OUT)/proc_ch_noise" \
 	    "office annex, 7 walks by six phones of other brands, walls 6 dB, body 9 dB, exponent 2.4, shadowing 4.5 dB=$(BR_OUT)/annex,$(BR_OUT)/annex_noise" \
+	    "campus floor, 7 walks (6 labelled), walls 6 dB, body 8 dB, exponent 2.4=$(BR_OUT)/campus_walks,$(BR_OUT)/campus_walks_noise" \
 	    "office 45x55 of backend-tables (preset channel)=$(BR_OUT)/office,$(BR_OUT)/office_noise"
 
 # Issue 31 in the back-end: the same runs with a learned inertial odometry's between-factors (io_model=), the model
@@ -403,7 +413,8 @@ backend-robust-lio: $(STAMP)
 	      progress=false 'sim.carriers=[pedestrian]' && \
 	  $(BIN)/python train.py experiment=inertial data=data/sim/backend_io_walks out=data/runs/backend_io && \
 	  $(BIN)/python export.py ckpt=data/runs/backend_io/last.ckpt out=$(BR_IO); }
-	$(MAKE) -o $(STAMP) backend-robust BR_ARGS=io_model=$(BR_IO) BR_OUT=data/results/backend_robust_lio \
+	$(MAKE) -o $(STAMP) backend-robust BR_ARGS=io_model=$(BR_IO) BR_POOL= BR_NOISE=mapnoise_000 \
+	    BR_OUT=data/results/backend_robust_lio \
 	    BR_DOC=docs/results/backend_robust_lio.md "BR_CMD=make backend-robust-lio" \
 	    "BR_TITLE=The back-end with a learned inertial odometry's between-factors (make backend-robust-lio, $(BR_RUNS) runs)"
 
@@ -411,7 +422,8 @@ backend-robust-lio: $(STAMP)
 # B-end; off by default), docs/results/backend_robust_vars.md (~11 min)
 BR_VARS = $(foreach m,B-end F-end,$(foreach k,estimate_offset estimate_exponent,+methods.$(m).backend.range.$(k)=true))
 backend-robust-vars: $(STAMP)
-	$(MAKE) -o $(STAMP) backend-robust "BR_ARGS=$(BR_VARS)" BR_OUT=data/results/backend_robust_vars \
+	$(MAKE) -o $(STAMP) backend-robust "BR_ARGS=$(BR_VARS)" BR_POOL= BR_NOISE=mapnoise_000 \
+	    BR_OUT=data/results/backend_robust_vars \
 	    BR_DOC=docs/results/backend_robust_vars.md "BR_CMD=make backend-robust-vars" \
 	    "BR_TITLE=The back-end with the receiver offset and the path-loss exponent as graph variables (make backend-robust-vars, $(BR_RUNS) runs)"
 

@@ -11,13 +11,20 @@ tracks on the wrong map (no ground truth), the estimator ``blenav map``'s RSSI-d
     .venv/bin/blenav-eval experiment=backend_000 data=WRONG runs=1 "only=[F-end]" beacon_map.source=given out=OUT
     .venv/bin/python benchmarks/pooled_map.py map WRONG --eval OUT [--prior-sigma-m 3]
 
+and a fourth, to see what the pooled map is worth for localization: ``write WRONG POOLED --eval OUT`` (or
+``--truth``: pooled on the walks' true tracks, an oracle) writes a copy of WRONG whose BLE anchors are the pooled
+estimate (x_true / y_true kept), on which ``blenav-eval experiment=backend_000 data=POOLED beacon_map.source=given``
+runs F-end and B-end as on WRONG.
+
 ``perturb``: a copy of DATASET whose BLE anchors are moved by N(0, noise^2) per horizontal axis, **one draw for
-every walk** (:func:`blenav.eval.beacon_map.perturb` with ``per_walk: false``; ``experiment=mapnoise_000`` draws
-one per walk and run by default), anchors.csv's x_true / y_true kept to score it. ``beacon_map.source=given`` makes the
-front-end run on that wrong map (backend_000's default, ``true``, reads x_true / y_true where a dataset has them). ``map``: the map estimated from every walk
-pooled, from each walk alone (the mean of their errors), and from every walk pooled on its true track;
-printed: the mean horizontal error of the given and the estimated maps over every BLE beacon (a beacon the estimator
-does not place stays where the given map put it) and how much closer the estimate is.
+every walk** (:func:`blenav.eval.beacon_map.perturb` with ``per_walk: false``: run 0's draw of
+``experiment=mapnoise_pooled``), anchors.csv's x_true / y_true kept to score it. ``beacon_map.source=given`` makes the
+front-end run on that wrong map (backend_000's default, ``true``, reads x_true / y_true where a dataset has
+them). ``map``: the map estimated from every walk pooled, from each walk alone (the mean of their errors), and from
+every walk pooled on its true track; printed: the mean horizontal error of the given and the estimated maps over
+every BLE beacon (a beacon the estimator does not place stays where the given map put it) and how much closer the
+estimate is. The evaluation's own version of the pooled step, followed by the closed loop on the pooled map: rows
+``F-end+pool`` / ``B-end+pool`` of ``experiment=mapnoise_pooled`` (:mod:`blenav.backend.pooled`).
 """
 
 from __future__ import annotations
@@ -80,13 +87,19 @@ def cmd_perturb(args) -> None:
         print(f"{path}: BLE anchors moved, mean error {map_error(b.anchors, b.anchors):.2f} m")
 
 
-def cmd_map(args) -> None:
+def _buildings(args):
+    """(the estimator's settings with ``--prior-sigma-m`` around the given map, [(building id, anchors.csv rows, its
+    labelled walks)] of ``args.dataset``)."""
     ds = Dataset.open(args.dataset)
     cfg = load_backend_config(overrides=["mapping.use_map_prior=true",
                                          f"mapping.prior_sigma_m={args.prior_sigma_m}"]).mapping
-    for bid in ds.building_ids:
-        anchors = ds.building(bid).anchors
-        sessions = [s for s in ds.sessions(None, labelled=True) if s.building.id == bid]
+    return cfg, [(bid, ds.building(bid).anchors, [s for s in ds.sessions(None, labelled=True) if s.building.id == bid])
+                 for bid in ds.building_ids]
+
+
+def cmd_map(args) -> None:
+    cfg, buildings = _buildings(args)
+    for bid, anchors, sessions in buildings:
         if not sessions:
             print(f"building {bid}: no labelled walk, skipped")
             continue
@@ -103,6 +116,27 @@ def cmd_map(args) -> None:
             print(f"  {name:42s} {err:5.2f} m  closer by {100.0 * (1.0 - err / given):5.1f} %")
 
 
+def cmd_write(args) -> None:
+    if (args.eval is None) == (not args.truth):
+        raise SystemExit("write: give --eval OUT (the row's tracks) or --truth (the true tracks), one of them")
+    shutil.copytree(args.dataset, args.out)
+    cfg, buildings = _buildings(args)
+    for bid, anchors, sessions in buildings:
+        if not sessions:
+            continue
+        walks = sessions if args.truth else [tracked(s, args.eval / s.id / "trajectories" / f"{args.row}.tum")
+                                             for s in sessions]
+        est = map_beacons(walks, anchors, cfg).beacons.set_index("anchor_id")
+        a = anchors.copy()
+        hit = a["anchor_id"].astype(str).isin(est.index[est["placed"]]).to_numpy()
+        a.loc[hit, ["x", "y"]] = est.loc[a.loc[hit, "anchor_id"].astype(str), ["x", "y"]].to_numpy(float)
+        path = Path(args.out) / "buildings" / bid / "anchors.csv"
+        a.to_csv(path, index=False)
+        src = "true tracks" if args.truth else f"{args.row} of {args.eval}"
+        print(f"{path}: {int(hit.sum())} BLE anchors from {len(walks)} walks ({src}), map "
+              f"{map_error(anchors, anchors):.2f} -> {map_error(a, a):.2f} m off")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -116,8 +150,15 @@ def main() -> None:
     m.add_argument("--eval", type=Path, required=True, help="an evaluation of the dataset (its trajectories/)")
     m.add_argument("--row", default="F-end", help="the row whose trajectories place the readings")
     m.add_argument("--prior-sigma-m", type=float, default=3.0)
+    w = sub.add_parser("write", help="a copy of the dataset whose beacon map is the pooled estimate")
+    w.add_argument("dataset", type=Path)
+    w.add_argument("out", type=Path)
+    w.add_argument("--eval", type=Path, help="an evaluation of the dataset (its trajectories/)")
+    w.add_argument("--truth", action="store_true", help="pool on the walks' true tracks (an oracle)")
+    w.add_argument("--row", default="F-end", help="the row whose trajectories place the readings")
+    w.add_argument("--prior-sigma-m", type=float, default=3.0)
     args = ap.parse_args()
-    cmd_perturb(args) if args.cmd == "perturb" else cmd_map(args)
+    {"perturb": cmd_perturb, "map": cmd_map, "write": cmd_write}[args.cmd](args)
 
 
 if __name__ == "__main__":

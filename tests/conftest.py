@@ -35,6 +35,13 @@ def three_walks(tmp_path_factory):
     return simulate_small(tmp_path_factory.mktemp("three_walks") / "d", 3, 60, 3)
 
 
+@pytest.fixture(scope="session")
+def map_walks(tmp_path_factory):
+    """A simulated 'small' building, 2 pedestrian walks of 240 s, seed 11 (read-only): beacon mapping's data
+    (tests/backend/test_mapping.py, tests/backend/test_pooled.py)."""
+    return simulate_small(tmp_path_factory.mktemp("map_walks") / "sim", 11, 240.0, 2)
+
+
 @pytest.fixture
 def raw_dir():
     """../shared/data/raw, or skip with the reason when it is absent."""

@@ -43,7 +43,7 @@ TARGETS: frozenset[str] = frozenset({
     "blenav.localizers.fingerprint.FingerprintLocalizer", "blenav.localizers.crowd.CrowdFingerprint",
     "blenav.localizers.ranging.GridL1Localizer", "blenav.localizers.ranging.GridL2Localizer",
     "blenav.localizers.ranging.SrlsLocalizer",
-    "blenav.backend.localizer.BackendLocalizer",
+    "blenav.backend.localizer.BackendLocalizer", "blenav.backend.pooled.PooledMapBackend",
     "blenav.localizers.realwalk.RealWalkPF",
     "blenav.localizers.fusedwalk.FusedWalk",
     # evaluators (conf/experiment: experiment.evaluator; blenav.eval.evaluators)

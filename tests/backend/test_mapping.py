@@ -99,11 +99,9 @@ def test_count_walls_counts_entries_into_obstacles(tmp_path):
     assert count_walls(floor, np.array([2.5, 4.0]), np.array([[7.5, 4.0]]))[0] == 0  # through the door
 
 
-@pytest.fixture(scope="module")
-def walks(tmp_path_factory):
-    from helpers import simulate_small
-
-    return simulate_small(tmp_path_factory.mktemp("map") / "sim", 11, 240.0, 2)
+@pytest.fixture
+def walks(map_walks):
+    return map_walks
 
 
 def test_mapping_recovers_simulated_beacons_within_their_stated_std(walks):

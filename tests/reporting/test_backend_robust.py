@@ -21,7 +21,7 @@ def test_table_ratios_changes_and_beacons_by_how_often_heard(tmp_path):
           {"from": 200, "to": None, "beacons": 6, "given_m": 4.0, "optimized_m": 2.0}]
     _results(tmp_path / "n", {"IMU": 4.4, "F-end": 4.0, "B-end": 3.6},
              {"prior": 3.6, "optimized": 2.4, "by_heard": bh})
-    rows = backend_rows([f"office=" + f"{tmp_path / 't'},{tmp_path / 'n'}"])
+    rows = backend_rows(["office=" + f"{tmp_path / 't'},{tmp_path / 'n'}"])
     assert rows[0]["ratio"] == pytest.approx(3.0 / 3.5)
     md = markdown("T", rows)
     assert "| office | 4.00 | 3.50 | 3.00 | 0.86 ok | 4.00 | 3.60 (+20 %) | 3.60 -> 2.40 (33 %) |" in md
@@ -38,3 +38,20 @@ def test_the_command_line_says_which_command_made_the_page(tmp_path, made_by):
     flag = ["--made-by", made_by] if made_by else []
     assert _main(["backend", *flag, str(out), "Title", f"office={tmp_path / 't'}"]) == 0
     assert f"made by `{made_by or 'make backend-robust'}`" in out.read_text()
+
+
+def test_pooled_rows_add_their_columns(tmp_path):
+    """A perturbed run with B-end+pool (blenav.backend.pooled) adds its B-end against the true map and its beacons;
+    a building without it shows dashes there."""
+    _results(tmp_path / "t", {"IMU": 4.0, "F-end": 3.5, "B-end": 3.0})
+    _results(tmp_path / "n", {"IMU": 4.4, "F-end": 4.0, "B-end": 3.6, "B-end+pool": 3.3},
+             {"prior": 3.6, "optimized": 3.5})
+    methods = json.loads((tmp_path / "n" / "results.json").read_text())
+    methods["methods"]["B-end+pool"]["beacon_error_m"] = {"prior": 3.6, "optimized": 2.7}
+    (tmp_path / "n" / "results.json").write_text(json.dumps(methods))
+    rows = backend_rows([f"annex={tmp_path / 't'},{tmp_path / 'n'}", f"office={tmp_path / 't'}"])
+    md = markdown("T", rows)
+    assert ("| annex | 4.00 | 3.50 | 3.00 | 0.86 ok | 4.00 | 3.60 (+20 %) | 3.60 -> 3.50 (3 %) | 3.30 (+10 %) | "
+            "3.60 -> 2.70 (25 %) |") in md
+    assert "| office | 4.00 | 3.50 | 3.00 | 0.86 ok | - | - (-) | - -> - (-) | - (-) | - -> - (-) |" in md
+    assert md.count("|---") == 10

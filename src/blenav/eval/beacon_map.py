@@ -191,7 +191,8 @@ def given_map(building) -> pd.DataFrame:
 def run_per_run_maps(method, session, si: int, runs: int, seed: int, inputs_for, cfg: BeaconMapConfig) -> Estimate:
     """``method`` on ``session`` once per run, each run with its own perturbed map; the estimates stacked
     (``outputs['beacon_error']`` holds the per-run prior / optimized errors). ``inputs_for(session)``: the run's
-    :class:`~blenav.localizers.inputs.RunInputs` for the session with that run's map (its fixes resolved on it)."""
+    :class:`~blenav.localizers.inputs.RunInputs` for the session with that run's map (its fixes resolved on it); the
+    method gets them with ``run`` = r."""
     truth = true_xy(session.building.anchors)
     heard = heard_counts(session)
     ests, prior_err, opt_err, rows = [], [], [], []
@@ -199,7 +200,7 @@ def run_per_run_maps(method, session, si: int, runs: int, seed: int, inputs_for,
     for r in range(runs):
         b = perturb(session.building, cfg, si, r)
         s = session.with_building(b)
-        est = method.run(s, 1, int(seeds[r]), inputs_for(s))
+        est = method.run(s, 1, int(seeds[r]), inputs_for(s).for_run(r))
         prior_err.append(map_error(given_map(b), truth))
         opt_err.append(map_error(est.outputs.get("beacon_map"), truth))
         if est.outputs.get("beacon_map") is not None:
@@ -250,4 +251,5 @@ def optimized_anchors(building, bmap: pd.DataFrame) -> pd.DataFrame:
 
 
 __all__ = ["BeaconMapConfig", "with_source", "perturb", "map_error", "run_per_run_maps", "stack_runs", "mean_map",
-           "optimized_anchors", "true_xy", "given_map", "HEARD_BINS", "heard_bins", "checked_by_heard", "heard_counts", "beacon_rows", "by_heard"]
+           "optimized_anchors", "true_xy", "given_map", "HEARD_BINS", "heard_bins", "checked_by_heard", "heard_counts",
+           "beacon_rows", "by_heard"]

@@ -35,8 +35,8 @@ from blenav.filters.estimate import Estimate
 from .inputs import Fixes, RoleFixes, RunInputs
 
 __all__ = ["Estimate", "RunInputs", "Fixes", "RoleFixes", "Localizer", "PathLossCalibrated",
-           "FixConsumer", "ModelConsumer", "InertialModelConsumer", "Trained", "Transductive", "build_localizer",
-           "attach_inertial", "NO_IO_MODEL"]
+           "FixConsumer", "ModelConsumer", "InertialModelConsumer", "Trained", "Transductive", "batch_settings",
+           "build_localizer", "attach_inertial", "NO_IO_MODEL"]
 
 class Localizer:
     """Base of every localization method: a name, and ``run``.
@@ -141,6 +141,21 @@ class Transductive:
         """Take the labels row's ``estimates`` (session id -> :class:`Estimate`) of the scored ``sessions``; returns
         a report (or None)."""
         raise NotImplementedError
+
+
+def batch_settings(name: str, key: str, node: Any, allowed: set[str], example: str) -> tuple[dict, str]:
+    """A :class:`Transductive` method's settings node ``key`` checked: its keys among ``allowed`` and ``labels``,
+    ``labels`` given (the row it reads, ``example`` in the message). Returns (the node as a dict, labels)."""
+    node = dict(node or {})
+    takes = set(allowed) | {"labels"}
+    unknown = set(node) - takes
+    if unknown:
+        raise ValueError(f"method {name!r}: {key} has keys {sorted(unknown)}; it takes {', '.join(sorted(takes))}")
+    labels = str(node.get("labels") or "")
+    if not labels:
+        raise ValueError(f"method {name!r}: {key}.labels must name the row whose estimates of the scored walks it "
+                         f"reads, run before it (e.g. {example})")
+    return node, labels
 
 
 class Trained:

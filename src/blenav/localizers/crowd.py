@@ -33,7 +33,7 @@ from blenav.errors import MissingStream
 from blenav.features import fingerprints as FP
 
 from . import knn as KNN
-from .base import Transductive
+from .base import Transductive, batch_settings
 from .fingerprint import CV_GRID, MIN_STD_FIT, FingerprintLocalizer, _FloorModel
 
 log = logging.getLogger("blenav.localizers.crowd")
@@ -58,20 +58,12 @@ class CrowdFingerprint(FingerprintLocalizer, Transductive):
 
     def __init__(self, name: str, shared=None, crowd: dict | None = None, **settings):
         super().__init__(name, shared, **settings)
-        crowd = dict(crowd or {})
-        unknown = set(crowd) - {"labels", "std_scale", "max_label_std_m"}
-        if unknown:
-            raise ValueError(f"method {name!r}: crowd has keys {sorted(unknown)}; it takes labels (a row's label) and "
-                             f"std_scale")
+        crowd, labels = batch_settings(name, "crowd", crowd, {"std_scale", "max_label_std_m"}, "fused-offline")
         self.std_scale = float(crowd.get("std_scale", 1.0))
         mx = crowd.get("max_label_std_m")
         self.max_label_std_m = None if mx is None else float(mx)
         if not self.std_scale > 0:
             raise ValueError(f"method {name!r}: crowd.std_scale must be > 0, got {self.std_scale}")
-        labels = str(crowd.get("labels") or "")
-        if not labels:
-            raise ValueError(f"method {name!r}: crowd.labels must name the row whose estimates label the scored walks "
-                             f"(e.g. fused-offline)")
         if self.model != "knn" or (self.cv is None and self.fix_std != "calibrated"):
             raise ValueError(f"method {name!r}: the crowd extends the cross-validated KNN (model: knn with cv: {{}} or "
                              f"fix_std: calibrated), got model {self.model}, cv {self.cv}, fix_std {self.fix_std}")

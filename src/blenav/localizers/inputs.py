@@ -71,12 +71,19 @@ class RunInputs:
     ``cache``: a dict shared by all methods on the same sessions (per-floor map geometry, per-session AHRS; keys
     are the methods' own); ``fixes``: this session's fixes per role (None: the run has no ``fixes`` block);
     ``out``: the evaluation's output folder (None outside an evaluation: a method that writes, e.g. a training
-    run, uses a temporary folder)."""
+    run, uses a temporary folder); ``run``: which run this call makes when the evaluation calls a method once per
+    run (each run on its own perturbed beacon map: :func:`blenav.eval.beacon_map.run_per_run_maps`), None when one
+    call makes every run."""
 
     cache: dict = field(default_factory=dict)
     fixes: Fixes | None = None
     out: Path | None = None
+    run: int | None = None
 
     def with_fixes(self, fixes: Fixes | None) -> "RunInputs":
         """The same inputs (the same cache) with ``fixes`` for another session."""
-        return RunInputs(self.cache, fixes, self.out)
+        return RunInputs(self.cache, fixes, self.out, self.run)
+
+    def for_run(self, run: int | None) -> "RunInputs":
+        """The same inputs for the call that makes run ``run`` alone."""
+        return RunInputs(self.cache, self.fixes, self.out, run)

@@ -6,8 +6,9 @@ and with every beacon moved by N(0, 3^2) m (``experiment=mapnoise_000``), from t
 
 Columns: RMSE mean over runs (m); B-end / best filter: B-end over the better of IMU and F-end (the issue's aim: at
 most 0.95); with the perturbed map: B-end and its change against the true map (aim: within 20 %), the beacons'
-error given -> optimized and how much closer (aim: 25 %). A second table: the same beacon errors by how often a
-beacon was heard (rssi.csv rows per session, ``beacon_error_m.by_heard``), where the runs have it.
+error given -> optimized and how much closer (aim: 25 %); where the perturbed run has the pooled rows
+(``B-end+pool``, :mod:`blenav.backend.pooled`), their B-end and beacons too. A second table: the same beacon errors
+by how often a beacon was heard (rssi.csv rows per session, ``beacon_error_m.by_heard``), where the runs have it.
 """
 
 from __future__ import annotations
@@ -46,6 +47,11 @@ def backend_rows(specs: list[str]) -> list[dict]:
             be = (n["methods"].get("B-end") or {}).get("beacon_error_m") or {}
             row["beacons"] = (be.get("prior"), be.get("optimized"))
             row["by_heard"] = be.get("by_heard") or []
+            pool = n["methods"].get("B-end+pool")
+            if pool:
+                row["pool_B-end"] = _rmse(n, "B-end+pool")
+                pb = pool.get("beacon_error_m") or {}
+                row["pool_beacons"] = (pb.get("prior"), pb.get("optimized"))
         rows.append(row)
     return rows
 
@@ -54,20 +60,34 @@ def _f(v, fmt="{:.2f}") -> str:
     return "-" if v is None else fmt.format(v)
 
 
+def _vs_true(r: dict, key: str) -> str:
+    """``key``'s RMSE and its change against the true map's B-end."""
+    v = r.get(key)
+    ch = 100.0 * (v / r["B-end"] - 1.0) if v is not None and r["B-end"] else None
+    return f"{_f(v)} ({_f(ch, '{:+.0f} %')})"
+
+
+def _closer(b) -> str:
+    b = b or (None, None)
+    closer = 100.0 * (1.0 - b[1] / b[0]) if b[0] and b[1] is not None else None
+    return f"{_f(b[0])} -> {_f(b[1])} ({_f(closer, '{:.0f} %')})"
+
+
 def markdown(title: str, rows: list[dict], command: str = "") -> str:
+    pooled = any("pool_B-end" in r for r in rows)
+    head = ("| building, channel | IMU | F-end | B-end | B-end / best filter | 3 m map: F-end "
+            "| 3 m map: B-end (vs true map) | beacons given -> optimized (closer) |")
+    if pooled:
+        head += " 3 m map, pooled walks: B-end+pool (vs true map) | beacons given -> pooled, optimized (closer) |"
     lines = [f"# {title}", "", f"RMSE mean over runs (m); made by `{command or 'blenav tables backend'}`.", "",
-             "| building, channel | IMU | F-end | B-end | B-end / best filter | 3 m map: F-end | 3 m map: B-end (vs true map) "
-             "| beacons given -> optimized (closer) |", "|---|---|---|---|---|---|---|---|"]
+             head, "|---" * head.count(" | ") + "|---|"]
     for r in rows:
         ratio = _f(r["ratio"]) + (" ok" if r["ratio"] is not None and r["ratio"] <= 0.95 else "")
-        nb, ch = r.get("noise_B-end"), None
-        if nb is not None and r["B-end"]:
-            ch = 100.0 * (nb / r["B-end"] - 1.0)
-        b = r.get("beacons") or (None, None)
-        closer = 100.0 * (1.0 - b[1] / b[0]) if b[0] and b[1] is not None else None
-        lines.append(f"| {r['label']} | {_f(r['IMU'])} | {_f(r['F-end'])} | {_f(r['B-end'])} | {ratio} | "
-                     f"{_f(r.get('noise_F-end'))} | {_f(nb)} ({_f(ch, '{:+.0f} %')}) | "
-                     f"{_f(b[0])} -> {_f(b[1])} ({_f(closer, '{:.0f} %')}) |")
+        line = (f"| {r['label']} | {_f(r['IMU'])} | {_f(r['F-end'])} | {_f(r['B-end'])} | {ratio} | "
+                f"{_f(r.get('noise_F-end'))} | {_vs_true(r, 'noise_B-end')} | {_closer(r.get('beacons'))} |")
+        if pooled:
+            line += f" {_vs_true(r, 'pool_B-end')} | {_closer(r.get('pool_beacons'))} |"
+        lines.append(line)
     heard = [r for r in rows if r.get("by_heard")]
     if heard:
         cells = [checked_by_heard(r["by_heard"]) for r in heard]
