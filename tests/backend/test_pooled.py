@@ -121,3 +121,38 @@ def test_each_run_alone_is_told_which_run_it_is(tiny_dataset):
                            BeaconMapConfig(noise_m=1.0))
     np.testing.assert_array_equal(est.position[:, 0, 0], [0.0, 1.0, 2.0])
     assert base.for_run(2).with_fixes(None).run == 2 and base.run is None
+
+
+def test_a_walk_the_back_end_cannot_run_on_is_skipped_before_any_pooling(tiny_dataset):
+    """A building whose BLE anchors have no position (an imported survey before blenav map): MissingStream with the
+    back-end's reason, as BackendLocalizer says it, not an estimator error."""
+    from dataclasses import replace
+
+    from blenav.errors import MissingStream
+
+    s = Dataset.open(tiny_dataset).session(Dataset.open(tiny_dataset).session_ids[0])
+    a = s.building.anchors.copy()
+    a.loc[a["kind"] == "ble", ["x", "y"]] = np.nan
+    unplaced = s.with_building(replace(s.building, anchors=a))
+    loc = PooledMapBackend("x", front_end=FRONT, pool={"labels": "F-end"})
+    loc.prepare_batch([unplaced], {unplaced.id: _truth_estimate(s)})
+    with pytest.raises(MissingStream, match="without a position"):
+        loc.run(unplaced, 1, 0)
+
+
+def test_a_labels_row_skipped_on_every_walk_leaves_the_given_map(tiny_dataset):
+    """F-end ran but was skipped everywhere: the pool is prepared with no walk and keeps the given map (its note says
+    so); a labels row that did not run at all is an EvalError naming the order."""
+    from blenav.errors import EvalError
+    from blenav.eval.batch import prepare_transductive
+
+    b = Dataset.open(tiny_dataset).session(Dataset.open(tiny_dataset).session_ids[0]).building
+    loc = PooledMapBackend("B-end+pool", front_end=FRONT, pool={"labels": "F-end"})
+    prepared: dict = {}
+    prepare_transductive("B-end+pool", loc, None, {}, [], None, prepared, {"F-end"})
+    assert prepared[id(loc)]["buildings"] == {}
+    anchors, note = loc.pooled_map(b, None, {})
+    assert anchors is b.anchors and "no walk" in note
+    with pytest.raises(EvalError, match="has not run before"):
+        prepare_transductive("B-end+pool", PooledMapBackend("p", front_end=FRONT, pool={"labels": "F-end"}), None, {},
+                             [], None, {})

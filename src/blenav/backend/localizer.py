@@ -124,8 +124,10 @@ class BackendLocalizer(Localizer, PathLossCalibrated, InertialModelConsumer):
         return path_loss_model(self.cfg)
 
     # ------------------------------------------------------------------ run
-    def _inputs(self, session, inputs: RunInputs):
-        """(imu, ranges, beacons, attitude) of the session for the back-end."""
+    @staticmethod
+    def check_session(session):
+        """The session's BLE anchors (rows of anchors.csv); :class:`MissingStream` with the reason when the back-end
+        cannot run on it (no IMU, no BLE readings, no BLE anchors or one without a position)."""
         if not session.has("imu"):
             raise MissingStream("no IMU data, which the back-end's preintegrated IMU factors need")
         if not session.has("rssi"):
@@ -136,6 +138,11 @@ class BackendLocalizer(Localizer, PathLossCalibrated, InertialModelConsumer):
         if not np.isfinite(anchors[["x", "y", "z"]].to_numpy(float)).all():
             raise MissingStream(f"building {session.building.id} has BLE anchors without a position; estimate them "
                                 f"first (blenav-map)")
+        return anchors
+
+    def _inputs(self, session, inputs: RunInputs):
+        """(imu, ranges, beacons, attitude) of the session for the back-end."""
+        anchors = self.check_session(session)
         beacons = beacon_priors(anchors, self.cfg.priors.beacon_sigma_m, self.cfg.priors.beacon_sigma_z_m)
         ranges = session_ranges(session, beacons, self._range_model(), anchors)
         key = ("backend-ahrs", session.id, repr(self.front.method.attitude))

@@ -80,11 +80,12 @@ class PooledMapBackend(BackendLocalizer, Transductive):
         # not shared with F-end / B-end
         self._settings += repr(("pool", self.batch_labels, self.prior_sigma_m, self.stated_std))
         self._walks: dict[str, list[tuple[Session, np.ndarray, np.ndarray]]] = {}
+        self._prepared = False
 
     def prepare_batch(self, sessions: list, estimates: dict, inputs: RunInputs | None = None) -> dict:
         """Keep, per building, every walk of ``sessions`` that the labels row's ``estimates`` place (finite positions
         at two times or more): the session, its times (T,) s and positions (R, T, 2) m. Returns walks per building."""
-        self._walks = {}
+        self._walks, self._prepared = {}, True
         for s in sessions:
             est = estimates.get(s.id)
             if est is None or len(est.t) < 2:
@@ -107,7 +108,7 @@ class PooledMapBackend(BackendLocalizer, Transductive):
         for s, t, pos in walks:
             xy = pos[run] if run is not None and run < len(pos) else pos.mean(axis=0)  # that run's track, or the mean
             ok = np.isfinite(xy).all(axis=1)
-            if ok.sum() >= 2:
+            if ok.sum() >= 2 and s.has("rssi"):
                 views.append(along_track(s.with_building(building), t[ok], xy[ok], self.cfg.range.device_z))
         if not views:
             cache[key] = anchors, f"pooled map: no walk of building {building.id} placed by {self.batch_labels}"
@@ -129,9 +130,10 @@ class PooledMapBackend(BackendLocalizer, Transductive):
 
     def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         """The closed loop on ``session`` with its building's pooled map (:meth:`pooled_map`)."""
-        if not self._walks:
+        if not self._prepared:
             raise ValueError(f"method {self.name!r} pools the scored walks placed by {self.batch_labels!r}: prepare it "
                              f"(prepare_batch) with that row's estimates first")
+        self.check_session(session)  # what the closed loop needs, before any pooling
         inputs = inputs or RunInputs()
         b = session.building
         anchors, note = self.pooled_map(b, inputs.run, inputs.cache)

@@ -24,14 +24,18 @@ def transductive_of(method: Localizer, fixes: FixProvider | None) -> list[Transd
 
 
 def prepare_transductive(name: str, method: Localizer, fixes: FixProvider | None, outcomes: dict, sessions: list,
-                         inputs: RunInputs, prepared: dict) -> None:
+                         inputs: RunInputs, prepared: dict, ran: set | frozenset = frozenset()) -> None:
     """Prepare (once) every :class:`Transductive` that ``method`` needs with its labels row's estimates on the scored
-    ``sessions`` (``outcomes``: the rows run so far, by label); ``prepared``: id -> report, filled in. EvalError when
-    the labels row has not run before ``name``."""
+    ``sessions`` (``outcomes``: the rows run so far with a result, by label; ``ran``: every row run so far, those
+    skipped on every session too, whose estimates are then none); ``prepared``: id -> report, filled in. EvalError
+    when the labels row has not run before ``name``."""
     for obj in transductive_of(method, fixes):
         if id(obj) in prepared:
             continue
         src = obj.batch_labels
+        if src in ran and src not in outcomes:  # run, but skipped on every session: nothing to read
+            prepared[id(obj)] = obj.prepare_batch(sessions, {}, inputs)
+            continue
         if src not in outcomes:
             raise EvalError(f"method {name}: {obj.name} reads the estimates of row {src!r} on the scored walks "
                             f"(crowd.labels), which has not run before it: keep {src!r} in only= and before {name!r} "

@@ -76,7 +76,7 @@ class TrajectoryEvaluator(Evaluator):
         prepared: dict[int, dict | None] = {}  # the transductive localizers prepared so far (blenav.eval.batch)
         with H.Progress(cfg.progress, len(methods) * len(sessions)) as progress:
             for name, method in methods.items():
-                B.prepare_transductive(name, method, provider, outcomes, sessions, inputs, prepared)
+                B.prepare_transductive(name, method, provider, outcomes, sessions, inputs, prepared, set(res.methods))
                 with PeakMemory(cfg.peak_memory) as mem:  # rss | tracemalloc | none
                     oc = H.run_method(name, method, sessions, runs, cfg.seed, cfg.init_s, inputs, progress, bmap,
                                       hold_ends=cfg.scoring.hold_ends, fixes=provider)
