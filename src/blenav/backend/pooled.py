@@ -96,8 +96,9 @@ class PooledMapBackend(BackendLocalizer, Transductive):
                 "buildings": {b: {"walks": len(w)} for b, w in self._walks.items()}}
 
     def pooled_map(self, building, run: int | None, cache: dict) -> tuple[pd.DataFrame, str]:
-        """(anchors.csv rows of ``building`` with the placed BLE beacons moved to the pooled estimate and their
-        std_m, a note); computed once per building, given map and run (``cache``)."""
+        """(anchors.csv rows of ``building`` with the placed BLE beacons moved to the pooled estimate, with its std_m
+        when ``stated_std``, a note); ``run``: the labels row's run whose tracks place the walks (None: their runs'
+        mean); computed once per building, given map and run (``cache``)."""
         anchors = building.anchors
         key = ("pooled-map", building.id, _fingerprint(anchors), run, self.batch_labels, self.prior_sigma_m,
                self.stated_std)
