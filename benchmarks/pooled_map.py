@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import shutil
-from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -39,33 +38,19 @@ import pandas as pd
 
 from blenav.backend.config import load_backend_config
 from blenav.backend.mapping import map_beacons
+from blenav.backend.pooled import along_track
 from blenav.data import Dataset
 from blenav.data.session import Session
 from blenav.eval.beacon_map import BeaconMapConfig, perturb
 
 
-@dataclass
-class TrackedSession(Session):
-    """A session whose ground truth is another track (``_track``: t, x, y, and the session's own z and orientation
-    interpolated at those times); every other stream is the session's own."""
-
-    def stream(self, name: str) -> pd.DataFrame:
-        if name == "groundtruth":
-            return self.__dict__["_track"]
-        return self.__dict__["_orig"].stream(name)
-
-
-def tracked(sess: Session, tum: Path) -> TrackedSession:
-    """``sess`` seen along the TUM trajectory ``tum`` (t x y z qx qy qz qw; x, y taken)."""
+def tracked(sess: Session, tum: Path) -> Session:
+    """``sess`` seen along the TUM trajectory ``tum`` (t x y z qx qy qz qw; x, y taken) at the session's own heights
+    interpolated at those times (:func:`blenav.backend.pooled.along_track`)."""
     tr = np.loadtxt(tum, ndmin=2)
     gt = sess.groundtruth
-    track = pd.DataFrame({"t": tr[:, 0], "x": tr[:, 1], "y": tr[:, 2]})
-    for c in ("z", "qw", "qx", "qy", "qz"):
-        if c in gt:
-            track[c] = np.interp(tr[:, 0], gt["t"].to_numpy(float), gt[c].to_numpy(float))
-    view = TrackedSession(**{f.name: getattr(sess, f.name) for f in fields(Session)})
-    view.__dict__["_orig"], view.__dict__["_track"] = sess, track
-    return view
+    z = np.interp(tr[:, 0], gt["t"].to_numpy(float), gt["z"].to_numpy(float)) if "z" in gt else 0.0
+    return along_track(sess, tr[:, 0], tr[:, 1:3], z)
 
 
 def map_error(beacons: pd.DataFrame, anchors: pd.DataFrame) -> float:

@@ -75,9 +75,9 @@ def test_crossphone_sweep_pools_per_device_means(monkeypatch):
 
 
 def test_pooled_map_sees_a_walk_along_another_track_and_scores_against_the_truth(monkeypatch, tmp_path):
-    """benchmarks/pooled_map.py: a walk seen along another track has that track as its ground truth (z and
-    orientation its own, interpolated) and every other stream its own; the map error is the mean horizontal distance
-    of the BLE rows from x_true / y_true."""
+    """benchmarks/pooled_map.py: a walk seen along another track has that track as its ground truth (z its own,
+    interpolated) and every other stream its own; the map error is the mean horizontal distance of the BLE rows from
+    x_true / y_true."""
     import numpy as np
     import pandas as pd
 

@@ -152,10 +152,8 @@ class BackendLocalizer(Localizer, PathLossCalibrated, InertialModelConsumer):
 
     def _key(self, session, n_runs: int, seed: int) -> tuple:
         """What the computation depends on: the settings (not label / estimate), the session and its map."""
-        a = session.building.anchors_of("ble")
-        fp = hashlib.sha1(np.ascontiguousarray(a[["x", "y", "z"]].to_numpy(float)).tobytes()).hexdigest()
         return ("closed-loop", session.id, int(n_runs), int(seed), self.per_run, self.range_from_front_end,
-                self._settings, repr(self.cfg), fp, getattr(self.io_model, "key", None))
+                self._settings, repr(self.cfg), map_fingerprint(session.building), getattr(self.io_model, "key", None))
 
     def run(self, session, n_runs: int, seed: int, inputs: RunInputs | None = None) -> Estimate:
         """The closed loop on ``session`` (computed once per session for F-end / B-end pairs); ``wall_s`` is the
@@ -212,6 +210,12 @@ class BackendLocalizer(Localizer, PathLossCalibrated, InertialModelConsumer):
             outputs["attitude"] = out.front.outputs["attitude"]
         notes = list(out.front.notes) + notes + [f"back-end failure: {f}" for f in fails[:5]]
         return out.front.t, front, smoothed, bias, outputs, events, notes, time.perf_counter() - t0
+
+
+def map_fingerprint(building) -> str:
+    """A digest of the building's BLE beacon positions (what a computation on its map depends on)."""
+    a = building.anchors_of("ble")
+    return hashlib.sha1(np.ascontiguousarray(a[["x", "y", "z"]].to_numpy(float)).tobytes()).hexdigest()
 
 
 def _to_front_times(t: np.ndarray, kf_t: np.ndarray, values: np.ndarray) -> np.ndarray:

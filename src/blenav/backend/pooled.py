@@ -23,14 +23,13 @@ tracks makes B-end better).
 Transductive (:class:`~blenav.localizers.base.Transductive`): a walk's estimate depends on the other walks scored
 with it, never on their ground truth. The runs' maps: under ``beacon_map.noise_m > 0`` the evaluation calls each
 run alone on its own map (``inputs.run`` = r) and the pool takes run r of the labels row, which was computed on the
-same draw when ``beacon_map.per_walk: false`` (one deployed map: what ``experiment=mapnoise_000`` gives). With
+same draw when ``beacon_map.per_walk: false`` (one deployed map: what ``experiment=mapnoise_pooled`` gives). With
 ``per_walk: true`` the other walks' estimates were made on other draws, whose errors do not share this walk's map
-error: the pool is then optimistic, and the method says so in its notes.
+error: the pool is then optimistic (the method cannot tell; mapnoise_pooled sets ``per_walk: false``).
 """
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import replace
 from typing import Any
 
@@ -40,27 +39,24 @@ import pandas as pd
 from blenav.data.session import Session
 from blenav.localizers.base import Estimate, RunInputs, Transductive, batch_settings
 
-from .localizer import BackendLocalizer
+from .localizer import BackendLocalizer, map_fingerprint
 from .mapping import map_beacons
 
 __all__ = ["along_track", "PooledMapBackend"]
 
 
-def along_track(session: Session, t: np.ndarray, xy: np.ndarray, z: float) -> Session:
-    """``session`` whose ground truth is the track ``t`` (T,) s, ``xy`` (T, 2) world m at height ``z`` m (NaN
-    orientation): what :func:`~blenav.backend.mapping.map_beacons` reads as the walk's poses. Its other streams are
-    the session's (read once on ``session`` and shared); its own ground truth is never read."""
+def along_track(session: Session, t: np.ndarray, xy: np.ndarray, z: float | np.ndarray) -> Session:
+    """``session`` whose ground truth is the track ``t`` (T,) s, ``xy`` (T, 2) world m at height ``z`` m (one value or
+    (T,); NaN orientation): what :func:`~blenav.backend.mapping.map_beacons` reads as the walk's poses. Its other
+    streams are the session's (read once on ``session`` and shared); its own ground truth is not read here."""
     session.rssi  # noqa: B018  (read and cached on the session itself: the view shares it)
-    track = pd.DataFrame({"t": np.asarray(t, float), "x": xy[:, 0], "y": xy[:, 1], "z": np.full(len(t), float(z)),
+    track = pd.DataFrame({"t": np.asarray(t, float), "x": xy[:, 0], "y": xy[:, 1],
+                          "z": np.broadcast_to(np.asarray(z, float), (len(t),)),
                           "qw": np.nan, "qx": np.nan, "qy": np.nan, "qz": np.nan})
     view = replace(session, meta={**session.meta, "labelled": True})
     view.__dict__["_streams"] = {**session.__dict__.get("_streams", {}), "groundtruth": track}
     view.__dict__["_home"] = session.__dict__.get("_home", session.building)
     return view
-
-
-def _fingerprint(anchors: pd.DataFrame) -> str:
-    return hashlib.sha1(np.ascontiguousarray(anchors[["x", "y", "z"]].to_numpy(float)).tobytes()).hexdigest()
 
 
 class PooledMapBackend(BackendLocalizer, Transductive):
@@ -100,7 +96,7 @@ class PooledMapBackend(BackendLocalizer, Transductive):
         when ``stated_std``, a note); ``run``: the labels row's run whose tracks place the walks (None: their runs'
         mean); computed once per building, given map and run (``cache``)."""
         anchors = building.anchors
-        key = ("pooled-map", building.id, _fingerprint(anchors), run, self.batch_labels, self.prior_sigma_m,
+        key = ("pooled-map", building.id, map_fingerprint(building), run, self.batch_labels, self.prior_sigma_m,
                self.stated_std)
         if key in cache:
             return cache[key]

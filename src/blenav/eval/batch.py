@@ -38,8 +38,8 @@ def prepare_transductive(name: str, method: Localizer, fixes: FixProvider | None
             continue
         if src not in outcomes:
             raise EvalError(f"method {name}: {obj.name} reads the estimates of row {src!r} on the scored walks "
-                            f"(crowd.labels), which has not run before it: keep {src!r} in only= and before {name!r} "
-                            f"in methods")
+                            f"(its labels setting), which has not run before it: keep {src!r} in only= and before "
+                            f"{name!r} in methods")
         try:
             prepared[id(obj)] = obj.prepare_batch(sessions, outcomes[src].results, inputs)
         except ValueError as exc:
