@@ -264,3 +264,59 @@ def test_the_online_graph_is_causal_and_bounded_by_its_window(walks):
     assert np.abs(out["short"].position - a.position).max() > 1e-3
     with pytest.raises(ValueError, match="lag_s 0"):
         FusedWalk("x", mode="online", estimate="graph", lag_s=1.0)
+
+
+def test_the_known_start_bound_pins_the_first_waypoint_and_says_so(walks):
+    """start.source first_waypoint (a bound that reads the walk's ground truth, benchmarks/fused_start.py): the
+    offline track at the first waypoint's time is within a few std of it, closer than the uniform start's; the notes
+    say the start is ground truth; a walk without waypoints is skipped with the reason; settings are checked."""
+    from blenav.errors import MissingStream
+
+    test = walks[2]
+    out = _offline_rows(walks, {"uniform": {}, "start": {"start": {"source": "first_waypoint", "std_m": 0.5}}})
+    gt = test.groundtruth
+    t0, xy0 = float(gt["t"].iloc[0]), gt[["x", "y"]].to_numpy(float)[0]
+    d = {k: float(np.linalg.norm(e.position[0][np.argmin(np.abs(e.t - t0))] - xy0)) for k, e in out.items()}
+    assert d["start"] < 1.5 and d["start"] <= d["uniform"], d
+    assert "first waypoint, 0.5 m: ground truth" in out["start"].notes[0] and "uniform start" in out["uniform"].notes[0]
+
+    class NoTruth:
+        groundtruth = gt.iloc[:0]
+        id = "x"
+
+    m = FusedWalk("s", start={"source": "first_waypoint"})
+    with pytest.raises(MissingStream, match="needs the walk's ground truth"):
+        m._start_log_likelihood(NoTruth(), build_grid(test.floor, cell_m=1.0, max_step_m=3.0), np.arange(3.0))
+    for bad, match in (({"source": "entrance"}, "start.source"), ({"std_m": 0.0}, "start.std_m"),
+                       ({"sd": 1.0}, "start: unknown key")):
+        with pytest.raises(ValueError, match=match):
+            FusedWalk("x", start=bad)
+
+
+def test_off_survey_evidence_moves_the_walk_off_the_survey_by_its_weight(walks):
+    """novelty: fixes whose scans say "off the survey" (a log Bayes factor of +4 each) pull the track onto cells
+    farther from the train walks than the same fixes without it; weight 0 and fixes without the ratios leave the
+    track as it was; the notes count the fixes read; a ratio array of the wrong length is refused."""
+    train, test = walks[:2], walks[2]
+    knn = FingerprintLocalizer("KNN", features="ble", fix_std="calibrated")
+    knn.fit(train)
+    base = _fixes(knn, test)["both"]
+    said = RoleFixes(base.t, base.xy, base.std, base.source, computed=True, off_log_ratio=np.full(len(base.t), 4.0))
+    g = build_grid(test.floor, cell_m=1.0, max_step_m=3.0)
+    sdist, _ = survey_distance(g, train)
+    out = {}
+    for label, weight, fx in (("plain", 0.0, base), ("zero", 0.0, said), ("novel", 1.0, said), ("unsaid", 1.0, base)):
+        m = FusedWalk(label, novelty={"weight": weight, "off_m": 2.0})
+        inputs = RunInputs(cache={})
+        m.fit(train, inputs)
+        out[label] = m.run(test, 1, 0, inputs.with_fixes(Fixes(roles={"both": fx})))
+    off = {k: float(sdist[g.cell_of(e.position[0])].mean()) for k, e in out.items()}
+    np.testing.assert_allclose(out["zero"].position, out["plain"].position)
+    np.testing.assert_allclose(out["unsaid"].position, out["plain"].position)
+    assert off["novel"] > off["plain"] + 0.5, off
+    assert "off-survey evidence of %d fixes" % len(base.t) in out["novel"].notes[0]
+    assert "off-survey evidence of 0 fixes" in out["unsaid"].notes[0]
+    with pytest.raises(ValueError, match="off_log_ratio"):
+        RoleFixes(base.t, base.xy, base.std, base.source, off_log_ratio=np.zeros(len(base.t) + 1))
+    with pytest.raises(ValueError, match="novelty"):
+        FusedWalk("x", novelty={"weight": -1.0})

@@ -266,3 +266,73 @@ def test_std_model_fit_survives_outliers_and_degenerate_inputs():
         assert np.isfinite(m.c).all() and np.isfinite(m.std(sp, d)).all(), m.c
     m = KNN.fit_std_model(np.array([3.0, 4.0]), np.zeros(2), np.zeros(2))
     assert np.isclose(m.std(np.zeros(1), np.zeros(1))[0], np.sqrt((9 + 16) / 2 / 2), rtol=1e-3)
+
+
+def test_novelty_model_recovers_a_logistic_law_and_its_log_ratio_is_bayes():
+    """P(off | d1) = sigmoid(-3 + 4 d1) drawn on 20,000 windows: the fit finds (a, b) and the base rate; its log ratio
+    is log p(d1 | off) - log p(d1 | on), i.e. logit P(off | d1) - logit P(off); too few windows on a side: None."""
+    rng = np.random.default_rng(2)
+    d1 = rng.uniform(0, 1.5, 20_000)
+    off = rng.uniform(size=d1.size) < 1 / (1 + np.exp(-(-3 + 4 * d1)))
+    survey = np.where(off, rng.uniform(6, 20, d1.size), rng.uniform(0, 4, d1.size))
+    m = KNN.fit_novelty_model(d1, survey, off_m=5.0)
+    np.testing.assert_allclose([m.a, m.b], [-3, 4], atol=0.15)
+    assert abs(m.base - off.mean()) < 1e-12
+    p = m.p_off(np.array([0.2, 1.0]))
+    np.testing.assert_allclose(m.log_ratio(np.array([0.2, 1.0])), np.log(p / (1 - p)) - np.log(m.base / (1 - m.base)))
+    assert KNN.fit_novelty_model(d1[:50], np.zeros(50)) is None  # nobody off the survey: nothing to learn
+    assert KNN.fit_novelty_model(np.r_[d1[:50], 9.0], np.r_[np.zeros(50), 9.0]) is None  # one off: too few
+
+
+def test_out_of_fold_survey_measures_against_the_other_folds_walks_only():
+    """Each window's survey distance is its label's distance to the nearest path point of another fold's walk (the
+    lines y = 0, 2, 4 of _walks: a walk's own line never counts), and its d1 the signal distance to the nearest window
+    of those walks, brute force."""
+    S, xy, t, wo, _ = _walks(n_walks=6)
+    X = KNN.represent(S, "cosine", np.zeros(12, bool), 1.0, -100.0)
+    paths = [np.c_[np.linspace(0, 38, 77), np.full(77, 2.0 * (w % 3))] for w in range(6)]
+    d1, sm = KNN.out_of_fold_survey(X, xy, wo, paths, folds=3, seed=0)
+    assert len(d1) == len(X)
+    fold = np.random.default_rng(0).permutation(np.arange(6) % 3)
+    for i in (0, 33, 101):
+        other = fold[wo] != fold[wo[i]]
+        pts = np.concatenate([paths[w] for w in range(6) if fold[w] != fold[wo[i]]])
+        assert np.isclose(sm[i], np.hypot(*(pts - xy[i]).T).min())
+        assert np.isclose(d1[i], np.sqrt(((X[other] - X[i]) ** 2).sum(1).min()))
+
+
+def test_the_calibrated_knn_states_each_fix_off_survey_evidence(coded):
+    """fix_std: calibrated: a fitted novelty model's log ratio is an output of every fix (what the fused rows read),
+    from the fix's own signal distance to the survey; without the model the output is absent."""
+    train, test = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], coded.session("mall_F1_walkC")
+    loc = FingerprintLocalizer("KNN", k=1, fix_std="calibrated")
+    loc.fit(train)
+    model = next(iter(loc.floors.values())).predict
+    model.novelty_model = None
+    assert "off_survey_log_ratio" not in loc.run(test, 1, 0).outputs
+    model.novelty_model = KNN.NoveltyModel(-2.0, 3.0, 0.2)
+    est = loc.run(test, 1, 0)
+    S, _ = loc.heard_windows(test, next(iter(loc.floors.values())).columns)
+    lr = est.outputs["off_survey_log_ratio"]
+    assert lr.shape == est.t.shape and np.isfinite(lr).all()
+    np.testing.assert_allclose(lr, model.novelty_model.log_ratio(model.nearest(S)))
+
+
+def test_the_fix_provider_hands_the_off_survey_evidence_to_every_role_of_the_knn(coded, tmp_path):
+    """blenav.eval.fixes: fixes computed by a KNN that states its off-survey evidence carry it (the same array for two
+    roles sharing the localizer); a KNN without the model (the neighbours' std) carries none."""
+    from blenav.eval.fixes import FixProvider
+
+    train, test = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], coded.session("mall_F1_walkC")
+    loc = FingerprintLocalizer("KNN", k=1, fix_std="calibrated")
+    loc.fit(train)
+    next(iter(loc.floors.values())).predict.novelty_model = KNN.NoveltyModel(-2.0, 3.0, 0.2)
+    est = loc.run(test, 1, 0)
+    fp = FixProvider({"both": None, "again": None}, {"both": loc, "again": loc}, None, tmp_path)
+    got = fp.resolve(["both", "again"], test)
+    for role in ("both", "again"):
+        np.testing.assert_allclose(got[role].off_log_ratio, est.outputs["off_survey_log_ratio"])
+        np.testing.assert_allclose(got[role].xy, est.position[0])
+    plain = FingerprintLocalizer("KNN", k=1)  # the neighbours' std: no novelty model
+    plain.fit(train)
+    assert FixProvider({"x": None}, {"x": plain}, None, tmp_path).resolve(["x"], test)["x"].off_log_ratio is None

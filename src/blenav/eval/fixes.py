@@ -106,6 +106,7 @@ class FixProvider:
         self.write = bool(write)
         self._mem: dict = {}
         self._computed: set = set()  # (role, session id) whose fixes were computed (added in memory)
+        self._off: dict = {}  # (role, session id) and run keys -> the fixes' off-survey log ratios (None: none given)
         self.compute_s: dict = {}  # (role, session id) -> seconds the localizer took (one run)
         self.beacon_ids: dict[str, list[str]] = {}  # building id -> sparse beacons chosen
         self.used: dict[str, dict[str, str]] = {r: {} for r in self.roles}  # role -> session -> what was used
@@ -260,6 +261,9 @@ class FixProvider:
             if not ok.any():
                 raise MissingStream(f"{loc.name} gave no position on session {session.id} for the {role} fixes")
             self._mem[key] = (est.t[ok].copy(), xy[ok].copy(), sd[ok].copy())
+            lr = est.outputs.get("off_survey_log_ratio")
+            self._off[key] = None if lr is None else np.asarray(lr, float)[ok].copy()
+        self._off[(role, session.id)] = self._off[key]
         return self._mem[key]
 
     # ------------------------------------------------------------------ per method and session
@@ -279,7 +283,8 @@ class FixProvider:
                 missing[role] = str(exc)
                 continue
             key = (role, session.id)
-            got[role] = RoleFixes(t, xy, sd, src, computed=key in self._computed, wall_s=self.compute_s.get(key))
+            got[role] = RoleFixes(t, xy, sd, src, computed=key in self._computed, wall_s=self.compute_s.get(key),
+                                  off_log_ratio=self._off.get(key) if key in self._computed else None)
         return Fixes(got, missing)
 
     def resolve_first(self, roles, session) -> Fixes:

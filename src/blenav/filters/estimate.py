@@ -27,6 +27,8 @@ OUTPUT_KEYS = {
     "beacon_map": "DataFrame anchor_id, x, y, z, std_m: beacon positions a method estimated",
     "smoothed": "(R, K, 2) world m: a smoothed trajectory at the same times as position",
     "probability": "per-step probability maps over a grid (method-specific layout, documented by the method)",
+    "off_survey_log_ratio": "(K,) per estimate (a KNN fix with fix_std: calibrated): the log Bayes factor its scan "
+                            "gives for the walker being off the survey (blenav.localizers.knn.NoveltyModel)",
 }
 
 

@@ -86,6 +86,7 @@ from blenav.features import fingerprints as FP
 
 from . import knn as KNN
 from .base import Estimate, Localizer, RunInputs, Trained
+from .survey import walk_positions
 
 log = logging.getLogger("blenav.localizers.fingerprint")
 # the KNN settings issue 29 cross-validated (``cv: {}``; each key may be given instead): 2 x 7 x 5 x 3 settings
@@ -329,6 +330,7 @@ class FingerprintLocalizer(Localizer, Trained):
             model = KNN.fit(S, xy, KNN.KnnSetting(self.metric, self.k, self.weights, 1.0), is_ble, self.cfg.fill_dbm,
                             self.cov_floor_m, walk_of=walk_of)
             model.std_model = self._std_model(model, info, CV_GRID["folds"])
+            model.novelty_model = self._novelty_model(model, used, info, CV_GRID["folds"])
             return model
         ble_w = self.cv["ble_weight"] if self.cfg.features == "both" else [1.0]
         settings = KNN.grid(self.cv["metric"], self.cv["k"], self.cv["weights"], ble_w)
@@ -342,6 +344,7 @@ class FingerprintLocalizer(Localizer, Trained):
                  min(r["cv_error_m"] for r in table))
         model = KNN.fit(S, xy, best, is_ble, self.cfg.fill_dbm, self.cov_floor_m, walk_of=walk_of)
         model.std_model = self._std_model(model, info, self.cv["folds"])
+        model.novelty_model = self._novelty_model(model, used, info, self.cv["folds"])
         return model
 
     def _std_model(self, model: KNN.KnnModel, info: dict, folds: int):
@@ -362,6 +365,20 @@ class FingerprintLocalizer(Localizer, Trained):
                            "coverage_1sigma": float(np.mean(r <= 1.0)), "coverage_2sigma": float(np.mean(r <= 2.0)),
                            "median_std_m": float(np.median(sd))}
         return model
+
+    def _novelty_model(self, model: KNN.KnnModel, used: list, info: dict, folds: int):
+        """With ``fix_std: calibrated``: the :class:`blenav.localizers.knn.NoveltyModel` of the KNN ``model`` (how far
+        a scan is from every fingerprint against how far its walker is from every train walk), fitted out of fold on
+        the train walks ``used`` (their positions as the fused rows count the survey:
+        :func:`blenav.localizers.survey.walk_positions`), or None; what was fitted, or why not, in ``info``."""
+        if self.fix_std != "calibrated":
+            return None
+        d1, sm = KNN.out_of_fold_survey(model.X, model.xy, model.walk_of, [walk_positions(s) for s in used],
+                                        folds=folds, seed=self.seed)
+        nm = KNN.fit_novelty_model(d1, sm)
+        info["novelty"] = {**asdict(nm), "windows": int(len(d1))} if nm is not None else \
+            f"not fitted: {int(np.sum(sm > 5.0))} of {len(sm)} out-of-fold windows off the survey"
+        return nm
 
     def _fit_network(self, key, S, P, xy, walk_of, used, names, inputs, info):
         from blenav.learn.fingerprint.train import split_walks, train_network  # torch: only on the learned path
@@ -470,6 +487,9 @@ class FingerprintLocalizer(Localizer, Trained):
         if not len(t):
             raise MissingStream(f"session {session.id}: no {self.cfg.features} source of the training walks heard")
         xy, cov = fm(S, session.id)
+        outputs = {}
+        if isinstance(fm.predict, KNN.KnnModel) and fm.predict.novelty_model is not None:
+            outputs["off_survey_log_ratio"] = fm.predict.novelty_model.log_ratio(fm.predict.nearest(S, session.id))
         if not np.isfinite(xy).all():
             raise ValueError(f"{self.name}: non-finite position on session {session.id}")
         R = int(n_runs)
@@ -477,4 +497,4 @@ class FingerprintLocalizer(Localizer, Trained):
         covr = None if cov is None else np.broadcast_to(cov, (R,) + cov.shape).copy()
         return Estimate(self.name, session.id, t, pos, covr, wall_s=time.perf_counter() - t0,
                         notes=[f"{self.model} on {self.cfg.features} fingerprints, {len(fm.columns)} features "
-                               f"(floor {key})"])
+                               f"(floor {key})"], outputs=outputs)

@@ -11,7 +11,9 @@ forward-backward pass per walk (``inputs.cache``).
 The model of a walk (nodes every ``dt_s`` seconds, cells of ``grid.cell_m`` over the floor plan's free space, edges up
 to ``grid.max_step_m`` that do not cross a wall, :func:`blenav.crf.grid.build_grid`):
 
-* start: uniform over the walkable cells (no ground truth, no first fix assumed right);
+* start: uniform over the walkable cells (no ground truth, no first fix assumed right); ``start.source:
+  first_waypoint`` instead pins the walk's first surveyed waypoint (reads its ground truth: a bound,
+  :data:`START_SOURCES`);
 * motion: the PDR odometry of :func:`blenav.filters.pdr_odometry.pdr_odometry` (detected steps along the phone's
   rotation vector, or blenav's AHRS heading where a walk has none (``heading: auto``), the step length fitted on the
   train walks), its displacement over each interval
@@ -65,6 +67,7 @@ from blenav.filters.yaw_hold import check_yaw
 from .base import NO_IO_MODEL, Estimate, FixConsumer, InertialModelConsumer, Localizer, Trained, attach_inertial
 from .inputs import RunInputs
 from .radiomap import RadioMapConfig, build_radio_map
+from .survey import _walk_positions, fix_log_likelihood, path_prior, survey_distance
 
 __all__ = ["FusedWalk", "MODES", "fix_log_likelihood", "path_prior", "survey_distance"]
 
@@ -72,6 +75,10 @@ MODES = ("online", "offline")
 #: what an offline row reports per node: the smoothed marginal's mean (default) or its most probable cell, or the most
 #: probable joint path (Viterbi); measured on the train walks (docs/results-ilc20.md)
 ESTIMATES = ("mean", "mode", "viterbi", "graph")
+#: where a walk starts: uniform over the walkable cells (no ground truth: the contract rows), or N(its first surveyed
+#: waypoint, start.std_m^2 I) at that waypoint's time, which **reads the scored walk's ground truth**: a bound on what
+#: the unknown start costs (``benchmarks/fused_start.py``), as the PDR rows start at the first waypoint
+START_SOURCES = ("uniform", "first_waypoint")
 
 
 def _block(name: str, what: str, given, defaults: dict) -> dict:
@@ -82,66 +89,6 @@ def _block(name: str, what: str, given, defaults: dict) -> dict:
     if unknown:
         raise ValueError(f"method {name!r}, {what}: unknown key(s) {sorted(unknown)}; known: {', '.join(defaults)}")
     return {**defaults, **given}
-
-
-def _walk_positions(grid, walks: list, step_s: float) -> np.ndarray:
-    """(N,) count per cell of ``grid`` of the labelled ``walks``' positions (linear between waypoints every ``step_s`` s)."""
-    cnt = np.zeros(grid.n_cells)
-    for s in walks:
-        gt = s.groundtruth
-        if len(gt) < 2:
-            continue
-        t = np.arange(float(gt["t"].iloc[0]), float(gt["t"].iloc[-1]) + 1e-9, step_s)
-        xy = s.positions_at(t)[:, :2]
-        xy = xy[np.isfinite(xy).all(axis=1)]
-        if len(xy):
-            np.add.at(cnt, grid.cell_of(xy), 1.0)
-    return cnt
-
-
-def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5, counts: np.ndarray | None = None
-               ) -> np.ndarray:
-    """(N,) density (sums to 1) over ``grid``'s cells of the labelled ``walks``' positions (interpolated linearly
-    between their waypoints every ``step_s`` s), blurred by a Gaussian of ``blur_m`` m over the cell raster.
-    ``counts``: those positions per cell already counted (:func:`_walk_positions`), in place of ``walks``."""
-    from scipy.ndimage import gaussian_filter
-
-    img = np.zeros(grid.shape)
-    img[grid.cy, grid.cx] = _walk_positions(grid, walks, step_s) if counts is None else counts
-    img = gaussian_filter(img, blur_m / grid.cell_m)[grid.cy, grid.cx]
-    tot = img.sum()
-    return img / tot if tot > 0 else np.full(grid.n_cells, 1.0 / grid.n_cells)
-
-
-def survey_distance(grid, walks: list, step_s: float = 0.5, counts: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Per cell of ``grid``: (distance in m to the nearest cell the labelled ``walks`` passed (N,), that cell's index
-    (N,)); zeros and the cell itself where no walk is given. (The walks' positions are counted on their cells
-    (:meth:`CrfGrid.cell_of`: always a walkable one), so the nearest is a cell of the grid.) ``counts``: as
-    :func:`path_prior`'s."""
-    from scipy.ndimage import distance_transform_edt
-
-    cnt = _walk_positions(grid, walks, step_s) if counts is None else counts
-    if not cnt.any():
-        return np.zeros(grid.n_cells), np.arange(grid.n_cells)
-    img = np.ones(grid.shape, bool)
-    img[grid.cy[cnt > 0], grid.cx[cnt > 0]] = False
-    dist, (iy, ix) = distance_transform_edt(img, return_indices=True)
-    lut = np.full(grid.shape, -1, np.int64)
-    lut[grid.cy, grid.cx] = np.arange(grid.n_cells)
-    return dist[grid.cy, grid.cx] * grid.cell_m, lut[iy[grid.cy, grid.cx], ix[grid.cy, grid.cx]]
-
-
-def fix_log_likelihood(expected: np.ndarray, extra_var: np.ndarray, fix: np.ndarray, std: float, outlier: float,
-                       n_cells: int) -> np.ndarray:
-    """(N,) log p(fix | walker in cell i): (1 - ``outlier``) N(fix; ``expected[i]``, (std^2 + ``extra_var[i]``) I) +
-    ``outlier`` / ``n_cells``. ``expected`` (N, 2) m: where a fix of a walker in each cell lands (the cell itself, or
-    off the survey the nearest surveyed cell: ``off_survey.project``); ``extra_var`` (N,) m^2 the spread a fix gains
-    there (``off_survey.std_per_m`` x the cell's distance to the survey, squared); ``fix`` (2,) m, ``std`` m."""
-    var = std * std + extra_var
-    d2 = ((expected - fix) ** 2).sum(axis=1)
-    return np.logaddexp(math.log1p(-outlier) - d2 / (2.0 * var) - np.log(2.0 * math.pi * var),
-                        math.log(outlier / n_cells))
 
 
 class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
@@ -157,7 +104,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                  motion: dict | None = None, layers: dict | None = None, fix_outlier: float = 0.01,
                  fix_std_scale: float = 1.0, fix_weight: float = 1.0, radio_map: dict | None = None,
                  path_prior: dict | None = None, prune: float = 1e-6, graph: dict | None = None,
-                 off_survey: dict | None = None):
+                 off_survey: dict | None = None, start: dict | None = None, novelty: dict | None = None):
         super().__init__(name, shared)
         if mode not in MODES:
             raise ValueError(f"method {name!r}: mode must be one of {MODES}, got {mode!r}")
@@ -226,6 +173,17 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         self.off_std_per_m, self.off_project = float(osv["std_per_m"]), bool(osv["project"])
         if not self.off_std_per_m >= 0:
             raise ValueError(f"method {name!r}: off_survey.std_per_m must be >= 0, got {self.off_std_per_m}")
+        nv = _block(name, "novelty", novelty, {"weight": 0.0, "off_m": 5.0})
+        self.novelty_weight, self.novelty_off_m = float(nv["weight"]), float(nv["off_m"])
+        if not (self.novelty_weight >= 0 and self.novelty_off_m > 0):
+            raise ValueError(f"method {name!r}: novelty needs weight >= 0 and off_m > 0, got {self.novelty_weight}, "
+                             f"{self.novelty_off_m}")
+        st = _block(name, "start", start, {"source": "uniform", "std_m": 1.0})
+        self.start_source, self.start_std = str(st["source"]), float(st["std_m"])
+        if self.start_source not in START_SOURCES:
+            raise ValueError(f"method {name!r}: start.source must be one of {START_SOURCES}, got {self.start_source!r}")
+        if not self.start_std > 0:
+            raise ValueError(f"method {name!r}: start.std_m must be > 0, got {self.start_std}")
         self.prune = float(prune)
         if not 0.0 <= self.prune < 1.0:
             raise ValueError(f"method {name!r}: prune must be in [0, 1), got {prune}")
@@ -331,7 +289,9 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         if inputs.fixes is None:
             raise MissingStream(f"{self.name}: the experiment has no fixes block (roles {self.roles})")
         role, fx = self._fixes(inputs)
-        digest = hashlib.sha1(b"".join(np.ascontiguousarray(a, float).tobytes() for a in (fx.t, fx.xy, fx.std)))
+        novel = fx.off_log_ratio if self.novelty_weight > 0 else None
+        digest = hashlib.sha1(b"".join(np.ascontiguousarray(a, float).tobytes()
+                                       for a in (fx.t, fx.xy, fx.std, *([] if novel is None else [novel]))))
         lio = self.io_model if self.source in ("auto", "lio") else None
         if self.io_reason is not None:  # source lio without a model, or a model given that cannot be used
             raise MissingStream(self.io_reason)
@@ -340,7 +300,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                self.dt_s, self.sigma0, self.sigma_per, self.no_odometry_sigma, self.layers, self.fix_outlier, self.fix_std_scale, self.prior_weight,
                self.prior_floor, self.prior_blur, self.prune, self.estimate == "viterbi", self.fix_weight,
                self.radio_map, self.radio_weight, self._lag_nodes(), tuple(s.id for s in self.train), self.off_std_per_m,
-               self.off_project)
+               self.off_project, self.start_source, self.start_std, self.novelty_weight, self.novelty_off_m)
         if key in inputs.cache:
             return inputs.cache[key]
         t0 = time.perf_counter()
@@ -394,7 +354,18 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         if self.fix_weight > 0:
             for k, xy, sd in zip(fix_node, fxy, fsd):  # fixes: F per walk (a few dozen), each (N,): one numpy pass each
                 observe(k, fix_log_likelihood(cxy, extra, xy, sd, self.fix_outlier, grid.n_cells), self.fix_weight)
+        n_novel = 0
+        if novel is not None:  # what each fix's scan says of the walker being off the survey: its log Bayes factor on
+            off = sdist > self.novelty_off_m  # the cells off it, times the weight (the fixes' errors are correlated)
+            for k, lr in zip(fix_node, np.asarray(novel, float)[ok]):
+                if np.isfinite(lr):
+                    observe(k, np.where(off, self.novelty_weight * float(lr), 0.0), 1.0)
+                    n_novel += 1
         first = int(fix_node.min())
+        if self.start_source == "first_waypoint":  # reads the ground truth (START_SOURCES): a bound, not a method
+            k0, ll0 = self._start_log_likelihood(session, grid, T)
+            observe(k0, ll0, 1.0)
+            first = min(first, k0)
         if Q is not None and len(st):
             snode = np.clip(np.round((st - T[0]) / self.dt_s).astype(np.int64), 0, len(T) - 1)
             for k, ll in zip(snode, rmap.log_likelihood(Q)):
@@ -407,11 +378,23 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
             path = grid.xy[viterbi(grid, disp, sigma, unary, log_prior=log_prior, layers=self.layers,
                                    prune=self.prune)[0]]
         out = {"t": T, "res": res, "first_fix": first, "role": role, "n_fixes": int(len(ft)), "heading": heading,
+               "novelty_fixes": n_novel,
                "radio_scans": int(len(st)),
                "prior_walks": n_prior, "wall_s": time.perf_counter() - t0, "path": path, "grid_xy": grid.xy,
                "graph_inputs": (disp, sigma, fix_node, fxy, fsd), "graphs": {}}
         inputs.cache[key] = out
         return out
+
+    def _start_log_likelihood(self, session, grid, T: np.ndarray) -> tuple[int, np.ndarray]:
+        """``start.source: first_waypoint``: (the node nearest the walk's first surveyed waypoint's time, log N(cell;
+        that waypoint, start.std_m^2 I) (N,) over the cells); MissingStream for a walk without ground truth."""
+        gt = session.groundtruth
+        if gt is None or not len(gt):
+            raise MissingStream(f"{self.name}: start.source first_waypoint needs the walk's ground truth; session "
+                                f"{session.id} has none")
+        t0, xy0 = float(gt["t"].iloc[0]), gt[["x", "y"]].to_numpy(float)[0]
+        k0 = int(np.clip(np.round((t0 - T[0]) / self.dt_s), 0, len(T) - 1))
+        return k0, -0.5 * ((grid.xy - xy0) ** 2).sum(axis=1) / self.start_std ** 2
 
     def _graph(self, sm: dict) -> tuple[np.ndarray, np.ndarray]:
         """``estimate: graph``: the walk's smoothed marginals refined as a factor graph (:mod:`blenav.crf.walk_graph`)
@@ -471,9 +454,14 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
                         notes=[f"{self.mode}: fixes of role {sm['role']}"
                                + (f" (weight {self.fix_weight:g})" if self.fix_weight != 1.0 else "")
                                + (f" + {sm['radio_scans']} scans on the radio map" if self.radio_map is not None else "")
+                               + (f" + the off-survey evidence of {sm['novelty_fixes']} fixes (weight "
+                                  f"{self.novelty_weight:g}, off beyond {self.novelty_off_m:g} m)"
+                                  if self.novelty_weight > 0 else "")
                                + (f" + learned inertial odometry ({sm['heading']})" if sm['heading'].startswith("learned")
                                   else f" + PDR odometry (heading {sm['heading']}, step {self._step():.3f} m)")
                                + f" + plan + train-walk prior ({sm['prior_walks']} walks), "
-                               f"uniform start; grid {self.cell_m:g} m, {self.layers.n} heading/scale layers"
+                               + (f"start N(first waypoint, {self.start_std:g} m: ground truth); "
+                                  if self.start_source == "first_waypoint" else "uniform start; ")
+                               + f"grid {self.cell_m:g} m, {self.layers.n} heading/scale layers"
                                + (f"; estimate {self.estimate}" if self.estimate != "mean" else "")],
                         outputs={"layer": {"heading_offset_deg": math.degrees(th), "step_scale": sc}})

@@ -28,7 +28,8 @@ class RoleFixes:
     t (F,) s; xy (F, 2) world m; std (F,) m (NaN where the source gives none); ``source``: the ``fixes.csv``
     source name the fixes have (a fix likelihood selects its rows by it); ``computed``: not in the session's
     fixes.csv (a filter adds them to its fixes in memory); ``wall_s``: seconds the localizer that computed them took
-    (one run), None when they were read."""
+    (one run), None when they were read; ``off_log_ratio`` (F,): what each fix's scan says of its walker being off the
+    survey (a log Bayes factor, :class:`blenav.localizers.knn.NoveltyModel`), None where the source says nothing."""
 
     t: np.ndarray
     xy: np.ndarray
@@ -36,11 +37,14 @@ class RoleFixes:
     source: str
     computed: bool = False
     wall_s: float | None = None
+    off_log_ratio: np.ndarray | None = None  # (F,): the log Bayes factor for "off the survey" each fix's scan gives
 
     def __post_init__(self):
         if self.xy.shape != (len(self.t), 2) or self.std.shape != (len(self.t),):
             raise ValueError(f"fixes {self.source!r}: t (F,), xy (F, 2), std (F,) expected, got {self.t.shape}, "
                              f"{self.xy.shape}, {self.std.shape}")
+        if self.off_log_ratio is not None and np.shape(self.off_log_ratio) != (len(self.t),):
+            raise ValueError(f"fixes {self.source!r}: off_log_ratio (F,) expected, got {np.shape(self.off_log_ratio)}")
 
 
 @dataclass(frozen=True)

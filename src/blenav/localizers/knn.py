@@ -260,6 +260,81 @@ def fit_std_model(err: np.ndarray, spread: np.ndarray, d1: np.ndarray) -> StdMod
     return StdModel(tuple(float(v) for v in raw))
 
 
+@dataclass(frozen=True)
+class NoveltyModel:
+    """How much a fix's scan says its walker is off the survey (issue 30: the fused rows' ``novelty``): a scan far in
+    signal space from every fingerprint (d1, :class:`StdModel`'s feature) is mostly heard where no train walk went.
+
+        P(off | d1) = sigmoid(a + b d1),  off: the walker more than ``off_m`` from every train walk's position
+
+    fitted by logistic regression on the train walks' out-of-fold windows (each window's d1 against the other folds'
+    fingerprints, its distance to the other folds' walks: :func:`fit_novelty_model`); ``base``: the share of those
+    windows off. :meth:`log_ratio` is the log Bayes factor of "off" against "on" a fix's d1 gives, log p(d1 | off) -
+    log p(d1 | on) = logit P(off | d1) - logit(base), which a grid filter adds to its cells off the survey."""
+
+    a: float
+    b: float
+    base: float
+    off_m: float = 5.0
+
+    def p_off(self, d1: np.ndarray) -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-np.clip(self.a + self.b * np.asarray(d1, float), -30.0, 30.0)))
+
+    def log_ratio(self, d1: np.ndarray) -> np.ndarray:
+        """(K,) log Bayes factor of off the survey against on it for fixes whose d1 is ``d1`` (K,)."""
+        z = np.clip(self.a + self.b * np.asarray(d1, float), -30.0, 30.0)
+        return z - math.log(self.base / (1.0 - self.base))
+
+
+def fit_novelty_model(d1: np.ndarray, survey_m: np.ndarray, off_m: float = 5.0,
+                      min_each: int = 5) -> NoveltyModel | None:
+    """The :class:`NoveltyModel` of windows with signal distance ``d1`` (N,) to the nearest fingerprint and distance
+    ``survey_m`` (N,) m to the nearest surveyed position (both out of fold): logistic regression of ``survey_m >
+    off_m`` on d1 by Newton steps on the standardised feature (a 1e-6 ridge keeps a separable set finite). None with
+    fewer than ``min_each`` windows on either side (nothing to learn the difference from)."""
+    d1, sm = np.asarray(d1, float), np.asarray(survey_m, float)
+    ok = np.isfinite(d1) & np.isfinite(sm)
+    d1, y = d1[ok], (sm[ok] > float(off_m)).astype(float)
+    if y.sum() < min_each or (1.0 - y).sum() < min_each:
+        return None
+    mu, sd = float(d1.mean()), float(d1.std()) or 1.0
+    A = np.column_stack([np.ones(len(d1)), (d1 - mu) / sd])
+    w = np.array([math.log(y.mean() / (1.0 - y.mean())), 0.0])
+    for _ in range(50):
+        p = 1.0 / (1.0 + np.exp(-np.clip(A @ w, -30.0, 30.0)))
+        g = A.T @ (p - y) + 1e-6 * w
+        H = (A * (p * (1.0 - p))[:, None]).T @ A + 1e-6 * np.eye(2)
+        step = np.linalg.solve(H, g)
+        w = w - step
+        if np.abs(step).max() < 1e-10:
+            break
+    a, b = float(w[0] - w[1] * mu / sd), float(w[1] / sd)
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return None
+    return NoveltyModel(a, b, float(y.mean()), float(off_m))
+
+
+def out_of_fold_survey(X: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, paths: list, folds: int = 5,
+                       seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(d1 (N,), survey_m (N,) m) of windows already represented X (N, D), labelled xy (N, 2) m, from walks
+    ``walk_of`` (N,) indexing ``paths`` (each walk's positions (P_w, 2) m, e.g. every half second between its
+    waypoints): each window's signal distance to the nearest window of the other folds' walks (the same seeded deal
+    as :func:`cross_validate`) and the distance of its label to the nearest position of those walks."""
+    from scipy.spatial import cKDTree
+
+    folds, fold = deal_folds(len(paths), folds, seed)
+    d1, sm = np.full(len(X), np.nan), np.full(len(X), np.nan)
+    for f in range(folds):
+        te = fold[walk_of] == f
+        others = [np.asarray(paths[w], float) for w in range(len(paths)) if fold[w] != f and len(paths[w])]
+        if not te.any() or te.all() or not others:
+            continue
+        d1[te] = nearest_distance(X[te], X[~te])
+        sm[te] = cKDTree(np.concatenate(others)).query(np.asarray(xy, float)[te])[0]
+    ok = np.isfinite(d1) & np.isfinite(sm)
+    return d1[ok], sm[ok]
+
+
 def out_of_fold(S: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, setting: KnnSetting, is_ble: np.ndarray,
                 fill_dbm: float, cov_floor_m: float, folds: int = 5, seed: int = 0,
                 extra: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -311,6 +386,14 @@ class KnnModel:
         self.groups = np.full(len(self.X), "", object) if groups is None else np.asarray(groups, object)
         self.walk_of = walk_of
         self.bb = np.einsum("nf,nf->n", self.X, self.X)  # X's squared norms, once for every query
+        self.novelty_model: NoveltyModel | None = None  # set by the fingerprint localizer (fix_std: calibrated)
+
+    def nearest(self, Sq, exclude: str | None = None) -> np.ndarray:
+        """(K,) d1: each window of Sq (K, F, H)'s distance to its nearest reference window on this model's
+        representation (the group ``exclude`` left out, as :meth:`__call__`)."""
+        drop = None if exclude is None else self.groups == exclude
+        X, bb = (self.X, self.bb) if drop is None or not drop.any() else (self.X[~drop], self.bb[~drop])
+        return nearest_distance(self.represent(Sq), X, bb)
 
     def represent(self, S: np.ndarray) -> np.ndarray:
         """(K, D): windows S (K, F, H) on this model's representation (:func:`represent`)."""
