@@ -67,7 +67,7 @@ from blenav.filters.yaw_hold import check_yaw
 from .base import NO_IO_MODEL, Estimate, FixConsumer, InertialModelConsumer, Localizer, Trained, attach_inertial
 from .inputs import RunInputs
 from .radiomap import RadioMapConfig, build_radio_map
-from .survey import _walk_positions, fix_log_likelihood, path_prior, survey_distance
+from .survey import SURVEY_STEP_S, fix_log_likelihood, path_prior, survey_counts, survey_distance
 
 __all__ = ["FusedWalk", "MODES", "fix_log_likelihood", "path_prior", "survey_distance"]
 
@@ -249,7 +249,7 @@ class FusedWalk(Localizer, FixConsumer, Trained, InertialModelConsumer):
         # where the floor's train walks went: counted once, shared by every row's prior and off-survey settings
         ckey = ("fused-walk-survey", *gkey[1:], tuple(s.id for s in same))
         if ckey not in cache:
-            cnt = _walk_positions(grid, same, 0.5)
+            cnt = survey_counts(grid, same, SURVEY_STEP_S)
             cache[ckey] = (cnt, survey_distance(grid, same, counts=cnt))
         cnt, survey = cache[ckey]
         key = ("fused-walk-floor", *gkey[1:], tuple(s.id for s in same), self.prior_weight, self.prior_floor,

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-__all__ = ["SURVEY_STEP_S", "walk_positions", "path_prior", "survey_distance", "fix_log_likelihood"]
+__all__ = ["SURVEY_STEP_S", "walk_positions", "survey_counts", "path_prior", "survey_distance", "fix_log_likelihood"]
 
 #: seconds between the positions a labelled walk is counted by
 SURVEY_STEP_S = 0.5
@@ -27,7 +27,7 @@ def walk_positions(walk, step_s: float = SURVEY_STEP_S) -> np.ndarray:
     return xy[np.isfinite(xy).all(axis=1)]
 
 
-def _walk_positions(grid, walks: list, step_s: float) -> np.ndarray:
+def survey_counts(grid, walks: list, step_s: float) -> np.ndarray:
     """(N,) count per cell of ``grid`` of the labelled ``walks``' positions (:func:`walk_positions`)."""
     cnt = np.zeros(grid.n_cells)
     for s in walks:
@@ -41,11 +41,11 @@ def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5, coun
                ) -> np.ndarray:
     """(N,) density (sums to 1) over ``grid``'s cells of the labelled ``walks``' positions (interpolated linearly
     between their waypoints every ``step_s`` s), blurred by a Gaussian of ``blur_m`` m over the cell raster.
-    ``counts``: those positions per cell already counted (:func:`_walk_positions`), in place of ``walks``."""
+    ``counts``: those positions per cell already counted (:func:`survey_counts`), in place of ``walks``."""
     from scipy.ndimage import gaussian_filter
 
     img = np.zeros(grid.shape)
-    img[grid.cy, grid.cx] = _walk_positions(grid, walks, step_s) if counts is None else counts
+    img[grid.cy, grid.cx] = survey_counts(grid, walks, step_s) if counts is None else counts
     img = gaussian_filter(img, blur_m / grid.cell_m)[grid.cy, grid.cx]
     tot = img.sum()
     return img / tot if tot > 0 else np.full(grid.n_cells, 1.0 / grid.n_cells)
@@ -59,7 +59,7 @@ def survey_distance(grid, walks: list, step_s: float = 0.5, counts: np.ndarray |
     :func:`path_prior`'s."""
     from scipy.ndimage import distance_transform_edt
 
-    cnt = _walk_positions(grid, walks, step_s) if counts is None else counts
+    cnt = survey_counts(grid, walks, step_s) if counts is None else counts
     if not cnt.any():
         return np.zeros(grid.n_cells), np.arange(grid.n_cells)
     img = np.ones(grid.shape, bool)
