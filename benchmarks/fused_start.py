@@ -4,8 +4,8 @@ waypoint (``start.source: first_waypoint``, std 1 m: **reads the scored walk's g
 method: the PDR rows of the realwalks tables start the same way), and where the difference comes from: the walks
 whose fixes are far off (their fingerprint row's mean error at the walk's waypoints above ``--far`` m) against the
 others, and how far each group's surveyed waypoints lie from the train walks (the survey: their positions between
-waypoints on the floor's 1 m walkable grid, :func:`blenav.localizers.survey.survey_distance`, as the fused rows'
-off-survey model).
+waypoints on the fused rows' walkable grid, :func:`blenav.localizers.survey.survey_distance`, as their off-survey
+model).
 
     .venv/bin/python benchmarks/fused_start.py FLOOR_DATA [--out OUT] [--far 10]
 
@@ -92,7 +92,9 @@ def summarise(results: dict, far_m: float) -> list[str]:
 def off_survey(data: str, results: dict, far_m: float) -> list[str]:
     """Per group of test walks (fixes far / the others): the mean distance (m) of their surveyed waypoints to the
     train walks' positions and the share of those waypoints more than 5 m from them."""
-    cfg = parse_eval_config(experiment_config(f"data={data}"))
+    composed = experiment_config(f"data={data}")
+    cell, step = (float(composed.methods.fused_offline.grid[k]) for k in ("cell_m", "max_step_m"))  # the rows' grid
+    cfg = parse_eval_config(composed)
     ds = open_dataset(cfg)
     train, test = train_test(cfg, ds, scored_sessions(cfg, ds))
     fix = results["methods"][FIX_ROW]["per_session"]
@@ -103,7 +105,7 @@ def off_survey(data: str, results: dict, far_m: float) -> list[str]:
             continue
         floor = (s.building.id, str(s.meta.get("floor")))
         if floor not in dist:
-            grid = build_grid(s.floor, cell_m=1.0, max_step_m=3.0)
+            grid = build_grid(s.floor, cell_m=cell, max_step_m=step)
             same = [w for w in train if w.labelled and (w.building.id, str(w.meta.get("floor"))) == floor]
             dist[floor] = (grid, survey_distance(grid, same)[0])
         grid, d = dist[floor]

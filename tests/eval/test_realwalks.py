@@ -314,8 +314,8 @@ def test_sparse_role_hears_only_its_beacons(tmp_path):
     knn = FingerprintLocalizer("KNN-BLE", features="ble", k=3)
     knn.fit(ss[:2])
     prov = FixProvider({"ble": None, "sparse": None}, {"ble": knn, "sparse": knn}, 2, tmp_path / "o")
-    t_all, xy_all, _, src_all = prov._fixes("ble", ss[2])
-    t_sp, xy_sp, _, src_sp = prov._fixes("sparse", ss[2])
+    t_all, xy_all, _, src_all, _ = prov._fixes("ble", ss[2])
+    t_sp, xy_sp, _, src_sp, _ = prov._fixes("sparse", ss[2])
     assert knn.beacons is None and (src_all, src_sp) == ("fix-ble", "fix-sparse2")
     chosen = prov.beacon_ids[str(ss[2].building.id)]
     assert len(chosen) == 2

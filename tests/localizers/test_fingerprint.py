@@ -163,7 +163,7 @@ def test_fingerprint_fixes_are_the_scans_only(coded, tmp_path):
     knn.fit([coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")])
     test = coded.session("mall_F1_walkC")
     prov = FixProvider({"wifi": None, "again": None}, {"wifi": knn, "again": knn}, 4, tmp_path)
-    t, xy, sd, src = prov._fixes("wifi", test)
+    t, xy, sd, src, _ = prov._fixes("wifi", test)
     est = knn.run(test, 1, 0)
     np.testing.assert_array_equal(t, est.t)
     assert t[0] == 0.5 and t[-1] == 5.5 and src == "fix-wifi"

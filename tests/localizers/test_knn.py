@@ -278,8 +278,9 @@ def test_novelty_model_recovers_a_logistic_law_and_its_log_ratio_is_bayes():
     m = KNN.fit_novelty_model(d1, survey, off_m=5.0)
     np.testing.assert_allclose([m.a, m.b], [-3, 4], atol=0.15)
     assert abs(m.base - off.mean()) < 1e-12
-    p = m.p_off(np.array([0.2, 1.0]))
-    np.testing.assert_allclose(m.log_ratio(np.array([0.2, 1.0])), np.log(p / (1 - p)) - np.log(m.base / (1 - m.base)))
+    d = np.array([0.2, 1.0])
+    p = 1 / (1 + np.exp(-(m.a + m.b * d)))  # P(off | d1)
+    np.testing.assert_allclose(m.log_ratio(d), np.log(p / (1 - p)) - np.log(m.base / (1 - m.base)))
     assert KNN.fit_novelty_model(d1[:50], np.zeros(50)) is None  # nobody off the survey: nothing to learn
     assert KNN.fit_novelty_model(np.r_[d1[:50], 9.0], np.r_[np.zeros(50), 9.0]) is None  # one off: too few
 
@@ -315,7 +316,10 @@ def test_the_calibrated_knn_states_each_fix_off_survey_evidence(coded):
     S, _ = loc.heard_windows(test, next(iter(loc.floors.values())).columns)
     lr = est.outputs["off_survey_log_ratio"]
     assert lr.shape == est.t.shape and np.isfinite(lr).all()
-    np.testing.assert_allclose(lr, model.novelty_model.log_ratio(model.nearest(S)))
+    d1 = KNN.nearest_distance(model.represent(S), model.X)  # the fix's own signal distance to the survey
+    np.testing.assert_allclose(lr, model.novelty_model.log_ratio(d1))
+    xy, cov = model(S)  # the estimates are the plain KNN's, whether or not it states the evidence
+    np.testing.assert_allclose(est.position[0], xy)
 
 
 def test_the_fix_provider_hands_the_off_survey_evidence_to_every_role_of_the_knn(coded, tmp_path):

@@ -106,7 +106,6 @@ class FixProvider:
         self.write = bool(write)
         self._mem: dict = {}
         self._computed: set = set()  # (role, session id) whose fixes were computed (added in memory)
-        self._off: dict = {}  # (role, session id) and run keys -> the fixes' off-survey log ratios (None: none given)
         self.compute_s: dict = {}  # (role, session id) -> seconds the localizer took (one run)
         self.beacon_ids: dict[str, list[str]] = {}  # building id -> sparse beacons chosen
         self.used: dict[str, dict[str, str]] = {r: {} for r in self.roles}  # role -> session -> what was used
@@ -140,11 +139,13 @@ class FixProvider:
     def fixes_for(self, role: str, session) -> tuple[np.ndarray, np.ndarray, str]:
         """(t (F,), xy (F, 2), source) of ``role`` for ``session``: the named source's rows when the session
         has them, else computed from rssi.csv (cached); :class:`MissingStream` when neither is possible."""
-        t, xy, _, src = self._fixes(role, session)
+        t, xy, _, src, _ = self._fixes(role, session)
         return t, xy, src
 
-    def _fixes(self, role: str, session) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-        """:meth:`fixes_for` with the fixes' std (F,) m (NaN where the source gives none)."""
+    def _fixes(self, role: str, session) -> tuple:
+        """:meth:`fixes_for` with the fixes' std (F,) m (NaN where the source gives none) and their off-survey log
+        ratios (F,) (None where the source states none: :attr:`RoleFixes.off_log_ratio`): (t, xy, std, source,
+        off_log_ratio)."""
         if role not in self.roles:
             raise ValueError(f"unknown fixes role {role!r}; the experiment defines {sorted(self.roles)}")
         key = (role, session.id)
@@ -158,7 +159,7 @@ class FixProvider:
                 rows = fx[sel]
                 self.used[role][session.id] = f"fixes.csv source {named!r}"
                 self._mem[key] = (rows["t"].to_numpy(float), rows[["x", "y"]].to_numpy(float),
-                                  rows["std"].to_numpy(float), named)
+                                  rows["std"].to_numpy(float), named, None)
                 return self._mem[key]
         if role not in self.localizers:
             raise MissingStream(f"session {session.id} has no fixes of source {named!r} and no localizer is "
@@ -169,14 +170,14 @@ class FixProvider:
             raise MissingStream(f"session {session.id}: {why} and no rssi.csv to compute {role} BLE fixes from")
         if pf:
             t, xy = self._compute(role, session)
-            sd = np.full(len(t), np.nan)
+            sd, off = np.full(len(t), np.nan), None
         else:
-            t, xy, sd = self._compute_any(role, session)
+            t, xy, sd, off = self._compute_any(role, session)
         src = self.computed_source(role)
         self._computed.add(key)
         by = "from rssi.csv" if pf else f"by {self.localizers[role].name}"
         self.used[role][session.id] = f"computed {by} as {src!r} ({why})"
-        self._mem[key] = (t, xy, sd, src)
+        self._mem[key] = (t, xy, sd, src, off)
         return self._mem[key]
 
     def _ble_filter(self, role: str) -> bool:
@@ -232,8 +233,9 @@ class FixProvider:
             log.warning("wrote %d %s fixes into %s/fixes.csv (fixes.write = true)", len(t), src, session.root)
         return t, xy
 
-    def _compute_any(self, role: str, session) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Fixes (t (F,) s, xy (F, 2) m, std (F,) m) of a localizer that is not a BLE particle filter (e.g. a trained
+    def _compute_any(self, role: str, session) -> tuple:
+        """Fixes (t (F,) s, xy (F, 2) m, std (F,) m, off-survey log ratios (F,) or None: the estimate's output
+        ``off_survey_log_ratio``) of a localizer that is not a BLE particle filter (e.g. a trained
         :class:`~blenav.localizers.fingerprint.FingerprintLocalizer`): its finite estimates of one run, at its own
         times (fingerprinting: one per scan), not resampled to ``rate_hz``; std from its covariance (NaN without
         one). ``sparse``: the localizer hears only :meth:`beacons_for` (its ``beacons`` attribute, restored after).
@@ -260,10 +262,9 @@ class FixProvider:
             ok = np.isfinite(xy).all(axis=1)
             if not ok.any():
                 raise MissingStream(f"{loc.name} gave no position on session {session.id} for the {role} fixes")
-            self._mem[key] = (est.t[ok].copy(), xy[ok].copy(), sd[ok].copy())
             lr = est.outputs.get("off_survey_log_ratio")
-            self._off[key] = None if lr is None else np.asarray(lr, float)[ok].copy()
-        self._off[(role, session.id)] = self._off[key]
+            self._mem[key] = (est.t[ok].copy(), xy[ok].copy(), sd[ok].copy(),
+                              None if lr is None else np.asarray(lr, float)[ok].copy())
         return self._mem[key]
 
     # ------------------------------------------------------------------ per method and session
@@ -278,13 +279,13 @@ class FixProvider:
                 missing[role] = next(iter(missing.values()))
                 continue
             try:
-                t, xy, sd, src = self._fixes(role, session)
+                t, xy, sd, src, off = self._fixes(role, session)
             except MissingStream as exc:
                 missing[role] = str(exc)
                 continue
             key = (role, session.id)
             got[role] = RoleFixes(t, xy, sd, src, computed=key in self._computed, wall_s=self.compute_s.get(key),
-                                  off_log_ratio=self._off.get(key) if key in self._computed else None)
+                                  off_log_ratio=off)
         return Fixes(got, missing)
 
     def resolve_first(self, roles, session) -> Fixes:

@@ -486,10 +486,9 @@ class FingerprintLocalizer(Localizer, Trained):
         S, t = self.heard_windows(session, fm.columns)
         if not len(t):
             raise MissingStream(f"session {session.id}: no {self.cfg.features} source of the training walks heard")
-        xy, cov = fm(S, session.id)
-        outputs = {}
-        if isinstance(fm.predict, KNN.KnnModel) and fm.predict.novelty_model is not None:
-            outputs["off_survey_log_ratio"] = fm.predict.novelty_model.log_ratio(fm.predict.nearest(S, session.id))
+        knn = fm.predict if isinstance(fm.predict, KNN.KnnModel) and fm.predict.novelty_model is not None else None
+        xy, cov, d1 = knn.predict(S, exclude=session.id) if knn is not None else (*fm(S, session.id), None)
+        outputs = {} if knn is None else {"off_survey_log_ratio": knn.novelty_model.log_ratio(d1)}
         if not np.isfinite(xy).all():
             raise ValueError(f"{self.name}: non-finite position on session {session.id}")
         R = int(n_runs)

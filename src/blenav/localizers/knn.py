@@ -277,9 +277,6 @@ class NoveltyModel:
     base: float
     off_m: float = 5.0
 
-    def p_off(self, d1: np.ndarray) -> np.ndarray:
-        return 1.0 / (1.0 + np.exp(-np.clip(self.a + self.b * np.asarray(d1, float), -30.0, 30.0)))
-
     def log_ratio(self, d1: np.ndarray) -> np.ndarray:
         """(K,) log Bayes factor of off the survey against on it for fixes whose d1 is ``d1`` (K,)."""
         z = np.clip(self.a + self.b * np.asarray(d1, float), -30.0, 30.0)
@@ -388,13 +385,6 @@ class KnnModel:
         self.bb = np.einsum("nf,nf->n", self.X, self.X)  # X's squared norms, once for every query
         self.novelty_model: NoveltyModel | None = None  # set by the fingerprint localizer (fix_std: calibrated)
 
-    def nearest(self, Sq, exclude: str | None = None) -> np.ndarray:
-        """(K,) d1: each window of Sq (K, F, H)'s distance to its nearest reference window on this model's
-        representation (the group ``exclude`` left out, as :meth:`__call__`)."""
-        drop = None if exclude is None else self.groups == exclude
-        X, bb = (self.X, self.bb) if drop is None or not drop.any() else (self.X[~drop], self.bb[~drop])
-        return nearest_distance(self.represent(Sq), X, bb)
-
     def represent(self, S: np.ndarray) -> np.ndarray:
         """(K, D): windows S (K, F, H) on this model's representation (:func:`represent`)."""
         st = self.setting
@@ -410,20 +400,26 @@ class KnnModel:
                         self.cov_floor_m, std_model, np.concatenate([self.groups, np.asarray(groups, object)]))
 
     def __call__(self, Sq, exclude: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        return self.predict(Sq, exclude)[:2]
+
+    def predict(self, Sq, exclude: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(xy (K, 2) m, cov (K, 2, 2) m^2, d1 (K,)) of windows Sq (K, F, H): :meth:`__call__`'s estimates and each
+        window's distance to its nearest reference window (:class:`StdModel`'s and :class:`NoveltyModel`'s feature),
+        from the one neighbour search."""
         st = self.setting
         drop = None if exclude is None else self.groups == exclude
         X, bb, xy = (self.X, self.bb, self.xy) if drop is None or not drop.any() else \
             (self.X[~drop], self.bb[~drop], self.xy[~drop])
         Q = self.represent(Sq)
-        out_xy, out_cov = np.zeros((len(Q), 2)), np.zeros((len(Q), 2, 2))
+        out_xy, out_cov, out_d1 = np.zeros((len(Q), 2)), np.zeros((len(Q), 2, 2)), np.zeros(len(Q))
         for i in range(0, len(Q), 512):  # bounded memory: 512 x N distances at a time
             idx, d2 = _nearest(_sqdist(Q[i:i + 512], X, bb), st.k)
             est, cov = combine(idx, d2, xy, st.k, st.weights, self.cov_floor_m)
+            spread, d1 = std_features(idx, d2, cov, self.cov_floor_m)
             if self.std_model is not None:
-                sd = self.std_model.std(*std_features(idx, d2, cov, self.cov_floor_m))
-                cov = (sd**2)[:, None, None] * np.eye(2)
-            out_xy[i:i + 512], out_cov[i:i + 512] = est, cov
-        return out_xy, out_cov
+                cov = (self.std_model.std(spread, d1) ** 2)[:, None, None] * np.eye(2)
+            out_xy[i:i + 512], out_cov[i:i + 512], out_d1[i:i + 512] = est, cov, d1
+        return out_xy, out_cov, out_d1
 
 
 def fit(S: np.ndarray, xy: np.ndarray, setting: KnnSetting, is_ble: np.ndarray, fill_dbm: float,

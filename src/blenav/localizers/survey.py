@@ -37,7 +37,7 @@ def survey_counts(grid, walks: list, step_s: float) -> np.ndarray:
     return cnt
 
 
-def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5, counts: np.ndarray | None = None
+def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = SURVEY_STEP_S, counts: np.ndarray | None = None
                ) -> np.ndarray:
     """(N,) density (sums to 1) over ``grid``'s cells of the labelled ``walks``' positions (interpolated linearly
     between their waypoints every ``step_s`` s), blurred by a Gaussian of ``blur_m`` m over the cell raster.
@@ -51,7 +51,7 @@ def path_prior(grid, walks: list, blur_m: float = 1.5, step_s: float = 0.5, coun
     return img / tot if tot > 0 else np.full(grid.n_cells, 1.0 / grid.n_cells)
 
 
-def survey_distance(grid, walks: list, step_s: float = 0.5, counts: np.ndarray | None = None
+def survey_distance(grid, walks: list, step_s: float = SURVEY_STEP_S, counts: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Per cell of ``grid``: (distance in m to the nearest cell the labelled ``walks`` passed (N,), that cell's index
     (N,)); zeros and the cell itself where no walk is given. (The walks' positions are counted on their cells
