@@ -38,7 +38,7 @@ ROWS = ("fused-online", "fused-offline")
 
 #: the settings of the realwalks rows the known-start twins copy (the rest is conf/localizer/fused_walk.yaml's, as
 #: the rows' own)
-COPIED = ("mode", "estimate", "fix_roles", "novelty")
+COPIED = ("mode", "estimate", "fix_roles", "novelty", "fix_std_scale")
 
 
 def eval_args(data: str, out: Path) -> list[str]:

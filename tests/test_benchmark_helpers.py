@@ -98,3 +98,31 @@ def test_pooled_map_sees_a_walk_along_another_track_and_scores_against_the_truth
     a = pd.DataFrame({"anchor_id": ["b1", "b2", "ap"], "kind": ["ble", "ble", "wifi_rtt"], "x": [0.0, 3.0, 9.0],
                       "y": [0.0, 4.0, 9.0], "x_true": [0.0, 0.0, 0.0], "y_true": [0.0, 0.0, 0.0]})
     assert mod.map_error(a, a) == pytest.approx(2.5)  # (0 + 5) / 2, the AP not counted
+
+
+def test_fused_tuning_pools_splits_by_walks_and_measures_how_fix_errors_hang_together(monkeypatch, tmp_path):
+    """benchmarks/fused_tuning.py: a row's mean over a floor's splits weighs each split by its walks (and "pooled" over
+    every floor); a walk whose fixes share one error vector correlates 1 at every lag and is all offset, a walk whose
+    error flips sign every fix correlates -1 one fix apart and has no offset; fix errors are read from the TUM files
+    against the ground truth interpolated at the fixes' times, those outside its span dropped."""
+    import numpy as np
+
+    mod = _load("fused_tuning", monkeypatch)
+    row = lambda mean, n: {"error_m": {"mean": mean}, "per_session": {f"s{i}": {} for i in range(n)}}  # noqa: E731
+    t = mod.pooled([("F1", {"r": row(2.0, 1)}), ("F1", {"r": row(5.0, 2)}), ("F2", {"r": row(8.0, 1)})])
+    assert t["r"]["F1"] == (pytest.approx(4.0), 3, 2) and t["r"]["F2"] == (pytest.approx(8.0), 1, 1)
+    assert t["r"]["pooled"][0] == pytest.approx(5.0)  # (2 + 10 + 8) / 4
+    same = (np.arange(6.0), np.tile([3.0, -4.0], (6, 1)))
+    corr, share = mod.error_coherence([same], lags=(1, 3))
+    assert corr == {1: pytest.approx(1.0), 3: pytest.approx(1.0)} and share == pytest.approx(1.0)
+    flip = (np.arange(6.0), np.outer((-1.0) ** np.arange(6), [1.0, 2.0]))
+    corr, share = mod.error_coherence([flip], lags=(1, 2))
+    assert corr[1] == pytest.approx(-1.0) and corr[2] == pytest.approx(1.0) and share == pytest.approx(0.0)
+    d = tmp_path / "walk" / "trajectories"
+    d.mkdir(parents=True)
+    pad = np.column_stack([np.zeros((3, 4)), np.ones(3)])
+    np.savetxt(d / "groundtruth.tum", np.column_stack([[0.0, 10.0, 20.0], [0.0, 10.0, 10.0], [0.0, 0.0, 10.0], pad]))
+    np.savetxt(d / "KNN-WiFi+BLE.tum", np.column_stack([[5.0, 15.0, 25.0], [6.0, 11.0, 0.0], [1.0, 5.0, 0.0], pad]))
+    (tt, err), = mod.fix_errors(tmp_path)
+    np.testing.assert_allclose(tt, [5.0, 15.0])
+    np.testing.assert_allclose(err, [[1.0, 1.0], [1.0, 0.0]])  # truth (5, 0) and (10, 5)

@@ -320,3 +320,36 @@ def test_off_survey_evidence_moves_the_walk_off_the_survey_by_its_weight(walks):
         RoleFixes(base.t, base.xy, base.std, base.source, off_log_ratio=np.zeros(len(base.t) + 1))
     with pytest.raises(ValueError, match="novelty"):
         FusedWalk("x", novelty={"weight": -1.0})
+
+
+def test_fix_std_scale_is_each_fix_stated_wider(walks):
+    """fix_std_scale s (the realwalks rows' 1.5: a walk's fixes err together, benchmarks/fused_tuning.py) weighs every
+    fix as if its std were s times the stated one, in the grid and in the factor graph, offline and online: the same
+    estimates as scale 1 on the same fixes with their std multiplied by s; and a fix moved 6 m then drags the track
+    less than at scale 1."""
+    train, test = walks[:2], walks[2]
+    knn = FingerprintLocalizer("KNN", features="ble", fix_std="calibrated")
+    knn.fit(train)
+    base = _fixes(knn, test)["both"]
+    wide = RoleFixes(base.t, base.xy, 2.0 * base.std, base.source, computed=True)
+    moved_xy = base.xy.copy()
+    j = len(base.t) // 2
+    moved_xy[j] += (6.0, 0.0)
+    moved = RoleFixes(base.t, moved_xy, base.std, base.source, computed=True)
+
+    def run(fx, scale, mode="offline"):
+        m = FusedWalk("x", mode=mode, estimate="graph", fix_std_scale=scale)
+        inputs = RunInputs(cache={})
+        m.fit(train, inputs)
+        return m.run(test, 1, 0, inputs.with_fixes(Fixes(roles={"both": fx})))
+
+    for mode in ("offline", "online"):
+        a, b = run(base, 2.0, mode), run(wide, 1.0, mode)
+        np.testing.assert_allclose(a.position, b.position, atol=1e-9)
+        np.testing.assert_allclose(a.t, b.t)
+    pull = {}
+    for scale in (1.0, 2.0):
+        e0, e1 = run(base, scale), run(moved, scale)
+        k = int(np.argmin(np.abs(e0.t - base.t[j])))
+        pull[scale] = float(np.hypot(*(e1.position[0, k] - e0.position[0, k])))
+    assert pull[2.0] < pull[1.0], pull
