@@ -32,16 +32,19 @@ import numpy as np
 
 from blenav.cli.eval import main as eval_main
 from blenav.cli.realwalks import train_ids_of
+from blenav.eval.report_html import read_tum
 
 FIX_ROW = "KNN-WiFi+BLE"
 ROWS = ("fused-online", "fused-offline")
 LAGS = (1, 2, 3, 5, 8)
 
 
-def eval_args(data: str, seed: int, fraction: float, rows: dict[str, str], out: Path) -> list[str]:
-    """blenav-eval's overrides: experiment=realwalks on ``data``'s train walks split again (``seed``, ``fraction``),
-    the fix row, the fused rows and the variants ``rows`` (name -> YAML body of a FusedWalk block)."""
-    args = ["experiment=realwalks", f"data={data}", f"sessions=[{','.join(train_ids_of(data))}]",
+def eval_args(data: str, train_ids: list[str], seed: int, fraction: float, rows: dict[str, str], out: Path
+              ) -> list[str]:
+    """blenav-eval's overrides: experiment=realwalks on ``data``'s train walks ``train_ids``
+    (:func:`blenav.cli.realwalks.train_ids_of`) split again (``seed``, ``fraction``), the fix row, the fused rows and
+    the variants ``rows`` (name -> YAML body of a FusedWalk block)."""
+    args = ["experiment=realwalks", f"data={data}", f"sessions=[{','.join(train_ids)}]",
             f"split.seed={seed}", f"split.train_fraction={fraction}", "runs=1", f"out={out}", "overwrite=true",
             "progress=false"]
     for name, body in rows.items():
@@ -85,18 +88,20 @@ def error_coherence(pairs: list[tuple[np.ndarray, np.ndarray]], lags=LAGS) -> tu
 
 
 def fix_errors(out: Path, row: str = FIX_ROW) -> list[tuple[np.ndarray, np.ndarray]]:
-    """[(t, error vectors)] per scored walk of the evaluation in ``out``: the row's estimates (its TUM trajectory)
-    minus the ground truth interpolated linearly at their times, those inside the ground truth's span."""
+    """[(t, error vectors)] per scored walk of the evaluation in ``out``: the row's estimates (its TUM trajectory,
+    read bounded by :func:`blenav.eval.report_html.read_tum`) minus the ground truth interpolated linearly at their
+    times, those inside the ground truth's span."""
     pairs = []
     for traj in sorted(out.glob(f"*/trajectories/{row}.tum")):
         gt_file = traj.parent / "groundtruth.tum"
         if not gt_file.exists():
             continue
-        f, g = np.loadtxt(traj, ndmin=2), np.loadtxt(gt_file, ndmin=2)
-        inside = (f[:, 0] >= g[0, 0]) & (f[:, 0] <= g[-1, 0])
-        t = f[inside, 0]
-        truth = np.column_stack([np.interp(t, g[:, 0], g[:, 1]), np.interp(t, g[:, 0], g[:, 2])])
-        pairs.append((t, f[inside, 1:3] - truth))
+        (t, xy), (gt, g) = read_tum(traj), read_tum(gt_file)
+        if not len(gt):
+            continue
+        inside = (t >= gt[0]) & (t <= gt[-1])
+        t = t[inside]
+        pairs.append((t, xy[inside] - np.column_stack([np.interp(t, gt, g[:, 0]), np.interp(t, gt, g[:, 1])])))
     return pairs
 
 
@@ -113,10 +118,10 @@ def main() -> None:
     root = args.out or Path(tempfile.mkdtemp(prefix="fused_tuning_"))
     runs, pairs = [], defaultdict(list)
     for data in args.data:
-        floor = Path(data).name
+        floor, ids = Path(data).name, train_ids_of(data)
         for seed in args.seeds:
             out = root / f"{floor}_s{seed}"
-            eval_main(eval_args(data, seed, args.fraction, rows, out))
+            eval_main(eval_args(data, ids, seed, args.fraction, rows, out))
             runs.append((floor, json.loads((out / "results.json").read_text())["methods"]))
             pairs[floor] += fix_errors(out)
     table = pooled(runs)
