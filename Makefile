@@ -406,13 +406,16 @@ backend-robust: $(STAMP)
 
 # Issue 31 in the back-end: the same runs with a learned inertial odometry's between-factors (io_model=), the model
 # trained on simulated walks of another building (sim=small, 12 walks of 120 s; ~3 min), docs/results/backend_robust_lio.md
+# (made with the plain network, before exports averaged it over turns of the frame: BR_YAWS=1 keeps that page's export;
+# BR_YAWS= takes export.py's default)
 BR_IO ?= data/runs/backend_io_onnx
+BR_YAWS ?= 1
 backend-robust-lio: $(STAMP)
 	test -e $(BR_IO)/meta.json || { \
 	  $(BIN)/blenav-sim sim=small seed=21 out=data/sim/backend_io_walks duration_s=120 sessions=12 overwrite=true \
 	      progress=false 'sim.carriers=[pedestrian]' && \
 	  $(BIN)/python train.py experiment=inertial data=data/sim/backend_io_walks out=data/runs/backend_io && \
-	  $(BIN)/python export.py ckpt=data/runs/backend_io/last.ckpt out=$(BR_IO); }
+	  $(BIN)/python export.py ckpt=data/runs/backend_io/last.ckpt out=$(BR_IO) $(if $(BR_YAWS),yaw_ensemble=$(BR_YAWS)); }
 	$(MAKE) -o $(STAMP) backend-robust BR_ARGS=io_model=$(BR_IO) BR_POOL= BR_NOISE=mapnoise_000 \
 	    BR_OUT=data/results/backend_robust_lio \
 	    BR_DOC=docs/results/backend_robust_lio.md "BR_CMD=make backend-robust-lio" \

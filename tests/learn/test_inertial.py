@@ -12,11 +12,11 @@ import torch
 
 from blenav.configs import compose
 from blenav.features.inertial import (CHANNELS, InertialGrid, displacement_errors, heading_frame, integrate,
-                                      rotate_velocity, segment_weights, windows)
+                                      rotate_velocity, segment_weights, turn_pairs, windows)
 from blenav.filters.inertial_odometry import world_frame_imu
 from blenav.filters.quaternions import qmul, qz
 from blenav.learn.inertial.module import segment_loss, to_attitude_frame
-from blenav.models.inertial import TCN, ResNet1D
+from blenav.models.inertial import TCN, ResNet1D, YawEnsemble
 
 from helpers import as_waypoint_walks
 
@@ -109,6 +109,47 @@ def test_networks_shapes(cls):
     assert out.shape == (3, 4) and torch.isfinite(out).all()
 
 
+def _turned(x: torch.Tensor, a: float) -> torch.Tensor:
+    n = len(x)
+    return torch.from_numpy(turn_pairs(x.numpy(), np.full(n, np.cos(a)), np.full(n, np.sin(a))))
+
+
+def _turn_v(v: np.ndarray, a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], 1)
+
+
+def test_yaw_ensemble_by_hand_and_equivariant():
+    """k = 1 is the network; k = 2 is the mean of the network and its answer to the frame turned by pi, turned back
+    (variance: the members' mean plus their spread, by hand); turning the input by a multiple of 2 pi / k turns the
+    output exactly (the members are permuted); the per-axis variance is the same for a quarter turn's multiple of
+    k = 4 with the axes swapped."""
+    from blenav.learn.inertial.export import sample_windows
+
+    torch.manual_seed(0)
+    net = TCN(GRID.n_window, GRID.n_stride).eval()
+    x = sample_windows(6, GRID.n_window, seed=3)
+    with torch.no_grad():
+        ref = net(x).numpy()
+        np.testing.assert_array_equal(YawEnsemble(net, 1)(x).numpy(), ref)
+        o2 = YawEnsemble(net, 2)(x).numpy()
+        turned = net(_turned(x, np.pi)).numpy()
+    v1, v2 = ref[:, :2], -turned[:, :2]  # turned back by -pi
+    mean = (v1 + v2) / 2
+    np.testing.assert_allclose(o2[:, :2], mean, atol=1e-5)
+    var = (np.exp(ref[:, 2:]) + np.exp(turned[:, 2:])) / 2 + ((v1 - mean) ** 2 + (v2 - mean) ** 2) / 2
+    np.testing.assert_allclose(o2[:, 2:], np.log(var), atol=1e-4)
+    for k, j in ((4, 1), (8, 3)):
+        ens, a = YawEnsemble(net, k), 2 * np.pi * j / k
+        with torch.no_grad():
+            o, oa = ens(x).numpy(), ens(_turned(x, a)).numpy()
+        np.testing.assert_allclose(oa[:, :2], _turn_v(o[:, :2], a), atol=1e-5)
+        if k == 4:  # a quarter turn swaps the axes' variances
+            np.testing.assert_allclose(oa[:, 2:], o[:, ::-1][:, :2], atol=1e-4)
+    with pytest.raises(ValueError, match="1 .. 64"):
+        YawEnsemble(net, 0)
+
+
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory, three_walks):
     """Three simulated walks turned into ILC-like waypoint walks; a 40-step run, resumed to 60, exported."""
@@ -151,8 +192,10 @@ def test_export_parity_and_runtime_track(trained):
     meta = json.loads((trained["io"] / "meta.json").read_text())
     assert meta["parity"]["velocity"] <= 1e-4 and meta["parity"]["log_var"] <= 1e-4
     assert meta["input_frame"] == "world" and meta["channels"] == list(CHANNELS)
+    assert meta["yaw_ensemble"] == 4  # the default of a world-frame network
     model = InertialModel(trained["io"])
     net, _ = load_inertial(trained["root"] / "run" / "last.ckpt")
+    net = YawEnsemble(net, 4).eval()
     s = next(iter(Dataset.open(trained["data"]).sessions()))
     _, X, _ = session_frame_imu(s, model.grid, "auto")
     W = windows(X, model.grid)  # real (simulated) walk windows
@@ -164,6 +207,34 @@ def test_export_parity_and_runtime_track(trained):
     odo = model.odometry(s)
     assert list(odo.columns) == ["t", "x", "y", "var"] and np.isfinite(odo.to_numpy()).all()
     assert (np.diff(odo["var"]) > 0).all()
+
+
+def test_export_yaw_ensemble_setting(trained, tmp_path):
+    """export.py yaw_ensemble=1: the plain network (its graph answers as the checkpoint's net); a count out of 1 .. 64
+    or not whole is refused before anything is written; meta.json telling another count than the graph's is refused."""
+    import json
+
+    from blenav.learn.export import export
+    from blenav.learn.inertial.checkpoint import load_inertial
+    from blenav.learn.inertial.export import sample_windows
+    from blenav.runtime.inertial import InertialModel
+
+    ckpt = trained["root"] / "run" / "last.ckpt"
+    io = export(compose("export", f"ckpt={ckpt}", f"out={tmp_path / 'io1'}", "yaw_ensemble=1"))
+    assert json.loads((io / "meta.json").read_text())["yaw_ensemble"] == 1
+    net, _ = load_inertial(ckpt)
+    x = sample_windows(5, net.n_window, seed=2)
+    v, _ = InertialModel(io).predict(x.numpy())
+    with torch.no_grad():
+        np.testing.assert_allclose(v, net(x).numpy()[:, :2], atol=1e-5)
+    for bad in (0, 65, 2.5):
+        with pytest.raises(ValueError, match="yaw_ensemble"):
+            export(compose("export", f"ckpt={ckpt}", f"out={tmp_path / f'bad{bad}'}", f"yaw_ensemble={bad}"))
+        assert not (tmp_path / f"bad{bad}").exists()
+    edited = shutil.copytree(io, tmp_path / "io_edited")
+    (edited / "meta.json").write_text(json.dumps({**json.loads((io / "meta.json").read_text()), "yaw_ensemble": 8}))
+    with pytest.raises(ValueError, match="yaw_ensemble"):
+        InertialModel(edited)
 
 
 def test_changed_export_refused(trained, tmp_path):
@@ -249,6 +320,7 @@ def test_heading_frame_run_exports_and_runs(trained, tmp_path):
     io = export(compose("export", f"ckpt={run / 'last.ckpt'}", f"out={tmp_path / 'io'}"))
     meta = json.loads((io / "meta.json").read_text())
     assert meta["input_frame"] == "heading" and meta["attitude"]["yaw"] == "auto"  # data.yaw's default
+    assert meta["yaw_ensemble"] == 1  # exactly equivariant already: nothing to average
     edited = shutil.copytree(io, tmp_path / "io_edited")  # meta.json told another yaw after export: refused
     (edited / "meta.json").write_text(json.dumps({**meta, "attitude": {**meta["attitude"], "yaw": "attitude"}}))
     with pytest.raises(ValueError, match="attitude"):

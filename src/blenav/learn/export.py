@@ -34,6 +34,7 @@ def export(cfg) -> Path:
         from .inertial.export import export_checkpoint as export_inertial
 
         data = (cfg.get("data") or {}).get("path") if hasattr(cfg, "get") else None
-        return export_inertial(cfg.ckpt, cfg.out, opset=opset, data=data)
+        k = cfg.get("yaw_ensemble") if hasattr(cfg, "get") else None
+        return export_inertial(cfg.ckpt, cfg.out, opset=opset, data=data, yaw_ensemble=k)
     module, meta = load_module(cfg.ckpt)
     return export_module(module, meta, cfg.out, opset=opset)

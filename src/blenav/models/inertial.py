@@ -19,7 +19,9 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-__all__ = ["InertialNet", "ResNet1D", "TCN", "LOG_VAR_MIN", "LOG_VAR_MAX"]
+from blenav.features.inertial import YAW_PAIRS
+
+__all__ = ["InertialNet", "ResNet1D", "TCN", "YawEnsemble", "LOG_VAR_MIN", "LOG_VAR_MAX"]
 
 LOG_VAR_MIN, LOG_VAR_MAX = -9.0, 4.0  # (m/s)^2: std 0.011 .. 7.4 m/s
 
@@ -113,3 +115,52 @@ class TCN(InertialNet):
     def features(self, x):
         h = self.blocks(self.proj(x))
         return self.head(h[:, :, -self.n_stride:].mean(dim=2))
+
+
+class YawEnsemble(nn.Module):
+    """A network of the attitude's frame (``input_frame: world``, trained with random yaws) averaged over ``k`` turns of
+    that frame: window x turned by a_j = 2 pi j / k (every horizontal pair of :data:`YAW_PAIRS`), the member's
+    velocity turned back by -a_j, the k velocities averaged; the variance the mean of the members' per-axis
+    variances turned back (the diagonal of R D R^T) plus the members' spread about the mean, as for any ensemble.
+    The frame's heading is arbitrary to a network trained with random yaws, so the k answers are draws of one
+    estimate: their mean removes the part of its error that depends on the heading (test-time augmentation). Exactly
+    equivariant to turns by multiples of 2 pi / k (they permute the members); ``k = 1`` is the network itself.
+
+    (B, n_window, 15) -> (B, 4) as :class:`InertialNet`; k members cost k forward passes (one batch of B k)."""
+
+    def __init__(self, net: InertialNet, k: int):
+        super().__init__()
+        if not 1 <= int(k) <= 64:
+            raise ValueError(f"yaw ensemble: k must be 1 .. 64 turns, got {k!r}")
+        self.net, self.k = net, int(k)
+        self.n_window, self.n_stride, self.in_channels = net.n_window, net.n_stride, net.in_channels
+        a = 2 * torch.pi * torch.arange(self.k, dtype=torch.float64) / self.k
+        self.register_buffer("cos", torch.cos(a).to(torch.float32), persistent=False)
+        self.register_buffer("sin", torch.sin(a).to(torch.float32), persistent=False)
+
+    def forward(self, imu: torch.Tensor) -> torch.Tensor:
+        if self.k == 1:
+            return self.net(imu)
+        B, T, C = imu.shape
+        c, s = self.cos[:, None, None, None], self.sin[:, None, None, None]  # (k, 1, 1, 1)
+        x = imu[None].expand(self.k, B, T, C)
+        parts = []
+        for j in range(C):  # the pairs turned, every other channel as it is
+            pair = next((p for p in YAW_PAIRS if j in p), None)
+            if pair is None:
+                parts.append(x[..., j])
+            elif j == pair[0]:
+                parts.append((c[..., 0] * x[..., pair[0]] - s[..., 0] * x[..., pair[1]]))
+            else:
+                parts.append((s[..., 0] * x[..., pair[0]] + c[..., 0] * x[..., pair[1]]))
+        out = self.net(torch.stack(parts, dim=-1).reshape(self.k * B, T, C)).reshape(self.k, B, 4)
+        cb, sb = self.cos[:, None], self.sin[:, None]  # turn back by -a: R(-a) = [[c, s], [-s, c]]
+        v, var = out[..., :2], torch.exp(out[..., 2:])
+        vx, vy = cb * v[..., 0] + sb * v[..., 1], -sb * v[..., 0] + cb * v[..., 1]
+        varx = cb * cb * var[..., 0] + sb * sb * var[..., 1]
+        vary = sb * sb * var[..., 0] + cb * cb * var[..., 1]
+        mx, my = vx.mean(dim=0), vy.mean(dim=0)
+        varx = varx.mean(dim=0) + ((vx - mx) ** 2).mean(dim=0)
+        vary = vary.mean(dim=0) + ((vy - my) ** 2).mean(dim=0)
+        log_var = torch.log(torch.stack([varx, vary], dim=1)).clamp(LOG_VAR_MIN, LOG_VAR_MAX)
+        return torch.cat([torch.stack([mx, my], dim=1), log_var], dim=1)

@@ -76,7 +76,7 @@ class InertialModel:
         self.key += f":yaw={self.yaw}"  # the same weights fed another yaw make another track
         self.sess = session(paths[0], threads)
         props = read_metadata(self.sess)  # the contract the graph was exported with: meta.json must say the same
-        for key in ("grid", "channels", "input_frame", "attitude"):  # attitude: exports since data.yaw
+        for key in ("grid", "channels", "input_frame", "attitude", "yaw_ensemble"):  # attitude: exports since data.yaw
             if key in props and props[key] != meta.get(key):
                 raise ValueError(f"{where}: {key} = {meta.get(key)!r}, but {paths[0].name} was exported with "
                                  f"{props[key]!r}: meta.json was changed after export; export IO_DIR again")
