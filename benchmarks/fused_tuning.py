@@ -32,6 +32,7 @@ import numpy as np
 
 from blenav.cli.eval import main as eval_main
 from blenav.cli.realwalks import train_ids_of
+from blenav.eval.metrics import positions_at
 from blenav.eval.report_html import read_tum
 
 FIX_ROW = "KNN-WiFi+BLE"
@@ -101,7 +102,7 @@ def fix_errors(out: Path, row: str = FIX_ROW) -> list[tuple[np.ndarray, np.ndarr
             continue
         inside = (t >= gt[0]) & (t <= gt[-1])
         t = t[inside]
-        pairs.append((t, xy[inside] - np.column_stack([np.interp(t, gt, g[:, 0]), np.interp(t, gt, g[:, 1])])))
+        pairs.append((t, xy[inside] - positions_at(gt, g[None], t)[0]))
     return pairs
 
 

@@ -57,7 +57,6 @@ def main(argv: list[str] | None = None) -> None:
             print(f"| {run.name} | 0 | 0 |" + " - |" * len(a.yaws))
             continue
         net, _ = load_inertial(run / "last.ckpt")
-        torch.manual_seed(0)  # nothing is drawn; the validation set is not augmented
         batches = list(dm.val_dataloader())
         cells = []
         for k in a.yaws:

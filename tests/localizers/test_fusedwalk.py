@@ -323,10 +323,10 @@ def test_off_survey_evidence_moves_the_walk_off_the_survey_by_its_weight(walks):
 
 
 def test_fix_std_scale_is_each_fix_stated_wider(walks):
-    """fix_std_scale s (the realwalks rows' 1.5: a walk's fixes err together, benchmarks/fused_tuning.py) weighs every
-    fix as if its std were s times the stated one, in the grid and in the factor graph, offline and online: the same
-    estimates as scale 1 on the same fixes with their std multiplied by s; and a fix moved 6 m then drags the track
-    less than at scale 1."""
+    """fix_std_scale s (measured with benchmarks/fused_tuning.py; the realwalks rows keep 1: docs/results-ilc20.md)
+    weighs every fix as if its std were s times the stated one, in the grid and in the factor graph, offline and
+    online: the same estimates as scale 1 on the same fixes with their std multiplied by s; and a fix moved 6 m then
+    drags the track less than at scale 1."""
     train, test = walks[:2], walks[2]
     knn = FingerprintLocalizer("KNN", features="ble", fix_std="calibrated")
     knn.fit(train)

@@ -21,9 +21,20 @@ from torch import nn
 
 from blenav.features.inertial import YAW_PAIRS
 
-__all__ = ["InertialNet", "ResNet1D", "TCN", "YawEnsemble", "LOG_VAR_MIN", "LOG_VAR_MAX"]
+__all__ = ["InertialNet", "ResNet1D", "TCN", "YawEnsemble", "to_attitude_frame", "LOG_VAR_MIN", "LOG_VAR_MAX"]
 
 LOG_VAR_MIN, LOG_VAR_MAX = -9.0, 4.0  # (m/s)^2: std 0.011 .. 7.4 m/s
+
+
+def to_attitude_frame(out: torch.Tensor, psi: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Velocities (N, 2) and per-axis variances (N, 2) of outputs ``out`` (N, 4) in frames turned by psi (N,) rad,
+    turned back by psi (:func:`blenav.features.inertial.rotate_velocity`, in torch): the heading frame's windows in
+    training, the members of :class:`YawEnsemble`."""
+    c, s = torch.cos(psi), torch.sin(psi)
+    v, var = out[:, :2], torch.exp(out[:, 2:])
+    vw = torch.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], dim=1)
+    varw = torch.stack([c * c * var[:, 0] + s * s * var[:, 1], s * s * var[:, 0] + c * c * var[:, 1]], dim=1)
+    return vw, varw
 
 
 class InertialNet(nn.Module):
@@ -135,32 +146,20 @@ class YawEnsemble(nn.Module):
         self.net, self.k = net, int(k)
         self.n_window, self.n_stride, self.in_channels = net.n_window, net.n_stride, net.in_channels
         a = 2 * torch.pi * torch.arange(self.k, dtype=torch.float64) / self.k
-        self.register_buffer("cos", torch.cos(a).to(torch.float32), persistent=False)
-        self.register_buffer("sin", torch.sin(a).to(torch.float32), persistent=False)
+        self.register_buffer("angle", a.to(torch.float32), persistent=False)  # member j's turn a_j, rad
 
     def forward(self, imu: torch.Tensor) -> torch.Tensor:
         if self.k == 1:
             return self.net(imu)
         B, T, C = imu.shape
-        c, s = self.cos[:, None, None, None], self.sin[:, None, None, None]  # (k, 1, 1, 1)
+        c, s = torch.cos(self.angle)[:, None, None], torch.sin(self.angle)[:, None, None]  # (k, 1, 1)
         x = imu[None].expand(self.k, B, T, C)
-        parts = []
-        for j in range(C):  # the pairs turned, every other channel as it is
-            pair = next((p for p in YAW_PAIRS if j in p), None)
-            if pair is None:
-                parts.append(x[..., j])
-            elif j == pair[0]:
-                parts.append((c[..., 0] * x[..., pair[0]] - s[..., 0] * x[..., pair[1]]))
-            else:
-                parts.append((s[..., 0] * x[..., pair[0]] + c[..., 0] * x[..., pair[1]]))
-        out = self.net(torch.stack(parts, dim=-1).reshape(self.k * B, T, C)).reshape(self.k, B, 4)
-        cb, sb = self.cos[:, None], self.sin[:, None]  # turn back by -a: R(-a) = [[c, s], [-s, c]]
-        v, var = out[..., :2], torch.exp(out[..., 2:])
-        vx, vy = cb * v[..., 0] + sb * v[..., 1], -sb * v[..., 0] + cb * v[..., 1]
-        varx = cb * cb * var[..., 0] + sb * sb * var[..., 1]
-        vary = sb * sb * var[..., 0] + cb * cb * var[..., 1]
-        mx, my = vx.mean(dim=0), vy.mean(dim=0)
-        varx = varx.mean(dim=0) + ((vx - mx) ** 2).mean(dim=0)
-        vary = vary.mean(dim=0) + ((vy - my) ** 2).mean(dim=0)
-        log_var = torch.log(torch.stack([varx, vary], dim=1)).clamp(LOG_VAR_MIN, LOG_VAR_MAX)
-        return torch.cat([torch.stack([mx, my], dim=1), log_var], dim=1)
+        cols = list(x.unbind(dim=-1))  # every horizontal pair turned by its member's angle, the rest as it is
+        for i, j in YAW_PAIRS:
+            cols[i], cols[j] = c * x[..., i] - s * x[..., j], s * x[..., i] + c * x[..., j]
+        out = self.net(torch.stack(cols, dim=-1).reshape(self.k * B, T, C))
+        v, var = to_attitude_frame(out, -self.angle.repeat_interleave(B))  # member-major, as the batch was stacked
+        v, var = v.reshape(self.k, B, 2), var.reshape(self.k, B, 2)
+        mean = v.mean(dim=0)
+        var = var.mean(dim=0) + ((v - mean) ** 2).mean(dim=0)  # the members' variance and their spread
+        return torch.cat([mean, torch.log(var).clamp(LOG_VAR_MIN, LOG_VAR_MAX)], dim=1)

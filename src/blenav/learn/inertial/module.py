@@ -26,20 +26,10 @@ from functools import partial
 import lightning as L
 import torch
 
-from blenav.models.inertial import InertialNet
+from blenav.models.inertial import InertialNet, to_attitude_frame
 
 from ..common.checkpoint import KEY
 from ..common.schedule import lr_factor
-
-
-def to_attitude_frame(out: torch.Tensor, psi: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Velocities (N, 2) and per-axis variances (N, 2) of outputs ``out`` (N, 4) in the windows' heading frames turned
-    back by psi (N,) rad (:func:`blenav.features.inertial.rotate_velocity`, in torch)."""
-    c, s = torch.cos(psi), torch.sin(psi)
-    v, var = out[:, :2], torch.exp(out[:, 2:])
-    vw = torch.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], dim=1)
-    varw = torch.stack([c * c * var[:, 0] + s * s * var[:, 1], s * s * var[:, 0] + c * c * var[:, 1]], dim=1)
-    return vw, varw
 
 
 def segment_integral(out: torch.Tensor, segment: torch.Tensor, weight: torch.Tensor, n_segments: int,
