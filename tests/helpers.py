@@ -251,3 +251,18 @@ class RowModel:
         W = np.asarray(W, np.float64)
         v = np.stack([W[:, :, 0].mean(1) + 0.3 * W[:, -1, 5], W[:, :, 1].mean(1) - 0.2 * W[:, :, 3].std(1)], 1)
         return v, np.stack([np.log1p(W[:, :, 0].var(1)), -1.0 + W[:, :, 2].mean(1) * 0.01], 1)
+
+
+def exported_streaming(loc, B: int, H: int, layers: int, hidden: int, path, batches=(1, 3), u_max: float = 70.0):
+    """``loc`` (a LocNet-like network, its std stated) wrapped as the cross-phone export's streaming graph, traced to
+    ONNX at ``path`` and checked: outputs xy, h, c, std_m, and onnxruntime equal to PyTorch within 1e-4 for each batch
+    size of ``batches`` (random windows up to ``u_max``, random state). Returns (the wrapper, the path)."""
+    from blenav.learn.crossphone.export import StreamingLocalizer, export_onnx, onnx_max_diff, random_inputs
+    from blenav.onnx_io import session
+
+    m = StreamingLocalizer(loc, None, u_scale=100.0).eval()
+    path = export_onnx(m, random_inputs(B, H, layers, hidden, batch=2, u_max=70, zero_state=True), path)
+    assert [o.name for o in session(path).get_outputs()] == ["xy", "h", "c", "std_m"]
+    for batch in batches:
+        assert onnx_max_diff(path, m, random_inputs(B, H, layers, hidden, batch=batch, seed=batch, u_max=u_max)) < 1e-4
+    return m, path

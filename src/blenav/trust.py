@@ -58,7 +58,7 @@ TARGETS: frozenset[str] = frozenset({
     "blenav.filters.offset.RssiDomainOffset", "blenav.filters.offset.PathLossRangeOffset",
     "blenav.filters.map_prior.MapPriorLikelihood", "blenav.filters.map_prior.FeasibilityPrior",
     # networks (conf/model; a checkpoint's blenav.model node)
-    "blenav.models.LocNet", "blenav.models.locnet.LocNet",
+    "blenav.models.LocNet", "blenav.models.locnet.LocNet", "blenav.models.PlaceNet", "blenav.models.placenet.PlaceNet",
     "blenav.models.TransNet", "blenav.models.transnet.TransNet",
     "blenav.models.DLRNN", "blenav.models.dlrnn.DLRNN",
     "blenav.models.mapprior.MapPriorNet",

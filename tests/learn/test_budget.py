@@ -123,6 +123,8 @@ def test_report_warns_when_stopped_before_converging():
     m.history += [{"step": 120 + 10 * i, "val_loss": m.best["val_loss"], "val_err_m": 0.4} for i in range(12)]
     assert training_report(m, "max_steps", 230, knn_err=0.3)["converged"]  # flat for the last quarter
     assert any("worse than KNN" in w for w in training_report(m, "max_steps", 230, knn_err=0.3)["warnings"])
+    none = training_report(TrainingMonitor(), "max_steps", 50, knn_err=None)["warnings"]  # a run without validation
+    assert len(none) == 1 and "no validation windows" in none[0]  # says so once, not also "levelled off"
 
 
 class _Crash(Exception):

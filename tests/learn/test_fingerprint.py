@@ -109,3 +109,72 @@ def test_compose_inside_a_running_hydra_app():
         assert cfg.model.name == "transnet_locnet" and cfg.data.seed == 4
         assert GlobalHydra.instance().hydra is app
     assert not GlobalHydra.instance().is_initialized()
+
+
+def test_placenet_refits_on_every_walk_with_the_validation_runs_calibration(coded, tmp_path):
+    """``model: placenet, refit: true``: a run holding a walk out for validation, then one on both walks (none held
+    out) for as many epochs as the first run's best check, stating the first run's std scale; the fixes' std model is
+    fitted on the first run's validation errors."""
+    import math
+
+    import torch
+
+    from blenav.learn.crossphone.checkpoint import load_module
+    from blenav.localizers import RunInputs
+    from blenav.localizers.fingerprint import FingerprintLocalizer
+
+    walks = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")]
+    budget = {"budget": {"max_steps": 6, "val_every_steps": 2, "warmup_steps": 1}}
+    loc = FingerprintLocalizer("Place", model="placenet", val_fraction=0.5, seed=3, training=training_node(),
+                               trainer=budget, refit=True, net_cov="calibrated", batch_size=4,
+                               net={"locnet": {"places": 4}})
+    info = loc.fit(walks, RunInputs(out=tmp_path))["floors"]["mall/F1"]
+    tr, rf = info["training"], info["refit"]
+    assert tr["train_windows"] == 5 and tr["val_windows"] == 5
+    assert rf["windows"] == 10 and rf["steps"] == math.ceil(tr["best_step"] * 10 / 5)
+    run = tmp_path / "fingerprint" / "Place" / "mall_F1"
+    first, _ = load_module(run / "last.ckpt")
+    final, meta = load_module(run / "refit" / "last.ckpt")
+    assert meta["train_sessions"] == sorted(s.id for s in walks)
+    assert float(final.locnet.std_scale) == pytest.approx(tr["fix_std"]["scale"])
+    assert float(first.locnet.std_scale) == pytest.approx(tr["fix_std"]["scale"])
+    assert not torch.equal(first.locnet.mlp[1].weight, final.locnet.mlp[1].weight)
+    assert info["fix_std"]["windows"] == 5  # the validation walk's windows, predicted by the first run
+    est = loc.run(coded.session("mall_F1_walkC"), 1, 0)
+    assert len(est.t) and np.isfinite(est.position).all() and np.isfinite(est.cov).all()
+
+
+@pytest.mark.onnx
+def test_a_fingerprint_placenet_exports_with_its_scan_recipe_and_parity(coded, tmp_path):
+    """``python export.py ckpt=RUN/last.ckpt`` of a fingerprint run (here its function): the graph reproduces PyTorch on
+    the walk's own windows, states std_m, and its metadata give the WiFi scan recipe, not the BLE beacon one."""
+    import json
+
+    import onnx
+    import torch
+
+    from blenav.learn.crossphone.checkpoint import load_module
+    from blenav.learn.crossphone.export import export_module
+    from blenav.localizers import RunInputs
+    from blenav.localizers.fingerprint import FingerprintLocalizer
+    from blenav.onnx_io import session
+
+    loc = FingerprintLocalizer("Place", model="placenet", val_fraction=0.5, seed=1, training=training_node(),
+                               trainer={"budget": {"max_steps": 4, "val_every_steps": 2, "warmup_steps": 1}},
+                               batch_size=4, net={"locnet": {"places": 4}}, wifi_age_ref="scan", wifi_time="heard")
+    loc.fit([coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")], RunInputs(out=tmp_path))
+    module, meta = load_module(tmp_path / "fingerprint" / "Place" / "mall_F1" / "last.ckpt")
+    path = export_module(module, meta, tmp_path / "place.onnx")
+    S, _ = loc.heard_windows(coded.session("mall_F1_walkC"), loc.floors["mall/F1"].columns)
+    sess = session(path)
+    props = {p.key: json.loads(p.value) for p in onnx.load(str(path)).metadata_props
+             if p.key in ("window_recipe", "output_frame")}
+    h0 = np.zeros((1, len(S), 1), np.float32)
+    xy, std = sess.run(["xy", "std_m"], {"S": S.astype(np.float32), "h0": h0, "c0": h0})
+    with torch.no_grad():
+        ref_xy, ref_std = module.locnet.forward_std(torch.from_numpy(S.astype(np.float32)) / 100.0)
+    assert len(S) > 0
+    np.testing.assert_allclose(xy, ref_xy.numpy(), atol=1e-4)
+    np.testing.assert_allclose(std, ref_std.numpy(), rtol=1e-4)
+    assert "WiFi scan" in props["window_recipe"]["step_of_packet"] and "std_m" in props["output_frame"]
+    assert props["window_recipe"]["features"] == "wifi"

@@ -13,7 +13,7 @@ from blenav.learn.crossphone.losses import gaussian_nll
 from blenav.runtime.calibration import std_scale_fit
 from blenav.learn.crossphone.module import CrossPhoneModule
 from blenav.models import LocNet
-from helpers import seeded
+from helpers import exported_streaming, seeded
 
 
 def _data(n=96, B=6, H=3, seed=0):
@@ -131,16 +131,12 @@ def test_the_scale_fit_never_returns_a_non_finite_number():
 
 @pytest.mark.onnx
 def test_onnx_export_of_the_std_head_matches_pytorch(tmp_path):
-    from blenav.learn.crossphone.export import StreamingLocalizer, export_onnx, onnx_max_diff, random_inputs
+    from blenav.learn.crossphone.export import random_inputs
     from blenav.onnx_io import session
 
     loc = seeded(0, lambda: LocNet(7, hidden=16, std_head=True))
     loc.std_scale.fill_(3.5)
-    m = StreamingLocalizer(loc, None, u_scale=100.0).eval()
-    path = export_onnx(m, random_inputs(7, 5, 2, 16, batch=2, u_max=70, zero_state=True), tmp_path / "m.onnx")
-    assert [o.name for o in session(path).get_outputs()] == ["xy", "h", "c", "std_m"]
-    for batch in (1, 3):
-        assert onnx_max_diff(path, m, random_inputs(7, 5, 2, 16, batch=batch, seed=batch, u_max=70)) < 1e-4
+    _, path = exported_streaming(loc, 7, 5, 2, 16, tmp_path / "m.onnx")
     S, h0, c0 = random_inputs(7, 5, 2, 16, batch=4, seed=9, u_max=70, zero_state=True)
     std = session(path).run(["std_m"], {"S": S.numpy(), "h0": h0.numpy(), "c0": c0.numpy()})[0]
     with torch.no_grad():

@@ -262,10 +262,10 @@ def test_locnet_fix_std_calibrated_on_the_head_and_the_distance_to_the_survey(co
     window's cosine signal distance to the windows the network trained on, fitted on the validation walk; the
     positions stay the network's."""
     from blenav.localizers import RunInputs
-    from blenav.localizers import fingerprint as FPL
+    from blenav.localizers import fingerprint_net as FPN
     from blenav.localizers import knn as KNN
 
-    monkeypatch.setattr(FPL, "MIN_STD_FIT", 3)  # the coded walks' validation walk has 5 windows
+    monkeypatch.setattr(FPN, "MIN_STD_FIT", 3)  # the coded walks' validation walk has 5 windows
     kw = dict(model="locnet", val_fraction=0.5, seed=3, training=training_node(), net={"locnet": {"std_head": True}},
               trainer={"budget": {"max_steps": 20, "val_every_steps": 5, "warmup_steps": 2}})
     walks = [coded.session("mall_F1_walkA"), coded.session("mall_F1_walkB")]

@@ -22,10 +22,17 @@ def test_defaults_fingerprint_yaml_and_realwalks():
     """conf/localizer/fingerprint.yaml: scans read at their delivery (5 s age from it), no cross-validation (k = 5
     uniform cosine), the neighbours' std, no covariance for the networks' fixes; experiment=realwalks turns issue 29's
     reading and cross-validation on for its WiFi KNN rows, the calibrated std on for every KNN row and LocNet's std
-    head on for its networks; cv: {} is CV_GRID."""
+    head on for its LocNets; Net-WiFi+BLE is PlaceNet on scans read as heard, refitted on every train walk; cv: {} is
+    CV_GRID."""
     m = compose("eval", "experiment=realwalks").methods
     for name in ("locnet_wifi", "transnet_wifi", "net_both"):
-        assert m[name].cv is None and m[name].net_cov == "calibrated" and m[name].net.locnet.std_head, name
+        assert m[name].cv is None and m[name].net_cov == "calibrated", name
+    for name in ("locnet_wifi", "transnet_wifi"):
+        assert m[name].net.locnet.std_head and not m[name].refit, name
+    nb = m.net_both
+    assert (nb.model, nb.refit, nb.wifi_age_ref, nb.wifi_time, nb.min_count) == ("placenet", True, "scan", "heard", 2)
+    assert nb.training.models.placenet.locnet._target_ == "blenav.models.PlaceNet"
+    assert nb.training.models.placenet.locnet.places == 300
     assert compose("eval", "experiment=mapfusion_002", "+localizer@methods.n=fingerprint").methods.n.net_cov == "none"
     for name in ("locnet_wifi", "transnet_wifi"):
         assert (m[name].wifi_max_age_s, m[name].wifi_age_ref, m[name].wifi_time) == (5.0, "delivery", "delivery")

@@ -4,7 +4,7 @@ trained on the labelled train walks of the dataset it is evaluated on (the exper
 Config: ``conf/localizer/fingerprint.yaml``::
 
     _target_: blenav.localizers.fingerprint.FingerprintLocalizer
-    model: knn            # knn | locnet | transnet_locnet
+    model: knn            # knn | locnet | transnet_locnet | placenet
     features: wifi        # wifi | ble | both
     training: {data, trainer, models: {locnet, transnet_locnet}}   # composed by its defaults list
 
@@ -28,11 +28,13 @@ per building and floor:
 4. ``knn``: :class:`blenav.learn.crossphone.baselines.KNNBaseline` (k nearest fingerprints, the mean over a window's heard
    steps; the cross-phone evaluation's KNN) on windows scaled to unit norm (``metric: cosine``, the default:
    a scan listing few access points is otherwise the nearest neighbour of everything) or on the u scale as it is
-   (``euclidean``); ``locnet`` / ``transnet_locnet``: the
-   networks of ``conf/model/<model>.yaml`` trained by :func:`blenav.learn.fingerprint.train.train_network` (the
-   project's trainer: step budget + early stopping of ``conf/trainer/cpu.yaml``, seeded; labels normalised by
-   the network's ``xy_mean`` / ``xy_scale``; inputs u / 100) on a seeded ``val_fraction`` of the train walks
-   held out for validation. Torch is imported only here.
+   (``euclidean``); ``locnet`` / ``transnet_locnet`` / ``placenet`` (a classifier of the survey's places,
+   :class:`blenav.models.PlaceNet`): the networks of ``conf/model/<model>.yaml`` trained by
+   :func:`blenav.learn.fingerprint.train.train_network` (the project's trainer: step budget + early stopping of
+   ``conf/trainer/cpu.yaml``, seeded; labels normalised by the network's ``xy_mean`` / ``xy_scale``, or its places;
+   inputs u / 100) with a seeded ``val_fraction`` of the train walks held out for validation; with ``refit: true``
+   then trained again on every train walk for as many epochs as the validation run's best check, stating that run's
+   std calibration (:mod:`blenav.localizers.fingerprint_net`). Torch is imported only there.
 
 :meth:`FingerprintLocalizer.run`: one estimate per window of the session in which a feature of the
 vocabulary was heard (times: the window's last step, session clock s); the floor's model is the one of the
@@ -47,7 +49,8 @@ predicted`` (a LocNet with its std head, ``net: {locnet: {std_head: true}}``, is
 with the Gaussian negative log-likelihood and scaled on the validation walks (:mod:`blenav.models.locnet`), squared,
 plus ``cov_floor_m``^2; with ``net_cov: calibrated`` (the default of experiment=realwalks' learned rows) a std of
 :class:`~blenav.localizers.knn.StdModel`'s form from that sigma and the window's signal distance to the windows the
-network trained on, fitted on the validation walks' errors (:meth:`FingerprintLocalizer._net_std_model`). Its std is what the fused
+network trained on, fitted on the validation walks' errors
+(:func:`blenav.localizers.fingerprint_net.net_std_model`). Its std is what the fused
 filters may use (:mod:`blenav.eval.fixes`), so it can change a fused row fed by a network's fixes.
 
 **Issue 29** (reading scans the way they were heard; KNN done well): WiFi steps are the scans at the times their
@@ -73,19 +76,17 @@ A session without the stream (wifi.csv / rssi.csv) or without a trained floor ra
 from __future__ import annotations
 
 import logging
-import tempfile
 import time
 from dataclasses import asdict
-from pathlib import Path
 
 import numpy as np
 
 from blenav.errors import MissingStream
-from blenav.runtime.calibration import coverage, std_scale_fit
 from blenav.features import fingerprints as FP
 
 from . import knn as KNN
 from .base import Estimate, Localizer, RunInputs, Trained
+from .fingerprint_net import MIN_STD_FIT, fit_network  # MIN_STD_FIT: also fix_std: calibrated's out-of-fold fixes
 from .survey import walk_positions
 
 log = logging.getLogger("blenav.localizers.fingerprint")
@@ -93,13 +94,10 @@ log = logging.getLogger("blenav.localizers.fingerprint")
 CV_GRID = {"folds": 5, "metric": ["cosine", "powed"], "k": [1, 3, 5, 7, 10, 15, 20],
            "weights": ["uniform", "distance", 0.02, 0.05, 0.1], "ble_weight": [0.25, 0.5, 1.0]}
 
-MODELS = ("knn", "locnet", "transnet_locnet")
+MODELS = ("knn", "locnet", "transnet_locnet", "placenet")
 #: the networks' fix covariance: none, the validation walks' RMS error, the std head's own calibrated sigma, or a
 #: std model of that sigma and the scan's distance to the survey
 NET_COVS = ("none", "validation", "predicted", "calibrated")
-#: errors needed to fit a std model (``net_cov: calibrated``'s validation windows, fewer: the head's sigma;
-#: ``fix_std: calibrated``'s out-of-fold fixes, fewer: no model)
-MIN_STD_FIT = 10
 #: features kept by ``max_features: auto`` for TransNet+LocNet (its SSL loss holds b x F x F x H values)
 NET_MAX_FEATURES = 256
 
@@ -157,7 +155,7 @@ class FingerprintLocalizer(Localizer, Trained):
                  net_cov: str = "none", fix_std: str = "neighbours",
                  net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
                  batch_size: int = 256, seed: int = 0, threads: int | None = 1, plots: bool = False,
-                 training: dict | None = None):
+                 training: dict | None = None, refit: bool = False):
         super().__init__(name, shared)
         if model not in MODELS:
             raise ValueError(f"method {name!r}: model must be one of {MODELS}, got {model!r}")
@@ -206,6 +204,7 @@ class FingerprintLocalizer(Localizer, Trained):
             raise ValueError(f"method {name!r}: net_cov: {net_cov} needs a network with LocNet's std head "
                              f"(model: locnet or transnet_locnet, net: {{locnet: {{std_head: true}}}})")
         self.val_fraction, self.batch_size, self.seed = float(val_fraction), int(batch_size), int(seed)
+        self.refit = bool(refit)
         self.threads, self.plots = threads, bool(plots)
         self.floors: dict[str, _FloorModel] = {}
         self._unfitted = "was not fitted (no train walks: the experiment needs a split)"  # why run() cannot
@@ -214,6 +213,8 @@ class FingerprintLocalizer(Localizer, Trained):
         """Whether the network this method trains has LocNet's std head (its model node with ``net`` over it)."""
         if model == "knn":
             return False
+        if model == "placenet":  # PlaceNet states a std always (its scores' spread)
+            return True
         node = dict(((self.training or {}).get("models") or {}).get(model, {}).get("locnet") or {})
         return bool({**node, **dict(self.net.get("locnet") or {})}.get("std_head", False))
 
@@ -312,7 +313,7 @@ class FingerprintLocalizer(Localizer, Trained):
         elif self.model == "knn":
             predict = knn_model(S, xy, self.k, self.weights, self.cov_floor_m, self.metric)
         else:
-            predict = self._fit_network(key, S, P, xy, walk_of, used, names, inputs, info)
+            predict = fit_network(self, key, S, P, xy, walk_of, used, names, inputs, info)
         self.floors[key] = _FloorModel(columns, predict)
         info["fit_s"] = time.perf_counter() - t0
         log.info("%s: %s fitted on %d windows of %d walks, %d features (%.1f s)", self.name, key, len(S), len(used),
@@ -379,89 +380,6 @@ class FingerprintLocalizer(Localizer, Trained):
         info["novelty"] = {**asdict(nm), "windows": int(len(d1))} if nm is not None else \
             f"not fitted: {int(np.sum(sm > 5.0))} of {len(sm)} out-of-fold windows off the survey"
         return nm
-
-    def _fit_network(self, key, S, P, xy, walk_of, used, names, inputs, info):
-        from blenav.learn.fingerprint.train import split_walks, train_network  # torch: only on the learned path
-
-        given = inputs.out if inputs is not None else None
-        root = Path(given) if given is not None else Path(tempfile.mkdtemp(prefix="fp_"))
-        out = root / "fingerprint" / self.name.replace("/", "_").replace(" ", "_") / key.replace("/", "_")
-        net_predict, rep = train_network(S, P, xy, walk_of, used, names, self.cfg, self.model, self.training, out,
-                                         seed=self.seed,
-                                         net=self.net, trainer=self.trainer, val_fraction=self.val_fraction,
-                                         batch_size=self.batch_size, threads=self.threads, plots=self.plots)
-        info["training"] = rep
-        if self.net_cov == "calibrated":
-            predict = self._net_std_model(net_predict, S, xy, walk_of, names, info)
-            if predict is not None:
-                return predict
-        if self.net_cov in ("predicted", "calibrated"):  # each fix's own sigma (LocNet's std head) + cov_floor_m^2;
-            # calibrated comes here when too few validation windows fit its model
-            if "fix_std" not in rep:
-                raise ValueError(f"method {self.name!r}: net_cov: {self.net_cov} needs a LocNet with a std head "
-                                 f"(net.locnet.std_head: true)")
-            info["fix_std"] = rep["fix_std"]
-
-            def predict(Sq):
-                xy_q, std = net_predict(Sq)
-                var = std ** 2 + self.cov_floor_m ** 2
-                return xy_q, var[:, None, None] * np.eye(2)
-
-            return predict
-        # net_cov: validation (opt-in; none by default): each fix's std is the network's RMS error per axis on its
-        # validation walks (held out of its training), one isotropic covariance for every fix; none without them
-        val = split_walks(walk_of, self.val_fraction, self.seed) if self.net_cov == "validation" else None
-        cov = None
-        if val is not None and val.any():
-            var = float(np.mean(np.sum((net_predict(S[val])[0] - xy[val]) ** 2, axis=1))) / 2.0
-            cov = (var + self.cov_floor_m ** 2) * np.eye(2)
-            info["fix_std_m"] = float(np.sqrt(var + self.cov_floor_m ** 2))
-
-        def predict(Sq):
-            xy_q = net_predict(Sq)[0]
-            return xy_q, None if cov is None else np.broadcast_to(cov, (len(xy_q), 2, 2)).copy()
-
-        return predict
-
-    def _net_std_model(self, net_predict, S, xy, walk_of, names, info):
-        """``net_cov: calibrated``: each network fix's std from :class:`blenav.localizers.knn.StdModel`'s form, log std
-        = c0 + c1 log(1 + sigma) + c2 d1, sigma the std head's and d1 the window's cosine signal distance to the
-        nearest window the network trained on (large where the survey did not go), fitted by maximum likelihood on the
-        errors of the validation walks (held out of the training); plus ``cov_floor_m``^2. None (and the reason in
-        ``info["fix_std_calibrated"]``) with fewer than :data:`MIN_STD_FIT` validation windows: the caller then states
-        the head's own sigma (``net_cov: predicted``)."""
-        from blenav.learn.fingerprint.train import split_walks
-
-        val = split_walks(walk_of, self.val_fraction, self.seed)
-        if val.sum() < MIN_STD_FIT:
-            info["fix_std_calibrated"] = (f"not fitted: {int(val.sum())} validation windows (need {MIN_STD_FIT}); the "
-                                          f"std head's own sigma instead (net_cov: predicted)")
-            return None
-        is_ble = np.array([n.startswith("ble:") for n in names])
-        X = KNN.represent(S[~val], "cosine", is_ble, 1.0, self.cfg.fill_dbm)
-        bb = np.einsum("nf,nf->n", X, X)  # X's squared norms, once for every query (as KNN.fit)
-
-        def features(Sq):
-            xy_q, sigma = net_predict(Sq)
-            return xy_q, sigma, KNN.nearest_distance(KNN.represent(Sq, "cosine", is_ble, 1.0, self.cfg.fill_dbm), X, bb)
-
-        xy_v, sigma_v, d1_v = features(S[val])
-        err = np.hypot(*(xy_v - xy[val]).T)
-        model = KNN.fit_std_model(err, sigma_v, d1_v)
-        stated = np.sqrt(model.std(sigma_v, d1_v) ** 2 + self.cov_floor_m ** 2)  # the std the fixes state
-        scale, fit = std_scale_fit(err, stated)
-        info["fix_std"] = {"model": "log std = c0 + c1 log(1 + sigma of the std head) + c2 d1 (signal distance to "
-                                    "the training windows), fitted on the validation walks' errors; + cov_floor_m",
-                           "c": list(model.c), "windows": int(len(err)), **coverage(err, stated),
-                           "rank_correlation": fit.get("rank_correlation"),
-                           "ml_scale": None if "uncalibrated" in fit else scale}
-
-        def predict(Sq):
-            xy_q, sigma, d1 = features(Sq)
-            var = model.std(sigma, d1) ** 2 + self.cov_floor_m ** 2
-            return xy_q, var[:, None, None] * np.eye(2)
-
-        return predict
 
     # ------------------------------------------------------------------ running
     def heard_windows(self, session, columns: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:

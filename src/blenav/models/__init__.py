@@ -2,6 +2,7 @@
 
 from .dlrnn import DLRNN
 from .locnet import LocNet
+from .placenet import PlaceNet
 from .transnet import TransNet
 
-__all__ = ["DLRNN", "LocNet", "TransNet"]
+__all__ = ["DLRNN", "LocNet", "PlaceNet", "TransNet"]

@@ -46,7 +46,7 @@ def training_report(monitor: TrainingMonitor, reason: str, steps: int, knn_err: 
             "converged": early or _converged(monitor.history), "val_checks": len(monitor.history), "warnings": []}
     if err is not None and knn_err is not None and err > knn_err:
         info["warnings"].append(f"worse than {baseline} on the validation data: {err:.2f} m vs {knn_err:.2f} m")
-    if not info["converged"] and stage == "supervised":
+    if not info["converged"] and stage == "supervised" and monitor.history:  # without checks: the warning below
         info["warnings"].append(f"stopped ({reason}) after {steps} steps before the validation loss levelled off "
                                 "(raise trainer.budget.max_steps or model.lr)")
     if err is None:

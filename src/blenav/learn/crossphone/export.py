@@ -171,6 +171,8 @@ def app_contract(meta: dict) -> dict:
     ``output_frame``. Numbers come from the checkpoint's window, texts say what blenav's windowing
     (:func:`blenav.features.windows.session_windows`) and runtime (:mod:`blenav.runtime.fixes`) do."""
     w = meta["window"]
+    if "fill_dbm" in w:  # a fingerprint model of real walks (WiFi scans / BLE advertisements)
+        return fingerprint_contract(meta)
     H, hz = int(w["history"]), float(w["step_hz"])
     off, floor_u, u_scale = float(w["offset_db"]), float(w["floor_u"]), float(w.get("u_scale", 1.0))
     steps = str(w.get("steps", "time"))
@@ -226,11 +228,56 @@ def app_contract(meta: dict) -> dict:
         "time": out_time,
     }
     model = meta.get("model") if isinstance(meta.get("model"), dict) else {}
-    if (model.get("locnet") or {}).get("std_head"):
+    if (model.get("locnet") or {}).get("std_head") or model.get("name") == "placenet":
         output_frame["std_m"] = ("(batch,) float32: the fix's 1-sigma per axis in metres (an isotropic 2-D Gaussian "
-                                 "N(xy, std_m^2 I)), LocNet's std head scaled on its validation windows")
+                                 "N(xy, std_m^2 I)), the network's own sigma scaled on its validation windows")
     return {"input_units": input_units, "window_recipe": window_recipe, "not_heard": not_heard,
             "lstm_state": lstm_state, "output_frame": output_frame}
+
+
+def fingerprint_contract(meta: dict) -> dict:
+    """:func:`app_contract` of a fingerprint model trained on real walks (``blenav-eval experiment=realwalks``'s
+    learned rows, :mod:`blenav.localizers.fingerprint`): its window is a
+    :class:`blenav.features.fingerprints.FingerprintConfig` (features WiFi access points ``wifi:<bssid>`` and/or BLE
+    anchors ``ble:<id>``, one step per WiFi scan), whose recipe :mod:`blenav.features.fingerprints` documents."""
+    w, model = meta["window"], meta.get("model") if isinstance(meta.get("model"), dict) else {}
+    H, fill, floor_u = int(w["history"]), float(w["fill_dbm"]), float(w["floor_u"])
+    u_scale, kind = float(w.get("u_scale", 1.0)), str(w.get("features", "wifi"))
+    u_def = f"u = rssi_dbm - ({fill:g}), at least {floor_u:g} for a heard reading"
+    age = w.get("wifi_max_age_s")
+    ref = "the newest t_seen of the scan's rows" if w.get("wifi_age_ref") == "scan" else "the scan's delivery time"
+    when = ("the median t_seen of the rows kept" if w.get("wifi_time") == "heard" else "the scan's delivery time")
+    if kind == "ble":
+        step = (f"one step every {float(w['ble_step_s']):g} s from the first advertisement, each the advertisements "
+                f"of the {float(w['ble_window_s']):g} s up to it")
+    else:
+        step = (f"one step per WiFi scan (the rows delivered together); a row heard more than {age} s before {ref} "
+                f"is stale and dropped; the step's time is {when}"
+                + (f"; its BLE part the advertisements of the {float(w['ble_window_s']):g} s up to that time"
+                   if kind == "both" else ""))
+    return {
+        "input_units": {"tensor": "S (batch, F, H) float32, F = len(beacons) features, H = window.history",
+                        "unit": f"dB above the not-heard level: {u_def}", "per_packet": u_def,
+                        "scaling": f"none: feed u as it is; the graph divides S by {u_scale:g} itself",
+                        "graph_divides_by": u_scale},
+        "window_recipe": {"history_H": H, "step_of_packet": step, "features": kind,
+                          "aggregation": "per step and feature: the mean of u over its readings; 0 when not heard",
+                          "rows": "S[f] is beacons[f]: 'wifi:<bssid>' (wifi.csv) or 'ble:<anchor id>' (rssi.csv)",
+                          "columns": f"S[:, i]: column 0 the oldest of the last {H} steps, column {H - 1} the newest",
+                          "stride": "one window per step", "output_time": "the time of the window's newest step",
+                          "other_beacons": "access points and anchors not in the list are ignored"},
+        "not_heard": {"value": 0.0, "meaning": f"S[f, i] = 0: not heard in step i (= {fill:g} dBm)",
+                      "empty_window": "a window with nothing heard gives no fix"},
+        "lstm_state": {"carry": False, "h0_c0": "zeros of the shape of inputs h0 and c0 for every window",
+                       "why": "each window is localized on its own (a PlaceNet has no state: h, c pass through)"},
+        "output_frame": {"xy": "(batch, 2) float32: x, y in metres", "building": meta.get("building"),
+                         "frame": "the building's world frame (the waypoints' frame of the walks it was trained on)",
+                         "time": "the time of the window's newest step",
+                         **({"std_m": "(batch,) float32: the fix's 1-sigma per axis in metres, scaled on the "
+                                      "validation walks"}
+                            if model.get("name") == "placenet" or (model.get("locnet") or {}).get("std_head")
+                            else {})},
+    }
 
 
 def streaming_net(module, meta: dict) -> StreamingLocalizer:

@@ -19,6 +19,11 @@ the optimizer steps on in training, and logged beside ``loss`` -- which stays th
 stopping on ``val/loss`` and the kept weights are the plain network's; the head reads detached features, so its
 gradients reach no other weight. At a stage's end :meth:`CrossPhoneModule.calibrate` scales its sigma on the
 validation windows (the training windows' errors, which the head learns, are smaller than a new walk's).
+
+A place classifier (:class:`blenav.models.PlaceNet`, issue 29) in LocNet's seat steps on the cross-entropy of its place
+scores (the term ``place``, logged); ``loss`` stays the positions' objective (L_loc of its softmax-weighted positions),
+so ``val/loss``, the early stopping and the kept weights follow the positions, not the cross-entropy (which rises on
+the validation walks while their positions still improve). Its sigma is the scores' spread, calibrated alike.
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ class CrossPhoneModule(L.LightningModule):
         self.optimizer_factory = optimizer
         self.weights = {"loc": 1.0, "ps": 0.0, "ssl": 0.0, "ts": 0.0, "nll": 1.0, **(weights or {})}
         self.std_head = bool(getattr(locnet, "std_head", False))
+        self.places = hasattr(locnet, "place_loss")  # PlaceNet: trained by cross-entropy over places
         self.tau = tau
         self.meta = meta or {}  # stored in checkpoints under "blenav" (see blenav.learn.crossphone.checkpoint)
         self.schedule = dict(schedule) if schedule else None
@@ -69,13 +75,19 @@ class CrossPhoneModule(L.LightningModule):
         n = S.shape[0]
         # the previous windows (position smoothness) go through the networks in the same pass
         g_all = self.translate(torch.cat([S, batch["S_prev"]]) if with_prev else S)
-        if self.std_head:
+        scores = None
+        if self.places:  # a place classifier (PlaceNet): its scores give the positions and its training objective
+            scores = self.locnet.logits(g_all)
+            f_all, sigma = self.locnet.position_std(scores)
+        elif self.std_head:
             f_all, sigma = self.locnet.forward_std(g_all)
         else:
             f_all, sigma = self.locnet(g_all), None
         g, f = g_all[:n], f_all[:n]
         terms = {}
         labelled = ~torch.isnan(batch["xy"]).any(dim=1)
+        if scores is not None and labelled.any():
+            terms["place"] = self.locnet.place_loss(scores[:n][labelled], batch["xy"][labelled])
         if labelled.any() and self.weights["loc"]:
             terms["loc"] = localization_loss(f[labelled], batch["xy"][labelled])
         if with_prev:
@@ -86,8 +98,8 @@ class CrossPhoneModule(L.LightningModule):
             terms["ts"] = temporal_smoothness_loss(g)
         if not terms:
             raise ValueError("no loss term applies to this batch (no labels and no unsupervised term enabled)")
-        terms["loss"] = total_loss({k: v for k, v in terms.items()}, self.weights)
-        if sigma is not None and labelled.any():  # the std head's term: beside the monitored loss, not in it
+        terms["loss"] = total_loss({k: v for k, v in terms.items() if k != "place"}, self.weights)
+        if sigma is not None and scores is None and labelled.any():  # the std head's term: beside the monitored loss
             terms["nll"] = gaussian_nll(f[labelled].detach(), batch["xy"][labelled], sigma[:n][labelled])
         with torch.no_grad():
             if labelled.any():
@@ -106,6 +118,8 @@ class CrossPhoneModule(L.LightningModule):
             keys = [k for k in ("S", "S_prev") if k in batch]
             batch = {**batch, **dict(zip(keys, self.augment([batch[k] for k in keys], self.aug_generator)))}
         out = self._log_step(batch, "train")
+        if "place" in out:  # a place classifier steps on its cross-entropy; the curve shows the positions' loss
+            return {"loss": out["place"], "monitored": out["loss"].detach()}
         if "nll" not in out:
             return out["loss"]
         # the optimizer steps on both; "monitored" is the positions' loss the learning curve shows beside val/loss
@@ -121,16 +135,20 @@ class CrossPhoneModule(L.LightningModule):
         """With a std head: set LocNet's ``std_scale`` to the maximum-likelihood scale c of its sigma on the data
         module's validation windows (:func:`blenav.runtime.calibration.std_scale_fit`) and return
         ``{"fix_std": {model, scale, windows, coverage_1sigma, coverage_2sigma, median_std_m, rank_correlation}}``;
-        without validation
-        windows the scale stays 1 and the report says so. {} without a std head. Called by
-        :func:`blenav.learn.common.stage.end_stage`."""
+        without validation windows the scale is the data module's ``std_scale`` when it has one (a refit on every
+        walk: :func:`blenav.learn.fingerprint.train.train_network`), else 1 and the report says so. {} without a std
+        head. Called by :func:`blenav.learn.common.stage.end_stage`."""
         if not self.std_head:
             return {}
         val = dm.sets.get("val") if hasattr(dm, "sets") else None
         S, xy = (val.tensors[0], val.tensors[-1]) if val is not None and len(val) else (None, None)
         ok = ~torch.isnan(xy).any(dim=1) if xy is not None else None
         if ok is None or not ok.any():
-            self.locnet.std_scale.fill_(1.0)
+            given = getattr(dm, "std_scale", None)  # a refit's data module: the scale of the run it refits
+            self.locnet.std_scale.fill_(1.0 if given is None else float(given))
+            if given is not None:
+                return {"fix_std": {"scale": float(given), "model": "the scale fitted on the validation windows of "
+                                                                    "the run this one refits (it has none)"}}
             return {"fix_std": "uncalibrated (scale 1): no labelled validation windows"}
         was = self.training
         self.eval()
@@ -143,8 +161,9 @@ class CrossPhoneModule(L.LightningModule):
         self.locnet.std_scale.fill_(c)
         if "uncalibrated" in rep:
             return {"fix_std": f"uncalibrated ({rep['uncalibrated']})"}
-        return {"fix_std": {"model": "sigma of LocNet's std head (Gaussian NLL) x scale, the scale fitted by maximum "
-                                     "likelihood on the validation windows", **rep}}
+        what = "the place scores' spread" if self.places else "sigma of LocNet's std head (Gaussian NLL)"
+        return {"fix_std": {"model": f"{what} x scale, the scale fitted by maximum likelihood on the validation "
+                                     "windows", **rep}}
 
     def on_train_batch_start(self, batch, batch_idx) -> None:
         if self.stage == "semi":  # the optimizer state restored from the supervised stage carries its lr

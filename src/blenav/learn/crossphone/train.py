@@ -80,7 +80,10 @@ def build_module(cfg: DictConfig, dm: WindowDataModule) -> CrossPhoneModule:
             "train_sessions": sorted({s.id for g in ("train", "val", "unlabelled") for s in dm.groups.get(g) or []}),
             # beacon ids and positions, floor-plan hashes: what a runtime bundle checks a building against
             "building_signature": building_signature(dm.building), "data_path": str(Path(c.path).resolve())}
-    module = CrossPhoneModule(locnet, transnet, optimizer=partial(torch.optim.Adam, lr=float(model["lr"])),
+    wd = float(model.get("weight_decay") or 0.0)  # AdamW's decoupled weight decay when given (PlaceNet), else Adam
+    opt = partial(torch.optim.AdamW, lr=float(model["lr"]), weight_decay=wd) if wd else \
+        partial(torch.optim.Adam, lr=float(model["lr"]))
+    module = CrossPhoneModule(locnet, transnet, optimizer=opt,
                               weights=dict(model.get("weights") or {}), M=M, meta=meta,
                               augment=ReceiverAugment(**(model.get("augment") or {})), seed=int(cfg.seed))
     return module

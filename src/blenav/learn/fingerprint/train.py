@@ -98,7 +98,8 @@ def split_walks(walk_of: np.ndarray, val_fraction: float, seed: int) -> np.ndarr
 def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndarray, sessions: list,
                   features: list[str], window, model: str, training: dict, out: Path, seed: int = 0,
                   net: dict | None = None, trainer: dict | None = None, val_fraction: float = 0.2,
-                  batch_size: int = 256, threads: int | None = 1, plots: bool = False):
+                  batch_size: int = 256, threads: int | None = 1, plots: bool = False,
+                  std_scale: float | None = None):
     """Train ``model`` (``locnet`` | ``transnet_locnet``: ``training.models.<model>``, conf/model/<model>.yaml, with
     ``net`` merged over it; trainer ``training.trainer``, conf/trainer/cpu.yaml, with ``trainer`` merged over it;
     :func:`run_config`) on windows S (N, F, H) u scale,
@@ -108,7 +109,8 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
     last.ckpt). Returns (predict: S (K, F, H) u scale -> (xy (K, 2) m, std (K,) m or None), the training report of
     :func:`blenav.learn.common.report.training_report` plus ``train_windows`` / ``val_windows`` / ``val_walks``); std
     is the calibrated sigma of a LocNet with a std head (``net.locnet.std_head: true``; its scale in the report's
-    ``fix_std``), None without one."""
+    ``fix_std``) or of a :class:`~blenav.models.PlaceNet`, None without one. ``std_scale``: that scale, given (a run
+    without validation walks, refitted after one that had them, keeps the first run's calibration)."""
     from ..crossphone.train import data_config
     from ..train import train
 
@@ -125,8 +127,10 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
     if out.exists():
         shutil.rmtree(out)
     dm = ArrayWindows(data_config(cfg), splits, features, sessions[0].building, groups, window)
+    dm.std_scale = std_scale  # the calibration without validation windows (CrossPhoneModule.calibrate)
     _, objs = train(cfg, datamodule=dm)
     module = objs["module"].eval()
+    report = {**objs["training"], "val_walks": len(in_val), "run": str(out)}  # window counts: train._window_counts
 
     def predict(Sq: np.ndarray):
         with torch.no_grad():
@@ -136,5 +140,4 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
             xy_q, std = module.locnet.forward_std(module.translate(x))
             return xy_q.numpy().astype(float), std.numpy().astype(float)
 
-    report = {**objs["training"], "val_walks": len(in_val), "run": str(out)}  # window counts: train._window_counts
     return predict, report
