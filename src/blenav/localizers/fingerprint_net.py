@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -26,19 +27,17 @@ def fit_network(loc, key, S, P, xy, walk_of, used, names, inputs, info):
     temporary folder); refit it on every walk with ``loc.refit``; returns predict: S (K, F, H) -> (xy (K, 2) m,
     cov (K, 2, 2) or None) by ``loc.net_cov``. ``info`` (the floor's report) gets ``training``, ``refit``,
     ``fix_std``."""
-    from blenav.learn.fingerprint.train import split_walks, train_network  # torch: only on the learned path
+    from blenav.learn.fingerprint.train import split_walks
 
     given = inputs.out if inputs is not None else None
     root = Path(given) if given is not None else Path(tempfile.mkdtemp(prefix="fp_"))
     out = root / "fingerprint" / loc.name.replace("/", "_").replace(" ", "_") / key.replace("/", "_")
-    net_predict, rep = train_network(S, P, xy, walk_of, used, names, loc.cfg, loc.model, loc.training, out,
-                                     seed=loc.seed,
-                                     net=loc.net, trainer=loc.trainer, val_fraction=loc.val_fraction,
-                                     batch_size=loc.batch_size, threads=loc.threads, plots=loc.plots)
+    data = (S, P, xy, walk_of, used, names)
+    net_predict, rep = _train(loc, data, out, trainer=loc.trainer, val_fraction=loc.val_fraction)
     info["training"] = rep
     val_predict = None  # refitted: the network that never saw the validation walks, whose errors fit the stds
     if loc.refit:
-        refitted = refit(loc, S, P, xy, walk_of, used, names, out / "refit", rep, info)
+        refitted = refit(loc, data, out / "refit", rep, info)
         if refitted is not None:
             val_predict, net_predict = net_predict, refitted
     if loc.net_cov == "calibrated":
@@ -73,27 +72,36 @@ def fit_network(loc, key, S, P, xy, walk_of, used, names, inputs, info):
 
     return predict
 
-def refit(loc, S, P, xy, walk_of, used, names, out, rep, info):
-    """``refit``: the network trained again on every train walk (none held out) for as many epochs as the
-    validation run's best check had (its best step times all windows / its training windows), with that run's
-    std scale; its predict, or None (``info["refit"]`` says why) when the validation run had no best check."""
+
+def _train(loc, data: tuple, out: Path, **kw):
+    """:func:`blenav.learn.fingerprint.train.train_network` (torch: imported only on the learned path) of ``data`` =
+    (S, P, xy, walk_of, used, names) in ``out`` with ``loc``'s network settings and ``kw``."""
     from blenav.learn.fingerprint.train import train_network
 
+    return train_network(*data, loc.cfg, loc.model, loc.training, out, seed=loc.seed, net=loc.net,
+                         batch_size=loc.batch_size, threads=loc.threads, plots=loc.plots, **kw)
+
+
+def refit(loc, data: tuple, out: Path, rep: dict, info: dict):
+    """``refit``: the network trained again on ``data`` (:func:`_train`'s: every train walk, none held out) for as
+    many epochs as the validation run's best check had (its best step times all windows / its training windows),
+    with that run's std scale; its predict, or None (``info["refit"]`` says why) when the validation run had no best
+    check."""
     best, n_train = rep.get("best_step"), int(rep.get("train_windows") or 0)
     if not best or not n_train:
         info["refit"] = "not refitted: the validation run had no validation check (too few walks to hold out)"
         return None
-    steps = int(math.ceil(int(best) * len(S) / n_train))
+    n_all = len(data[0])
+    steps = int(math.ceil(int(best) * n_all / n_train))
     budget = {**dict(loc.trainer.get("budget") or {}), "max_steps": steps, "patience": None}
     fs = rep.get("fix_std")
-    predict, rep2 = train_network(S, P, xy, walk_of, used, names, loc.cfg, loc.model, loc.training, out,
-                                  seed=loc.seed, net=loc.net, trainer={**loc.trainer, "budget": budget},
-                                  val_fraction=0.0, batch_size=loc.batch_size, threads=loc.threads,
-                                  plots=loc.plots,
-                                  std_scale=fs.get("scale") if isinstance(fs, dict) else None)
-    info["refit"] = {"steps": steps, "windows": int(len(S)), "from_best_step": int(best),
-                     "fit_s": rep2.get("fit_s"), "run": rep2.get("run")}
+    t0 = time.perf_counter()
+    predict, rep2 = _train(loc, data, out, trainer={**loc.trainer, "budget": budget},
+                           val_fraction=0.0, std_scale=fs.get("scale") if isinstance(fs, dict) else None)
+    info["refit"] = {"steps": steps, "windows": n_all, "from_best_step": int(best),
+                     "fit_s": time.perf_counter() - t0, "run": rep2.get("run")}
     return predict
+
 
 def net_std_model(loc, net_predict, S, xy, walk_of, names, info, val_predict=None):
     """``net_cov: calibrated``: each network fix's std from :class:`blenav.localizers.knn.StdModel`'s form, log std
@@ -128,8 +136,9 @@ def net_std_model(loc, net_predict, S, xy, walk_of, names, info, val_predict=Non
     model = KNN.fit_std_model(err, sigma_v, d1_v)
     stated = np.sqrt(model.std(sigma_v, d1_v) ** 2 + loc.cov_floor_m ** 2)  # the std the fixes state
     scale, fit = std_scale_fit(err, stated)
-    info["fix_std"] = {"model": "log std = c0 + c1 log(1 + sigma of the std head) + c2 d1 (signal distance to "
-                                "the training windows), fitted on the validation walks' errors; + cov_floor_m",
+    own = "the place scores' spread" if loc.model == "placenet" else "sigma of the std head"
+    info["fix_std"] = {"model": f"log std = c0 + c1 log(1 + {own}) + c2 d1 (signal distance to the training "
+                                "windows), fitted on the validation walks' errors; + cov_floor_m",
                        "c": list(model.c), "windows": int(len(err)), **coverage(err, stated),
                        "rank_correlation": fit.get("rank_correlation"),
                        "ml_scale": None if "uncalibrated" in fit else scale}
