@@ -228,11 +228,18 @@ def app_contract(meta: dict) -> dict:
         "time": out_time,
     }
     model = meta.get("model") if isinstance(meta.get("model"), dict) else {}
-    if (model.get("locnet") or {}).get("std_head") or model.get("name") == "placenet":
+    if states_std(model):
         output_frame["std_m"] = ("(batch,) float32: the fix's 1-sigma per axis in metres (an isotropic 2-D Gaussian "
                                  "N(xy, std_m^2 I)), the network's own sigma scaled on its validation windows")
     return {"input_units": input_units, "window_recipe": window_recipe, "not_heard": not_heard,
             "lstm_state": lstm_state, "output_frame": output_frame}
+
+
+def states_std(model: dict) -> bool:
+    """Whether the network of a checkpoint's ``model`` node states a std (the graph's ``std_m`` output): a LocNet with
+    its std head or a PlaceNet (its place spread), as :func:`output_names` reads it from the built network."""
+    loc = model.get("locnet") or {}
+    return bool(loc.get("std_head")) or str(loc.get("_target_", "")).endswith("PlaceNet")
 
 
 def fingerprint_contract(meta: dict) -> dict:
@@ -275,8 +282,7 @@ def fingerprint_contract(meta: dict) -> dict:
                          "time": "the time of the window's newest step",
                          **({"std_m": "(batch,) float32: the fix's 1-sigma per axis in metres, scaled on the "
                                       "validation walks"}
-                            if model.get("name") == "placenet" or (model.get("locnet") or {}).get("std_head")
-                            else {})},
+                            if states_std(model) else {})},
     }
 
 

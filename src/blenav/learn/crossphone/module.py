@@ -22,8 +22,8 @@ validation windows (the training windows' errors, which the head learns, are sma
 
 A place classifier (:class:`blenav.models.PlaceNet`, issue 29) in LocNet's seat steps on the cross-entropy of its place
 scores (the term ``place``, logged); ``loss`` stays the positions' objective (L_loc of its softmax-weighted positions),
-so ``val/loss``, the early stopping and the kept weights follow the positions, not the cross-entropy (which rises on
-the validation walks while their positions still improve). Its sigma is the scores' spread, calibrated alike.
+so ``val/loss``, the early stopping and the kept weights follow the positions the rows are scored on, not the
+cross-entropy. Its sigma is the scores' spread, calibrated alike.
 """
 
 from __future__ import annotations

@@ -35,12 +35,16 @@ class ArrayWindows(WindowDataModule):
     """A :class:`WindowDataModule` over given windows: per split (``train``, ``val``) a tuple (S (N, F, H) u
     scale, S_prev (N, F, H) the window one step earlier of the same walk, xy (N, 2) m); ``features``: the F
     feature names (the model's rows, ``beacons`` of the checkpoint meta); ``groups``: the walks of each split;
-    ``window``: the dataclass that describes how the windows were made (stored with the model). ``cfg``: the data
+    ``window``: the dataclass that describes how the windows were made (stored with the model); ``std_scale``: the
+    std scale :meth:`~blenav.learn.crossphone.module.CrossPhoneModule.calibrate` states without validation windows
+    (a refit keeps its first run's). ``cfg``: the data
     node (its ``path`` the walks' dataset, ``batch_size``, ``seed``, ``val_max_windows``); the validation windows
     are capped as the data module caps its own."""
 
-    def __init__(self, cfg: WindowDataConfig, splits: dict, features: list[str], building, groups: dict, window):
+    def __init__(self, cfg: WindowDataConfig, splits: dict, features: list[str], building, groups: dict, window,
+                 std_scale: float | None = None):
         super().__init__(cfg)
+        self.std_scale = std_scale  # the std calibration when there are no validation windows (a refit)
         self.beacons = list(features)
         self.building = building
         self.window = window
@@ -126,8 +130,7 @@ def train_network(S: np.ndarray, P: np.ndarray, xy: np.ndarray, walk_of: np.ndar
               "val": [s for i, s in enumerate(sessions) if i in in_val]}
     if out.exists():
         shutil.rmtree(out)
-    dm = ArrayWindows(data_config(cfg), splits, features, sessions[0].building, groups, window)
-    dm.std_scale = std_scale  # the calibration without validation windows (CrossPhoneModule.calibrate)
+    dm = ArrayWindows(data_config(cfg), splits, features, sessions[0].building, groups, window, std_scale=std_scale)
     _, objs = train(cfg, datamodule=dm)
     module = objs["module"].eval()
     report = {**objs["training"], "val_walks": len(in_val), "run": str(out)}  # window counts: train._window_counts
