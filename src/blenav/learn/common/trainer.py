@@ -172,6 +172,24 @@ class StepBudget(L.Callback):
         self._check(trainer)
 
 
+def logs_this_step(trainer: L.Trainer | None) -> bool:
+    """Whether a training step's ``self.log`` values (on_step, Lightning's default in ``training_step``) reach
+    anything: the loggers get them every ``trainer.log_every_n_steps`` steps and when the fit stops (Lightning drops
+    the others), the progress bar whenever it is shown. A module skips its ``self.log`` calls on the other steps:
+    each costs Lightning about 0.8 ms on this CPU (a tiny model's step is 2 ms), and the logs come out the same.
+    True outside a fit (``trainer`` None). The last step of a :class:`StepBudget` logs; the step before an early
+    stop at a validation check may not (``callback_metrics``' ``train/*`` are then the last logged step's)."""
+    if trainer is None or trainer.progress_bar_callback is not None or trainer.fast_dev_run:
+        return True
+    every = int(trainer.log_every_n_steps)
+    step = int(trainer.global_step) + 1  # this step's number once it is taken (Lightning's should_update_logs)
+    if every <= 0:  # no step values are logged at all
+        return False
+    if step % every == 0 or trainer.should_stop:
+        return True
+    return any(isinstance(c, StepBudget) and 0 < c.max_steps <= step for c in trainer.callbacks)
+
+
 def stop_reason(trainer: L.Trainer, early_stopping: L.Callback | None, budget: StepBudget | None = None) -> str:
     """Why a fit ended: ``early_stopping`` (validation loss did not improve for ``patience`` checks),
     ``max_steps``, ``max_epochs``, ``max_time`` or ``interrupted``."""

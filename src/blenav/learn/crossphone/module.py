@@ -36,6 +36,7 @@ import torch
 from blenav.runtime.calibration import std_scale_fit
 
 from ..common.schedule import lr_factor
+from ..common.trainer import logs_this_step
 from .augment import ReceiverAugment
 from .losses import (gaussian_nll, localization_loss, position_smoothness_loss, ssl_loss, temporal_smoothness_loss,
                      total_loss)
@@ -108,6 +109,8 @@ class CrossPhoneModule(L.LightningModule):
 
     def _log_step(self, batch, stage: str) -> dict[str, torch.Tensor]:
         out = self.model_step(batch)
+        if stage == "train" and not logs_this_step(self._trainer):  # a value no logger would keep
+            return out
         for k, v in out.items():
             self.log(f"{stage}/{k}", v, prog_bar=k in ("loss", "err_m"), batch_size=batch["S"].shape[0],
                      sync_dist=stage != "train")  # epoch metrics averaged over DDP ranks
