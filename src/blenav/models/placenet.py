@@ -38,12 +38,15 @@ def kmeans_anchors(xy: torch.Tensor, places: int, seed: int, iters: int = 25) ->
     pts = torch.unique(xy.double(), dim=0)
     k = max(1, min(int(places), len(pts)))
     g = torch.Generator().manual_seed(int(seed))
-    centres = pts[torch.randint(len(pts), (1,), generator=g)]
-    while len(centres) < k:  # k-means++: the next centre drawn with probability ~ squared distance to the nearest
-        d2 = torch.cdist(pts, centres).min(dim=1).values ** 2
+    chosen = [int(torch.randint(len(pts), (1,), generator=g))]
+    d2 = torch.cdist(pts, pts[chosen]).min(dim=1).values ** 2  # squared distance to the nearest centre, kept running
+    while len(chosen) < k:  # k-means++: the next centre drawn with probability ~ squared distance to the nearest
         if not float(d2.sum()) > 0:
             break
-        centres = torch.cat([centres, pts[torch.multinomial(d2 / d2.sum(), 1, generator=g)]])
+        j = int(torch.multinomial(d2 / d2.sum(), 1, generator=g))
+        chosen.append(j)
+        d2 = torch.minimum(d2, torch.cdist(pts, pts[j:j + 1])[:, 0] ** 2)
+    centres = pts[chosen]
     for _ in range(int(iters)):
         lab = torch.cdist(pts, centres).argmin(dim=1)
         sums = torch.zeros_like(centres).index_add_(0, lab, pts)
