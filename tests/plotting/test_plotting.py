@@ -200,7 +200,10 @@ def test_plot_floor_draws_in_world_coordinates(tiny_dataset):
     assert {t.get_text() for t in ax.texts} >= {"west", "east", "b1", "b2", "b3", "b4", "ap1"}
     assert ax.get_legend() is not None
     # two prior -> true segments
-    segs = [c for c in ax.collections if type(c).__name__ == "LineCollection" and len(c.get_segments()) == 2]
+    segs = [c for c in ax.collections if type(c).__name__ == "LineCollection" and len(c.get_segments()) == 2
+            and c.get_label() != "room"]
+    rooms = [c for c in ax.collections if c.get_label() == "room"]  # every room's outline, one artist
+    assert len(rooms) == 1 and len(rooms[0].get_segments()) == len(list(b.rooms_on(b.floor(0).id)))
     assert segs and np.allclose(segs[0].get_segments()[0], [[1.0, 1.0], [1.5, 1.5]])
 
 
@@ -492,3 +495,21 @@ def test_trajectories_are_small_multiples_with_the_truth_in_every_panel(tiny_dat
     fig = figure_trajectories(s, {f"m{k}": tracks["method 0"] for k in range(23)})
     assert sum(ax.get_visible() for ax in fig.axes) == 20
     assert "3 more method(s) not drawn (at most 20 panels)" in fig._suptitle.get_text()
+
+
+def test_plan_image_is_reduced_by_whole_blocks_keeping_thin_walls(monkeypatch):
+    """A grid wider than MAX_PLAN_PX is drawn reduced by an integer factor, each pixel the darkest of its block: a wall
+    one cell thick survives; free white, unknown light grey, occupied black."""
+    from blenav.data.floor import FREE, OCCUPIED, UNKNOWN
+    from blenav.plotting import floor
+
+    monkeypatch.setattr(floor, "MAX_PLAN_PX", 4)
+    occ = np.full((6, 9), FREE, dtype=np.int8)
+    occ[:, 4] = OCCUPIED  # a wall one cell thick
+    occ[0, 0] = UNKNOWN
+    img = floor.plan_image(occ)
+    assert img.shape == (2, 3, 3) and img.dtype == np.uint8  # factor ceil(9 / 4) = 3
+    assert (img[:, 1] == 0).all()  # the wall's blocks are black
+    assert img[0, 0, 0] == round(255 * floor.UNKNOWN_GREY) and (img[1, 0] == 255).all() and (img[:, 2] == 255).all()
+    small = floor.plan_image(np.full((3, 4), FREE, dtype=np.int8))
+    assert small.shape == (3, 4, 3)  # within the bound: unchanged

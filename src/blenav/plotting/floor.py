@@ -52,6 +52,27 @@ def _lines(g) -> list[LineString]:
     return []
 
 
+#: the floor plan's image is drawn at most this many pixels on its longer side (a finer occupancy grid is reduced
+#: by whole blocks, each the darkest of its cells, so a wall one cell thick stays): a mall floor's 0.1 m grid is
+#: 3,200 cells across, and mapping and resampling it costs about half a second in every panel it is drawn in
+MAX_PLAN_PX = 1600
+
+
+def plan_image(occ: np.ndarray) -> np.ndarray:
+    """The occupancy grid ``occ`` (H, W) as the plan's RGB image (h, w, 3) uint8: free white, unknown light grey,
+    occupied black (:data:`FREE_GREY` ...); reduced by an integer factor to at most :data:`MAX_PLAN_PX` on its
+    longer side, each pixel the darkest of its block."""
+    grey = np.full(occ.shape, UNKNOWN_GREY, dtype=float)
+    grey[occ == FREE] = FREE_GREY
+    grey[occ == OCCUPIED] = OCCUPIED_GREY
+    f = max(1, math.ceil(max(grey.shape) / MAX_PLAN_PX))
+    if f > 1:
+        h, w = -(-grey.shape[0] // f) * f, -(-grey.shape[1] // f) * f
+        padded = np.pad(grey, ((0, h - grey.shape[0]), (0, w - grey.shape[1])), mode="edge")
+        grey = padded.reshape(h // f, f, w // f, f).min(axis=(1, 3))
+    return np.repeat(np.round(grey * 255).astype(np.uint8)[:, :, None], 3, axis=2)
+
+
 #: how a faint floor (``plot_floor(faint=True)``) draws its rooms, routes and anchors: behind the tracks of a panel
 FAINT_ALPHA = 0.35
 
@@ -72,13 +93,8 @@ def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | 
     drawn small and pale, without labels (the background of a panel of tracks).
     """
     fl = building.floor(floor_id)
-    occ = fl.occupancy
-    grey = np.full(occ.shape, UNKNOWN_GREY, dtype=float)
-    grey[occ == FREE] = FREE_GREY
-    grey[occ == OCCUPIED] = OCCUPIED_GREY
     # row 0 of the image is its top (largest y): origin="upper" with the world extent
-    ax.imshow(grey, cmap="gray", vmin=0.0, vmax=1.0, extent=fl.extent, origin="upper",
-              interpolation="nearest", zorder=0)
+    ax.imshow(plan_image(fl.occupancy), extent=fl.extent, origin="upper", interpolation="nearest", zorder=0)
     a = FAINT_ALPHA if faint else 1.0
     if faint:
         anchor_labels = room_labels = False
@@ -86,11 +102,11 @@ def plot_floor(ax: Axes, building: Building, floor_id, *, anchor_labels: bool | 
     rooms = list(building.rooms_on(fl.id))
     if room_labels is None:
         room_labels = len(rooms) <= MAX_LABELLED_ROOMS
-    for k, room in enumerate(rooms):
-        rings = [ring for poly in _polygons(room.geometry) for ring in (poly.exterior, *poly.interiors)]
-        for j, ring in enumerate(rings):
-            x, y = ring.xy
-            ax.plot(x, y, color=ROOM_COLOR, lw=0.8, alpha=0.6 * a, zorder=1, label="room" if k == j == 0 else None)
+    rings = [np.asarray(ring.coords)[:, :2] for room in rooms for poly in _polygons(room.geometry)
+             for ring in (poly.exterior, *poly.interiors)]
+    if rings:  # one collection: a mall's hundreds of outlines as one artist each cost seconds a panel
+        ax.add_collection(LineCollection(rings, colors=ROOM_COLOR, linewidths=0.8, alpha=0.6 * a, zorder=1,
+                                         label="room"))
 
     segments = [np.asarray(line.coords)[:, :2] for r in building.routes_on(fl.id) for line in _lines(r.geometry)]
     if segments:
