@@ -4,6 +4,7 @@ the harness with a train/test split, and a few real walks of ../shared (marker `
 
 from __future__ import annotations
 
+import re
 import tarfile
 
 import numpy as np
@@ -351,3 +352,16 @@ def test_cosine_knn_is_not_drawn_to_short_scan_lists():
     np.testing.assert_allclose(est, [[0.0, 0.0]])
     np.testing.assert_allclose(cov, [np.eye(2)])  # one neighbour: no spread, the floor only
     np.testing.assert_allclose(FP.unit_windows(np.zeros((1, 3, 2))), 0.0)
+
+
+@pytest.mark.parametrize("features, named", [("wifi", "WiFi scans (wifi.csv)"),
+                                             ("both", "both WiFi scans (wifi.csv) and BLE readings (rssi.csv)")])
+def test_a_source_no_train_walk_has_is_named_with_its_file(coded, tmp_path, features, named):
+    """Train walks without WiFi: the fingerprint rows that need it say which readings and which file are missing."""
+    for sid in coded.session_ids:
+        (coded.root / "sessions" / sid / "wifi.csv").unlink()
+    ds = Dataset.open(coded.root)
+    loc = FingerprintLocalizer("KNN-X", features=features)
+    with pytest.raises(MissingStream, match=rf"KNN-X: no train walk has {re.escape(named)} inside its waypoints "
+                                            rf"\(features: {features}\)"):
+        loc.fit([ds.session("mall_F1_walkA"), ds.session("mall_F1_walkB")])

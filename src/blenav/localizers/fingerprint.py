@@ -275,8 +275,12 @@ class FingerprintLocalizer(Localizer, Trained):
         for key, walks in groups.items():
             report["floors"][key] = self._fit_floor(key, walks, inputs)
         if not self.floors:
-            self._unfitted = f"was not fitted: no train walk has {self.cfg.features} readings inside its waypoints"
-            raise MissingStream(f"{self.name}: no train walk has {self.cfg.features} readings inside its waypoints")
+            what = {"wifi": "WiFi scans (wifi.csv)", "ble": "BLE readings (rssi.csv)",
+                    "both": "both WiFi scans (wifi.csv) and BLE readings (rssi.csv)"}.get(self.cfg.features,
+                                                                                        self.cfg.features)
+            why = f"no train walk has {what} inside its waypoints (features: {self.cfg.features})"
+            self._unfitted = f"was not fitted: {why}"
+            raise MissingStream(f"{self.name}: {why}")
         return report
 
     def _fit_floor(self, key: str, walks: list, inputs) -> dict:
