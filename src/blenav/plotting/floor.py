@@ -60,8 +60,10 @@ MAX_PLAN_PX = 1600
 
 def plan_image(occ: np.ndarray) -> np.ndarray:
     """The occupancy grid ``occ`` (H, W) as the plan's RGB image (h, w, 3) uint8: free white, unknown light grey,
-    occupied black (:data:`FREE_GREY` ...); reduced by an integer factor to at most :data:`MAX_PLAN_PX` on its
-    longer side, each pixel the darkest of its block."""
+    occupied black (:data:`FREE_GREY` ...); reduced by an integer factor f to at most :data:`MAX_PLAN_PX` on its
+    longer side, each pixel the darkest of its block. The far edges are padded with their own cells to whole blocks,
+    so the image drawn in the plan's extent is stretched by at most f - 1 cells over the plan: under a pixel of the
+    at most MAX_PLAN_PX drawn."""
     grey = np.full(occ.shape, UNKNOWN_GREY, dtype=float)
     grey[occ == FREE] = FREE_GREY
     grey[occ == OCCUPIED] = OCCUPIED_GREY
