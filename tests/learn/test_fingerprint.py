@@ -178,3 +178,16 @@ def test_a_fingerprint_placenet_exports_with_its_scan_recipe_and_parity(coded, t
     np.testing.assert_allclose(std, ref_std.numpy(), rtol=1e-4)
     assert "WiFi scan" in props["window_recipe"]["step_of_packet"] and "std_m" in props["output_frame"]
     assert props["window_recipe"]["features"] == "wifi"
+
+
+def test_which_networks_state_a_std_is_read_from_their_nodes():
+    """One rule for the export's std_m and the localizer's net_cov check (model_node.states_std): the composed
+    PlaceNet node states one, LocNet only with its std head, whatever name the method gives the model."""
+    from blenav.learn.crossphone.model_node import states_std
+    from blenav.localizers.fingerprint import FingerprintLocalizer
+
+    models = training_node()["models"]
+    assert states_std(models["placenet"]) and not states_std(models["locnet"])
+    assert states_std({"locnet": {**models["locnet"]["locnet"], "std_head": True}})
+    training = {"models": {"locnet": {"locnet": models["placenet"]["locnet"]}}}  # a PlaceNet under another name
+    assert FingerprintLocalizer("x", model="locnet", net_cov="calibrated", training=training).net_cov == "calibrated"

@@ -83,6 +83,7 @@ import numpy as np
 
 from blenav.errors import MissingStream
 from blenav.features import fingerprints as FP
+from blenav.learn.crossphone.model_node import states_std
 
 from . import knn as KNN
 from .base import Estimate, Localizer, RunInputs, Trained
@@ -201,8 +202,9 @@ class FingerprintLocalizer(Localizer, Trained):
         self.max_features = None if max_features is None else int(max_features)
         self.net, self.trainer = dict(net or {}), dict(trainer or {})
         if net_cov in ("predicted", "calibrated") and not self._std_head(model):
-            raise ValueError(f"method {name!r}: net_cov: {net_cov} needs a network with LocNet's std head "
-                             f"(model: locnet or transnet_locnet, net: {{locnet: {{std_head: true}}}})")
+            raise ValueError(f"method {name!r}: net_cov: {net_cov} needs a network that states a std: LocNet's std "
+                             f"head (model: locnet or transnet_locnet, net: {{locnet: {{std_head: true}}}}) or "
+                             f"model: placenet")
         self.val_fraction, self.batch_size, self.seed = float(val_fraction), int(batch_size), int(seed)
         self.refit = bool(refit)
         self.threads, self.plots = threads, bool(plots)
@@ -210,13 +212,12 @@ class FingerprintLocalizer(Localizer, Trained):
         self._unfitted = "was not fitted (no train walks: the experiment needs a split)"  # why run() cannot
 
     def _std_head(self, model: str) -> bool:
-        """Whether the network this method trains has LocNet's std head (its model node with ``net`` over it)."""
+        """Whether the network this method trains states a std (:func:`blenav.learn.crossphone.model_node.states_std`
+        of its model node with ``net`` over it: LocNet's std head, or a PlaceNet)."""
         if model == "knn":
             return False
-        if model == "placenet":  # PlaceNet states a std always (its scores' spread)
-            return True
         node = dict(((self.training or {}).get("models") or {}).get(model, {}).get("locnet") or {})
-        return bool({**node, **dict(self.net.get("locnet") or {})}.get("std_head", False))
+        return states_std({"locnet": {**node, **dict(self.net.get("locnet") or {})}})
 
     @staticmethod
     def _cv_grid(name: str, cv) -> dict | None:

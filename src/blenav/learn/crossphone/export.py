@@ -56,6 +56,7 @@ from torch import nn
 from blenav.onnx_io import STD_OUTPUT, blenav_version, json_props, max_diff, session
 
 from ..common.onnx_export import DEFAULT_OPSET, trace_onnx
+from .model_node import states_std
 
 TOL = 1e-4  # max abs difference between onnxruntime and PyTorch outputs (metres and state units)
 INPUT_NAMES = ("S", "h0", "c0")
@@ -233,13 +234,6 @@ def app_contract(meta: dict) -> dict:
                                  "N(xy, std_m^2 I)), the network's own sigma scaled on its validation windows")
     return {"input_units": input_units, "window_recipe": window_recipe, "not_heard": not_heard,
             "lstm_state": lstm_state, "output_frame": output_frame}
-
-
-def states_std(model: dict) -> bool:
-    """Whether the network of a checkpoint's ``model`` node states a std (the graph's ``std_m`` output): a LocNet with
-    its std head or a PlaceNet (its place spread), as :func:`output_names` reads it from the built network."""
-    loc = model.get("locnet") or {}
-    return bool(loc.get("std_head")) or str(loc.get("_target_", "")).endswith("PlaceNet")
 
 
 def fingerprint_contract(meta: dict) -> dict:
