@@ -176,7 +176,7 @@ def logs_this_step(trainer: L.Trainer | None) -> bool:
     """Whether a training step's ``self.log`` values (on_step, Lightning's default in ``training_step``) reach
     anything: the loggers get them every ``trainer.log_every_n_steps`` steps and when the fit stops (Lightning drops
     the others), the progress bar whenever it is shown. A module skips its ``self.log`` calls on the other steps:
-    each costs Lightning 0.6-0.8 ms on this CPU, where a tiny model's whole step is 2 ms
+    each costs Lightning about 0.6 ms on this CPU, where a tiny model's whole step is 2 ms
     (``benchmarks/lightning_log.py``), and the logs come out the same.
     True outside a fit (``trainer`` None). The last step of a :class:`StepBudget` logs; the step before an early
     stop at a validation check may not (``callback_metrics``' ``train/*`` are then the last logged step's)."""
