@@ -49,6 +49,42 @@ def test_forward_backward_and_viterbi_equal_enumeration(layers):
     assert layer == best_l
 
 
+def _corridor_case(case: str):
+    """(grid, disp, sigma, unary, log_prior) on a 1 x 10 corridor of 1 m cells (steps of at most 1 m) where the walk
+    is forced through states whose transition weights lie 700-1000 nats below the others' (module doc of
+    blenav.crf.smoother: the linear-domain passes' fallback)."""
+    g = grid_from_occupancy(np.full((1, 10), FREE, np.uint8), 1.0, (0.0, 0.0), 1.0, 1.0)
+    cell = np.arange(g.n_cells)
+    K = 4
+    disp, sigma = np.zeros((K - 1, 2)), 0.6
+    unary = [None] * K
+    log_prior = np.zeros(g.n_cells)
+    if case == "prior":  # the walk starts at cell 8, whose every neighbour is 900 nats down in the prior
+        log_prior[6:] = -900.0
+        unary[0] = np.where(cell == 8, 0.0, -1e4)
+    elif case == "odometry":  # at node 1 on cell 4, at node 2 on cell 3: against an odometry step of +30 m
+        disp[1], sigma = (30.0, 0.0), 0.25
+        unary[1] = np.where(cell == 4, 0.0, -1e4)
+        unary[2] = np.where(cell == 3, 0.0, -1e5)
+    else:  # node 1 on cell 0, node 2's fixes 800 nats down everywhere but on cell 9, out of reach
+        unary[1] = np.where(cell == 0, 0.0, -1e4)
+        unary[2] = np.where(cell == 9, 0.0, -800.0)
+    return g, disp, sigma, unary, log_prior
+
+
+@pytest.mark.parametrize("case", ["prior", "odometry", "unary"])
+def test_weights_beyond_the_linear_domain_still_equal_enumeration(case):
+    """The sum-product passes run in the linear domain and take a source in the log domain where its sums underflow:
+    a start whose neighbours are all far down in the prior (forward), an odometry step that makes the only way on
+    ~1000 nats unlikely and fixes that leave only ways 800 nats down (backward). Each equals enumeration."""
+    g, disp, sigma, unary, log_prior = _corridor_case(case)
+    M, _, _ = brute_force(g, disp, sigma, unary, None, log_prior, None)
+    r = forward_backward(g, disp, sigma, unary, None, log_prior, None, prune=0.0)
+    np.testing.assert_allclose(r.smoothed_mean, M @ g.xy, atol=1e-9)
+    np.testing.assert_array_equal(r.smoothed_mode, M.argmax(1))
+    assert np.isfinite(r.log_evidence)
+
+
 def test_filtered_marginal_of_the_last_node_is_the_smoothed_one_and_the_first_uses_only_its_own_fix():
     g, disp, unary = _toy_walk(5, 3)
     r = forward_backward(g, disp, 0.6, unary, prune=0.0)

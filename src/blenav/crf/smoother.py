@@ -21,7 +21,10 @@ statistics; :func:`viterbi` the most probable joint state sequence. Pruning (as 
 normalised forward probability is below ``prune`` is no source at the next node (and gets no backward message), so
 the cost follows the active states, not the floor; ``prune = 0`` is exact.
 
-numba; :func:`brute_force` enumerates every state sequence of a tiny model (the tests' reference).
+numba (:mod:`blenav.crf.smoother_kernels`); the sum-product passes work in the linear domain with the kernel
+factored over the grid's few distinct edge vectors (the comment above its ``_offset_kernel``: no exponential per
+edge; the log domain where a weight is too small for it), the max-product in the log domain. :func:`brute_force`
+enumerates every state sequence of a tiny model (the tests' reference).
 """
 
 from __future__ import annotations
@@ -31,11 +34,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from blenav.limits import check_memory
 
 from .grid import CrfGrid
+from .smoother_kernels import _DEEP, _backward, _cell_marginals, _forward, _forward_sum, _lagged
 
 __all__ = ["Layers", "SmootherResult", "forward_backward", "viterbi", "brute_force", "edge_log_kernel"]
 
@@ -95,202 +98,6 @@ class SmootherResult:
     log_evidence: float
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _lae(a, b):
-    if a == -np.inf:
-        return b
-    if b == -np.inf:
-        return a
-    if a > b:
-        return a + math.log1p(math.exp(b - a))
-    return b + math.log1p(math.exp(a - b))
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _predicted(d, c, s):
-    """The displacement d (2,) under a layer's rotation-scale (c, s) = s_l (cos, sin) theta_l."""
-    return c * d[0] - s * d[1], s * d[0] + c * d[1]
-
-
-@njit(cache=True, nogil=True)
-def _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, out):
-    """Normalised log kernel of the edges leaving cell i into out[:deg]; returns deg."""
-    a, b = src_ptr[i], src_ptr[i + 1]
-    m = -np.inf
-    for e in range(a, b):
-        dx = vx[e] - px
-        dy = vy[e] - py
-        w = -(dx * dx + dy * dy) * inv2s2 + log_prior[dst[e]]
-        out[e - a] = w
-        if w > m:
-            m = w
-    if m == -np.inf:  # every target ruled out by the prior: the cell is no source
-        return b - a
-    s = 0.0
-    for e in range(b - a):
-        s += math.exp(out[e] - m)
-    z = m + math.log(s)
-    for e in range(b - a):
-        out[e] -= z
-    return b - a
-
-
-@njit(cache=True, nogil=True)
-def _forward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, log_init, prune_log, max_mode,
-             alpha, back, w):
-    """alpha (K, L, N) normalised log forward messages (max-product when max_mode; back (K, L, N) int32 the argmax
-    source then); w: scratch of the largest out-degree; returns log evidence (sum-product)."""
-    K, L, N = alpha.shape
-    cur = np.empty((L, N))
-    logev = 0.0
-    # node 0: init + unary, normalised
-    tot = -np.inf
-    for l in range(L):
-        for j in range(N):
-            v = log_init[j] - math.log(L)
-            if has_unary[0]:
-                v += unary[0, j]
-            cur[l, j] = v
-            tot = _lae(tot, v)
-    logev += tot
-    for l in range(L):
-        for j in range(N):
-            cur[l, j] -= tot
-            alpha[0, l, j] = cur[l, j]
-    nxt = np.empty((L, N))
-    for k in range(K - 1):
-        nxt[:] = -np.inf
-        inv2s2 = 0.5 / (sigma[k] * sigma[k])
-        for l in range(L):
-            px, py = _predicted(disp[k], ca[l], sa[l])
-            for i in range(N):
-                a = cur[l, i]
-                if a < prune_log:
-                    continue
-                deg = _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, w)
-                base = src_ptr[i]
-                for e in range(deg):
-                    j = dst[base + e]
-                    v = a + w[e]
-                    if max_mode:
-                        if v > nxt[l, j]:
-                            nxt[l, j] = v
-                            back[k + 1, l, j] = i
-                    else:
-                        nxt[l, j] = _lae(nxt[l, j], v)
-        tot = -np.inf
-        for l in range(L):
-            for j in range(N):
-                if nxt[l, j] > -np.inf and has_unary[k + 1]:
-                    nxt[l, j] += unary[k + 1, j]
-                tot = _lae(tot, nxt[l, j])
-        if tot == -np.inf:  # every active state was ruled out (cannot happen with finite unaries); restart flat
-            for l in range(L):
-                for j in range(N):
-                    nxt[l, j] = log_init[j] - math.log(L) + (unary[k + 1, j] if has_unary[k + 1] else 0.0)
-                    tot = _lae(tot, nxt[l, j])
-        logev += tot
-        for l in range(L):
-            for j in range(N):
-                nxt[l, j] -= tot
-                alpha[k + 1, l, j] = nxt[l, j]
-        cur, nxt = nxt, cur
-    return logev
-
-
-@njit(cache=True, nogil=True)
-def _back_step(k, beta, prev, src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha,
-               prune_log, w):
-    """prev (L, N) <- the backward message of node k from beta (L, N) of node k + 1: for every cell-layer active in
-    the forward pass at k, logsumexp over its edges of kernel + node k + 1's unary + beta; -inf elsewhere."""
-    L, N = beta.shape
-    prev[:] = -np.inf
-    inv2s2 = 0.5 / (sigma[k] * sigma[k])
-    for l in range(L):
-        px, py = _predicted(disp[k], ca[l], sa[l])
-        for i in range(N):
-            if alpha[k, l, i] < prune_log:
-                continue
-            deg = _source_logw(i, src_ptr, dst, vx, vy, px, py, inv2s2, log_prior, w)
-            base = src_ptr[i]
-            acc = -np.inf
-            for e in range(deg):
-                j = dst[base + e]
-                b = beta[l, j]
-                if b == -np.inf:
-                    continue
-                acc = _lae(acc, w[e] + b + (unary[k + 1, j] if has_unary[k + 1] else 0.0))
-            prev[l, i] = acc
-
-
-@njit(cache=True, nogil=True)
-def _backward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha, prune_log, post, w):
-    """post (K, L, N) <- normalised log smoothed marginals log p(x_k, l | all observations); w: scratch."""
-    K, L, N = alpha.shape
-    beta = np.zeros((L, N))  # node K-1
-    for l in range(L):
-        for j in range(N):
-            post[K - 1, l, j] = alpha[K - 1, l, j]
-    prev = np.empty((L, N))
-    for k in range(K - 2, -1, -1):
-        _back_step(k, beta, prev, src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha,
-                   prune_log, w)
-        # normalise the smoothed marginal alpha + beta of node k; keep beta scaled to avoid underflow
-        tot = -np.inf
-        m = -np.inf
-        for l in range(L):
-            for i in range(N):
-                if prev[l, i] > m:
-                    m = prev[l, i]
-                tot = _lae(tot, alpha[k, l, i] + prev[l, i])
-        if tot == -np.inf:  # pruning cut every path to the future: this node keeps its filtered marginal (restart)
-            for l in range(L):
-                for i in range(N):
-                    post[k, l, i] = alpha[k, l, i]
-                    beta[l, i] = 0.0
-            continue
-        for l in range(L):
-            for i in range(N):
-                post[k, l, i] = alpha[k, l, i] + prev[l, i] - tot
-                beta[l, i] = prev[l, i] - m
-    return 0
-
-
-@njit(cache=True, nogil=True)
-def _lagged(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha, prune_log, lag, out, w):
-    """out (K, L, N) <- normalised log p(x_k, l | observations of nodes 0 .. min(k + lag, K - 1)): the fixed-lag
-    smoother, a backward recursion of ``lag`` steps from each node (the filtered marginal where it cuts every path)."""
-    K, L, N = alpha.shape
-    beta = np.empty((L, N))
-    prev = np.empty((L, N))
-    for k in range(K):
-        end = min(k + lag, K - 1)
-        beta[:] = 0.0
-        ok = True
-        for j in range(end - 1, k - 1, -1):
-            _back_step(j, beta, prev, src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, alpha,
-                       prune_log, w)
-            m = -np.inf
-            for l in range(L):
-                for i in range(N):
-                    if prev[l, i] > m:
-                        m = prev[l, i]
-            if m == -np.inf:
-                ok = False
-                break
-            for l in range(L):
-                for i in range(N):
-                    beta[l, i] = prev[l, i] - m
-        tot = -np.inf
-        if ok:
-            for l in range(L):
-                for i in range(N):
-                    tot = _lae(tot, alpha[k, l, i] + beta[l, i])
-        for l in range(L):
-            for i in range(N):
-                out[k, l, i] = alpha[k, l, i] + beta[l, i] - tot if tot > -np.inf else alpha[k, l, i]
-    return 0
-
 
 def edge_log_kernel(grid: CrfGrid, disp: np.ndarray, sigma: float, log_prior: np.ndarray | None = None) -> np.ndarray:
     """(E,) normalised log transition weights of every edge for one displacement ``disp`` (2,) m (layer 0, no
@@ -307,8 +114,26 @@ def edge_log_kernel(grid: CrfGrid, disp: np.ndarray, sigma: float, log_prior: np
 
 
 def _edge_vectors(grid: CrfGrid) -> tuple[np.ndarray, np.ndarray]:
-    d = grid.xy[grid.dst] - grid.xy[np.repeat(np.arange(grid.n_cells), np.diff(grid.src_ptr))]
-    return np.ascontiguousarray(d[:, 0]), np.ascontiguousarray(d[:, 1])
+    """(vx, vy) (E,) m: every edge's vector (its target's centre minus its source's)."""
+    return _edge_geometry(grid)[:2]
+
+
+def _edge_geometry(grid: CrfGrid) -> tuple[np.ndarray, ...]:
+    """(vx (E,), vy (E,), eoff (E,) int32, ovx (D,), ovy (D,)): the edge vectors, and each edge's index among the
+    grid's distinct edge vectors (ovx, ovy; a whole number of cells each way, so D is the neighbourhood's size),
+    computed once per grid (kept on it: a grid's edges are not changed after it is built)."""
+    geo = getattr(grid, "_edge_geometry_cache", None)
+    if geo is None:
+        d = grid.xy[grid.dst] - grid.xy[np.repeat(np.arange(grid.n_cells), np.diff(grid.src_ptr))]
+        cells = np.rint(d / grid.cell_m).astype(np.int64)
+        r = int(np.abs(cells).max(initial=0))
+        key = (cells[:, 0] + r) * (2 * r + 1) + (cells[:, 1] + r)
+        uniq, eoff = np.unique(key, return_inverse=True)
+        ov = np.column_stack([uniq // (2 * r + 1) - r, uniq % (2 * r + 1) - r]) * grid.cell_m
+        geo = (np.ascontiguousarray(d[:, 0]), np.ascontiguousarray(d[:, 1]), eoff.astype(np.int32).ravel(),
+               np.ascontiguousarray(ov[:, 0], float), np.ascontiguousarray(ov[:, 1], float))
+        grid._edge_geometry_cache = geo
+    return geo
 
 
 def _prepare(grid, disp, sigma, unary, log_init, log_prior, layers):
@@ -340,6 +165,17 @@ def _prepare(grid, disp, sigma, unary, log_init, log_prior, layers):
     ca, sa = layers.arrays()
     vx, vy = _edge_vectors(grid)
     return K, N, disp, sigma, has, U, li, lp, ca, sa, vx, vy
+
+
+def _linear_kernel(grid, lp):
+    """(eoff, ovx, ovy, elp, elp_under) of the linear-domain passes: the edges' offsets (:func:`_edge_geometry`), the
+    targets' prior weights exp(log_prior - its max) (N,), and whether one of them, finite in the log domain, is below
+    exp(-_DEEP) (the passes are then in the log domain)."""
+    _, _, eoff, ovx, ovy = _edge_geometry(grid)
+    top = lp.max(initial=-np.inf)
+    elp = np.exp(lp - top) if np.isfinite(top) else np.zeros_like(lp)
+    under = bool(np.any(np.isfinite(lp) & (lp < top - _DEEP)))  # a finite prior weight below exp(-_DEEP)
+    return eoff, ovx, ovy, elp, under
 
 
 def _prune_log(prune: float) -> float:
@@ -380,19 +216,21 @@ def forward_backward(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_in
         raise ValueError(f"smoother: lag must be >= 0 nodes, got {lag}")
     alpha = np.empty((K, L, N), np.float64)
     w = np.empty(int(np.diff(grid.src_ptr).max()))
-    logev = _forward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, li, pl, False, alpha,
-                     np.empty((1, 1, 1), np.int32), w)
+    eoff, ovx, ovy, elp, elp_under = _linear_kernel(grid, lp)
+    logev = _forward_sum(grid.src_ptr, grid.dst, eoff, ovx, ovy, vx, vy, disp, sigma, ca, sa, lp, elp, elp_under, U,
+                         has, li, pl, alpha, w)
     post = np.empty((K, L, N), np.float64)
-    _backward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, alpha, pl, post, w)
+    _backward(grid.src_ptr, grid.dst, eoff, ovx, ovy, vx, vy, disp, sigma, ca, sa, lp, elp, elp_under, U, has, alpha,
+              pl, post, w)
     if int(lag) > 0:
         lagged = np.empty((K, L, N), np.float64)
-        _lagged(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, alpha, pl, int(lag), lagged, w)
-        Pf = np.exp(lagged).sum(axis=1)
+        _lagged(grid.src_ptr, grid.dst, eoff, ovx, ovy, vx, vy, disp, sigma, ca, sa, lp, elp, elp_under, U, has, alpha,
+                pl, int(lag), lagged, w)
+        Pf = _cell_marginals(lagged)
     else:
-        Pf = np.exp(alpha).sum(axis=1)
-    Ps = np.exp(post).sum(axis=1)
-    fm, fc, fo = _stats(Pf / Pf.sum(1, keepdims=True), grid.xy)
-    sm, sc, so = _stats(Ps / Ps.sum(1, keepdims=True), grid.xy)
+        Pf = _cell_marginals(alpha)
+    fm, fc, fo = _stats(Pf, grid.xy)
+    sm, sc, so = _stats(_cell_marginals(post), grid.xy)
     lay = np.exp(post[K - 1]).sum(axis=1)
     return SmootherResult(fm, fc, fo, sm, sc, so, lay / lay.sum(), float(logev))
 
@@ -439,7 +277,7 @@ def brute_force(grid: CrfGrid, disp, sigma, unary: list, log_init=None, log_prio
                     logw[(k, l, i, int(grid.dst[e]))] = e_lw[e] - z
     M = np.zeros((K, N))
     best, best_path, best_l = -np.inf, None, 0
-    tot = -np.inf
+    paths = []  # (log weight, sequence) of every possible path; normalised by their logsumexp (weights far below 1)
     for l in range(L):
         for seq in itertools.product(range(N), repeat=K):
             v = li[seq[0]] - math.log(L) + U[0, seq[0]]
@@ -451,9 +289,11 @@ def brute_force(grid: CrfGrid, disp, sigma, unary: list, log_init=None, log_prio
                 v += logw[key] + U[k + 1, seq[k + 1]]
             if v == -np.inf:
                 continue
-            tot = np.logaddexp(tot, v)
-            for k in range(K):
-                M[k, seq[k]] += math.exp(v)
+            paths.append((v, seq))
             if v > best:
                 best, best_path, best_l = v, np.array(seq), l
-    return M / math.exp(tot), best_path, best_l
+    tot = np.logaddexp.reduce([v for v, _ in paths])
+    for v, seq in paths:
+        for k in range(K):
+            M[k, seq[k]] += math.exp(v - tot)
+    return M, best_path, best_l
