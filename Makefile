@@ -532,7 +532,7 @@ inertial-tables: $(STAMP)
 # Issue 27: twelve experiments, shrunk (5 min), rerun and compared bit for bit with the reference snapshot (exit 1 on
 # a difference); what it covers and how to refresh the reference: tools/regression_snapshot.py
 regression-check: $(STAMP)
-	$(BIN)/python tools/regression_snapshot.py check --work data/regression --ref tests/regression/snapshot_174bfb0.json
+	$(BIN)/python tools/regression_snapshot.py check --work data/regression --ref tests/regression/snapshot_20d9ec8.json
 
 clean-demo:
 	rm -rf $(DEMO)
