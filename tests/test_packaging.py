@@ -61,8 +61,10 @@ def venv_with(root: Path, spec: str, timeout: float) -> Path:
     r = run([sys.executable, "-m", "venv", str(root)], cwd=root.parent, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     pip = root / "bin" / "pip"
-    r = run([str(pip), "install", "-q", "--disable-pip-version-check", spec], cwd=root.parent, timeout=timeout,
-            env=clean_env())
+    # --no-compile: no byte-compiling of every installed file (numpy, scipy, pandas: tens of seconds); the modules the
+    # commands import are compiled when first imported, as from any install
+    r = run([str(pip), "install", "-q", "--disable-pip-version-check", "--no-compile", spec], cwd=root.parent,
+            timeout=timeout, env=clean_env())
     if r.returncode != 0 and any(e in r.stderr for e in NET_ERRORS):
         pytest.skip(f"the package registry cannot be reached from here, so no fresh environment can be installed: "
                     f"{r.stderr.strip().splitlines()[-1][:200]}")
