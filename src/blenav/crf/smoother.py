@@ -38,12 +38,9 @@ import numpy as np
 from blenav.limits import check_memory
 
 from .grid import CrfGrid
-from .smoother_kernels import _DEEP, _backward, _cell_marginals, _forward, _forward_sum, _lagged
+from .smoother_kernels import _DEEP, _backward, _cell_marginals, _forward_max, _forward_sum, _lagged
 
 __all__ = ["Layers", "SmootherResult", "forward_backward", "viterbi", "brute_force", "edge_log_kernel"]
-
-_NEG = -np.inf
-
 
 @dataclass(frozen=True)
 class Layers:
@@ -246,8 +243,8 @@ def viterbi(grid: CrfGrid, disp: np.ndarray, sigma, unary: list, log_init: np.nd
     pl = _prune_log(prune)
     delta = np.empty((K, L, N), np.float64)
     back = np.full((K, L, N), -1, np.int32)
-    _forward(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, li, pl, True, delta, back,
-             np.empty(int(np.diff(grid.src_ptr).max())))
+    _forward_max(grid.src_ptr, grid.dst, vx, vy, disp, sigma, ca, sa, lp, U, has, li, pl, delta, back,
+                 np.empty(int(np.diff(grid.src_ptr).max())))
     l, j = np.unravel_index(int(np.argmax(delta[K - 1])), (L, N))
     path = np.empty(K, np.int64)
     path[K - 1] = j

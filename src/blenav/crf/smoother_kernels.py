@@ -87,10 +87,11 @@ def _close_node(k, tot, nxt, log_init, unary, has_unary, alpha):
 
 
 @njit(cache=True, nogil=True)
-def _forward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, log_init, prune_log, max_mode,
-             alpha, back, w):
-    """alpha (K, L, N) normalised log forward messages (max-product when max_mode; back (K, L, N) int32 the argmax
-    source then); w: scratch of the largest out-degree; returns log evidence (sum-product)."""
+def _forward_max(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_unary, log_init, prune_log, alpha,
+                 back, w):
+    """alpha (K, L, N) normalised log max-product forward messages (Viterbi's; the sum-product is
+    :func:`_forward_sum`), back (K, L, N) int32 the argmax source; w: scratch of the largest out-degree; returns the
+    log mass of the normalisations."""
     K, L, N = alpha.shape
     cur = np.empty((L, N))
     logev = _first_node(log_init, unary, has_unary, alpha, cur)
@@ -109,12 +110,9 @@ def _forward(src_ptr, dst, vx, vy, disp, sigma, ca, sa, log_prior, unary, has_un
                 for e in range(deg):
                     j = dst[base + e]
                     v = a + w[e]
-                    if max_mode:
-                        if v > nxt[l, j]:
-                            nxt[l, j] = v
-                            back[k + 1, l, j] = i
-                    else:
-                        nxt[l, j] = _lae(nxt[l, j], v)
+                    if v > nxt[l, j]:
+                        nxt[l, j] = v
+                        back[k + 1, l, j] = i
         tot = -np.inf
         for l in range(L):
             for j in range(N):
@@ -164,9 +162,9 @@ def _offset_kernel(ovx, ovy, px, py, inv2s2, kd):
 @njit(cache=True, nogil=True)
 def _forward_sum(src_ptr, dst, eoff, ovx, ovy, vx, vy, disp, sigma, ca, sa, log_prior, elp, elp_under, unary, has_unary,
                  log_init, prune_log, alpha, w):
-    """The sum-product :func:`_forward` (same arguments and result) in the linear domain (the comment above): eoff (E,)
-    each edge's offset index into ovx, ovy (D,); elp (N,) exp(log_prior - its max); elp_under: a finite log_prior
-    more than _DEEP below its max (every node then in the log domain)."""
+    """alpha (K, L, N) normalised log sum-product forward messages, in the linear domain (the comment above); returns
+    the log evidence. eoff (E,) each edge's offset index into ovx, ovy (D,); elp (N,) exp(log_prior - its max);
+    elp_under: a finite log_prior more than _DEEP below its max (every node then in the log domain); w: scratch."""
     K, L, N = alpha.shape
     cur = np.empty((L, N))
     logev = _first_node(log_init, unary, has_unary, alpha, cur)
@@ -184,7 +182,7 @@ def _forward_sum(src_ptr, dst, eoff, ovx, ovy, vx, vy, disp, sigma, ca, sa, log_
                     break
                 a = cur[l, i]
                 logrow[l] = a > -np.inf and a >= prune_log and a < -_DEEP
-            if logrow[l]:  # a weight may underflow: this layer's step in the log domain (the max-free _forward)
+            if logrow[l]:  # a weight may underflow: this layer's step in the log domain
                 acc[l] = -np.inf
                 for i in range(N):
                     a = cur[l, i]
